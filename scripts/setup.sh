@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Create .venv and install FuseFlow into it: `bash scripts/setup.sh` (runtime) or
+# `bash scripts/setup.sh test` (with the test extras). Installs the one Debian package Open3D
+# needs to import (libusb-1.0-0) when it is missing and we may install packages.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+extras="${1:-}"
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    echo "installing libusb-1.0-0 (needed by open3d)" >&2
+    $SUDO apt-get update -qq >/dev/null && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
+python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+if [ -n "$extras" ]; then
+    .venv/bin/python -m pip install -q -e ".[$extras]"
+else
+    .venv/bin/python -m pip install -q -e .
+fi

@@ -1,0 +1,19 @@
+"""FuseFlow's command line. ``fuseflow --help`` lists the commands; each module adds one."""
+
+from __future__ import annotations
+
+from fuseflow.cli import convert, info  # noqa: F401  (registers the commands)
+from fuseflow.cli.app import app, err_console
+from fuseflow.errors import FuseFlowError
+
+
+def main() -> None:
+    """Entry point: run the app, turning FuseFlowError into a one-line message and exit code 2."""
+    try:
+        app()
+    except FuseFlowError as exc:
+        err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        raise SystemExit(2) from None
+
+
+__all__ = ["app", "main"]

@@ -1,0 +1,45 @@
+"""The typer application. Command modules register themselves on ``app``; this is the only
+layer that prints or exits (library code raises FuseFlowError instead)."""
+
+from __future__ import annotations
+
+import typer
+from rich.console import Console
+
+app = typer.Typer(
+    name="fuseflow",
+    help="FuseFlow: target-free calibration (GMAC) and stateless fusion (FUSE) for multi-camera RGB-D rigs.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def fail(message: str, code: int = 2) -> None:
+    """Print a one-line error and exit (CLI only)."""
+    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def parse_range(spec: str | None, n: int) -> range:
+    """'A:B' (python-style, either side optional) -> range within [0, n)."""
+    if spec is None:
+        return range(n)
+    try:
+        a, _, b = spec.partition(":")
+        start = int(a) if a else 0
+        stop = int(b) if b else n
+    except ValueError:
+        fail(f"--frames expects A:B (e.g. 0:100), got {spec!r}")
+    return range(n)[start:stop]
+
+
+def parse_int_list(spec: str, option: str) -> list[int]:
+    try:
+        return [int(x) for x in spec.replace(" ", "").split(",") if x]
+    except ValueError:
+        fail(f"{option} expects comma-separated integers, got {spec!r}")
+        raise  # unreachable

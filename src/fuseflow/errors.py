@@ -1,0 +1,26 @@
+"""Exceptions raised at FuseFlow's public boundary.
+
+Every error a user can trigger with bad input is one of these, with a message that names the
+file, field or camera at fault and says what was expected and what came. Library code never
+calls ``sys.exit``; the CLI turns these into one-line messages and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError"]
+
+
+class FuseFlowError(Exception):
+    """Base class of every error FuseFlow raises on purpose."""
+
+
+class ValidationError(FuseFlowError, ValueError):
+    """An argument has the wrong shape, dtype, range or structure (e.g. a non-rigid extrinsic)."""
+
+
+class RecordingError(FuseFlowError, OSError):
+    """A recording or dataset directory is missing, incomplete or has an unreadable file."""
+
+
+class FormatError(FuseFlowError, ValueError):
+    """A file exists but its content does not follow the format it claims (JSON schema, PLY)."""

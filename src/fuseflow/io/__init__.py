@@ -1,0 +1,22 @@
+"""File formats and dataset readers. Knows formats, no algorithms (DESIGN.md section 5)."""
+
+from fuseflow.io.calibration import read_calibration, write_calibration
+from fuseflow.io.datasets import SequenceRecording, make_virtual_rig, open_recording, read_rgbd_pair
+from fuseflow.io.ply import read_ply, write_ply
+from fuseflow.io.recording import FuseFlowRecording, Recording, read_rig, write_frame, write_rig
+
+__all__ = [
+    "FuseFlowRecording",
+    "Recording",
+    "SequenceRecording",
+    "make_virtual_rig",
+    "open_recording",
+    "read_calibration",
+    "read_ply",
+    "read_rgbd_pair",
+    "read_rig",
+    "write_calibration",
+    "write_frame",
+    "write_ply",
+    "write_rig",
+]
