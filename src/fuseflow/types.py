@@ -433,10 +433,10 @@ class FusedCloud:
     @staticmethod
     def from_numpy(xyz: np.ndarray, rgb: np.ndarray, weight: np.ndarray, camera: np.ndarray) -> FusedCloud:
         return FusedCloud(
-            torch.from_numpy(np.ascontiguousarray(xyz, dtype=np.float32)),
-            torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.uint8)),
-            torch.from_numpy(np.ascontiguousarray(weight, dtype=np.float32)),
-            torch.from_numpy(np.ascontiguousarray(camera, dtype=np.int16)),
+            torch.from_numpy(np.array(xyz, dtype=np.float32, order="C", copy=True)),
+            torch.from_numpy(np.array(rgb, dtype=np.uint8, order="C", copy=True)),
+            torch.from_numpy(np.array(weight, dtype=np.float32, order="C", copy=True)),
+            torch.from_numpy(np.array(camera, dtype=np.int16, order="C", copy=True)),
         )
 
 

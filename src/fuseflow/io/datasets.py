@@ -274,9 +274,7 @@ class SequenceRecording(Recording):
             g = _nearest(gt_stamps, ts, max_dt)
             if gt_poses and g is None:
                 continue  # TUM's evaluation uses only frames with a pose
-            items.append(
-                _SeqItem(path / rgb[j][1][0], path / vals[0], ts, None if g is None else gt_poses[g])
-            )
+            items.append(_SeqItem(path / rgb[j][1][0], path / vals[0], ts, None if g is None else gt_poses[g]))
         if not items:
             raise RecordingError(f"{path}: no depth frame has a colour frame within {max_dt} s")
         K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
@@ -322,7 +320,9 @@ def read_rgbd_pair(color_path: str | Path, depth_path: str | Path, fmt: str) -> 
     else:
         raise ValidationError(f"unknown RGB-D format {fmt!r}; expected tum, redwood, icl, sun or nyu")
     if rgb.shape[:2] != depth.shape:
-        raise ValidationError(f"{color_path} is {rgb.shape[1]}x{rgb.shape[0]} but {depth_path} is {depth.shape[1]}x{depth.shape[0]}")
+        raise ValidationError(
+            f"{color_path} is {rgb.shape[1]}x{rgb.shape[0]} but {depth_path} is {depth.shape[1]}x{depth.shape[0]}"
+        )
     return rgb, depth
 
 

@@ -8,8 +8,10 @@ Depth encodings (each reader states its units):
 * ``uint16`` PNG with a depth scale in stored units per metre (1000 for ICL-NUIM / Redwood /
   RealSense / Azure Kinect millimetres, 5000 for TUM RGB-D).
 * SUN RGB-D: uint16 whose 16 bits are rotated right by 3; metres = rot(d) / 1000.
-* NYU Depth v2 raw: big-endian 16-bit Kinect disparity in a PGM; metres = 351.3 / (1092.5 - d)
-  (the NYU toolbox's ``depth_rel2depth_abs``), with d = 0 or d >= 2047 meaning no measurement.
+* NYU Depth v2 raw: 16-bit Kinect disparity in a PGM whose bytes are actually little-endian
+  although PGM says big-endian, so the NYU toolbox reads the PGM and then ``swapbytes``
+  (Open3D's ``CreateFromNYUFormat`` does the same). metres = 351.3 / (1092.5 - d) (the toolbox's
+  ``depth_rel2depth_abs``), with d = 0 or d >= 2047 meaning no measurement.
 """
 
 from __future__ import annotations
@@ -36,6 +38,9 @@ __all__ = [
 def _cv2():
     import cv2
 
+    # Decoding failures are reported as FuseFlow errors naming the file; OpenCV's own
+    # warnings on stderr would only duplicate them.
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     return cv2
 
 
@@ -172,8 +177,12 @@ def read_pgm16(path: str | Path) -> np.ndarray:
 
 
 def decode_nyu_disparity(raw: np.ndarray) -> np.ndarray:
-    """NYU Depth v2 raw Kinect disparity -> float32 metres (0 where d = 0 or d >= 2047)."""
-    d = raw.astype(np.float64)
+    """NYU Depth v2 raw PGM values (as read per the PGM spec) -> float32 metres.
+
+    Applies the toolbox's byte swap first, then metres = 351.3 / (1092.5 - d); 0 where d = 0
+    or d >= 2047 (the Kinect's "no disparity" code).
+    """
+    d = raw.astype(np.uint16).byteswap().astype(np.float64)
     valid = (d > 0) & (d < 2047)
     out = np.zeros(d.shape, dtype=np.float64)
     out[valid] = 351.3 / (1092.5 - d[valid])

@@ -1,0 +1,5 @@
+"""`python -m fuseflow` runs the CLI."""
+
+from fuseflow.cli import main
+
+main()
