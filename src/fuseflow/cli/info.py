@@ -62,13 +62,18 @@ def info(
         f"[bold]{s['path']}[/] ({s['layout']}): {s['frames']} frames, {s['cameras']} cameras, {w}x{h}, "
         + ("calibrated" if s["calibrated"] else "[yellow]not calibrated[/]")
     )
-    t = Table("camera", "size", "fx", "fy", "cx", "cy", "depth scale", "range (m)", "extrinsics", "missing")
+    t = Table("camera", "size", "fx, fy", "cx, cy", "depth/m", "range m", "calib", "missing", box=None)
     for c in s["camera_list"]:
         t.add_row(
-            c["id"], f"{c['width']}x{c['height']}", f"{c['fx']:.1f}", f"{c['fy']:.1f}", f"{c['cx']:.1f}",
-            f"{c['cy']:.1f}", f"{c['depth_scale']:g}", f"{c['depth_range'][0]:g}-{c['depth_range'][1]:g}",
-            "yes" if c["calibrated"] else "no", str(c["missing_views"]),
-        )  # fmt: skip
+            c["id"],
+            f"{c['width']}x{c['height']}",
+            f"{c['fx']:.1f}, {c['fy']:.1f}",
+            f"{c['cx']:.1f}, {c['cy']:.1f}",
+            f"{c['depth_scale']:g}",
+            f"{c['depth_range'][0]:g}-{c['depth_range'][1]:g}",
+            "yes" if c["calibrated"] else "no",
+            str(c["missing_views"]),
+        )
     console.print(t)
     if "poses" in s:
         console.print("single moving camera; trajectory poses: " + ("yes" if s["poses"] else "no"))
