@@ -1,0 +1,14 @@
+"""GMAC: target-free metric extrinsic calibration from one multi-view RGB-D frame (paper III-B).
+
+``calibrate(frame, rig, config=CalibConfig()) -> Calibration``. See design.md in this folder for
+the stages and where they depart from the paper (DESIGN.md section 3). Never imports
+``fuseflow.fuse`` or ``fuseflow.eval``; pycolmap and Open3D are imported inside the stages that
+use them.
+"""
+
+from fuseflow.calib.api import calibrate, metric_scale
+from fuseflow.calib.backbones import BackboneResult, get_backbone
+from fuseflow.calib.config import PRESETS, CalibConfig
+from fuseflow.calib.errors import CalibrationError
+
+__all__ = ["BackboneResult", "CalibConfig", "CalibrationError", "PRESETS", "calibrate", "get_backbone", "metric_scale"]

@@ -1,0 +1,117 @@
+"""Backbones: scale-ambiguous camera poses (paper eq. 3) from one multi-view RGB(-D) frame.
+
+A backbone is a callable ``backbone(frame, rig, config) -> BackboneResult``. Implementations:
+
+* ``colmap`` (default): pycolmap SIFT + exhaustive matching + incremental mapping with the rig's
+  fixed intrinsics; for N = 2 (which COLMAP's mappers refuse) the two-view relative pose stored
+  in the matching database. Offline, CPU, no weights.
+* ``precomputed``: an ``.npz`` exported by VGGT / MapAnything / VGGSfM run elsewhere
+  (layout in :mod:`fuseflow.calib.backbones.precomputed`, exporter ``scripts/export_backbone.py``).
+* ``vggt``, ``mapanything``: run those packages from a local checkpoint when installed.
+
+Whatever the backbone, its translation scale is treated as unknown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fuseflow.calib.errors import CalibrationError
+
+__all__ = ["BackboneResult", "get_backbone", "BACKBONES"]
+
+
+@dataclass(frozen=True)
+class BackboneResult:
+    """Output of a backbone for an N-camera frame (rig order).
+
+    Attributes:
+        T_cam_world: (N, 4, 4) float64 camera-from-world poses in backbone units (arbitrary
+            scale); rows of unregistered cameras are the identity and must be ignored.
+        registered: (N,) bool, cameras the backbone placed.
+        features: (N, D) float64 per-camera features F_i for eq. (8), or None.
+        overlap: (N, N) float64 in [0, 1] pairwise overlap, or None (then RC measures it).
+        matches: {(i, j), i < j: (uv_i (K, 2), uv_j (K, 2)) float64 pixels} verified keypoint
+            matches, or None.
+        points: {i: (uv (M, 2) pixels, z (M,) backbone-unit depth in camera i)} the backbone's
+            own depth at some pixels (for the naive median-depth-ratio baseline), or None.
+        name: backbone name. info: timings, counts, notes (JSON-serialisable).
+    """
+
+    T_cam_world: np.ndarray
+    registered: np.ndarray
+    features: np.ndarray | None = None
+    overlap: np.ndarray | None = None
+    matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None
+    points: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
+    name: str = ""
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        T = np.asarray(self.T_cam_world, dtype=np.float64)
+        if T.ndim != 3 or T.shape[1:] != (4, 4):
+            raise CalibrationError(f"backbone {self.name!r}: poses must be (N, 4, 4), got {T.shape}")
+        reg = np.asarray(self.registered, dtype=bool)
+        if reg.shape != (T.shape[0],):
+            raise CalibrationError(f"backbone {self.name!r}: registered must be ({T.shape[0]},), got {reg.shape}")
+        if not np.all(np.isfinite(T[reg])):
+            raise CalibrationError(f"backbone {self.name!r}: non-finite poses for registered cameras")
+        object.__setattr__(self, "T_cam_world", T)
+        object.__setattr__(self, "registered", reg)
+        n = T.shape[0]
+        if self.features is not None:
+            F = np.asarray(self.features, dtype=np.float64)
+            if F.ndim != 2 or F.shape[0] != n:
+                raise CalibrationError(f"backbone {self.name!r}: features must be (N={n}, D), got {F.shape}")
+            object.__setattr__(self, "features", F)
+        if self.overlap is not None:
+            ov = np.asarray(self.overlap, dtype=np.float64)
+            if ov.shape != (n, n):
+                raise CalibrationError(f"backbone {self.name!r}: overlap must be ({n}, {n}), got {ov.shape}")
+            object.__setattr__(self, "overlap", np.clip(ov, 0.0, 1.0))
+
+
+def _colmap(frame, rig, config):
+    from fuseflow.calib.backbones.colmap import colmap_backbone
+
+    return colmap_backbone(frame, rig, config)
+
+
+def _precomputed(frame, rig, config):
+    from fuseflow.calib.backbones.precomputed import load_precomputed
+
+    if not config.backbone_path:
+        raise CalibrationError("backbone 'precomputed' needs backbone_path (the exported .npz)")
+    return load_precomputed(config.backbone_path, rig)
+
+
+def _vggt(frame, rig, config):
+    from fuseflow.calib.backbones.neural import vggt_backbone
+
+    return vggt_backbone(frame, rig, config)
+
+
+def _mapanything(frame, rig, config):
+    from fuseflow.calib.backbones.neural import mapanything_backbone
+
+    return mapanything_backbone(frame, rig, config)
+
+
+BACKBONES: dict[str, Callable] = {
+    "colmap": _colmap,
+    "precomputed": _precomputed,
+    "vggt": _vggt,
+    "mapanything": _mapanything,
+}
+
+
+def get_backbone(name: str) -> Callable:
+    """The backbone callable registered under ``name``."""
+    try:
+        return BACKBONES[name]
+    except KeyError:
+        raise CalibrationError(f"unknown backbone {name!r}; available: {sorted(BACKBONES)}") from None

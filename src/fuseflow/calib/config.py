@@ -1,0 +1,164 @@
+"""GMAC configuration: one frozen dataclass, named presets and the paper's ablation switches.
+
+Presets (``CalibConfig.preset(name)``):
+
+* ``"default"``: full-3D closed form, RC with backbone keypoint matches, cycle pruning, no
+  refinement (call with ``refine=True`` or the ``"refined"`` preset to add ICP + pose graph).
+* ``"paper"``: paper reproduction (section III-B as corrected by DESIGN.md section 3): the
+  corrected z-only closed form of eq. (12), projective RC only, CC, no refinement.
+* ``"refined"``: ``"default"`` plus the point-to-plane ICP / pose-graph stage.
+* Ablations of the paper's Table III: ``"wo_rc"`` (uniform random correspondences, no depth
+  gating and no overlap/validity weights), ``"wo_cc"`` (no cycle pruning), ``"wo_feature"``
+  (cos(F_i, F_j) = 1 in eq. (8)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import Literal
+
+from fuseflow.errors import ValidationError
+
+__all__ = ["CalibConfig", "PRESETS"]
+
+
+@dataclass(frozen=True)
+class CalibConfig:
+    """All GMAC settings. Every field: meaning, default's source, valid range."""
+
+    backbone: str = "colmap"
+    """Pose backbone: "colmap" (pycolmap SIFT, offline CPU), "precomputed", "vggt",
+    "mapanything". Default: the only one that runs offline here (notes/backbone-feasibility.md)."""
+
+    backbone_path: str | None = None
+    """Export file (precomputed) or local checkpoint (vggt/mapanything); unused by colmap."""
+
+    closed_form: Literal["full3d", "zonly"] = "full3d"
+    """Scale estimator: "full3d" s = sum w t.(Y - RX) / sum w |t|^2 (DESIGN.md 3, default) or
+    "zonly", the corrected eq. (12) s = sum w (d - a) b / sum w b^2."""
+
+    samples_per_camera: int = 3000
+    """Pixels sampled per camera on a regular grid for RC (eq. 5). Range >= 100. Default: enough
+    for a scale to 0.1 % at ~3 ms per edge evaluation; more costs time linearly."""
+
+    depth_tau: float = 0.05
+    """RC depth-consistency gate |d - z| < depth_tau * z (relative, as the paper's tau of
+    eq. 21). Range (0, 1). Default 5 %: ~5 sigma of Kinect-class noise at 3 m."""
+
+    use_matches: bool = True
+    """Add the backbone's keypoint matches (when it has them) as correspondences whose pixel in
+    camera j does not move with s; they make lateral baselines observable (beyond the paper)."""
+
+    match_px: float = 6.0
+    """RC gate on a keypoint match: the reprojection of X_i must land within this many pixels
+    of the matched keypoint. Range > 0. Default: ~3x the backbone's reprojection error + slack."""
+
+    random_correspondences: bool = False
+    """Ablation "w/o RC" (Table III): uniform random pixels of i projected into j, no depth
+    gate, no overlap or validity weights, no keypoint matches."""
+
+    feature_weight: bool = True
+    """Use cos(F_i, F_j) in eq. (8); False is ablation "w/o feature weight" (Table III)."""
+
+    robust: bool = False
+    """Huber IRLS weights on the residual on top of eq. (8) (DESIGN.md 3: an ablation switch)."""
+
+    huber_delta: float = 0.02
+    """Huber threshold in metres of residual for ``robust``. Range > 0. Default: ~2 sigma of
+    Kinect depth noise at 3 m."""
+
+    scale_grid: int = 96
+    """Points of the coarse log-spaced 1-D scale search (DESIGN.md 3). Range >= 8."""
+
+    scale_span: float = 100.0
+    """The coarse search covers [s0 / span, s0 * span], s0 from sensor depth over backbone
+    baseline. Range > 1. Default: two decades either side."""
+
+    fixed_point_tol: float = 1e-4
+    """Stop the RC / closed-form alternation when |ds| / s < tol (DESIGN.md 3)."""
+
+    fixed_point_iters: int = 40
+    """Cap on alternation steps (Aitken-accelerated). Range >= 1."""
+
+    min_overlap: float = 0.05
+    """overlap_ij below this drops the edge (eq. 8 gating). Range [0, 1)."""
+
+    min_correspondences: int = 50
+    """An edge needs at least this many gated correspondences. Range >= 3."""
+
+    cycle_consistency: bool = True
+    """Per-edge scales, triplet cycle residuals and pruning (DESIGN.md 3); False is "w/o CC"."""
+
+    delta_cycle: float = 0.03
+    """Prune while an edge's mean relative cycle residual |c| / mean(|t|) over its triangles
+    exceeds this. Range > 0. Default 3 %: ~3x the per-edge scale spread on clean edges."""
+
+    max_pruned_fraction: float = 0.5
+    """Never prune more than this share of the edges. Range (0, 1]."""
+
+    refine: bool = False
+    """Rigid refinement: point-to-plane ICP per overlapping pair + Open3D pose graph (beyond
+    the paper; off in paper mode)."""
+
+    icp_voxel: float = 0.02
+    """Voxel size (m) of the clouds given to ICP. Range > 0. Default 2 cm: ~50k points/camera."""
+
+    icp_max_distance: float = 0.05
+    """ICP correspondence distance (m). Range > 0. Default: a few times the expected GMAC error."""
+
+    ill_conditioned_spread: float = 0.2
+    """Warn when the coarse search's consistent-count peak (>= 95 % of max) spans more than this
+    relative scale range, or when a closed form's relative standard error exceeds 1 %."""
+
+    seed: int = 0
+    """Seed of every random choice (ablation sampling, pixel jitter)."""
+
+    def __post_init__(self) -> None:
+        def need(cond: bool, what: str) -> None:
+            if not cond:
+                raise ValidationError(f"CalibConfig: {what}")
+
+        need(
+            self.closed_form in ("full3d", "zonly"),
+            f"closed_form must be 'full3d' or 'zonly', got {self.closed_form!r}",
+        )
+        need(isinstance(self.backbone, str) and bool(self.backbone), f"backbone must be a name, got {self.backbone!r}")
+        need(self.samples_per_camera >= 100, f"samples_per_camera must be >= 100, got {self.samples_per_camera}")
+        need(0 < self.depth_tau < 1, f"depth_tau must be in (0, 1), got {self.depth_tau}")
+        need(self.match_px > 0, f"match_px must be > 0, got {self.match_px}")
+        need(self.huber_delta > 0, f"huber_delta must be > 0, got {self.huber_delta}")
+        need(self.scale_grid >= 8, f"scale_grid must be >= 8, got {self.scale_grid}")
+        need(self.scale_span > 1, f"scale_span must be > 1, got {self.scale_span}")
+        need(0 < self.fixed_point_tol < 1, f"fixed_point_tol must be in (0, 1), got {self.fixed_point_tol}")
+        need(self.fixed_point_iters >= 1, f"fixed_point_iters must be >= 1, got {self.fixed_point_iters}")
+        need(0 <= self.min_overlap < 1, f"min_overlap must be in [0, 1), got {self.min_overlap}")
+        need(self.min_correspondences >= 3, f"min_correspondences must be >= 3, got {self.min_correspondences}")
+        need(self.delta_cycle > 0, f"delta_cycle must be > 0, got {self.delta_cycle}")
+        need(
+            0 < self.max_pruned_fraction <= 1, f"max_pruned_fraction must be in (0, 1], got {self.max_pruned_fraction}"
+        )
+        need(self.icp_voxel > 0 and self.icp_max_distance > 0, "icp_voxel and icp_max_distance must be > 0")
+        need(self.ill_conditioned_spread > 0, "ill_conditioned_spread must be > 0")
+
+    @staticmethod
+    def preset(name: str, **overrides) -> CalibConfig:
+        """A named preset (see the module docstring), with field overrides."""
+        if name not in PRESETS:
+            raise ValidationError(f"unknown GMAC preset {name!r}; choose one of {sorted(PRESETS)}")
+        known = {f.name for f in fields(CalibConfig)}
+        bad = sorted(set(overrides) - known)
+        if bad:
+            raise ValidationError(f"unknown CalibConfig fields {bad}")
+        return replace(PRESETS[name], **overrides)
+
+
+PRESETS: dict[str, CalibConfig] = {
+    "default": CalibConfig(),
+    "paper": CalibConfig(closed_form="zonly", use_matches=False, refine=False),
+    "refined": CalibConfig(refine=True),
+    "wo_rc": CalibConfig(random_correspondences=True),
+    "wo_cc": CalibConfig(cycle_consistency=False),
+    "wo_feature": CalibConfig(feature_weight=False),
+    "zonly": CalibConfig(closed_form="zonly"),
+    "robust": CalibConfig(robust=True),
+}

@@ -1,0 +1,384 @@
+"""RC: depth-guided reprojection correspondences (paper eq. 5, 8, 11) and the scale fixed point.
+
+For a directed edge i -> j, camera i's sampled sensor points X_i (eq. 5) are moved into camera j
+with the backbone relative pose at scale s, X_ij = R_ji X_i + s t_ji, projected, and the sensor
+depth d of camera j is looked up at that pixel (eq. 11). The correspondence's point in j is
+Y_j = X_ij * d / z (camera j's sensor point on the same ray). It is kept when
+|d - z| < tau z (depth-consistent) and weighted by eq. (8):
+overlap_ij * cos(F_i, F_j) * validity_i(u) * validity_j(pi(X_ij)).
+
+The pixel depends on s, so (DESIGN.md 3) s is found by a coarse log-spaced 1-D search that
+maximises the count of depth-consistent reprojections, then the correspondences and the closed
+form alternate until |ds| / s < tol (Aitken-accelerated fixed point).
+
+Keypoint matches from the backbone (when present, ``use_matches``) enter as correspondences
+whose pixel in j is the matched keypoint, gated by reprojection distance and depth consistency.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.errors import CalibrationError
+from fuseflow.calib.scale import Correspondences, ScaleEstimate, closed_form_scale, huber_weights, residuals
+
+__all__ = [
+    "CameraData",
+    "EdgeGeometry",
+    "FixedPointResult",
+    "prepare_cameras",
+    "edge_geometry",
+    "reproject",
+    "build_correspondences",
+    "consistent_count",
+    "coarse_scale_search",
+    "fixed_point_scale",
+]
+
+#: Relative depth gradient at which the validity weight drops to 1/e (per pixel, central diff).
+VALIDITY_GRADIENT = 0.01
+
+
+@dataclass(frozen=True)
+class CameraData:
+    """One camera's data for RC (numpy, camera frame, metres).
+
+    Attributes:
+        K: (3, 3) intrinsics. depth: (H, W) float32 metres, 0 outside depth_range.
+        validity: (H, W) float32 in [0, 1], sensor validity omega_i of eq. (8).
+        uv: (M, 2) float64 sampled pixel centres; X: (M, 3) their sensor points; w: (M,) validity.
+        uv_random, X_random: the same for uniform random pixels (ablation "w/o RC").
+    """
+
+    K: np.ndarray
+    depth: np.ndarray
+    validity: np.ndarray
+    uv: np.ndarray
+    X: np.ndarray
+    w: np.ndarray
+    X_random: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.depth.shape  # type: ignore[return-value]
+
+
+def _backproject(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    x = (uv[:, 0] - K[0, 2] - K[0, 1] * (uv[:, 1] - K[1, 2]) / K[1, 1]) / K[0, 0]
+    y = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    return np.stack([x * z, y * z, z], axis=1)
+
+
+def validity_map(depth: np.ndarray) -> np.ndarray:
+    """(H, W) omega(u): 0 without depth (or any 4-neighbour without depth), else
+    exp(-g / VALIDITY_GRADIENT) with g the central-difference depth gradient magnitude / z."""
+    d = depth.astype(np.float64)
+    ok = d > 0
+    pad = np.pad(d, 1, mode="edge")
+    okp = np.pad(ok, 1, mode="constant", constant_values=False)
+    nb_ok = okp[:-2, 1:-1] & okp[2:, 1:-1] & okp[1:-1, :-2] & okp[1:-1, 2:]
+    gx = (pad[1:-1, 2:] - pad[1:-1, :-2]) / 2
+    gy = (pad[2:, 1:-1] - pad[:-2, 1:-1]) / 2
+    g = np.hypot(gx, gy) / np.maximum(d, 1e-6)
+    return np.where(ok & nb_ok, np.exp(-g / VALIDITY_GRADIENT), 0.0).astype(np.float32)
+
+
+def prepare_cameras(
+    depth: np.ndarray, K: np.ndarray, depth_range: np.ndarray, samples: int, seed: int = 0
+) -> list[CameraData]:
+    """Per-camera RC inputs.
+
+    Args:
+        depth: (N, H, W) float32 metres, 0 = none. K: (N, 3, 3). depth_range: (N, 2) metres.
+        samples: pixels per camera on a regular grid (only pixels with validity > 0 kept).
+    """
+    rng = np.random.default_rng(seed)
+    out = []
+    n, H, W = depth.shape
+    for i in range(n):
+        d = np.where((depth[i] >= depth_range[i, 0]) & (depth[i] <= depth_range[i, 1]), depth[i], 0).astype(np.float32)
+        val = validity_map(d)
+        n_valid = int(np.count_nonzero(val > 0))
+        stride = max(1, int(np.sqrt(max(n_valid, 1) / samples)))
+        vv, uu = np.mgrid[stride // 2 : H : stride, stride // 2 : W : stride]
+        uu, vv = uu.ravel(), vv.ravel()
+        keep = val[vv, uu] > 0
+        uu, vv = uu[keep], vv[keep]
+        if len(uu) > samples:
+            sel = np.sort(rng.choice(len(uu), samples, replace=False))
+            uu, vv = uu[sel], vv[sel]
+        uv = np.stack([uu, vv], axis=1).astype(np.float64)
+        X = _backproject(uv, d[vv, uu].astype(np.float64), K[i])
+        w = val[vv, uu].astype(np.float64)
+        ys, xs = np.nonzero(d > 0)
+        if len(xs):
+            pick = rng.choice(len(xs), min(samples, len(xs)), replace=False)
+            uvr = np.stack([xs[pick], ys[pick]], axis=1).astype(np.float64)
+            Xr = _backproject(uvr, d[ys[pick], xs[pick]].astype(np.float64), K[i])
+        else:
+            Xr = np.zeros((0, 3))
+        out.append(CameraData(K[i].astype(np.float64), d, val, uv, X, w, Xr))
+    return out
+
+
+@dataclass(frozen=True)
+class EdgeGeometry:
+    """Backbone relative pose of directed edge i -> j: R_ji (3, 3) and unit-scale t_ji (3,)."""
+
+    i: int
+    j: int
+    R: np.ndarray
+    t: np.ndarray
+    weight: float = 1.0
+    """overlap_ij * cos(F_i, F_j) (eq. 8's edge factor)."""
+    matches: tuple[np.ndarray, np.ndarray] | None = None
+    """Keypoint matches (uv_i (K, 2), uv_j (K, 2)) pixels, or None."""
+
+
+def edge_geometry(
+    T0: np.ndarray,
+    i: int,
+    j: int,
+    weight: float = 1.0,
+    matches: tuple[np.ndarray, np.ndarray] | None = None,
+) -> EdgeGeometry:
+    """From backbone camera-from-world poses T0 (N, 4, 4): R_ji = R_j R_i^T, t_ji = t_j - R_ji t_i."""
+    R = T0[j, :3, :3] @ T0[i, :3, :3].T
+    t = T0[j, :3, 3] - R @ T0[i, :3, 3]
+    return EdgeGeometry(i, j, R, t, float(weight), matches)
+
+
+def _lookup(cam: CameraData, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nearest-pixel depth and validity at float pixels; (d, valid, inside), d = 0 outside."""
+    H, W = cam.shape
+    ui = np.floor(uv[:, 0] + 0.5).astype(np.int64)
+    vi = np.floor(uv[:, 1] + 0.5).astype(np.int64)
+    inside = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
+    d = np.zeros(len(uv))
+    val = np.zeros(len(uv))
+    d[inside] = cam.depth[vi[inside], ui[inside]]
+    val[inside] = cam.validity[vi[inside], ui[inside]]
+    return d, val, inside
+
+
+def reproject(g: EdgeGeometry, cam_j: CameraData, X: np.ndarray, s: float) -> tuple[np.ndarray, ...]:
+    """Move camera-i points X (M, 3) into camera j at scale s and look up D_j (eq. 11).
+
+    Returns (RX (M, 3), Xj (M, 3), uv_j (M, 2), d (M,), validity_j (M,), in_view (M,) bool).
+    """
+    RX = X @ g.R.T
+    Xj = RX + s * g.t
+    z = Xj[:, 2]
+    front = z > 1e-3
+    uv = np.full((len(X), 2), -1.0)
+    uv[front] = (Xj[front] @ cam_j.K.T)[:, :2] / z[front, None]
+    d, val, inside = _lookup(cam_j, uv)
+    return RX, Xj, uv, d, val, front & inside
+
+
+def build_correspondences(
+    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, config: CalibConfig
+) -> Correspondences:
+    """RC correspondences of edge i -> j at scale s, weighted by eq. (8)."""
+    if config.random_correspondences:
+        # Ablation "w/o RC": uniform random pixels, no depth gate, no overlap/validity weights.
+        RX, Xj, _, d, _, ok = reproject(g, cam_j, cam_i.X_random, s)
+        ok &= d > 0
+        Y = Xj[ok] * (d[ok] / Xj[ok, 2])[:, None]
+        return Correspondences(g.i, g.j, RX[ok], Y, g.t, np.ones(int(ok.sum())), np.zeros(int(ok.sum()), bool))
+    RX, Xj, _, d, val_j, ok = reproject(g, cam_j, cam_i.X, s)
+    z = Xj[:, 2]
+    ok &= (d > 0) & (np.abs(d - z) < config.depth_tau * np.maximum(z, 1e-6))
+    Y = Xj[ok] * (d[ok] / z[ok])[:, None]
+    w = g.weight * cam_i.w[ok] * val_j[ok]
+    RXs, Ys, ws, ms = [RX[ok]], [Y], [w], [np.zeros(len(w), bool)]
+    if config.use_matches and g.matches is not None and len(g.matches[0]):
+        uv_i, uv_j = g.matches
+        di, vi_, _ = _lookup(cam_i, uv_i)
+        dj, vj_, _ = _lookup(cam_j, uv_j)
+        has = (di > 0) & (dj > 0)
+        Xi = _backproject(uv_i[has], di[has], cam_i.K)
+        RXm = Xi @ g.R.T
+        Xjm = RXm + s * g.t
+        zm = Xjm[:, 2]
+        good = zm > 1e-3
+        proj = np.full((len(zm), 2), np.inf)
+        proj[good] = (Xjm[good] @ cam_j.K.T)[:, :2] / zm[good, None]
+        near = np.linalg.norm(proj - uv_j[has], axis=1) < config.match_px
+        cons = np.abs(dj[has] - zm) < config.depth_tau * np.maximum(zm, 1e-6)
+        keep = good & near & cons
+        Ym = _backproject(uv_j[has][keep], dj[has][keep], cam_j.K)
+        RXs.append(RXm[keep])
+        Ys.append(Ym)
+        ws.append(g.weight * vi_[has][keep] * vj_[has][keep])
+        ms.append(np.ones(int(keep.sum()), bool))
+    return Correspondences(
+        g.i, g.j, np.concatenate(RXs), np.concatenate(Ys), g.t, np.concatenate(ws), np.concatenate(ms)
+    )
+
+
+def consistent_count(g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, tau: float) -> int:
+    """Number of camera-i samples whose reprojection at scale s is depth-consistent in j."""
+    _, Xj, _, d, _, ok = reproject(g, cam_j, cam_i.X, s)
+    z = Xj[:, 2]
+    return int(np.count_nonzero(ok & (d > 0) & (np.abs(d - z) < tau * np.maximum(z, 1e-6))))
+
+
+@dataclass(frozen=True)
+class CoarseSearch:
+    """Result of the coarse 1-D scale search.
+
+    Attributes:
+        s: best grid scale. grid: (G,) scales. counts: (G,) consistent reprojections.
+        peak_spread: relative width (max/min - 1) of the grid scales with count >= 95 % of max:
+            a wide peak means the scene does not pin the scale (ill-conditioned).
+    """
+
+    s: float
+    grid: np.ndarray
+    counts: np.ndarray
+    peak_spread: float
+
+
+def coarse_scale_search(
+    geoms: Sequence[EdgeGeometry], cams: Sequence[CameraData], s0: float, config: CalibConfig
+) -> CoarseSearch:
+    """Maximise the count of depth-consistent reprojections over s0 * [1/span, span] (log grid),
+    then over a finer grid around the best value (DESIGN.md 3)."""
+    if not geoms:
+        raise CalibrationError("no camera pairs to search the scale over")
+
+    def counts(grid: np.ndarray) -> np.ndarray:
+        return np.array(
+            [sum(consistent_count(g, cams[g.i], cams[g.j], s, config.depth_tau) for g in geoms) for s in grid]
+        )
+
+    grid = s0 * np.logspace(-np.log10(config.scale_span), np.log10(config.scale_span), config.scale_grid)
+    c = counts(grid)
+    k = int(np.argmax(c))
+    step = grid[1] / grid[0]
+    fine = grid[k] * np.exp(np.linspace(-np.log(step), np.log(step), 21))
+    cf = counts(fine)
+    all_s = np.concatenate([grid, fine])
+    all_c = np.concatenate([c, cf])
+    order = np.argsort(all_s)
+    all_s, all_c = all_s[order], all_c[order]
+    best = int(np.argmax(all_c))
+    if all_c[best] == 0:
+        raise CalibrationError(
+            "no scale in the search range makes any reprojection depth-consistent: the cameras do "
+            "not overlap, or the backbone poses are wrong"
+        )
+    near_max = all_s[all_c >= 0.95 * all_c[best]]
+    spread = float(near_max.max() / near_max.min() - 1.0)
+    return CoarseSearch(float(all_s[best]), all_s, all_c, spread)
+
+
+@dataclass(frozen=True)
+class FixedPointResult:
+    """The RC / closed-form alternation.
+
+    Attributes:
+        s: the converged scale. estimate: the closed form at the final correspondences.
+        iterations: correspondence rebuilds. converged: |ds| / s < tol reached.
+        history: scales visited. correspondences: the final per-edge sets.
+    """
+
+    s: float
+    estimate: ScaleEstimate
+    iterations: int
+    converged: bool
+    history: tuple[float, ...]
+    correspondences: tuple[Correspondences, ...] = field(repr=False, default=())
+
+
+def _step(
+    geoms: Sequence[EdgeGeometry], cams: Sequence[CameraData], s: float, config: CalibConfig
+) -> tuple[ScaleEstimate, list[Correspondences]]:
+    corrs = [build_correspondences(g, cams[g.i], cams[g.j], s, config) for g in geoms]
+    if config.robust:
+        corrs = [c.reweighted(c.w * huber_weights(residuals(c, s), config.huber_delta)) for c in corrs]
+    return closed_form_scale(corrs, config.closed_form), corrs
+
+
+def fixed_point_scale(
+    geoms: Sequence[EdgeGeometry],
+    cams: Sequence[CameraData],
+    s0: float,
+    config: CalibConfig,
+    step: Callable | None = None,
+) -> FixedPointResult:
+    """Alternate RC correspondences and the closed form from s0 until |ds| / s < tol.
+
+    The map s -> closed_form(RC(s)) is close to affine near its fixed point but can contract
+    slowly (reprojections that slide along planes parallel to the baseline pull s towards its
+    current value), so every second step is Aitken-extrapolated; extrapolations that leave
+    [s/2, 2s] are discarded.
+    """
+    step = step or _step
+    tol = config.fixed_point_tol
+    s = float(s0)
+    hist = [s]
+    est, corrs = step(geoms, cams, s, config)
+    it = 1
+    converged = False
+    while it < config.fixed_point_iters:
+        s1 = est.s
+        if not np.isfinite(s1) or s1 <= 0:
+            raise CalibrationError(f"the scale fixed point left the positive reals (s = {s1:g})")
+        hist.append(s1)
+        if abs(s1 - s) / abs(s1) < tol:
+            s = s1
+            converged = True
+            break
+        est1, corrs1 = step(geoms, cams, s1, config)
+        it += 1
+        s2 = est1.s
+        hist.append(s2)
+        if abs(s2 - s1) / abs(s2) < tol:
+            s, est, corrs, converged = s2, est1, corrs1, True
+            break
+        denom = s2 - 2 * s1 + s
+        s_next = s2
+        if abs(denom) > 1e-15 * abs(s2):
+            sa = s2 - (s2 - s1) ** 2 / denom
+            if s2 / 2 < sa < 2 * s2:
+                s_next = sa
+        s = s_next
+        est, corrs = step(geoms, cams, s, config)
+        it += 1
+    if converged:
+        est, corrs = step(geoms, cams, s, config)
+    return FixedPointResult(float(est.s), est, it, converged, tuple(hist), tuple(corrs))
+
+
+def edge_weight(
+    i: int,
+    j: int,
+    overlap: np.ndarray | None,
+    features: np.ndarray | None,
+    use_features: bool,
+) -> float:
+    """eq. (8)'s edge factor overlap_ij * cos(F_i, F_j) (cos clipped to [0, 1])."""
+    w = 1.0 if overlap is None else float(overlap[i, j])
+    if use_features and features is not None:
+        fi, fj = features[i], features[j]
+        den = float(np.linalg.norm(fi) * np.linalg.norm(fj))
+        w *= max(0.0, float(fi @ fj) / den) if den > 0 else 0.0
+    return w
+
+
+def match_lookup(matches: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None, i: int, j: int):
+    """Matches of directed edge i -> j from an undirected store keyed (min, max)."""
+    if matches is None:
+        return None
+    if (i, j) in matches:
+        return matches[(i, j)]
+    if (j, i) in matches:
+        a, b = matches[(j, i)]
+        return b, a
+    return None

@@ -1,0 +1,13 @@
+"""GMAC's error type: calibration cannot proceed with this input (beyond a malformed argument)."""
+
+from __future__ import annotations
+
+from fuseflow.errors import FuseFlowError
+
+__all__ = ["CalibrationError"]
+
+
+class CalibrationError(FuseFlowError, RuntimeError):
+    """The input is well-formed but cannot be calibrated: no depth, textureless images, no
+    overlap between cameras, a backbone that registered too few cameras. The message names the
+    cameras at fault and what was expected."""
