@@ -125,3 +125,13 @@ def test_bad_input():
     small = Rig(tuple(Camera(k.id, 80, 60, k.K, T_cam_world=k.T_cam_world) for k in rig))
     with pytest.raises(ValidationError, match="80x60"):
         B.naive_fusion(frame, small)
+
+
+def test_views_without_any_valid_depth_give_empty_clouds():
+    from dataclasses import replace
+
+    frame, rig = make_scene(2)
+    blank = replace(frame, depth=torch.zeros_like(frame.depth))
+    for fn in (B.naive_fusion, B.voxel_downsampled_fusion, B.sor_fusion, B.tsdf_fusion):
+        c = fn(blank, rig)
+        assert isinstance(c, FusedCloud) and len(c) == 0

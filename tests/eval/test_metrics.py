@@ -181,6 +181,19 @@ def test_outlier_ratio_neighbour_rule_is_exact():
     assert M.outlier_ratio(np.zeros((0, 3))).ratio == 0.0
 
 
+def test_outlier_ratio_matches_open3d_radius_outlier_removal():
+    import open3d as o3d
+
+    rng = np.random.default_rng(6)
+    pts = rng.uniform(0, 0.1, (4000, 3))  # ~2 neighbours within 5 mm on average: counts straddle n
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    for n in (1, 3, 6):
+        _, kept = pcd.remove_radius_outlier(n, 0.005)
+        r = M.outlier_ratio(pts, min_neighbors=n)
+        assert 0 < r.num_outliers < len(pts)
+        assert r.num_outliers == len(pts) - len(kept)
+
+
 def test_outlier_share_against_gt():
     gt = grid_plane(0.005, 1.0)
     pts = grid_plane(0.01, 1.0)
@@ -303,6 +316,17 @@ def test_pncc_drops_when_geometry_is_wrong_and_best_two_of_three():
     off = plane_samples() + [0, 0, -0.05]
     bad = M.pncc(off, frame, rig)
     assert bad.pncc < good.pncc - 0.2
+
+
+def test_pncc_subset_is_seeded_and_close_to_the_full_value():
+    frame, rig = make_scene(2)
+    pts = plane_samples(0.005)  # 40000 points
+    full = M.pncc(pts, frame, rig, max_points=None)
+    a = M.pncc(pts, frame, rig, max_points=5000, seed=3)
+    b = M.pncc(pts, frame, rig, max_points=5000, seed=3)
+    assert a.num_points == 5000 and full.num_points == len(pts)
+    assert a.pncc == b.pncc
+    assert abs(a.pncc - full.pncc) < 0.01
 
 
 def test_pncc_depth_test_and_absent_views():

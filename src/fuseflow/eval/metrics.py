@@ -434,8 +434,8 @@ def outlier_ratio(points: Any, radius: float = 0.005, min_neighbors: int = OR_MI
 
     Definition: a point is an outlier when fewer than ``min_neighbors`` *other* points of the
     cloud lie within Euclidean distance ``radius`` of it (the point itself is not counted).
-    OR = outliers / M. This is radius outlier removal as in Open3D's
-    ``remove_radius_outlier(nb_points=n + 1, radius)``, which counts the point itself.
+    OR = outliers / M. The outliers are exactly those that Open3D's
+    ``remove_radius_outlier(nb_points=n, radius)`` removes (checked on the ICL frames: equal counts).
 
     The result depends on sampling density: a cloud voxel-downsampled at 1 cm has almost every
     point isolated at 5 mm. Compare methods at similar density or report the density with it.
@@ -451,10 +451,16 @@ def outlier_ratio(points: Any, radius: float = 0.005, min_neighbors: int = OR_MI
     m = len(pts)
     if m == 0:
         return OutlierRatioResult(0.0, 0, 0, radius, min_neighbors, np.zeros(0, dtype=bool))
-    counts = _kdtree(pts).query_ball_point(pts, r=radius, return_length=True) - 1
-    mask = counts < min_neighbors
-    k = int(mask.sum())
-    return OutlierRatioResult(k / m, k, m, radius, min_neighbors, mask)
+    # the (n+1)-th nearest point (the point itself is the first) lies beyond the radius exactly
+    # when fewer than n others are within it; a bounded k-NN query is 2.5x faster than counting
+    # every neighbour with query_ball_point on dense clouds
+    k = min_neighbors + 1
+    if m < k:
+        return OutlierRatioResult(1.0, m, m, radius, min_neighbors, np.ones(m, dtype=bool))
+    d, _ = _kdtree(pts).query(pts, k=k, distance_upper_bound=radius)
+    mask = ~np.isfinite(d[:, -1])
+    n_out = int(mask.sum())
+    return OutlierRatioResult(n_out / m, n_out, m, radius, min_neighbors, mask)
 
 
 def outlier_share(points: Any, gt_points: Any, threshold: float = 0.02) -> float:
@@ -612,7 +618,7 @@ class PNCCResult:
 
     Attributes:
         pncc: mean NCC over the evaluated points, in [-1, 1]; NaN when no point was evaluated.
-        num_points: points in the cloud.
+        num_points: points considered (the cloud, or its random subset of ``max_points``).
         num_evaluated: points seen by two cameras with textured patches in both.
         num_not_covisible: points visible (depth test) in fewer than two cameras.
         num_flat: co-visible points skipped because a patch had (near) zero variance.
@@ -651,6 +657,8 @@ def pncc(
     depth_tolerance_rel: float = 0.02,
     normal_knn: int = 20,
     min_std: float = 1.0,
+    max_points: int | None = 200_000,
+    seed: int = 0,
 ) -> PNCCResult:
     """PNCC, DESIGN.md section 4: mean NCC of 3x3 grey patches in the two best views of each point.
 
@@ -670,7 +678,10 @@ def pncc(
        whose grey standard deviation is below ``min_std`` (grey levels) have no defined NCC and
        are skipped (counted in ``num_flat``).
 
-    PNCC = mean NCC over the points with two visible cameras and textured patches.
+    PNCC = mean NCC over the points with two visible cameras and textured patches. Clouds larger
+    than ``max_points`` are evaluated on a uniform random subset of that size (seeded): PNCC is a
+    mean, and 200 000 samples put its sampling error near 0.001 (per-point NCC std is ~0.4 on the
+    ICL frames), while a 1.2 M-point naive cloud takes 12 s in full (docs/metrics.md).
 
     Args:
         points: (M, 3) metres, world frame (FusedCloud, tensor or array).
@@ -679,6 +690,8 @@ def pncc(
         depth_tolerance, depth_tolerance_rel: the depth test (metres, and a share of depth).
         normal_knn: neighbours for the PCA normal.
         min_std: minimum grey standard deviation of a patch, grey levels (0-255).
+        max_points: evaluate at most this many points (random subset), or None for all.
+        seed: seed of the subset.
     """
     pts = as_points(points)
     if not isinstance(frame, Frame):
@@ -693,6 +706,10 @@ def pncc(
     bad = [c.id for c in cams if (c.width, c.height) != (w, h)]
     if bad:
         raise ValidationError(f"pncc: cameras {bad} have a resolution other than the frame's {w}x{h}")
+    if max_points is not None and max_points < 1:
+        raise ValidationError(f"pncc: max_points must be >= 1 or None, got {max_points}")
+    if max_points is not None and len(pts) > max_points:
+        pts = pts[np.sort(np.random.default_rng(seed).choice(len(pts), max_points, replace=False))]
     m = len(pts)
     if m == 0:
         return PNCCResult(float("nan"), 0, 0, 0, 0, np.zeros(0))
