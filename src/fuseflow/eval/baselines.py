@@ -198,9 +198,8 @@ class TSDFConfig:
     block_count: int | None = None
     """Hash-map capacity in blocks, or None (default) to size it from the frame: twice the
     number of distinct blocks the views' truncation bands touch, + 64. Open3D's example value
-    50000 allocates ~4 GB up front at block_resolution 16 (8.6 s per call here for a 3-view
-    160x120 frame); a map filled near capacity integrates ~3x slower (ICL N=8: 864 ms at 1.1x,
-    305 ms at 2x, measured in docs/metrics.md). Valid >= 1."""
+    50000 allocates 50000 x 16^3 voxels x 20 B = 4 GB up front at block_resolution 16; a map
+    too small rehashes while integrating (both measured in docs/metrics.md). Valid >= 1."""
 
     weight_threshold: float = 1.0
     """Minimum integrated weight of a voxel for point extraction (VoxelBlockGrid). Each view adds

@@ -337,8 +337,8 @@ def plane_fitting_residual(
        inliers; otherwise record its inliers' distances to it and remove them.
 
     PFR = mean of all recorded distances (inlier-weighted over planes), mm. The RANSAC is numpy
-    with a seeded generator (not Open3D's ``segment_plane``, whose parallel sampling is not
-    reproducible run to run), so equal input and seed give an identical result.
+    with a seeded generator (rather than Open3D's ``segment_plane``, which samples in parallel
+    threads from a global seed), so equal input and seed give an identical result by construction.
 
     Args:
         points: (M, 3) metres (FusedCloud, tensor or array).
