@@ -9,7 +9,7 @@ rigid refinement (:mod:`refine`).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -110,8 +110,10 @@ def metric_scale(
     """Scale stage of GMAC on backbone poses ``bb`` and per-camera RC data ``cams``.
 
     Args:
-        corrupt: test/benchmark hook, edge (i, j) -> factor: that edge's sensor depths in camera j
-            are multiplied by the factor, simulating an edge with wrong matches (robustness check).
+        corrupt: test/benchmark hook, edge (i, j) -> offset metres: that edge's points in camera j
+            are shifted by offset along the baseline, Y' = Y + offset t / |t|, so the edge alone
+            implies a baseline ``offset`` too long, as an edge with wrong matches would
+            (robustness check of CC).
     """
     warnings: list[str] = []
     reg = np.flatnonzero(bb.registered)
@@ -172,14 +174,19 @@ def metric_scale(
         warnings.append(f"the scale fixed point did not converge in {fp.iterations} steps (history {fp.history[-3:]})")
     s_init = fp.s
     edge_scales, edge_counts = {}, {}
+    # Per-edge scales (for CC): the closed form restricted to each edge, on the correspondences
+    # at the global fixed point (the paper's fixed-correspondence approximation). A full per-edge
+    # fixed point would let a wrong edge walk to a scale where its true correspondences fail the
+    # depth gate, and vanish instead of showing up in the cycle residuals.
+    final_cfg = replace(config, depth_tau=min(config.depth_tau_final, config.depth_tau))
     for e in edges:
         try:
-            fe = fixed_point_scale(all_geoms[e], cams_used, s_init, config, step=geoms_for_edges)
+            est_e, _ = geoms_for_edges(all_geoms[e], cams_used, s_init, final_cfg)
         except CalibrationError:
             continue
-        if fe.estimate.count >= config.min_correspondences and fe.s > 0:
-            edge_scales[e] = fe.s
-            edge_counts[e] = fe.estimate.count
+        if est_e.count >= config.min_correspondences and est_e.s > 0:
+            edge_scales[e] = est_e.s
+            edge_counts[e] = est_e.count
     usable = [e for e in edges if e in edge_scales]
     dropped = [e for e in edges if e not in edge_scales]
     if dropped:
@@ -206,7 +213,7 @@ def metric_scale(
     s_final, est = s_init, fp.estimate
     iters, conv = fp.iterations, fp.converged
     if pruned:
-        fp2 = fixed_point_scale(_directed(all_geoms, kept), cams_used, s_init, config, step=geoms_for_edges)
+        fp2 = fixed_point_scale(_directed(all_geoms, kept), cams_used, s_c, config, step=geoms_for_edges)
         s_final, est, iters, conv = fp2.s, fp2.estimate, iters + fp2.iterations, fp2.converged
     if coarse.peak_spread > config.ill_conditioned_spread and not (config.use_matches and bb.matches):
         warnings.append(
@@ -266,7 +273,9 @@ def _corrupt_step(corrupt, cams):
             if f is None:
                 out.append(c)
             else:
-                out.append(Correspondences(c.i, c.j, c.RX, c.Y * f, c.t, c.w, c.is_match))
+                out.append(
+                    Correspondences(c.i, c.j, c.RX, c.Y + f * c.t / np.linalg.norm(c.t), c.t, c.w, c.is_match, c.n)
+                )
         return closed_form_scale(out, config.closed_form), out
 
     return step

@@ -2,7 +2,7 @@
 
 Presets (``CalibConfig.preset(name)``):
 
-* ``"default"``: full-3D closed form, RC with backbone keypoint matches, cycle pruning, no
+* ``"default"``: point-to-plane closed form, RC with backbone keypoint matches, cycle pruning, no
   refinement (call with ``refine=True`` or the ``"refined"`` preset to add ICP + pose graph).
 * ``"paper"``: paper reproduction (section III-B as corrected by DESIGN.md section 3): the
   corrected z-only closed form of eq. (12), projective RC only, CC, no refinement.
@@ -33,9 +33,10 @@ class CalibConfig:
     backbone_path: str | None = None
     """Export file (precomputed) or local checkpoint (vggt/mapanything); unused by colmap."""
 
-    closed_form: Literal["full3d", "zonly"] = "full3d"
-    """Scale estimator: "full3d" s = sum w t.(Y - RX) / sum w |t|^2 (DESIGN.md 3, default) or
-    "zonly", the corrected eq. (12) s = sum w (d - a) b / sum w b^2."""
+    closed_form: Literal["plane", "full3d", "zonly"] = "plane"
+    """Scale estimator: "plane" s = sum w (n.t)(n.(Y - RX)) / sum w (n.t)^2 (default: converges
+    where the point-to-point forms stall, see scale.py and docs/gmac.md), "full3d"
+    s = sum w t.(Y - RX) / sum w |t|^2 (DESIGN.md 3) or "zonly", the corrected eq. (12)."""
 
     samples_per_camera: int = 3000
     """Pixels sampled per camera on a regular grid for RC (eq. 5). Range >= 100. Default: enough
@@ -44,6 +45,15 @@ class CalibConfig:
     depth_tau: float = 0.05
     """RC depth-consistency gate |d - z| < depth_tau * z (relative, as the paper's tau of
     eq. 21). Range (0, 1). Default 5 %: ~5 sigma of Kinect-class noise at 3 m."""
+
+    depth_tau_final: float = 0.015
+    """The fixed point anneals the gate from depth_tau down to this (x0.6 per step): near-occluded
+    points (a few % behind a surface of camera j) then stay out of the estimate. Range (0, 1).
+    Default 1.5 %: ~3 sigma of Kinect-class noise at 3 m (0.5 %), measured on the synthetic room."""
+
+    max_step: float = 0.1
+    """Largest relative change of s per fixed-point step. Range (0, 1). Default 10 %: about one
+    cell of the coarse search grid."""
 
     use_matches: bool = True
     """Add the backbone's keypoint matches (when it has them) as correspondences whose pixel in
@@ -119,12 +129,14 @@ class CalibConfig:
                 raise ValidationError(f"CalibConfig: {what}")
 
         need(
-            self.closed_form in ("full3d", "zonly"),
-            f"closed_form must be 'full3d' or 'zonly', got {self.closed_form!r}",
+            self.closed_form in ("plane", "full3d", "zonly"),
+            f"closed_form must be 'plane', 'full3d' or 'zonly', got {self.closed_form!r}",
         )
         need(isinstance(self.backbone, str) and bool(self.backbone), f"backbone must be a name, got {self.backbone!r}")
         need(self.samples_per_camera >= 100, f"samples_per_camera must be >= 100, got {self.samples_per_camera}")
         need(0 < self.depth_tau < 1, f"depth_tau must be in (0, 1), got {self.depth_tau}")
+        need(0 < self.depth_tau_final < 1, f"depth_tau_final must be in (0, 1), got {self.depth_tau_final}")
+        need(0 < self.max_step < 1, f"max_step must be in (0, 1), got {self.max_step}")
         need(self.match_px > 0, f"match_px must be > 0, got {self.match_px}")
         need(self.huber_delta > 0, f"huber_delta must be > 0, got {self.huber_delta}")
         need(self.scale_grid >= 8, f"scale_grid must be >= 8, got {self.scale_grid}")
@@ -160,5 +172,6 @@ PRESETS: dict[str, CalibConfig] = {
     "wo_cc": CalibConfig(cycle_consistency=False),
     "wo_feature": CalibConfig(feature_weight=False),
     "zonly": CalibConfig(closed_form="zonly"),
+    "full3d": CalibConfig(closed_form="full3d"),
     "robust": CalibConfig(robust=True),
 }

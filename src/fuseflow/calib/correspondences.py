@@ -18,7 +18,7 @@ whose pixel in j is the matched keypoint, gated by reprojection distance and dep
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -51,7 +51,9 @@ class CameraData:
         K: (3, 3) intrinsics. depth: (H, W) float32 metres, 0 outside depth_range.
         validity: (H, W) float32 in [0, 1], sensor validity omega_i of eq. (8).
         uv: (M, 2) float64 sampled pixel centres; X: (M, 3) their sensor points; w: (M,) validity.
-        uv_random, X_random: the same for uniform random pixels (ablation "w/o RC").
+        X_random: sensor points of uniform random pixels (ablation "w/o RC").
+        normals: (H, W, 3) float32 unit surface normals (camera frame, facing the camera),
+            zero where a neighbour has no depth.
     """
 
     K: np.ndarray
@@ -61,6 +63,7 @@ class CameraData:
     X: np.ndarray
     w: np.ndarray
     X_random: np.ndarray
+    normals: np.ndarray
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -85,6 +88,25 @@ def validity_map(depth: np.ndarray) -> np.ndarray:
     gy = (pad[2:, 1:-1] - pad[:-2, 1:-1]) / 2
     g = np.hypot(gx, gy) / np.maximum(d, 1e-6)
     return np.where(ok & nb_ok, np.exp(-g / VALIDITY_GRADIENT), 0.0).astype(np.float32)
+
+
+def normal_map(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(H, W, 3) unit normals from central differences of the back-projected depth map."""
+    H, W = depth.shape
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = depth.astype(np.float64)
+    P = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    n = np.zeros_like(P)
+    du = P[1:-1, 2:] - P[1:-1, :-2]
+    dv = P[2:, 1:-1] - P[:-2, 1:-1]
+    c = np.cross(du, dv)
+    ok = (z[1:-1, 2:] > 0) & (z[1:-1, :-2] > 0) & (z[2:, 1:-1] > 0) & (z[:-2, 1:-1] > 0) & (z[1:-1, 1:-1] > 0)
+    norm = np.linalg.norm(c, axis=-1, keepdims=True)
+    c = np.where(ok[..., None] & (norm > 0), c / np.maximum(norm, 1e-300), 0.0)
+    flip = np.sum(c * P[1:-1, 1:-1], axis=-1) > 0
+    c[flip] *= -1
+    n[1:-1, 1:-1] = c
+    return n.astype(np.float32)
 
 
 def prepare_cameras(
@@ -121,7 +143,7 @@ def prepare_cameras(
             Xr = _backproject(uvr, d[ys[pick], xs[pick]].astype(np.float64), K[i])
         else:
             Xr = np.zeros((0, 3))
-        out.append(CameraData(K[i].astype(np.float64), d, val, uv, X, w, Xr))
+        out.append(CameraData(K[i].astype(np.float64), d, val, uv, X, w, Xr, normal_map(d, K[i])))
     return out
 
 
@@ -152,23 +174,27 @@ def edge_geometry(
     return EdgeGeometry(i, j, R, t, float(weight), matches)
 
 
-def _lookup(cam: CameraData, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest-pixel depth and validity at float pixels; (d, valid, inside), d = 0 outside."""
+def _lookup(cam: CameraData, uv: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Nearest-pixel lookup at float pixels: (d, validity, inside, pixel (M, 2), normal (M, 3));
+    d = 0 outside the image."""
     H, W = cam.shape
     ui = np.floor(uv[:, 0] + 0.5).astype(np.int64)
     vi = np.floor(uv[:, 1] + 0.5).astype(np.int64)
     inside = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
     d = np.zeros(len(uv))
     val = np.zeros(len(uv))
+    n = np.zeros((len(uv), 3))
     d[inside] = cam.depth[vi[inside], ui[inside]]
     val[inside] = cam.validity[vi[inside], ui[inside]]
-    return d, val, inside
+    n[inside] = cam.normals[vi[inside], ui[inside]]
+    return d, val, inside, np.stack([ui, vi], axis=1).astype(np.float64), n
 
 
 def reproject(g: EdgeGeometry, cam_j: CameraData, X: np.ndarray, s: float) -> tuple[np.ndarray, ...]:
     """Move camera-i points X (M, 3) into camera j at scale s and look up D_j (eq. 11).
 
-    Returns (RX (M, 3), Xj (M, 3), uv_j (M, 2), d (M,), validity_j (M,), in_view (M,) bool).
+    Returns (RX (M, 3), Xj (M, 3), pixel_j (M, 2) rounded, d (M,), validity_j (M,),
+    in_view (M,) bool, normal_j (M, 3)).
     """
     RX = X @ g.R.T
     Xj = RX + s * g.t
@@ -176,8 +202,8 @@ def reproject(g: EdgeGeometry, cam_j: CameraData, X: np.ndarray, s: float) -> tu
     front = z > 1e-3
     uv = np.full((len(X), 2), -1.0)
     uv[front] = (Xj[front] @ cam_j.K.T)[:, :2] / z[front, None]
-    d, val, inside = _lookup(cam_j, uv)
-    return RX, Xj, uv, d, val, front & inside
+    d, val, inside, pix, n = _lookup(cam_j, uv)
+    return RX, Xj, pix, d, val, front & inside, n
 
 
 def build_correspondences(
@@ -186,20 +212,21 @@ def build_correspondences(
     """RC correspondences of edge i -> j at scale s, weighted by eq. (8)."""
     if config.random_correspondences:
         # Ablation "w/o RC": uniform random pixels, no depth gate, no overlap/validity weights.
-        RX, Xj, _, d, _, ok = reproject(g, cam_j, cam_i.X_random, s)
+        RX, Xj, pix, d, _, ok, n = reproject(g, cam_j, cam_i.X_random, s)
         ok &= d > 0
-        Y = Xj[ok] * (d[ok] / Xj[ok, 2])[:, None]
-        return Correspondences(g.i, g.j, RX[ok], Y, g.t, np.ones(int(ok.sum())), np.zeros(int(ok.sum()), bool))
-    RX, Xj, _, d, val_j, ok = reproject(g, cam_j, cam_i.X, s)
+        Y = _corr_point(Xj[ok], pix[ok], d[ok], cam_j.K, config.closed_form)
+        m = int(ok.sum())
+        return Correspondences(g.i, g.j, RX[ok], Y, g.t, np.ones(m), np.zeros(m, bool), n[ok])
+    RX, Xj, pix, d, val_j, ok, n = reproject(g, cam_j, cam_i.X, s)
     z = Xj[:, 2]
     ok &= (d > 0) & (np.abs(d - z) < config.depth_tau * np.maximum(z, 1e-6))
-    Y = Xj[ok] * (d[ok] / z[ok])[:, None]
+    Y = _corr_point(Xj[ok], pix[ok], d[ok], cam_j.K, config.closed_form)
     w = g.weight * cam_i.w[ok] * val_j[ok]
-    RXs, Ys, ws, ms = [RX[ok]], [Y], [w], [np.zeros(len(w), bool)]
+    RXs, Ys, ws, ms, ns = [RX[ok]], [Y], [w], [np.zeros(len(w), bool)], [n[ok]]
     if config.use_matches and g.matches is not None and len(g.matches[0]):
         uv_i, uv_j = g.matches
-        di, vi_, _ = _lookup(cam_i, uv_i)
-        dj, vj_, _ = _lookup(cam_j, uv_j)
+        di, vi_, *_ = _lookup(cam_i, uv_i)
+        dj, vj_, _, _, nj = _lookup(cam_j, uv_j)
         has = (di > 0) & (dj > 0)
         Xi = _backproject(uv_i[has], di[has], cam_i.K)
         RXm = Xi @ g.R.T
@@ -216,14 +243,31 @@ def build_correspondences(
         Ys.append(Ym)
         ws.append(g.weight * vi_[has][keep] * vj_[has][keep])
         ms.append(np.ones(int(keep.sum()), bool))
+        ns.append(nj[has][keep])
     return Correspondences(
-        g.i, g.j, np.concatenate(RXs), np.concatenate(Ys), g.t, np.concatenate(ws), np.concatenate(ms)
+        g.i,
+        g.j,
+        np.concatenate(RXs),
+        np.concatenate(Ys),
+        g.t,
+        np.concatenate(ws),
+        np.concatenate(ms),
+        np.concatenate(ns),
     )
+
+
+def _corr_point(Xj: np.ndarray, pix: np.ndarray, d: np.ndarray, K: np.ndarray, form: str) -> np.ndarray:
+    """Camera j's sensor point of a reprojection correspondence: on X_ij's ray at depth d for the
+    point-to-point forms (no pixel-rounding error across the ray), or the surface point at the
+    looked-up pixel for the point-to-plane form (then its normal describes exactly that point)."""
+    if form == "plane":
+        return _backproject(pix, d, K)
+    return Xj * (d / Xj[:, 2])[:, None]
 
 
 def consistent_count(g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, tau: float) -> int:
     """Number of camera-i samples whose reprojection at scale s is depth-consistent in j."""
-    _, Xj, _, d, _, ok = reproject(g, cam_j, cam_i.X, s)
+    _, Xj, _, d, _, ok, _ = reproject(g, cam_j, cam_i.X, s)
     z = Xj[:, 2]
     return int(np.count_nonzero(ok & (d > 0) & (np.abs(d - z) < tau * np.maximum(z, 1e-6))))
 
@@ -261,7 +305,7 @@ def coarse_scale_search(
     c = counts(grid)
     k = int(np.argmax(c))
     step = grid[1] / grid[0]
-    fine = grid[k] * np.exp(np.linspace(-np.log(step), np.log(step), 21))
+    fine = grid[k] * np.exp(np.linspace(-np.log(step), np.log(step), 41))
     cf = counts(fine)
     all_s = np.concatenate([grid, fine])
     all_c = np.concatenate([c, cf])
@@ -301,7 +345,9 @@ def _step(
 ) -> tuple[ScaleEstimate, list[Correspondences]]:
     corrs = [build_correspondences(g, cams[g.i], cams[g.j], s, config) for g in geoms]
     if config.robust:
-        corrs = [c.reweighted(c.w * huber_weights(residuals(c, s), config.huber_delta)) for c in corrs]
+        corrs = [
+            c.reweighted(c.w * huber_weights(residuals(c, s, config.closed_form), config.huber_delta)) for c in corrs
+        ]
     return closed_form_scale(corrs, config.closed_form), corrs
 
 
@@ -314,46 +360,48 @@ def fixed_point_scale(
 ) -> FixedPointResult:
     """Alternate RC correspondences and the closed form from s0 until |ds| / s < tol.
 
-    The map s -> closed_form(RC(s)) is close to affine near its fixed point but can contract
-    slowly (reprojections that slide along planes parallel to the baseline pull s towards its
-    current value), so every second step is Aitken-extrapolated; extrapolations that leave
-    [s/2, 2s] are discarded.
+    The depth gate is annealed from ``depth_tau`` down to ``depth_tau_final`` (x0.6 per step):
+    a wide gate lets a poor start find the right surfaces, a tight one keeps near-occluded points
+    (behind a surface a few % closer in camera j) out of the final estimate. Convergence is only
+    declared at the final gate. Steps are clamped to +-``max_step`` relative; Aitken's
+    extrapolation is tried every second step at the final gate (the map s -> s* is close to
+    affine there) and kept only when it stays inside the clamp.
     """
     step = step or _step
     tol = config.fixed_point_tol
+    tau_final = min(config.depth_tau_final, config.depth_tau)
     s = float(s0)
     hist = [s]
-    est, corrs = step(geoms, cams, s, config)
-    it = 1
+    k = 0
     converged = False
-    while it < config.fixed_point_iters:
-        s1 = est.s
-        if not np.isfinite(s1) or s1 <= 0:
-            raise CalibrationError(f"the scale fixed point left the positive reals (s = {s1:g})")
-        hist.append(s1)
-        if abs(s1 - s) / abs(s1) < tol:
-            s = s1
+    prev: float | None = None
+    est = corrs = None
+    while k < config.fixed_point_iters:
+        tau = max(tau_final, config.depth_tau * 0.6**k)
+        cfg = replace(config, depth_tau=tau)
+        est, corrs = step(geoms, cams, s, cfg)
+        k += 1
+        s_new = est.s
+        if not np.isfinite(s_new) or s_new <= 0:
+            raise CalibrationError(f"the scale fixed point left the positive reals (s = {s_new:g})")
+        s_new = float(np.clip(s_new, s * (1 - config.max_step), s * (1 + config.max_step)))
+        at_final = tau <= tau_final
+        if at_final and abs(s_new - s) / s_new < tol:
+            s = s_new
+            hist.append(s)
             converged = True
             break
-        est1, corrs1 = step(geoms, cams, s1, config)
-        it += 1
-        s2 = est1.s
-        hist.append(s2)
-        if abs(s2 - s1) / abs(s2) < tol:
-            s, est, corrs, converged = s2, est1, corrs1, True
-            break
-        denom = s2 - 2 * s1 + s
-        s_next = s2
-        if abs(denom) > 1e-15 * abs(s2):
-            sa = s2 - (s2 - s1) ** 2 / denom
-            if s2 / 2 < sa < 2 * s2:
-                s_next = sa
-        s = s_next
-        est, corrs = step(geoms, cams, s, config)
-        it += 1
-    if converged:
-        est, corrs = step(geoms, cams, s, config)
-    return FixedPointResult(float(est.s), est, it, converged, tuple(hist), tuple(corrs))
+        if at_final and prev is not None and k % 2 == 0:
+            denom = s_new - 2 * s + prev
+            if abs(denom) > 1e-15 * s_new:
+                sa = s_new - (s_new - s) ** 2 / denom
+                if abs(sa - s_new) < config.max_step * s_new:
+                    s_new = sa
+        prev, s = (s if at_final else None), s_new
+        hist.append(s)
+    cfg = replace(config, depth_tau=tau_final)
+    est, corrs = step(geoms, cams, s, cfg)
+    return FixedPointResult(float(s), est, k, converged, tuple(hist), tuple(corrs))
 
 
 def edge_weight(
