@@ -90,7 +90,11 @@ def test_tsdf_fusion_is_non_empty_and_near_the_plane(backend):
     assert abs(float(c.rgb.float().mean()) - 128) < 10  # the texture's mean grey
 
 
-def test_tsdf_default_voxel_and_absent_views():
+def test_tsdf_voxel_argument_and_absent_views():
+    frame, rig = make_scene(2)
+    coarse = B.tsdf_fusion(frame, rig, voxel=0.04)
+    check_cloud(coarse, 0.02)
+    assert len(coarse) < len(B.tsdf_fusion(frame, rig, config=B.TSDFConfig(voxel=0.02)))
     frame, rig = make_scene(2, present=[False, False])
     assert len(B.tsdf_fusion(frame, rig)) == 0
     assert len(B.naive_fusion(frame, rig)) == 0
@@ -118,6 +122,8 @@ def test_bad_input():
         B.naive_fusion(frame, Rig((rig[1],)))
     with pytest.raises(ValidationError, match="voxel"):
         B.voxel_downsampled_fusion(frame, rig, voxel=0)
+    with pytest.raises(ValidationError, match="contradicts"):
+        B.tsdf_fusion(frame, rig, voxel=0.05, config=B.TSDFConfig(voxel=0.02))
     with pytest.raises(ValidationError, match="backend"):
         B.tsdf_fusion(frame, rig, config=B.TSDFConfig(backend="nope"))
     with pytest.raises(ValidationError, match="max_uniform_resolution"):

@@ -70,6 +70,14 @@ def test_known_rotation_gives_its_angle():
     assert M.rotation_error_deg(est, T) == pytest.approx(7.5, abs=1e-6)
 
 
+@pytest.mark.parametrize("deg", [1e-4, 0.01, 90.0, 179.9])
+def test_small_and_large_angles_are_exact(deg):
+    T = random_poses(2, seed=9)
+    est = T.copy()
+    est[0] = rigid(rot([1, 0, 1], deg), [0, 0, 0]) @ T[0]
+    assert M.rotation_error_deg(est, T) == pytest.approx(deg, rel=1e-6)
+
+
 def test_known_translation_offset_in_mm_and_per_camera():
     T = random_poses(3)
     est = T.copy()
@@ -118,6 +126,8 @@ def test_pose_bad_input():
     bad[0, :3, :3] *= 2
     with pytest.raises(ValidationError, match="rigid"):
         M.pose_errors(bad, T)
+    with pytest.raises(ValidationError, match="4x4"):
+        M.pose_errors("poses", T)
 
 
 # --- PFR ------------------------------------------------------------------------------------

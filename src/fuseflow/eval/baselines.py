@@ -18,7 +18,7 @@ Open3D is imported inside the functions that use it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -220,7 +220,7 @@ class TSDFConfig:
     """Open3D device of the VoxelBlockGrid ("CPU:0" or "CUDA:0" on a CUDA build of Open3D)."""
 
 
-def tsdf_fusion(frame: Frame, rig: Rig, voxel: float = 0.01, config: TSDFConfig | None = None) -> FusedCloud:
+def tsdf_fusion(frame: Frame, rig: Rig, voxel: float | None = None, config: TSDFConfig | None = None) -> FusedCloud:
     """TSDF fusion of the frame's views, then the zero-crossing points of the volume.
 
     Each present view is integrated once with its camera's intrinsics and T_cam_world (Open3D's
@@ -229,10 +229,17 @@ def tsdf_fusion(frame: Frame, rig: Rig, voxel: float = 0.01, config: TSDFConfig 
     depth limit. The extracted points carry the TSDF colour, weight 1 and camera -1.
 
     Args:
-        voxel: voxel edge in metres (overrides ``config.voxel`` when ``config`` is None).
-        config: full :class:`TSDFConfig`; when given, its ``voxel`` is used.
+        voxel: voxel edge in metres; None means ``config.voxel`` (default 0.01). Giving both
+            ``voxel`` and a ``config`` with another voxel is a ValidationError.
+        config: full :class:`TSDFConfig` (default ``TSDFConfig()``).
     """
-    cfg = config if config is not None else TSDFConfig(voxel=voxel)
+    if config is not None and not isinstance(config, TSDFConfig):
+        raise ValidationError(f"config must be a TSDFConfig, got {type(config).__name__}")
+    cfg = config if config is not None else TSDFConfig()
+    if voxel is not None:
+        if config is not None and voxel != config.voxel:
+            raise ValidationError(f"voxel={voxel} contradicts config.voxel={config.voxel}; give one of them")
+        cfg = replace(cfg, voxel=voxel)
     _check_positive("voxel", cfg.voxel)
     _check_positive("trunc_voxels", cfg.trunc_voxels)
     if cfg.backend not in ("vbg", "scalable", "uniform"):

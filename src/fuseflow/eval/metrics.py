@@ -146,7 +146,12 @@ def _pose_set(T: Any, what: str) -> tuple[tuple[str, ...], np.ndarray, bool]:
         mats = [check_rigid(np.asarray(_to_numpy(v)), f"{what}[{k!r}]") for k, v in T.items()]
         arr = np.stack(mats) if mats else np.zeros((0, 4, 4))
         return ids, arr, True
-    arr = np.asarray(_to_numpy(T), dtype=np.float64) if not isinstance(T, np.ndarray) else T.astype(np.float64)
+    try:
+        arr = np.asarray(_to_numpy(T), dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(
+            f"{what}: expected (N, 4, 4) camera-from-world matrices or a mapping id -> 4x4, got {type(T).__name__}"
+        ) from exc
     if arr.ndim != 3 or arr.shape[1:] != (4, 4):
         raise ValidationError(
             f"{what}: expected (N, 4, 4) camera-from-world matrices or a mapping id -> 4x4, got shape {arr.shape}"
@@ -163,10 +168,16 @@ def _to_numpy(x: Any) -> Any:
 
 
 def _geodesic_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
-    """Angle of R_a^T R_b, degrees, batched over the leading axis."""
+    """Angle of R_a^T R_b, degrees, batched over the leading axis.
+
+    atan2(sin, cos) with sin from the skew part equals arccos((tr - 1) / 2) but keeps full
+    precision near 0 and 180 degrees, where arccos loses half the digits.
+    """
     M = np.einsum("...ji,...jk->...ik", R_a, R_b)
     cos = (np.trace(M, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    skew = np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1)
+    sin = np.linalg.norm(skew, axis=-1) / 2.0
+    return np.degrees(np.arctan2(sin, cos))
 
 
 def pose_errors(T_est: Any, T_ref: Any) -> PoseErrors:
@@ -669,7 +680,8 @@ def pncc(
        the depth test |z_j(X) - D_j(nearest pixel)| <= depth_tolerance + depth_tolerance_rel * z
        with D_j > 0 (a surface in front of X means X is occluded there).
     2. "Sees it best": among visible cameras, the two with the largest |cos| between the
-       point's normal (Open3D PCA normal over ``normal_knn`` neighbours) and the viewing ray,
+       point's normal (Open3D PCA normal over ``normal_knn`` neighbours among the evaluated
+       points) and the viewing ray,
        i.e. the most frontal views. With fewer than ``normal_knn`` points, the two nearest
        cameras are used instead.
     3. Grey = 0.299 R + 0.587 G + 0.114 B. A 3x3 patch is sampled bilinearly at the projected
@@ -728,6 +740,7 @@ def pncc(
         pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(normal_knn))
         normals = np.asarray(pcd.normals)
 
+    visible = np.zeros((n, m), dtype=bool)
     score = np.full((n, m), -np.inf)
     uv = np.zeros((n, m, 2))
     for j, cam in enumerate(cams):
@@ -748,16 +761,17 @@ def pncc(
         d = depth[j, vi, ui]
         vis = (d > 0) & (np.abs(z[idx] - d) <= depth_tolerance + depth_tolerance_rel * z[idx])
         idx = idx[vis]
+        visible[j, idx] = True
         uv[j, idx, 0] = u[idx]
         uv[j, idx, 1] = v[idx]
         if normals is not None:
             ray = Xc[idx] / np.linalg.norm(Xc[idx], axis=1, keepdims=True)
             n_cam = normals[idx] @ T[:3, :3].T
-            score[j, idx] = np.abs(np.sum(ray * n_cam, axis=1))
+            # a degenerate neighbourhood (duplicates, a line) can give a NaN normal: rank it last
+            score[j, idx] = np.nan_to_num(np.abs(np.sum(ray * n_cam, axis=1)), nan=0.0)
         else:
             score[j, idx] = -z[idx]
 
-    visible = np.isfinite(score)
     covis = visible.sum(0) >= 2
     num_not_covisible = int((~covis).sum())
     pidx = np.nonzero(covis)[0]
