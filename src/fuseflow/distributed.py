@@ -1,0 +1,139 @@
+"""Scale-out of per-frame fusion over a Ray cluster (optional extra ``fuseflow[ray]``).
+
+FUSE keeps no state between frames, so a long recording parallelises over frames. This module
+uses Ray and no scheduler of its own:
+
+* the calibrated rig and the FUSE / pipeline configs are put into the object store once and
+  shared by every task (``ray.put``);
+* each task opens the recording by path (workers must see the same filesystem: a shared or
+  network mount on a cluster), loads one frame, fuses it and returns the cloud as numpy arrays
+  plus its per-frame record; the driver writes clouds in frame order;
+* backpressure: at most ``max_in_flight`` tasks are outstanding, so memory stays bounded
+  whatever the recording's length;
+* failures: a task whose worker dies is retried by Ray (``max_retries``); a frame is yielded
+  exactly once, in order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from fuseflow.errors import FuseFlowError
+
+__all__ = ["RayOptions", "ray_frame_results", "import_ray"]
+
+
+def import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise FuseFlowError("--ray needs Ray: pip install 'fuseflow[ray]'") from None
+    return ray
+
+
+@dataclass(frozen=True)
+class RayOptions:
+    """How to reach Ray and how hard to push it."""
+
+    address: str | None = None
+    """Cluster address ("auto", "ray://host:10001", "host:6379"); None starts a local Ray."""
+    num_cpus: int | None = None
+    """CPUs of a local Ray (None = all); ignored when joining a cluster."""
+    max_in_flight: int | None = None
+    """Tasks outstanding at once; None = 2 x the cluster's CPUs. Bounds memory (backpressure)."""
+    max_retries: int = 3
+    """Times Ray re-runs a task whose worker died."""
+    cpus_per_task: float = 1.0
+    """Ray CPU resource per fusion task."""
+
+
+_RECORDINGS: dict[str, Any] = {}
+
+
+def _fuse_task(rec_path: str, position: int, sel: Sequence[int], rig: Any, pipeline_config: Any, fail_once: str | None):
+    """One frame: load, fuse, measure agreement. Returns (position, arrays, record dict)."""
+    import os
+    import time
+
+    import torch
+
+    from fuseflow.io.datasets import open_recording
+    from fuseflow.pipeline import process_frame
+
+    if fail_once is not None and not os.path.exists(fail_once):
+        # test hook: the first attempt of this task kills its worker process
+        open(fail_once, "w").close()
+        os._exit(1)
+    torch.set_num_threads(1)
+    rec = _RECORDINGS.get(rec_path)
+    if rec is None:
+        rec = _RECORDINGS[rec_path] = open_recording(rec_path)
+    t0 = time.perf_counter()
+    frame = rec[position]
+    load_ms = (time.perf_counter() - t0) * 1000.0
+    cloud, record = process_frame(frame, sel, rig, pipeline_config)
+    c = cloud.to("cpu")
+    arrays = (c.xyz.numpy(), c.rgb.numpy(), c.weight.numpy(), c.camera.numpy())
+    return position, arrays, record, load_ms
+
+
+def ray_frame_results(
+    rec_path: str,
+    positions: Sequence[int],
+    sel: Sequence[int],
+    rig: Any,
+    pipeline_config: Any,
+    options: RayOptions = RayOptions(),
+    fail_once: dict[int, str] | None = None,
+) -> Iterator[tuple[int, Any, Any, float]]:
+    """Fuse ``positions`` of the recording at ``rec_path`` on Ray; yield in order
+    (position, FusedCloud, FrameRecord, load_ms).
+
+    ``fail_once`` (tests): position -> marker file; that frame's first attempt kills its worker.
+    """
+    ray = import_ray()
+    from fuseflow.types import FusedCloud
+
+    started_here = False
+    if not ray.is_initialized():
+        kw: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "log_to_driver": False}
+        if options.address is None:
+            kw["num_cpus"] = options.num_cpus
+        ray.init(address=options.address, **kw)
+        started_here = True
+    try:
+        task = ray.remote(num_cpus=options.cpus_per_task, max_retries=options.max_retries)(_fuse_task)
+        rig_ref = ray.put(rig)
+        cfg_ref = ray.put(pipeline_config)
+        sel_ref = ray.put(list(sel))
+        limit = options.max_in_flight or max(2, 2 * int(ray.cluster_resources().get("CPU", 1)))
+        pending: dict[int, Any] = {}
+        done: dict[int, Any] = {}
+        todo = list(positions)
+        nxt = 0
+        for want in todo:
+            while nxt < len(todo) and len(pending) + len(done) < limit:
+                p = todo[nxt]
+                marker = (fail_once or {}).get(p)
+                pending[p] = task.remote(rec_path, p, sel_ref, rig_ref, cfg_ref, marker)
+                nxt += 1
+            while want not in done:
+                refs = list(pending.values())
+                ready, _ = ray.wait(refs, num_returns=1)
+                for p, r in list(pending.items()):
+                    if r in ready:
+                        try:
+                            done[p] = ray.get(r)
+                        except ray.exceptions.RayError as exc:
+                            cause = getattr(exc, "cause", None)
+                            if isinstance(cause, FuseFlowError):
+                                raise cause from None
+                            raise FuseFlowError(f"frame at position {p} failed on Ray after retries: {exc}") from None
+                        del pending[p]
+            position, arrays, record, load_ms = done.pop(want)
+            yield position, FusedCloud.from_numpy(*arrays), record, load_ms
+    finally:
+        if started_here:
+            ray.shutdown()
