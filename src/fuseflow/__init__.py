@@ -4,6 +4,7 @@ Conventions (docs/conventions.md): metres; OpenCV camera axes; ``T_cam_world`` i
 camera-from-world; batched tensors put the camera axis first.
 """
 
+from fuseflow.calib import calibrate
 from fuseflow.errors import FormatError, FuseFlowError, RecordingError, ValidationError
 from fuseflow.io import (
     Recording,
@@ -33,6 +34,7 @@ __all__ = [
     "Rig",
     "ValidationError",
     "View",
+    "calibrate",
     "make_virtual_rig",
     "open_recording",
     "read_calibration",

@@ -48,6 +48,7 @@ def colmap_backbone(frame, rig, config) -> BackboneResult:
     import cv2
 
     pycolmap = _import_pycolmap()
+    pycolmap.logging.minloglevel = 2  # errors only: the library does not print
     t0 = time.perf_counter()
     color = frame.color.cpu().numpy()
     n = color.shape[0]
