@@ -169,24 +169,28 @@ def metric_scale(
         )
     cams_used = cams
     geoms_for_edges = _corrupt_step(corrupt, cams_used)
-    fp = fixed_point_scale(_directed(all_geoms, edges), cams_used, s_c, config, step=geoms_for_edges)
-    if not fp.converged:
-        warnings.append(f"the scale fixed point did not converge in {fp.iterations} steps (history {fp.history[-3:]})")
-    s_init = fp.s
+    # Per-edge scales first (for CC), each edge's own fixed point from the robust coarse scale;
+    # the global estimate only ever sees the edges CC keeps, so one wrong edge cannot drag it.
+    # An edge whose own fixed point walks to a scale where its correspondences fail the depth
+    # gate (what a wrong edge does) gets the one-step closed form at the coarse scale instead
+    # (the paper's fixed-correspondence approximation), so it shows up in the cycle residuals
+    # instead of vanishing.
     edge_scales, edge_counts = {}, {}
-    # Per-edge scales (for CC): the closed form restricted to each edge, on the correspondences
-    # at the global fixed point (the paper's fixed-correspondence approximation). A full per-edge
-    # fixed point would let a wrong edge walk to a scale where its true correspondences fail the
-    # depth gate, and vanish instead of showing up in the cycle residuals.
     final_cfg = replace(config, depth_tau=min(config.depth_tau_final, config.depth_tau))
     for e in edges:
         try:
-            est_e, _ = geoms_for_edges(all_geoms[e], cams_used, s_init, final_cfg)
+            fe = fixed_point_scale(all_geoms[e], cams_used, s_c, config, step=geoms_for_edges)
+            if fe.estimate.count >= config.min_correspondences and fe.s > 0:
+                edge_scales[e], edge_counts[e] = fe.s, fe.estimate.count
+                continue
+        except CalibrationError:
+            pass
+        try:
+            est_e, _ = geoms_for_edges(all_geoms[e], cams_used, s_c, final_cfg)
         except CalibrationError:
             continue
         if est_e.count >= config.min_correspondences and est_e.s > 0:
-            edge_scales[e] = est_e.s
-            edge_counts[e] = est_e.count
+            edge_scales[e], edge_counts[e] = est_e.s, est_e.count
     usable = [e for e in edges if e in edge_scales]
     dropped = [e for e in edges if e not in edge_scales]
     if dropped:
@@ -210,11 +214,13 @@ def metric_scale(
             warnings.append("the edge graph has no triangle: cycle check replaced by the median of per-edge scales")
     else:
         kept, pruned, mode, res, res0, res_mm = tuple(usable), (), "off", {}, {}, {}
-    s_final, est = s_init, fp.estimate
-    iters, conv = fp.iterations, fp.converged
-    if pruned:
-        fp2 = fixed_point_scale(_directed(all_geoms, kept), cams_used, s_c, config, step=geoms_for_edges)
-        s_final, est, iters, conv = fp2.s, fp2.estimate, iters + fp2.iterations, fp2.converged
+    fp = fixed_point_scale(_directed(all_geoms, kept), cams_used, s_c, config, step=geoms_for_edges)
+    if not fp.converged:
+        warnings.append(f"the scale fixed point did not converge in {fp.iterations} steps (history {fp.history[-3:]})")
+    s_final, est, iters, conv = fp.s, fp.estimate, fp.iterations, fp.converged
+    s_init = s_final
+    if pruned:  # for the report: what the global estimate would have been without pruning
+        s_init = fixed_point_scale(_directed(all_geoms, usable), cams_used, s_c, config, step=geoms_for_edges).s
     if coarse.peak_spread > config.ill_conditioned_spread and not (config.use_matches and bb.matches):
         warnings.append(
             f"ill-conditioned: scales within {coarse.peak_spread:.0%} of each other explain the depth equally "
@@ -349,7 +355,16 @@ def calibrate(
         from fuseflow.calib.refine import refine_poses
 
         t = time.perf_counter()
-        rr = refine_poses({k: T[ids[k]] for k in connected}, depth, K, drange, [e for e in sr.kept], config)
+        rr = refine_poses(
+            {k: T[ids[k]] for k in connected},
+            depth,
+            K,
+            drange,
+            list(sr.kept),
+            config,
+            color=frame.color.detach().cpu().numpy(),
+            counts=sr.edge_counts,
+        )
         for k, Tk in rr.T_cam_world.items():
             T[ids[k]] = Tk
         refine_report = asdict(rr)
@@ -382,14 +397,22 @@ def calibrate(
         "unconnected_cameras": unconnected,
         "unregistered_cameras": [ids[k] for k in np.flatnonzero(~bb.registered)],
         "warnings": list(sr.warnings)
-        + (
-            [f"cameras {unconnected} share no usable overlap with the others and are not placed"] if unconnected else []
-        ),
+        + _placement_warnings(unconnected, [ids[k] for k in np.flatnonzero(~bb.registered)]),
         "ill_conditioned": any("ill-conditioned" in w for w in sr.warnings),
         "refinement": refine_report,
         "timings_s": timings,
     }
     return Calibration(T, report)
+
+
+def _placement_warnings(unconnected: list[str], unregistered: list[str]) -> list[str]:
+    out = []
+    if unregistered:
+        out.append(f"the backbone could not register cameras {unregistered}; they are not placed")
+    rest = [c for c in unconnected if c not in unregistered]
+    if rest:
+        out.append(f"cameras {rest} share no usable depth overlap with the others and are not placed")
+    return out
 
 
 def _rename(d: dict[str, float], ids) -> dict[str, float]:
