@@ -6,6 +6,7 @@ camera-from-world; batched tensors put the camera axis first.
 
 from fuseflow.calib import calibrate
 from fuseflow.errors import FormatError, FuseFlowError, RecordingError, ValidationError
+from fuseflow.fuse import fuse
 from fuseflow.io import (
     Recording,
     make_virtual_rig,
@@ -35,6 +36,7 @@ __all__ = [
     "ValidationError",
     "View",
     "calibrate",
+    "fuse",
     "make_virtual_rig",
     "open_recording",
     "read_calibration",

@@ -1,0 +1,25 @@
+"""FUSE: stateless, reliability-guided multi-view point cloud fusion (paper III-C).
+
+``fuse(frame, rig, config=FuseConfig()) -> FusedCloud``. One module per component: mcm (eq.
+16-18), neighbours (the camera graph), cvgc (eq. 19-21), weights (eq. 22), ash (eq. 23-25),
+rps (eq. 26-28); api composes them; numba_kernels is the compiled CPU path (numba is imported
+only when that path runs). See design.md and docs/fuse.md.
+"""
+
+from fuseflow.fuse.api import FuseReport, FuseResult, fuse, fuse_with_report, resolve_backend
+from fuseflow.fuse.config import ABLATIONS, PRESETS, FuseConfig, preset
+from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
+
+__all__ = [
+    "ABLATIONS",
+    "PRESETS",
+    "FuseConfig",
+    "FuseReport",
+    "FuseResult",
+    "NeighbourGraph",
+    "fuse",
+    "fuse_with_report",
+    "neighbour_graph",
+    "preset",
+    "resolve_backend",
+]

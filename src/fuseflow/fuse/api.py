@@ -1,0 +1,277 @@
+"""``fuse(frame, rig, config) -> FusedCloud``: FUSE (paper III-C), stateless, one frame at a time.
+
+Stages, each in its own module: MCM (mcm.py, eq. 16-18) -> back-projection -> CVGC over the
+neighbour graph (neighbours.py, cvgc.py, eq. 19-21) -> joint weight (weights.py, eq. 22) ->
+ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
+(the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
+(numba_kernels.py); ``"auto"`` picks numba for CPU tensors.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from fuseflow.errors import ValidationError
+from fuseflow.fuse.ash import adaptive_hash, fixed_hash
+from fuseflow.fuse.config import FuseConfig
+from fuseflow.fuse.cvgc import _pixel_rays, cvgc_counts, omega_geo
+from fuseflow.fuse.mcm import confidence, valid_depth
+from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
+from fuseflow.fuse.rps import cell_counts, select_representatives
+from fuseflow.fuse.weights import joint_weight
+from fuseflow.types import Frame, FusedCloud, Rig
+
+__all__ = ["fuse", "fuse_with_report", "FuseResult", "FuseReport", "resolve_backend"]
+
+log = logging.getLogger("fuseflow.fuse")
+
+
+@dataclass(frozen=True)
+class FuseReport:
+    """What happened while fusing one frame.
+
+    Attributes:
+        backend: "torch" or "numba". device: where it ran.
+        views: cameras in the frame. missing: ids of dropped views (not fused, no votes).
+        empty: ids of present views with no valid depth. isolated: ids of cameras with no
+            neighbour in the graph (their omega_geo is c(x), eq. 21).
+        valid_pixels: pixels with depth in range. candidates: points passing eq. (27) and the
+            minimum joint weight. out_of_range: candidates beyond the hash's addressable range.
+        points: output points. ms: wall time of the call.
+        warnings: human-readable lines about degraded inputs (also logged).
+    """
+
+    backend: str
+    device: str
+    views: int
+    missing: tuple[str, ...] = ()
+    empty: tuple[str, ...] = ()
+    isolated: tuple[str, ...] = ()
+    valid_pixels: int = 0
+    candidates: int = 0
+    out_of_range: int = 0
+    points: int = 0
+    ms: float = 0.0
+    warnings: tuple[str, ...] = field(default=())
+
+
+@dataclass(frozen=True)
+class FuseResult:
+    """A fused cloud (DESIGN.md section 1) and its FuseReport."""
+
+    cloud: FusedCloud
+    report: FuseReport
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    depth: torch.Tensor  # (N, H, W) float32, gated to each view's range, 0 for absent views
+    color: torch.Tensor  # (N, H, W, 3) uint8
+    K: torch.Tensor  # (N, 3, 3) float32
+    T_cam_world: torch.Tensor  # (N, 4, 4) float32
+    T_world_cam: torch.Tensor  # (N, 3, 4) float32
+    rig_index: torch.Tensor  # (N,) int16, rig position of each frame view
+    present: torch.Tensor  # (N,) bool
+    graph: NeighbourGraph  # indices in frame order
+    ids: tuple[str, ...]
+
+
+def resolve_backend(config: FuseConfig, device: torch.device) -> str:
+    """The backend that ``config.backend`` selects for tensors on ``device``."""
+    if config.backend == "torch":
+        return "torch"
+    if config.backend == "numba":
+        if device.type != "cpu":
+            raise ValidationError(
+                f"backend 'numba' runs on CPU tensors; the frame is on {device} (use 'torch' or 'auto')"
+            )
+        return "numba"
+    if device.type != "cpu":
+        return "torch"
+    try:
+        import numba  # noqa: F401
+    except ImportError:  # pragma: no cover - numba is a core dependency
+        return "torch"
+    return "numba"
+
+
+def _prepare(frame: Frame, rig: Rig, config: FuseConfig) -> _Prepared:
+    if not isinstance(frame, Frame):
+        raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
+    if not isinstance(rig, Rig):
+        raise ValidationError(f"rig must be a fuseflow.Rig, got {type(rig).__name__}")
+    if not isinstance(config, FuseConfig):
+        raise ValidationError(f"config must be a fuseflow.fuse.FuseConfig, got {type(config).__name__}")
+    w, h = frame.resolution
+    cams = []
+    for cid in frame.camera_ids:
+        cam = rig[cid]  # ValidationError naming the id when the rig lacks it
+        if (cam.width, cam.height) != (w, h):
+            raise ValidationError(f"camera {cid!r} is {cam.width}x{cam.height} in the rig but the frame is {w}x{h}")
+        cams.append(cam)
+    missing_T = [c.id for c in cams if c.T_cam_world is None]
+    if missing_T:
+        raise ValidationError(
+            f"cameras without extrinsics (T_cam_world is null): {missing_T}; FUSE needs a calibrated rig "
+            "(run `fuseflow calibrate` or pass a calib.json)"
+        )
+    dev = frame.device
+    sub = Rig(tuple(cams))
+    present = frame.present
+    lo = torch.tensor([max(c.depth_range[0], config.delta) for c in cams], dtype=torch.float32, device=dev)
+    hi = torch.tensor([min(c.depth_range[1], config.z_max) for c in cams], dtype=torch.float32, device=dev)
+    depth = valid_depth(frame.depth, lo, hi)
+    depth = torch.where(present[:, None, None], depth, torch.zeros_like(depth))
+    T = np.stack([c.T_cam_world for c in cams])
+    T_wc = np.stack([c.T_world_cam for c in cams])[:, :3, :]
+    graph = neighbour_graph(sub, config.k_neighbours, config.min_overlap)
+    return _Prepared(
+        depth=depth.contiguous(),
+        color=frame.color,
+        K=torch.as_tensor(np.stack([c.K for c in cams]), dtype=torch.float32, device=dev),
+        T_cam_world=torch.as_tensor(T, dtype=torch.float32, device=dev),
+        T_world_cam=torch.as_tensor(T_wc, dtype=torch.float32, device=dev),
+        rig_index=torch.tensor([rig.index(c.id) for c in cams], dtype=torch.int16, device=dev),
+        present=present,
+        graph=graph,
+        ids=tuple(frame.camera_ids),
+    )
+
+
+def _to_world(X: torch.Tensor, cam: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
+    """X (M, 3) camera-frame points of cameras ``cam`` -> world, elementwise (kernel order)."""
+    m = T_wc[cam]  # (M, 3, 4)
+    x, y, z = X[:, 0], X[:, 1], X[:, 2]
+    cols = [m[:, a, 0] * x + m[:, a, 1] * y + m[:, a, 2] * z + m[:, a, 3] for a in range(3)]
+    return torch.stack(cols, dim=1)
+
+
+def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
+    """The PyTorch reference. Returns (cloud, valid pixels, candidates, out-of-range)."""
+    depth = p.depth
+    dev = depth.device
+    n, h, w = depth.shape
+    c = confidence(depth, cfg.alpha, cfg.beta, cfg.window, cfg.eps, cfg.use_mcm)  # eq. (16)-(18)
+    valid_pixels = int((depth > 0).sum())
+    cand = (c > cfg.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
+    xn, yn = _pixel_rays(p.K, h, w)
+    z = depth[cand]
+    X = torch.stack([xn[cand] * z, yn[cand] * z, z], dim=1)
+    nz = torch.nonzero(cand)
+    cam, pix = nz[:, 0], nz[:, 1] * w + nz[:, 2]
+    c_m = c[cand]
+    if cfg.use_cvgc:
+        agree, votes = cvgc_counts(
+            X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.tau, cfg.visibility_aware, cfg.eps
+        )
+        w_geo = omega_geo(agree, votes, c_m)  # eq. (21)
+    else:
+        w_geo = c_m  # "w/o CVGC": eq. (21)'s no-vote case for every point
+    omega = joint_weight(c_m, w_geo, cfg.eps)  # eq. (22)
+    keep = omega >= cfg.min_weight
+    X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
+    P = _to_world(X, cam, p.T_world_cam)
+    if cfg.use_ash:
+        cells = adaptive_hash(P, cfg.coarse_size, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps)  # eq. (23)-(25)
+    else:
+        cells = fixed_hash(P, cfg.fixed_size)
+    candidates = int(P.shape[0])
+    out_of_range = int((~cells.keep).sum())
+    if out_of_range:
+        P, cam, pix, omega = P[cells.keep], cam[cells.keep], pix[cells.keep], omega[cells.keep]
+        key, size = cells.key[cells.keep], cells.cell_size[cells.keep]
+    else:
+        key, size = cells.key, cells.cell_size
+    if cfg.use_rps and cfg.use_ash:
+        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, True, 0)  # eq. (26)
+    elif cfg.use_rps:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
+        k_const = int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
+        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, k_const)
+    else:  # w/o RPS: fixed k
+        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, cfg.k_fixed)
+    sel = select_representatives(P, omega, inv, k, cfg.k_max)  # eq. (28)
+    cam_s = cam[sel]
+    rgb = p.color.reshape(n, h * w, 3)[cam_s, pix[sel]]
+    cloud = FusedCloud(
+        P[sel].contiguous(), rgb.contiguous(), omega[sel].contiguous(), p.rig_index[cam_s].to(torch.int16)
+    )
+    del dev
+    return cloud, valid_pixels, candidates, out_of_range
+
+
+def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FuseResult:
+    """FUSE one frame and report what happened (missing / empty / isolated cameras, counts).
+
+    Args:
+        frame: the N views of one instant: depth (N, H, W) float32 metres (0 = none), colour
+            (N, H, W, 3) uint8, ``present`` (N,) bool; on any device.
+        rig: a rig holding every camera of the frame (matched by id) with extrinsics
+            (T_cam_world, camera-from-world, metres). Cameras of the rig absent from the frame
+            are ignored.
+        config: FuseConfig (default: ``FuseConfig()``).
+
+    Returns:
+        FuseResult: ``cloud`` (FusedCloud on the frame's device: xyz world metres, rgb, weight
+        = eq. 22, camera = rig index of the source camera) and ``report``.
+    """
+    cfg = FuseConfig() if config is None else config
+    t0 = time.perf_counter()
+    p = _prepare(frame, rig, cfg)
+    backend = resolve_backend(cfg, p.depth.device)
+    if backend == "numba":
+        from fuseflow.fuse.numba_kernels import fuse_numba
+
+        cloud, valid, cand, oor = fuse_numba(p, cfg)
+    else:
+        cloud, valid, cand, oor = _fuse_torch(p, cfg)
+    if p.depth.device.type == "cuda":
+        torch.cuda.synchronize(p.depth.device)
+    ms = (time.perf_counter() - t0) * 1000.0
+    pres = p.present.tolist()
+    missing = tuple(cid for cid, ok in zip(p.ids, pres) if not ok)
+    per_view = (p.depth > 0).flatten(1).sum(dim=1).tolist()
+    empty = tuple(cid for cid, ok, nv in zip(p.ids, pres, per_view) if ok and nv == 0)
+    idx = p.graph.index.tolist()
+    isolated = tuple(
+        cid for i, (cid, ok) in enumerate(zip(p.ids, pres)) if ok and not any(j >= 0 and pres[j] for j in idx[i])
+    )
+    notes = []
+    if missing:
+        notes.append(f"views missing from frame {frame.index}: {list(missing)} (fused without them)")
+    if empty:
+        notes.append(f"views with no valid depth in frame {frame.index}: {list(empty)}")
+    if isolated and len(p.ids) > 1:
+        notes.append(f"cameras with no overlapping neighbour: {list(isolated)} (omega_geo = c, eq. 21)")
+    if oor:
+        notes.append(f"{oor} points beyond the spatial hash's range were dropped")
+    report = FuseReport(
+        backend=backend,
+        device=str(p.depth.device),
+        views=len(p.ids),
+        missing=missing,
+        empty=empty,
+        isolated=isolated,
+        valid_pixels=valid,
+        candidates=cand,
+        out_of_range=oor,
+        points=len(cloud),
+        ms=ms,
+        warnings=tuple(notes),
+    )
+    return FuseResult(cloud, report)
+
+
+def fuse(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FusedCloud:
+    """FUSE one frame (paper III-C): the fused cloud only; degraded inputs are logged.
+
+    See :func:`fuse_with_report` for the arguments and the report.
+    """
+    result = fuse_with_report(frame, rig, config)
+    for line in result.report.warnings:
+        log.warning(line)
+    return result.cloud

@@ -1,0 +1,209 @@
+"""FuseConfig: every constant of FUSE (paper III-C), its source, and the named presets.
+
+The paper fixes only tau = 0.05 (eq. 21). Every other value below is a project default with
+its derivation written next to it (DESIGN.md section 2). Presets:
+
+* ``FuseConfig()`` / ``PRESETS["default"]``: the project's defaults (visibility-aware CVGC,
+  a minimum joint weight for RPS candidates).
+* ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
+  depth, eq. 27 filters on c only, no minimum joint weight).
+* Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
+  ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Literal
+
+from fuseflow.errors import ValidationError
+
+__all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "preset"]
+
+Backend = Literal["auto", "torch", "numba"]
+
+# --- MCM defaults (eq. 16-18), derived from the sensor noise model --------------------------
+# Kinect-class structured-light noise: sigma(z) = 1.2 mm + 1.9 mm * (z - 0.4)^2 (z in metres),
+# i.e. a relative noise sigma/z of about 0.3 % at 1.5-2.5 m, focal length f ~ 525 px at 640x480.
+#
+# Smooth surface at 45 degrees, depth z: neighbouring pixels differ by ~ z / f (ray spacing
+# z / f, slope tan 45 = 1), so the central-difference gradient gives g ~ 1 / f = 0.0019, plus
+# noise sqrt(2) * 0.003 / 2 per axis -> g ~ 0.004-0.005 in total. The 3x3 variance of a plane
+# at 45 degrees is (2/3) (z/f)^2 -> v = 2.4e-6, plus the noise (0.003)^2 = 9e-6 -> v ~ 1.2e-5.
+# Requirement "c > 0.8":  alpha * 0.005 + beta * 1.2e-5 < -ln 0.8 = 0.223.
+#
+# Depth edge with a 5 % jump: central difference across it gives g = 0.05 / 2 = 0.025; a 3x3
+# window holding 3 (or 6) pixels of the far side has variance (1/3)(2/3)(0.05 z)^2, so
+# v = 5.6e-4. Requirement "c < 0.05": alpha * 0.025 + beta * 5.6e-4 > -ln 0.05 = 3.0.
+#
+# The variance term separates the two cases 47x, the gradient term only 5x, so beta carries
+# the edge test: beta = 6000 gives 3.36 on the edge alone and 0.072 on the smooth surface;
+# alpha = 20 adds 0.5 on the edge and 0.1 on the smooth surface. Check: smooth c = exp(-0.17)
+# = 0.84 > 0.8, edge c = exp(-3.86) = 0.021 < 0.05. tests/fuse/test_mcm.py checks both numbers
+# on synthetic depth maps.
+MCM_ALPHA = 20.0
+MCM_BETA = 6000.0
+
+
+@dataclass(frozen=True)
+class FuseConfig:
+    """All parameters of FUSE (paper III-C). Frozen; build variants with ``dataclasses.replace``."""
+
+    # ---- MCM, eq. (16)-(18)
+    alpha: float = MCM_ALPHA
+    """Weight of the relative depth gradient g(x) in eq. (18). Derivation above (MCM_ALPHA). >= 0."""
+    beta: float = MCM_BETA
+    """Weight of the normalised local variance v(x) in eq. (18). Derivation above (MCM_BETA). >= 0."""
+    delta: float = 0.1
+    """Minimum depth (m) in eq. (18): the closest range of Kinect/RealSense-class sensors is
+    0.1-0.4 m. Each camera's own ``depth_range`` also gates. > 0."""
+    z_max: float = 10.0
+    """Maximum depth (m), DESIGN.md 2.1 (1[z < z_max]); beyond 10 m these sensors return noise.
+    > delta."""
+    window: int = 3
+    """r of the r x r variance window of eq. (17) (DESIGN.md 2.1: r = 3). Odd, 3..7."""
+    use_mcm: bool = True
+    """False = the "w/o MCM" ablation of Table VII: c(x) = 1 for every valid pixel."""
+
+    # ---- neighbour graph (paper III-C-2, DESIGN.md 2.2)
+    k_neighbours: int = 4
+    """K_max, the most neighbour cameras per camera. CVGC cost is O(K_max) per point; 4 covers
+    the cameras on either side of a ring rig twice over. 1..16."""
+    min_overlap: float = 0.05
+    """Overlap floor: a camera j is a neighbour of i only when at least this share of i's
+    frustum samples lands in j's image in front of it. 0..1."""
+
+    # ---- CVGC, eq. (19)-(21)
+    tau: float = 0.05
+    """Relative depth residual threshold of eq. (21); paper: tau = 0.05. > 0."""
+    visibility_aware: bool = True
+    """Beyond the paper (DESIGN.md 2.3): when D_j is in front of the projected point by more
+    than tau (the point is only occluded in j), j casts no vote; only D_j behind the point
+    (free-space violation) votes against. False = eq. (20)-(21) as written."""
+    use_cvgc: bool = True
+    """False = the "w/o CVGC" ablation of Table VII: omega_geo(x) = c(x) (eq. 21's no-vote case),
+    so the joint weight of eq. (22) reduces to c(x)."""
+
+    # ---- ASH, eq. (23)-(25)
+    coarse_size: float = 0.2
+    """s_c (m), the coarse cell of eq. (23). 20 cm holds ~10^3-10^4 points of a surface 1-3 m
+    away at 640x480, enough for a stable density estimate. 0.02..2."""
+    s0: float = 6.3
+    """s_0 of eq. (24), in m^(1/2). Points lie on surfaces: a coarse cell holding n points of a
+    surface of area ~ s_c^2 has rho = n / s_c^3, so a fine cell of size s_f holds
+    n s_f^2 / s_c^2 = s_0^2 s_c points. s_0 = sqrt(8 / 0.2) = 6.3 aims at 8 points per fine cell,
+    which with k ~ 1-2 per cell gives a few hundred thousand points at N = 8 (docs/fuse.md
+    shows the trade-off). > 0."""
+    s_min: float = 0.002
+    """Lower clip of s_f in eq. (24) (m): about one pixel footprint at 1 m (1 / 525 m). > 0."""
+    s_max: float = 0.05
+    """Upper clip of s_f in eq. (24) (m): sparse regions get at most 5 cm cells. s_min..s_c."""
+    use_ash: bool = True
+    """False = the "w/o ASH" ablation of Table VII: one fixed grid of cell ``fixed_size`` and
+    rho_bar in place of the fine-cell density in eq. (26)."""
+    fixed_size: float = 0.01
+    """Cell size (m) of the single fixed grid used when use_ash is False (1 cm, the TSDF
+    baseline's voxel). > 0."""
+
+    # ---- RPS, eq. (26)-(28)
+    k0: float = 1.0
+    """k_0 of eq. (26): base count of representatives per fine cell. > 0."""
+    ratio: float = 1.0
+    """r of eq. (26), the selection ratio. > 0."""
+    k_max: int = 3
+    """k_max of eq. (26): at most this many points per fine cell (and FPS rounds). 1..16."""
+    r_c: float = 0.3
+    """r_c of eq. (27): candidates need c(x) > r_c. 0.3 drops depth edges (c < 0.05 by the MCM
+    derivation) and keeps smooth surfaces (c > 0.8) with margin. 0..1."""
+    min_weight: float = 0.3
+    """Beyond the paper: candidates also need the joint weight omega(x) of eq. (22) > this.
+    Eq. (27) filters on c only, so a point that every neighbour contradicts would still win a
+    cell where it is alone (a flying pixel usually is); 0.3 rejects omega_geo < ~0.2 for c ~ 0.9.
+    0 = eq. (27) as written. 0..1."""
+    use_rps: bool = True
+    """False = the "w/o RPS" ablation of Table VII: a fixed ``k_fixed`` points per cell instead
+    of eq. (26), keeping the candidate filter (27) and the weighted FPS (28)."""
+    k_fixed: int = 1
+    """Points per cell when use_rps is False. 1..k_max."""
+
+    # ---- execution
+    backend: Backend = "auto"
+    """"torch": the PyTorch reference (any device); "numba": fused compiled CPU kernels;
+    "auto": numba on CPU tensors when numba is installed, torch otherwise (CUDA)."""
+    eps: float = 1e-6
+    """epsilon of eq. (16), (17), (20), (22), (24). > 0."""
+
+    def __post_init__(self) -> None:
+        def bad(name: str, want: str) -> None:
+            raise ValidationError(f"FuseConfig.{name}: expected {want}, got {getattr(self, name)!r}")
+
+        for name in ("alpha", "beta", "r_c", "min_weight"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                bad(name, "a finite number >= 0")
+        for name in (
+            "delta",
+            "z_max",
+            "tau",
+            "coarse_size",
+            "s0",
+            "s_min",
+            "s_max",
+            "fixed_size",
+            "k0",
+            "ratio",
+            "eps",
+        ):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                bad(name, "a finite number > 0")
+        if self.z_max <= self.delta:
+            bad("z_max", f"> delta ({self.delta})")
+        if not isinstance(self.window, int) or self.window % 2 == 0 or not 3 <= self.window <= 7:
+            bad("window", "an odd integer in 3..7")
+        if not isinstance(self.k_neighbours, int) or not 1 <= self.k_neighbours <= 16:
+            bad("k_neighbours", "an integer in 1..16")
+        if not 0 <= self.min_overlap <= 1:
+            bad("min_overlap", "a number in [0, 1]")
+        if self.r_c >= 1 or self.min_weight >= 1:
+            bad("r_c" if self.r_c >= 1 else "min_weight", "a number < 1")
+        if not isinstance(self.k_max, int) or not 1 <= self.k_max <= 16:
+            bad("k_max", "an integer in 1..16")
+        if not isinstance(self.k_fixed, int) or not 1 <= self.k_fixed <= self.k_max:
+            bad("k_fixed", f"an integer in 1..k_max ({self.k_max})")
+        if self.s_min > self.s_max or self.s_max > self.coarse_size:
+            bad("s_max", f"s_min ({self.s_min}) <= s_max <= coarse_size ({self.coarse_size})")
+        if self.coarse_size / self.s_min > 127 or self.coarse_size / self.fixed_size > 1e6:
+            bad("s_min", f">= coarse_size / 127 ({self.coarse_size / 127:.4g}) so a fine index fits 7 bits")
+        if self.backend not in ("auto", "torch", "numba"):
+            bad("backend", "'auto', 'torch' or 'numba'")
+
+    def describe(self) -> dict:
+        """The fields as a plain dict (for benchmark rows and logs)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+_DEFAULT = FuseConfig()
+
+#: Table VII ablations, each the default with one component removed.
+ABLATIONS: dict[str, FuseConfig] = {
+    "w/o CVGC": replace(_DEFAULT, use_cvgc=False),
+    "w/o MCM": replace(_DEFAULT, use_mcm=False),
+    "w/o ASH": replace(_DEFAULT, use_ash=False),
+    "w/o RPS": replace(_DEFAULT, use_rps=False),
+}
+
+PRESETS: dict[str, FuseConfig] = {
+    "default": _DEFAULT,
+    "paper": replace(_DEFAULT, visibility_aware=False, min_weight=0.0),
+    **ABLATIONS,
+}
+
+
+def preset(name: str) -> FuseConfig:
+    """The named preset (``PRESETS`` keys); ValidationError listing the names otherwise."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValidationError(f"no FUSE preset {name!r}; presets are {sorted(PRESETS)}") from None

@@ -1,0 +1,113 @@
+"""RPS, Representative Point Selection (paper III-C-3, eq. 26-28), PyTorch reference.
+
+k(C_f) = clip(ceil(k_0 rho(C_f) / rho_bar * r), 1, k_max)                      (26)
+S      = {P : c(P) > r_c}  (the caller filters; see config.min_weight)          (27)
+score  = d(P, S_sel) * omega(P)   confidence-weighted farthest point sampling   (28)
+
+rho(C_f) = |{P in C_f}| / s_f^3 and rho_bar is its mean over the occupied fine cells of the
+frame. The first pick of a cell is its highest-omega point; each further pick maximises (28).
+Points are selected, never averaged. Vectorised over all cells at once: one pass per round,
+k_max rounds (no per-cell Python loop).
+
+Tie-break (shared with the compiled kernel): equal omega or equal score -> the point that
+comes first in input order (camera, then row-major pixel).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+__all__ = ["cell_counts", "select_representatives"]
+
+
+def cell_counts(
+    key: torch.Tensor,
+    cell_size: torch.Tensor,
+    k0: float,
+    ratio: float,
+    k_max: int,
+    density_adaptive: bool,
+    k_fixed: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Group points by key and apply eq. (26).
+
+    Args:
+        key: (M,) int64 cell keys. cell_size: (M,) float32 s_f of each point's cell.
+        density_adaptive: True = eq. (26) with the fine-cell density; False with ``k_fixed``
+            (the "w/o RPS" ablation) or, when k_fixed is None-like (0), with rho_bar (w/o ASH).
+
+    Returns:
+        inverse (M,) int64 cell index of each point, counts (C,) int64, k (C,) int64.
+    """
+    uniq, inv, counts = torch.unique(key, return_inverse=True, return_counts=True)
+    if not density_adaptive:
+        k = torch.full_like(counts, int(k_fixed))
+        return inv, counts, k
+    size = torch.zeros(uniq.shape[0], dtype=torch.float32, device=key.device).scatter_(0, inv, cell_size)
+    rho = counts.to(torch.float32) / size**3
+    rho_bar = rho.mean()
+    k = torch.ceil(k0 * (rho / rho_bar) * ratio).clamp(1, k_max).to(torch.int64)
+    return inv, counts, k
+
+
+def select_representatives(
+    P: torch.Tensor, omega: torch.Tensor, inv: torch.Tensor, k: torch.Tensor, k_max: int
+) -> torch.Tensor:
+    """Confidence-weighted FPS (eq. 28) inside every cell, all cells at once.
+
+    Args:
+        P: (M, 3) float32 candidate points (world metres). omega: (M,) float32 eq. (22).
+        inv: (M,) int64 cell of each point. k: (C,) int64 points to keep per cell.
+
+    Returns:
+        (S,) int64 indices into P of the selected points, ordered by cell then pick round.
+    """
+    m = P.shape[0]
+    dev = P.device
+    n_cells = int(k.shape[0])
+    if m == 0:
+        return torch.zeros(0, dtype=torch.int64, device=dev)
+    idx = torch.arange(m, device=dev)
+    # order: cell, then omega descending, then input order (stable sorts)
+    o1 = torch.argsort(-omega, stable=True)
+    o2 = torch.argsort(inv[o1], stable=True)
+    order = o1[o2]
+    first = torch.ones(m, dtype=torch.bool, device=dev)
+    cell_sorted = inv[order]
+    first[1:] = cell_sorted[1:] != cell_sorted[:-1]
+    pick = [order[first]]  # round 1: highest omega per cell (cells in ascending order)
+    picked_cell = [cell_sorted[first]]
+    d2 = torch.full((m,), math.inf, dtype=torch.float32, device=dev)
+    sel_pt = P[pick[0]]
+    sel_cell = picked_cell[0]
+    cell_point = torch.zeros((n_cells, 3), dtype=torch.float32, device=dev)
+    done = torch.zeros(m, dtype=torch.bool, device=dev)
+    done[pick[0]] = True
+    for rnd in range(2, int(k_max) + 1):
+        if not bool((k >= rnd).any()):
+            break
+        cell_point[sel_cell] = sel_pt
+        diff = P - cell_point[inv]
+        d2 = torch.minimum(d2, (diff * diff).sum(dim=1))
+        score = torch.sqrt(d2) * omega  # eq. (28)
+        score = torch.where(done | (k[inv] < rnd), torch.zeros_like(score), score)
+        best = torch.zeros(n_cells, dtype=torch.float32, device=dev).scatter_reduce(0, inv, score, "amax")
+        hit = (score == best[inv]) & (score > 0)
+        if not bool(hit.any()):
+            break
+        big = torch.full((n_cells,), m, dtype=torch.int64, device=dev)
+        winner = big.scatter_reduce(0, inv[hit], idx[hit], "amin")
+        cells = torch.nonzero(winner < m).squeeze(1)
+        chosen = winner[cells]
+        done[chosen] = True
+        pick.append(chosen)
+        picked_cell.append(cells)
+        # cells that picked nothing keep their last point: re-applying it to d2 is a no-op
+        sel_pt, sel_cell = P[chosen], cells
+    all_pick = torch.cat(pick)
+    all_cell = torch.cat(picked_cell)
+    rank = torch.cat([torch.full_like(p, r) for r, p in enumerate(pick)])
+    o = torch.argsort(all_cell * (k_max + 1) + rank, stable=True)
+    return all_pick[o]
