@@ -8,6 +8,7 @@ neighbourhood is distinctive at the scales a VGA camera at 1-5 m resolves (2-10 
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -67,10 +68,13 @@ def _one_texture(rng: np.random.Generator, size: int) -> np.ndarray:
     return np.clip(out, 0.0, 1.0)
 
 
+@functools.lru_cache(maxsize=4)
 def make_textures(seed: int, count: int = 6, size: int = TEXTURE_PX) -> np.ndarray:
-    """(count, size, size, 3) uint8 RGB textures, deterministic for ``seed``."""
+    """(count, size, size, 3) uint8 RGB textures, deterministic for ``seed`` (cached, read-only)."""
     rng = np.random.default_rng([seed, 0x7E87])
-    return np.stack([np.rint(_one_texture(rng, size) * 255).astype(np.uint8) for _ in range(count)])
+    out = np.stack([np.rint(_one_texture(rng, size) * 255).astype(np.uint8) for _ in range(count)])
+    out.setflags(write=False)
+    return out
 
 
 def sample_texture(textures: np.ndarray, tex_id: np.ndarray, uv_m: np.ndarray) -> np.ndarray:
