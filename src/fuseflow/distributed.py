@@ -52,8 +52,15 @@ class RayOptions:
 _RECORDINGS: dict[str, Any] = {}
 
 
-def _fuse_task(rec_path: str, position: int, sel: Sequence[int], rig: Any, pipeline_config: Any, fail_once: str | None):
-    """One frame: load, fuse, measure agreement. Returns (position, arrays, record dict)."""
+def _fuse_task(
+    rec_path: str, position: int, sel: Sequence[int], rig: Any, pipeline_config: Any, fail_once: str | None,
+    threads: int = 1,
+):  # fmt: skip
+    """One frame: load, fuse, measure agreement. Returns (position, arrays, record, load ms).
+
+    ``threads``: the CPUs Ray reserved for the task; torch and numba use no more, so that
+    tasks sharing a node do not oversubscribe its cores.
+    """
     import os
     import time
 
@@ -66,7 +73,13 @@ def _fuse_task(rec_path: str, position: int, sel: Sequence[int], rig: Any, pipel
         # test hook: the first attempt of this task kills its worker process
         open(fail_once, "w").close()
         os._exit(1)
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)
+    try:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    except ImportError:  # pragma: no cover - numba is a core dependency
+        pass
     rec = _RECORDINGS.get(rec_path)
     if rec is None:
         rec = _RECORDINGS[rec_path] = open_recording(rec_path)
@@ -108,6 +121,7 @@ def ray_frame_results(
         rig_ref = ray.put(rig)
         cfg_ref = ray.put(pipeline_config)
         sel_ref = ray.put(list(sel))
+        threads = max(1, int(options.cpus_per_task))
         limit = options.max_in_flight or max(2, 2 * int(ray.cluster_resources().get("CPU", 1)))
         pending: dict[int, Any] = {}
         done: dict[int, Any] = {}
@@ -117,7 +131,7 @@ def ray_frame_results(
             while nxt < len(todo) and len(pending) + len(done) < limit:
                 p = todo[nxt]
                 marker = (fail_once or {}).get(p)
-                pending[p] = task.remote(rec_path, p, sel_ref, rig_ref, cfg_ref, marker)
+                pending[p] = task.remote(rec_path, p, sel_ref, rig_ref, cfg_ref, marker, threads)
                 nxt += 1
             while want not in done:
                 refs = list(pending.values())
