@@ -128,3 +128,14 @@ def test_anchored_rig_keeps_relative_poses() -> None:
     assert paper.anchored_rig({"c0": ref[0]}, rig) is None  # not every camera placed
     e = pose_errors({k: v for k, v in est.items()}, {c.id: c.T_cam_world for c in rig.cameras})
     assert e.rotation_deg < 1e-6 and e.translation_mm < 1e-6
+
+
+def test_icl_indices_stay_inside_the_sequence() -> None:
+    for n in (2, 4, 8):
+        for seed in range(6):
+            idx = paper.icl_indices(n, seed, 211)
+            assert len(set(idx)) == n and min(idx) >= 0 and max(idx) < 211
+            assert all(b - a == 26 for a, b in zip(idx, idx[1:]))
+    assert paper.icl_indices(8, 1, 211) != paper.icl_indices(8, 0, 211)
+    with pytest.raises(ValidationError):
+        paper.icl_indices(9, 0, 200)

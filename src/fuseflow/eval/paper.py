@@ -178,10 +178,15 @@ class _SimCache:
 _SIMS = _SimCache()
 
 
-def icl_indices(n: int, seed: int) -> list[int]:
-    """Frames of the ICL trajectory used as the N cameras of virtual rig ``seed``: 26 apart,
-    starting at 40 * seed (the same spacing as benchmarks/calib_accuracy.py)."""
-    return [40 * seed + 26 * k for k in range(n)]
+def icl_indices(n: int, seed: int, length: int = 211) -> list[int]:
+    """Frames of the ICL trajectory used as the N cameras of virtual rig ``seed``: 26 apart (the
+    spacing of benchmarks/calib_accuracy.py), starting at 11 * seed wrapped so that the last
+    frame stays inside a sequence of ``length`` frames (kt1 has 211)."""
+    span = 26 * (n - 1)
+    if span >= length:
+        raise ValidationError(f"an ICL virtual rig of {n} cameras 26 frames apart needs > {span} frames, got {length}")
+    start = (11 * seed) % (length - span)
+    return [start + 26 * k for k in range(n)]
 
 
 def icl_sample(n: int, seed: int, pc: PaperConfig, icl_path: Path = ICL_PATH) -> Sample:
@@ -191,7 +196,7 @@ def icl_sample(n: int, seed: int, pc: PaperConfig, icl_path: Path = ICL_PATH) ->
     if not icl_path.is_dir():
         raise ValidationError(f"the ICL-NUIM data was not found at {icl_path}")
     seq = open_recording(icl_path)
-    idx = icl_indices(n, seed)
+    idx = icl_indices(n, seed, len(seq))
     with tempfile.TemporaryDirectory(prefix="fuseflow-icl-") as tmp:
         rig = make_virtual_rig(seq, idx, Path(tmp) / "rig")
         rec = open_recording(Path(tmp) / "rig")
