@@ -150,6 +150,18 @@ def _view_inputs(path: Path):
     return rec.rig, [(rec.frame_numbers[t], (lambda t=t: fuse(rec[t], rec.rig))) for t in range(len(rec))]
 
 
+def _world_up(rig) -> tuple[float, float, float]:
+    """The world's up direction: the mean of the cameras' up axes (-y in OpenCV axes), since rig
+    cameras are mounted roughly upright; (0, -1, 0) (the first camera's frame) without a rig."""
+    import numpy as np
+
+    if rig is None or not rig.is_calibrated:
+        return (0.0, -1.0, 0.0)
+    up = np.mean([-c.T_cam_world[1, :3] for c in rig], axis=0)  # row 1 of R = camera y in world
+    n = float(np.linalg.norm(up))
+    return tuple((up / n).tolist()) if n > 1e-6 else (0.0, -1.0, 0.0)
+
+
 @app.command("view")
 def view_cmd(
     path: Path = typer.Argument(..., help="A run directory (with clouds/) or a calibrated recording."),
@@ -168,7 +180,7 @@ def view_cmd(
         for number, load in items:
             cloud = load()
             if view is None and len(cloud):
-                view = orbit_camera(cloud.xyz.numpy())
+                view = orbit_camera(cloud.xyz.numpy(), up=_world_up(rig))
             K, T = view if view is not None else (None, None)
             save_cloud_png(Path(save_png) / f"{number:06d}.png", cloud, color_by=color_by, K=K, T_cam_world=T)
         console.print(f"wrote {len(items)} PNGs to {save_png}")
