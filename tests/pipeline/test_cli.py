@@ -1,0 +1,44 @@
+"""`fuseflow run` and `fuseflow view` through the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from fuseflow.cli import app
+
+
+def _invoke(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_run_then_view(static_rec, tmp_path):
+    out = tmp_path / "out"
+    res = _invoke("run", static_rec, "--out", out, "--use-rig", "--frames", "0:3")
+    assert res.exit_code == 0, res.output
+    assert "points per frame" in res.output and "rig.json" in res.output
+    assert json.loads((out / "summary.json").read_text())["frames"] == 3
+    res = _invoke("view", out, "--save-png", tmp_path / "png")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "png").glob("*.png")) == [f"{t:06d}.png" for t in range(3)]
+    pytest.importorskip("rerun")
+    res = _invoke("view", out, "--rrd", tmp_path / "v.rrd")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "v.rrd").stat().st_size > 10_000
+
+
+def test_run_argument_errors_are_one_line(static_rec, tmp_path):
+    res = _invoke("run", static_rec, "--out", tmp_path / "o", "--use-rig", "--calib", tmp_path / "c.json")
+    assert res.exit_code == 2 and "pass one" in res.output
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "fuseflow", "run", str(tmp_path / "nothing"), "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr
+    res = _invoke("run", static_rec, "--out", tmp_path / "o", "--device", "tpu")
+    assert res.exit_code == 2 and "--device" in res.output
