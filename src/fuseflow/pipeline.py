@@ -325,13 +325,20 @@ def _fuse_fn(config: PipelineConfig) -> Callable[[Frame, Rig], FusedCloud]:
     return lambda frame, rig: fuse(frame, rig, cfg)
 
 
+def _reindex(cloud: FusedCloud, sel: list[int]) -> FusedCloud:
+    """``cloud.camera`` indexes the fused subset of cameras; map it to the source rig's indices."""
+    lut = torch.tensor(sel, dtype=torch.int16, device=cloud.camera.device)
+    return FusedCloud(cloud.xyz, cloud.rgb, cloud.weight, lut[cloud.camera.long()])
+
+
 def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig) -> tuple[FusedCloud, FrameRecord]:
     """Fuse one frame and measure its cameras' agreement: the per-frame work of ``run``.
 
     ``sel`` picks the frame's views that ``rig`` has (cameras GMAC could not place are left
     out). Stateless: the same inputs give the same outputs, in any process (see distributed.py).
     """
-    if len(sel) != frame.num_views:
+    full = frame.num_views
+    if len(sel) != full:
         frame = frame.subset(sel)
     frame = frame.to(config.device)
     fuse = _fuse_fn(config)
@@ -340,6 +347,8 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
     if frame.device.type == "cuda":
         torch.cuda.synchronize()
     ms = (time.perf_counter() - t0) * 1000.0
+    if len(sel) != full:
+        cloud = _reindex(cloud, sel)
     pairs = pair_agreement(frame, rig, config.health_samples, config.health_tau)
     agreement = camera_agreement(pairs)
     record = FrameRecord(
@@ -387,14 +396,22 @@ def stream(
         source: a Recording, a recording path, or any object with ``.rig`` that iterates
             Frames (a live source such as RealSenseSource).
         calibration: extrinsics to use (a Calibration, or a calibrated Rig); None = the
-            source rig's own extrinsics.
+            source rig's own extrinsics. Cameras a Calibration does not place (GMAC reports
+            them unconnected) are left out of fusion.
     """
     if isinstance(source, (str, Path)):
         source = open_recording(source)
-    rig = _resolve_rig(source.rig, calibration)
+    if isinstance(calibration, Calibration):
+        rig = _placed_rig(source.rig, calibration)
+    else:
+        rig = _resolve_rig(source.rig, calibration)
     fuse = _fuse_fn(config)
     for frame in source:
-        yield fuse(frame.to(config.device), rig)
+        if tuple(frame.camera_ids) == rig.ids:
+            yield fuse(frame.to(config.device), rig)
+            continue
+        sel = [frame.camera_ids.index(c) for c in rig.ids if c in frame.camera_ids]
+        yield _reindex(fuse(frame.subset(sel).to(config.device), rig), sel)
 
 
 def _peak_rss_mb() -> float:

@@ -184,3 +184,12 @@ def test_pipeline_config_validates():
         PipelineConfig(recalibrate="sometimes")
     with pytest.raises(FuseFlowError, match="health_samples"):
         PipelineConfig(health_samples=0)
+
+
+def test_stream_leaves_out_cameras_the_calibration_does_not_place(static_rec):
+    rec = open_recording(static_rec)
+    cal = Calibration({c.id: c.T_cam_world for c in rec.rig if c.id != "cam01"}, {})
+    clouds = list(stream(rec, cal))
+    assert len(clouds) == len(rec)
+    # camera indices refer to the recording's rig, not to the fused subset
+    assert set(clouds[0].camera.tolist()) == {0, 2, 3} and len(clouds[0]) > 1000
