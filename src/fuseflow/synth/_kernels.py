@@ -67,3 +67,165 @@ def visible_nb(points, normals, T_cam_world, K, centres, depth_gt, tol_m, tol_re
                 out[s] = True
                 break
     return out
+
+
+@numba.njit(inline="always", cache=True)
+def _texel(textures, ti, x0, x1, y0, y1, ch, w00, w01, w10, w11):  # pragma: no cover - compiled
+    return (
+        textures[ti, y0, x0, ch] * w00
+        + textures[ti, y0, x1, ch] * w01
+        + textures[ti, y1, x0, ch] * w10
+        + textures[ti, y1, x1, ch] * w11
+    )
+
+
+@numba.njit(parallel=True, cache=True)
+def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, texels_per_m, lights, light_w,
+             ambient, color_noise, noise_std):  # pragma: no cover - compiled  # fmt: skip
+    """Per pixel: noise-free depth, incidence angle, part id and Lambert-shaded texture colour.
+
+    t_hit (N, H, W) float32 (inf = miss); prim (N, H, W) uint32; bary (N, H, W, 2); normals
+    (N, H, W, 3) geometric normals; rays (N, H, W, 6); tri_uv (T, 3, 2) metres; tex (T,) int;
+    tint (T, 3); pid (T,) int; textures (K, S, S, 3) uint8 spanning S / texels_per_m metres; lights (L, 3) unit; light_w (L,);
+    color_noise (N, H, W, 3) float32 standard normals, used when noise_std > 0.
+    Returns depth_gt (0 = miss), theta (rad), part (-1 = miss), colour uint8 (N, H, W, 3).
+    The numpy twin is ``fuseflow.synth.simulator._shade_ref``.
+    """
+    N, H, W = t_hit.shape
+    S = textures.shape[1]
+    scale = texels_per_m
+    depth = np.zeros((N, H, W), np.float32)
+    theta = np.zeros((N, H, W), np.float32)
+    part = np.full((N, H, W), -1, np.int32)
+    color = np.zeros((N, H, W, 3), np.uint8)
+    for n in numba.prange(N):
+        for y in range(H):
+            for x in range(W):
+                z = t_hit[n, y, x]
+                r0 = 0.0
+                r1 = 0.0
+                r2 = 0.0
+                if np.isfinite(z):
+                    depth[n, y, x] = z
+                    k = prim[n, y, x]
+                    part[n, y, x] = pid[k]
+                    dx, dy, dz = rays[n, y, x, 3], rays[n, y, x, 4], rays[n, y, x, 5]
+                    dl = np.sqrt(dx * dx + dy * dy + dz * dz)
+                    nx, ny, nz = normals[n, y, x, 0], normals[n, y, x, 1], normals[n, y, x, 2]
+                    c = -(nx * dx + ny * dy + nz * dz) / dl
+                    if c < 0:  # two-sided: the normal facing the camera
+                        nx, ny, nz, c = -nx, -ny, -nz, -c
+                    theta[n, y, x] = np.arccos(min(c, np.float32(1.0)))
+                    b1, b2 = bary[n, y, x, 0], bary[n, y, x, 1]
+                    b0 = 1 - b1 - b2
+                    u = (b0 * tri_uv[k, 0, 0] + b1 * tri_uv[k, 1, 0] + b2 * tri_uv[k, 2, 0]) * scale - 0.5
+                    v = (b0 * tri_uv[k, 0, 1] + b1 * tri_uv[k, 1, 1] + b2 * tri_uv[k, 2, 1]) * scale - 0.5
+                    fx0 = np.floor(u)
+                    fy0 = np.floor(v)
+                    fx = u - fx0
+                    fy = v - fy0
+                    x0 = int(fx0) % S
+                    y0 = int(fy0) % S
+                    x1 = (x0 + 1) % S
+                    y1 = (y0 + 1) % S
+                    lam = 0.0
+                    for li in range(lights.shape[0]):
+                        lam += max(nx * lights[li, 0] + ny * lights[li, 1] + nz * lights[li, 2], 0.0) * light_w[li]
+                    shade = ambient + (1 - ambient) * lam
+                    ti = tex[k]
+                    w00 = (1 - fx) * (1 - fy)
+                    w01 = fx * (1 - fy)
+                    w10 = (1 - fx) * fy
+                    w11 = fx * fy
+                    r0 = _texel(textures, ti, x0, x1, y0, y1, 0, w00, w01, w10, w11) * tint[k, 0] * shade
+                    r1 = _texel(textures, ti, x0, x1, y0, y1, 1, w00, w01, w10, w11) * tint[k, 1] * shade
+                    r2 = _texel(textures, ti, x0, x1, y0, y1, 2, w00, w01, w10, w11) * tint[k, 2] * shade
+                for ch in range(3):
+                    val = r0 if ch == 0 else (r1 if ch == 1 else r2)
+                    if noise_std > 0:
+                        val += color_noise[n, y, x, ch] * noise_std
+                    color[n, y, x, ch] = np.uint8(min(max(np.rint(val), 0.0), 255.0))
+    return depth, theta, part, color
+
+
+@numba.njit(parallel=True, cache=True)
+def lateral_nb(z, th, g_u, g_v, sigma0_px):  # pragma: no cover - compiled
+    """Lateral noise: each pixel reads depth and angle at a pixel displaced by
+    rint(N(0, sigma_L)) in u and v, sigma_L = sigma0 + 0.035 theta / (pi/2 - theta) (Nguyen 2012)."""
+    N, H, W = z.shape
+    zo = np.empty_like(z)
+    tho = np.empty_like(th)
+    for n in numba.prange(N):
+        for y in range(H):
+            for x in range(W):
+                t = min(th[n, y, x], np.float32(1.5))
+                sl = sigma0_px + 0.035 * t / (np.pi / 2 - t)
+                xs = min(max(x + int(np.rint(g_u[n, y, x] * sl)), 0), W - 1)
+                ys = min(max(y + int(np.rint(g_v[n, y, x] * sl)), 0), H - 1)
+                zo[n, y, x] = z[n, ys, xs]
+                tho[n, y, x] = th[n, ys, xs]
+    return zo, tho
+
+
+@numba.njit(parallel=True, cache=True)
+def depth_noise_nb(z, th, u_fly, u_mix, g_axial, u_graze, u_drop, kind, flying, fly_rate, axial, quantize,
+                   fb, q_step, subpix_rms, graze, graze_lo, range_drop, z_min, z_max, rand_drop, drop_rate,
+                   depth_scale):  # pragma: no cover - compiled  # fmt: skip
+    """Flying pixels, axial noise, disparity quantization, dropouts and output units, per pixel.
+
+    kind: 1 structured light (Nguyen 2012 sigma), 2 stereo (z^2 s / (f b)); fb = focal_px *
+    baseline_m; q_step = disparity quantum in px. Mirrors ``fuseflow.synth.noise.apply_depth_noise_ref``.
+    """
+    N, H, W = z.shape
+    out = np.zeros_like(z)
+    for n in numba.prange(N):
+        for y in range(H):
+            for x in range(W):
+                zz = z[n, y, x]
+                if zz <= 0:
+                    continue
+                if flying:
+                    zmin = np.inf
+                    zmax = 0.0
+                    full = True
+                    for dy in range(-1, 2):
+                        for dx in range(-1, 2):
+                            w = z[n, min(max(y + dy, 0), H - 1), min(max(x + dx, 0), W - 1)]
+                            if w > 0:
+                                zmin = min(zmin, w)
+                                zmax = max(zmax, w)
+                            else:
+                                full = False
+                    if full and zmax - zmin > 0.05 * zz and u_fly[n, y, x] < fly_rate:
+                        zz = np.float32(zmin + u_mix[n, y, x] * (zmax - zmin))
+                t = th[n, y, x]
+                if axial:
+                    if kind == 1:
+                        tc = min(t, np.float32(np.radians(89.0)))
+                        sig = (
+                            0.0012
+                            + 0.0019 * (zz - 0.4) ** 2
+                            + 0.0001 / np.sqrt(max(zz, 1e-3)) * tc**2 / (np.pi / 2 - tc) ** 2
+                        )
+                    elif kind == 2:
+                        sig = zz * zz * subpix_rms / fb
+                    else:
+                        sig = 0.0
+                    if quantize and q_step > 0:
+                        dz = zz * zz * q_step / fb
+                        sig = np.sqrt(max(sig * sig - dz * dz / 12.0, 0.0))
+                    zz = np.float32(zz + sig * g_axial[n, y, x])
+                if quantize and q_step > 0 and zz > 0:
+                    d = np.rint(fb / zz / q_step) * q_step
+                    zz = np.float32(fb / d) if d > 0 else np.float32(0.0)
+                drop = zz <= 0
+                if graze:
+                    p = min(max((t - graze_lo) / np.radians(10.0), 0.0), 1.0)
+                    drop = drop or u_graze[n, y, x] < p
+                if range_drop:
+                    drop = drop or zz < z_min or zz > z_max
+                if rand_drop:
+                    drop = drop or u_drop[n, y, x] < drop_rate
+                if not drop:
+                    out[n, y, x] = np.rint(zz * depth_scale) / depth_scale
+    return out

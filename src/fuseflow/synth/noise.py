@@ -24,7 +24,7 @@ import numpy as np
 
 from fuseflow.synth.config import SensorModel, SimConfig
 
-__all__ = ["axial_sigma", "quantization_step", "apply_depth_noise"]
+__all__ = ["axial_sigma", "quantization_step", "apply_depth_noise", "apply_depth_noise_ref"]
 
 
 def axial_sigma(sensor: SensorModel, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -55,8 +55,22 @@ def _quantize(sensor: SensorModel, z: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
+def _draws(shape: tuple[int, ...], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Every random array of one frame's depth noise, drawn in a fixed order whatever the switches
+    (turning one effect off does not change the draws of the others)."""
+    return {
+        "g_u": rng.standard_normal(shape, dtype=np.float32),
+        "g_v": rng.standard_normal(shape, dtype=np.float32),
+        "u_fly": rng.random(shape, dtype=np.float32),
+        "u_mix": rng.random(shape, dtype=np.float32),
+        "g_axial": rng.standard_normal(shape, dtype=np.float32),
+        "u_graze": rng.random(shape, dtype=np.float32),
+        "u_drop": rng.random(shape, dtype=np.float32),
+    }
+
+
 def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Noisy depth from noise-free depth.
+    """Noisy depth from noise-free depth (numba kernels; ``apply_depth_noise_ref`` is the numpy twin).
 
     Args:
         z_clean: (N, H, W) float32 metres, 0 or inf where no surface.
@@ -64,17 +78,42 @@ def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rn
         rng: the frame's generator.
     Returns: (N, H, W) float32 metres, 0 = no measurement.
     """
+    from fuseflow.synth._kernels import depth_noise_nb, lateral_nb
+
+    sensor = cfg.sensor
+    z = np.where(np.isfinite(z_clean), z_clean, 0.0).astype(np.float32)
+    if sensor.kind == "none":
+        return z
+    th = np.where(z > 0, theta, 0.0).astype(np.float32)
+    r = _draws(z.shape, rng)
+    if cfg.lateral_noise:
+        z, th = lateral_nb(z, th, r["g_u"], r["g_v"], float(sensor.lateral_sigma_px))
+    return depth_noise_nb(
+        z, th, r["u_fly"], r["u_mix"], r["g_axial"], r["u_graze"], r["u_drop"],
+        {"structured-light": 1, "stereo": 2}.get(sensor.kind, 0), cfg.flying_pixels, float(sensor.flying_pixel_rate),
+        cfg.axial_noise, cfg.quantization, float(sensor.focal_px * sensor.baseline_m), float(sensor.disparity_subpixel),
+        float(sensor.stereo_subpixel_rms), cfg.grazing_dropout, math.radians(sensor.grazing_max_deg - 10.0),
+        cfg.range_dropout, float(sensor.depth_range[0]), float(sensor.depth_range[1]), cfg.random_dropout,
+        float(sensor.dropout_rate), np.float32(cfg.depth_scale),
+    )  # fmt: skip
+
+
+def apply_depth_noise_ref(
+    cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """Plain numpy reference of ``apply_depth_noise`` (same draws, same result up to float rounding)."""
     sensor = cfg.sensor
     z = np.where(np.isfinite(z_clean), z_clean, 0.0).astype(np.float32)
     if sensor.kind == "none":
         return z
     N, H, W = z.shape
     th = np.where(z > 0, theta, 0.0).astype(np.float32)
+    r = _draws(z.shape, rng)
     if cfg.lateral_noise:
         # each pixel reads the surface at a pixel displaced by N(0, sigma_L) (rounded)
         sl = sensor.lateral_sigma_px + 0.035 * np.minimum(th, 1.5) / (math.pi / 2 - np.minimum(th, 1.5))
-        du = np.rint(rng.standard_normal((N, H, W), dtype=np.float32) * sl).astype(np.int64)
-        dv = np.rint(rng.standard_normal((N, H, W), dtype=np.float32) * sl).astype(np.int64)
+        du = np.rint(r["g_u"] * sl).astype(np.int64)
+        dv = np.rint(r["g_v"] * sl).astype(np.int64)
         uu = np.clip(np.arange(W)[None, None, :] + du, 0, W - 1)
         vv = np.clip(np.arange(H)[None, :, None] + dv, 0, H - 1)
         nn = np.arange(N)[:, None, None]
@@ -88,27 +127,24 @@ def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rn
         zmax = np.where(valid, win, 0).max(0)
         zmin = np.where(valid, win, np.inf).min(0)
         edge = (z > 0) & (zmax - zmin > 0.05 * z) & np.all(valid, axis=0)
-        fly = edge & (rng.random((N, H, W), dtype=np.float32) < sensor.flying_pixel_rate)
-        a = rng.random((N, H, W), dtype=np.float32)
-        z = np.where(fly, zmin + a * (zmax - zmin), z).astype(np.float32)
+        fly = edge & (r["u_fly"] < sensor.flying_pixel_rate)
+        z = np.where(fly, zmin + r["u_mix"] * (zmax - zmin), z).astype(np.float32)
     if cfg.axial_noise:
         sigma = axial_sigma(sensor, z, th)
         if cfg.quantization:
             sigma = np.sqrt(np.maximum(sigma**2 - quantization_step(sensor, z) ** 2 / 12.0, 0.0))
-        z = np.where(z > 0, z + sigma * rng.standard_normal((N, H, W), dtype=np.float32), 0.0).astype(np.float32)
-    else:
-        rng.standard_normal((N, H, W), dtype=np.float32)  # keep later draws independent of this switch
+        z = np.where(z > 0, z + sigma * r["g_axial"], 0.0).astype(np.float32)
     if cfg.quantization:
         z = _quantize(sensor, z)
-    drop = np.zeros(z.shape, bool)
+    drop = z <= 0
     if cfg.grazing_dropout:
         lo = math.radians(sensor.grazing_max_deg - 10.0)
         p = np.clip((th - lo) / math.radians(10.0), 0.0, 1.0)
-        drop |= rng.random((N, H, W), dtype=np.float32) < p
+        drop |= r["u_graze"] < p
     if cfg.range_dropout:
         drop |= (z < sensor.depth_range[0]) | (z > sensor.depth_range[1])
     if cfg.random_dropout:
-        drop |= rng.random((N, H, W), dtype=np.float32) < sensor.dropout_rate
-    z = np.where(drop | (z < 0), 0.0, z).astype(np.float32)
+        drop |= r["u_drop"] < sensor.dropout_rate
+    z = np.where(drop, 0.0, z).astype(np.float32)
     # the sensor reports whole depth units (1 mm at depth_scale 1000)
-    return (np.rint(z * cfg.depth_scale) / cfg.depth_scale).astype(np.float32)
+    return np.rint(z * np.float32(cfg.depth_scale)) / np.float32(cfg.depth_scale)

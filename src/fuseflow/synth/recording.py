@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,15 +148,38 @@ def simulate_recording(
             "rig_json_extrinsics": "none" if uncalibrated else ("perturbed" if written is not rig else "true"),
         },
     )
-    for t in range(cfg.frames):
-        sf = sim.render(t)
+
+    def write(t: int, sf) -> None:
         write_frame(out, written, t, sf.frame.color, sf.frame.depth)
         dgt = sf.depth_gt.numpy()
         for i, cam in enumerate(rig.cameras):
             write_depth(out / "gt" / cam.id / "depth" / f"{t:06d}.png", dgt[i], cam.depth_scale)
-        write_surface_ply(out / "gt" / f"surface_{t:06d}.ply", sf.surface_points.numpy(), sf.surface_normals.numpy())
-        if progress is not None:
-            progress(t + 1, cfg.frames)
+        ply = out / "gt" / f"surface_{t:06d}.ply"
+        if t > 0 and not moving:
+            # static scene: the surface of every frame is that of frame 0; a hard link saves
+            # ~30 MB per frame at the default density (a copy where links are not supported)
+            try:
+                os.link(out / "gt" / "surface_000000.ply", ply)
+                return
+            except OSError:
+                pass
+        write_surface_ply(ply, sf.surface_points.numpy(), sf.surface_normals.numpy())
+
+    moving = any(p.moving for p in sim.scene.parts)
+    # frame t is written (PNG encoding releases the GIL) while frame t + 1 renders; at most one
+    # frame waits, so memory stays at two frames
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = None
+        for t in range(cfg.frames):
+            sf = sim.render(t)
+            if pending is not None:
+                pending.result()
+                if progress is not None:
+                    progress(t, cfg.frames)
+            pending = pool.submit(write, t, sf)
+        pending.result()
+    if progress is not None:
+        progress(cfg.frames, cfg.frames)
     return out
 
 

@@ -79,6 +79,8 @@ def make_rig(
         rig = read_rig(path)
         if not rig.is_calibrated:
             raise ValidationError(f"{path}: a rig file for the simulator needs T_cam_world for every camera")
+        if len(rig) != n:
+            raise ValidationError(f"{path}: holds {len(rig)} cameras but {n} were asked for (--cameras)")
         return rig
     K = intrinsics(width, height, hfov_deg)
     target = scene.target

@@ -20,7 +20,7 @@ from fuseflow.synth.config import SimConfig
 from fuseflow.synth.noise import apply_depth_noise
 from fuseflow.synth.rigs import camera_centres, make_rig
 from fuseflow.synth.scene import Scene, build_scene
-from fuseflow.synth.texture import make_textures, sample_texture
+from fuseflow.synth.texture import make_textures, sample_texture_ref
 from fuseflow.types import Frame, Rig
 
 __all__ = ["SimFrame", "Simulator"]
@@ -134,41 +134,20 @@ class Simulator:
         rays = self._rays
         N, H, W = rays.shape[:3]
         hit = rs.cast_rays(o3d.core.Tensor(rays))
-        z = hit["t_hit"].numpy()
-        prim = hit["primitive_ids"].numpy().astype(np.int64)
-        ok = np.isfinite(z)
-        prim = np.where(ok, prim, 0)
-        bary = hit["primitive_uvs"].numpy()
-        normals = hit["primitive_normals"].numpy()
-
-        # incidence angle and two-sided normal (facing the camera)
-        d = rays[..., 3:]
-        dn = d / np.linalg.norm(d, axis=-1, keepdims=True)
-        cos_i = -(normals * dn).sum(-1)
-        n_face = np.where(cos_i[..., None] < 0, -normals, normals)
-        theta = np.arccos(np.clip(np.abs(cos_i), 0.0, 1.0)).astype(np.float32)
-
-        # texture colour at the hit, Lambert shading
-        okf = ok.reshape(-1)
-        idx = prim.reshape(-1)[okf]
-        b = bary.reshape(-1, 2)[okf]
-        uv = tri_uv[idx]
-        uvm = (1 - b[:, :1] - b[:, 1:]) * uv[:, 0] + b[:, :1] * uv[:, 1] + b[:, 1:] * uv[:, 2]
-        albedo = sample_texture(self.textures, tex[idx], uvm) * tint[idx]
-        lam = np.clip(n_face.reshape(-1, 3)[okf] @ _LIGHTS.T, 0.0, None) @ _LIGHT_W
-        shade = cfg.ambient + (1 - cfg.ambient) * lam
-        rgb = np.zeros((N * H * W, 3), np.float32)
-        rgb[okf] = albedo * shade[:, None] * 255.0
-        rgb = rgb.reshape(N, H, W, 3)
         if cfg.color_noise > 0 and cfg.noise != "none":
             crng = np.random.default_rng([cfg.seed, t, _STREAM_COLOR])
-            rgb += crng.standard_normal(rgb.shape, dtype=np.float32) * cfg.color_noise
-        color = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
-
-        depth_gt = np.where(ok, z, 0.0).astype(np.float32)
+            cnoise, cstd = crng.standard_normal((N, H, W, 3), dtype=np.float32), float(cfg.color_noise)
+        else:
+            cnoise, cstd = np.zeros((1, 1, 1, 3), np.float32), 0.0
+        args = (
+            hit["t_hit"].numpy(), hit["primitive_ids"].numpy(), hit["primitive_uvs"].numpy(),
+            hit["primitive_normals"].numpy(), rays, tri_uv, tex, tint, pid, self.textures, _LIGHTS, _LIGHT_W,
+            float(cfg.ambient), cnoise, cstd,
+        )  # fmt: skip
+        depth_gt, theta, part, color = _shade(*args)
+        ok = depth_gt > 0
         nrng = np.random.default_rng([cfg.seed, t, _STREAM_NOISE])
-        depth = apply_depth_noise(cfg, np.where(ok, z, np.inf).astype(np.float32), theta, nrng)
-        part = np.where(ok, pid[prim], -1).astype(np.int32)
+        depth = apply_depth_noise(cfg, np.where(ok, depth_gt, np.inf).astype(np.float32), theta, nrng)
 
         pts, nrm = self._surface(t, time_s, depth_gt)
         frame = Frame(
@@ -242,6 +221,51 @@ class Simulator:
         noise-free depth within 1 cm + 1 %. Diagonal is 1."""
         sf = self.render(t)
         return overlap_matrix(sf.depth_gt.numpy(), self.rig)
+
+
+def _shade(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, lights, light_w, ambient,
+           color_noise, noise_std):  # fmt: skip
+    """Per-pixel depth_gt, incidence angle, part id and colour (numba kernel ``shade_nb``;
+    ``_shade_ref`` is its numpy twin). See ``shade_nb`` for the arguments."""
+    from fuseflow.synth._kernels import shade_nb
+    from fuseflow.synth.texture import TEXTURE_METRES
+
+    c = np.ascontiguousarray
+    return shade_nb(c(t_hit, np.float32), c(prim, np.uint32), c(bary, np.float32), c(normals, np.float32),
+                    c(rays, np.float32), c(tri_uv, np.float32), c(tex, np.int64), c(tint, np.float32),
+                    c(pid, np.int32), textures, textures.shape[1] / TEXTURE_METRES, lights, light_w,
+                    float(ambient), c(color_noise, np.float32), float(noise_std))  # fmt: skip
+
+
+def _shade_ref(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, lights, light_w, ambient,
+               color_noise, noise_std):  # fmt: skip
+    """Plain numpy reference of ``_shade``."""
+    N, H, W = t_hit.shape
+    z = t_hit
+    ok = np.isfinite(z)
+    prim = np.where(ok, prim.astype(np.int64), 0)
+    d = rays[..., 3:]
+    dn = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    cos_i = -(normals * dn).sum(-1)
+    n_face = np.where(cos_i[..., None] < 0, -normals, normals)
+    theta = np.where(ok, np.arccos(np.clip(np.abs(cos_i), 0.0, 1.0)), 0.0).astype(np.float32)
+    okf = ok.reshape(-1)
+    idx = prim.reshape(-1)[okf]
+    b = bary.reshape(-1, 2)[okf]
+    uv = tri_uv[idx]
+    uvm = (1 - b[:, :1] - b[:, 1:]) * uv[:, 0] + b[:, :1] * uv[:, 1] + b[:, 1:] * uv[:, 2]
+    albedo = sample_texture_ref(textures, tex[idx], uvm) * tint[idx]
+    lam = np.clip(n_face.reshape(-1, 3)[okf] @ lights.T, 0.0, None) @ light_w
+    shade = ambient + (1 - ambient) * lam
+    rgb = np.zeros((N * H * W, 3), np.float32)
+    rgb[okf] = albedo * shade[:, None] * 255.0
+    rgb = rgb.reshape(N, H, W, 3)
+    if noise_std > 0:
+        rgb = rgb + color_noise * noise_std
+    color = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    depth_gt = np.where(ok, z, 0.0).astype(np.float32)
+    part = np.where(ok, pid[prim], -1).astype(np.int32)
+    return depth_gt, theta, part, color
 
 
 def visible_mask(points: np.ndarray, normals: np.ndarray, depth_gt: np.ndarray, rig: Rig,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 
 import numpy as np
 
@@ -71,8 +72,15 @@ def _one_texture(rng: np.random.Generator, size: int) -> np.ndarray:
 @functools.lru_cache(maxsize=4)
 def make_textures(seed: int, count: int = 6, size: int = TEXTURE_PX) -> np.ndarray:
     """(count, size, size, 3) uint8 RGB textures, deterministic for ``seed`` (cached, read-only)."""
-    rng = np.random.default_rng([seed, 0x7E87])
-    out = np.stack([np.rint(_one_texture(rng, size) * 255).astype(np.uint8) for _ in range(count)])
+    from concurrent.futures import ThreadPoolExecutor
+
+    def one(k: int) -> np.ndarray:
+        # own generator per texture: the same textures whatever the thread count (OpenCV's
+        # drawing and resizing release the GIL, so two threads use both cores)
+        return np.rint(_one_texture(np.random.default_rng([seed, 0x7E87, k]), size) * 255).astype(np.uint8)
+
+    with ThreadPoolExecutor(max_workers=min(count, os.cpu_count() or 1)) as pool:
+        out = np.stack(list(pool.map(one, range(count))))
     out.setflags(write=False)
     return out
 
