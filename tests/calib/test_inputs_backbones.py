@@ -82,13 +82,14 @@ def icl2(icl_path, tmp_path_factory):
         cli_app, ["convert", str(icl_path), str(out / "rec"), "--cameras", "2", "--every", "15", "--force"]
     )
     assert res.exit_code == 0, res.output
-    return fuseflow.open_recording(out / "rec")
+    return out / "rec"
 
 
 def test_colmap_two_cameras_end_to_end(icl2):
     """N = 2: COLMAP's mappers refuse 2-image models; the two-view relative pose is used."""
     from fuseflow.eval.metrics import pose_errors
 
+    icl2 = fuseflow.open_recording(icl2)
     rig = icl2.rig
     bare = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rig))
     cal = calibrate(icl2[0], bare, CalibConfig())
@@ -99,3 +100,18 @@ def test_colmap_two_cameras_end_to_end(icl2):
     # reference poses are ~1 cm accurate; the notes measured 0.28 deg on this pair
     assert err.rotation_deg < 1.0
     assert err.translation_mm < 30.0
+
+
+def test_cli_calibrate_writes_calibration(icl2, tmp_path):
+    from typer.testing import CliRunner
+
+    from fuseflow.cli import app as cli_app
+
+    out = tmp_path / "calib.json"
+    res = CliRunner().invoke(cli_app, ["calibrate", str(icl2), "--out", str(out), "--preset", "paper"])
+    assert res.exit_code == 0, res.output
+    cal = fuseflow.read_calibration(out)
+    assert set(cal.T_cam_world) == {"cam00", "cam01"}
+    assert cal.report["closed_form"] == "zonly" and "s* =" in res.output
+    bad = CliRunner().invoke(cli_app, ["calibrate", str(icl2), "--out", str(out), "--frame", "5"])
+    assert bad.exit_code != 0 and "out of range" in bad.output

@@ -110,14 +110,28 @@ def refine_poses(
         init = T_cam_world[j] @ invert_rigid(T_cam_world[i])
         # one level: a coarse-to-fine schedule (20 cm -> 5 cm) was tried on the synthetic room
         # and locked onto wrong planes (rotation 1.1 -> 14 deg); the single 5 cm level gave 0.73
-        if color is not None:
-            res = reg.registration_colored_icp(
-                clouds[i], clouds[j], config.icp_max_distance, init, reg.TransformationEstimationForColoredICP(), crit
-            )
-        else:
-            res = reg.registration_icp(
-                clouds[i], clouds[j], config.icp_max_distance, init, reg.TransformationEstimationPointToPlane(), crit
-            )
+        try:
+            if color is not None:
+                res = reg.registration_colored_icp(
+                    clouds[i],
+                    clouds[j],
+                    config.icp_max_distance,
+                    init,
+                    reg.TransformationEstimationForColoredICP(),
+                    crit,
+                )
+            else:
+                res = reg.registration_icp(
+                    clouds[i],
+                    clouds[j],
+                    config.icp_max_distance,
+                    init,
+                    reg.TransformationEstimationPointToPlane(),
+                    crit,
+                )
+        except RuntimeError:  # Open3D: "No correspondences found" = no overlap within reach; skip the pair
+            fitness[f"{i}-{j}"], rmse[f"{i}-{j}"] = 0.0, float("nan")
+            continue
         fitness[f"{i}-{j}"] = float(res.fitness)
         rmse[f"{i}-{j}"] = float(res.inlier_rmse * 1000.0)
         D = np.asarray(res.transformation) @ invert_rigid(init)
