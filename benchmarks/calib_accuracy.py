@@ -141,10 +141,10 @@ def sim_frame(n: int, seed: int):
         return frame, rig, ref, "analytic room (benchmark-local), kinect noise"
 
 
-def icl_frame(seed: int, tmp: Path):
+def icl_frame(seed: int, tmp: Path, icl: Path = ICL):
     from fuseflow.io.datasets import open_recording
 
-    seq = open_recording(ICL)
+    seq = open_recording(icl)
     idx = [3 * seed + 26 * k for k in range(8)]
     out = tmp / f"icl-{seed}"
     rig = fuseflow.make_virtual_rig(seq, idx, out)
@@ -321,6 +321,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rot-noise-deg", type=float, default=0.3, help="perturbed backbone: rotation error per camera")
     ap.add_argument("--center-noise-m", type=float, default=0.01, help="perturbed backbone: centre error per camera")
     ap.add_argument("--no-peer", action="store_true", help="skip the Open3D multiway peer")
+    ap.add_argument("--icl", type=Path, default=ICL, help="ICL-NUIM living room 1 folder (icl8)")
     a = ap.parse_args(argv)
     if a.quick:
         a.seeds, a.data = 2, "sim8,icl8"
@@ -342,7 +343,7 @@ def main(argv=None) -> int:
                 if data.startswith("sim"):
                     frame, rig, ref, label = sim_frame(int(data[3:]), seed)
                 elif data == "icl8":
-                    frame, rig, ref, label = icl_frame(seed, Path(tmp))
+                    frame, rig, ref, label = icl_frame(seed, Path(tmp), a.icl)
                 else:
                     sys.exit(f"unknown data {data!r}")
                 run_seed(
@@ -357,14 +358,15 @@ def main(argv=None) -> int:
             )
             print(f"\n## {data}: {label}; N = {frame.num_views}, {W}x{H}, backbone {bname}\n")
             print(
-                "| method | rotation error (deg) | translation error (mm) | time per calibration (s) | failed seeds |"
+                "| method | rotation error (deg) | translation error (mm) | time per calibration (s) "
+                f"| cameras placed (of {frame.num_views}) | failed seeds |"
             )
-            print("|---|---|---|---|---|")
+            print("|---|---|---|---|---|---|")
             for name, rs in rows.items():
                 ok = [r for r in rs if not r.get("failed")]
                 print(
                     f"| {name} | {fmt([r['rot'] for r in ok])} | {fmt([r['trans'] for r in ok])} | "
-                    f"{fmt([r['seconds'] for r in ok])} | {len(rs) - len(ok)}/{len(rs)} |"
+                    f"{fmt([r['seconds'] for r in ok])} | {fmt([r['placed'] for r in ok])} | {len(rs) - len(ok)}/{len(rs)} |"
                 )
             print(f"\nInjected wrong-match edge pruned by CC in {robust['pruned']}/{robust['injected']} seeds.")
             everything[data] = {"label": label, "rows": rows, "robustness": robust}
