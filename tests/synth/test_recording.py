@@ -99,3 +99,19 @@ def test_cli_bad_input_is_a_clear_error(tmp_path, args, word):
     message = str(res.exception) if isinstance(res.exception, ValidationError) else res.output
     assert word in message
     assert not (tmp_path / "x" / "rig.json").exists()
+
+
+def test_cli_disable_switches_effects_off(tmp_path):
+    out = tmp_path / "clean"
+    res = runner.invoke(app, ["simulate", str(out), "--cameras", "2", "--frames", "1", "--resolution", "48x36",
+                              "--disable", "axial_noise,lateral_noise,quantization,flying_pixels,grazing_dropout,"
+                              "range_dropout,random_dropout,color_noise"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    gt = read_ground_truth(out)
+    assert not gt.config.axial_noise and gt.config.color_noise == 0.0
+    # every effect off: the sensor depth is the noise-free depth (both in whole mm; a value on a
+    # half-mm boundary may round either way)
+    d, g = open_recording(out)[0].depth.numpy(), gt.depth(0).numpy()
+    assert np.abs(d - g).max() <= 1e-3 + 1e-6 and np.mean(d != g) < 0.01
+    res = runner.invoke(app, ["simulate", str(tmp_path / "x"), "--frames", "1", "--disable", "blur"])
+    assert res.exit_code != 0 and "unknown effect 'blur'" in res.output

@@ -9,6 +9,19 @@ import typer
 
 from fuseflow.cli.app import app, console, fail
 
+_EFFECTS = ("axial_noise", "lateral_noise", "quantization", "flying_pixels", "grazing_dropout", "range_dropout",
+            "random_dropout", "color_noise")  # fmt: skip
+
+
+def _parse_disable(spec: str) -> dict:
+    """'lateral_noise,flying_pixels' -> {"lateral_noise": False, ...} (color_noise -> 0.0)."""
+    out: dict = {}
+    for name in (x.strip() for x in spec.split(",") if x.strip()):
+        if name not in _EFFECTS:
+            fail(f"--disable: unknown effect {name!r}; expected names from {', '.join(_EFFECTS)}")
+        out[name] = 0.0 if name == "color_noise" else False
+    return out
+
 
 def _parse_resolution(spec: str) -> tuple[int, int]:
     try:
@@ -33,6 +46,9 @@ def simulate(
     uncalibrated: bool = typer.Option(False, "--uncalibrated", help="Write rig.json with null extrinsics."),
     calib_error_deg: float = typer.Option(0.0, "--calib-error-deg", help="Rotation error injected into rig.json."),
     calib_error_mm: float = typer.Option(0.0, "--calib-error-mm", help="Translation error injected into rig.json."),
+    disable: str = typer.Option(
+        "", "--disable", help="Comma-separated noise effects to switch off: " + ", ".join(_EFFECTS) + "."
+    ),
 ) -> None:
     """Simulate a camera rig around a scene; write the recording, gt.json, GT depth and surfaces."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
@@ -42,7 +58,7 @@ def simulate(
     w, h = _parse_resolution(resolution)
     cfg = SimConfig(
         cameras=cameras, frames=frames, scene=scene, dynamic=dynamic, resolution=(w, h), noise=noise, seed=seed,
-        rig=rig, calib_error_deg=calib_error_deg, calib_error_mm=calib_error_mm,
+        rig=rig, calib_error_deg=calib_error_deg, calib_error_mm=calib_error_mm, **_parse_disable(disable),
     )  # fmt: skip
     t0 = time.perf_counter()
     with Progress(

@@ -70,29 +70,42 @@ def visible_nb(points, normals, T_cam_world, K, centres, depth_gt, tol_m, tol_re
 
 
 @numba.njit(inline="always", cache=True)
-def _texel(textures, ti, x0, x1, y0, y1, ch, w00, w01, w10, w11):  # pragma: no cover - compiled
-    return (
-        textures[ti, y0, x0, ch] * w00
-        + textures[ti, y0, x1, ch] * w01
-        + textures[ti, y1, x0, ch] * w10
-        + textures[ti, y1, x1, ch] * w11
-    )
+def _bilinear3(textures, ti, px, py):  # pragma: no cover - compiled
+    """Bilinear, wrap-around RGB texel values (0..255) of texture ti at texel coordinates (px, py)."""
+    S = textures.shape[1]
+    fx0 = np.floor(px)
+    fy0 = np.floor(py)
+    fx = px - fx0
+    fy = py - fy0
+    x0 = int(fx0) % S
+    y0 = int(fy0) % S
+    x1 = (x0 + 1) % S
+    y1 = (y0 + 1) % S
+    w00 = (1 - fx) * (1 - fy)
+    w01 = fx * (1 - fy)
+    w10 = (1 - fx) * fy
+    w11 = fx * fy
+    t = textures[ti]
+    r = t[y0, x0, 0] * w00 + t[y0, x1, 0] * w01 + t[y1, x0, 0] * w10 + t[y1, x1, 0] * w11
+    g = t[y0, x0, 1] * w00 + t[y0, x1, 1] * w01 + t[y1, x0, 1] * w10 + t[y1, x1, 1] * w11
+    b = t[y0, x0, 2] * w00 + t[y0, x1, 2] * w01 + t[y1, x0, 2] * w10 + t[y1, x1, 2] * w11
+    return r, g, b
 
 
 @numba.njit(parallel=True, cache=True)
-def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, texels_per_m, lights, light_w,
-             ambient, color_noise, noise_std):  # pragma: no cover - compiled  # fmt: skip
+def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, texels_per_m, l2, contrast,
+             lights, light_w, ambient, color_noise, noise_std):  # pragma: no cover - compiled  # fmt: skip
     """Per pixel: noise-free depth, incidence angle, part id and Lambert-shaded texture colour.
 
     t_hit (N, H, W) float32 (inf = miss); prim (N, H, W) uint32; bary (N, H, W, 2); normals
     (N, H, W, 3) geometric normals; rays (N, H, W, 6); tri_uv (T, 3, 2) metres; tex (T,) int;
-    tint (T, 3); pid (T,) int; textures (K, S, S, 3) uint8 spanning S / texels_per_m metres; lights (L, 3) unit; light_w (L,);
+    tint (T, 3); pid (T,) int; textures (K, S, S, 3) uint8 spanning S / texels_per_m metres; l2 = (cos, sin, 1 / scale,
+    shift_u, shift_v) of the second texture layer, contrast of the blend; lights (L, 3) unit; light_w (L,);
     color_noise (N, H, W, 3) float32 standard normals, used when noise_std > 0.
     Returns depth_gt (0 = miss), theta (rad), part (-1 = miss), colour uint8 (N, H, W, 3).
     The numpy twin is ``fuseflow.synth.simulator._shade_ref``.
     """
     N, H, W = t_hit.shape
-    S = textures.shape[1]
     scale = texels_per_m
     depth = np.zeros((N, H, W), np.float32)
     theta = np.zeros((N, H, W), np.float32)
@@ -118,28 +131,23 @@ def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures,
                     theta[n, y, x] = np.arccos(min(c, np.float32(1.0)))
                     b1, b2 = bary[n, y, x, 0], bary[n, y, x, 1]
                     b0 = 1 - b1 - b2
-                    u = (b0 * tri_uv[k, 0, 0] + b1 * tri_uv[k, 1, 0] + b2 * tri_uv[k, 2, 0]) * scale - 0.5
-                    v = (b0 * tri_uv[k, 0, 1] + b1 * tri_uv[k, 1, 1] + b2 * tri_uv[k, 2, 1]) * scale - 0.5
-                    fx0 = np.floor(u)
-                    fy0 = np.floor(v)
-                    fx = u - fx0
-                    fy = v - fy0
-                    x0 = int(fx0) % S
-                    y0 = int(fy0) % S
-                    x1 = (x0 + 1) % S
-                    y1 = (y0 + 1) % S
+                    um = b0 * tri_uv[k, 0, 0] + b1 * tri_uv[k, 1, 0] + b2 * tri_uv[k, 2, 0]
+                    vm = b0 * tri_uv[k, 0, 1] + b1 * tri_uv[k, 1, 1] + b2 * tri_uv[k, 2, 1]
                     lam = 0.0
                     for li in range(lights.shape[0]):
                         lam += max(nx * lights[li, 0] + ny * lights[li, 1] + nz * lights[li, 2], 0.0) * light_w[li]
                     shade = ambient + (1 - ambient) * lam
                     ti = tex[k]
-                    w00 = (1 - fx) * (1 - fy)
-                    w01 = fx * (1 - fy)
-                    w10 = (1 - fx) * fy
-                    w11 = fx * fy
-                    r0 = _texel(textures, ti, x0, x1, y0, y1, 0, w00, w01, w10, w11) * tint[k, 0] * shade
-                    r1 = _texel(textures, ti, x0, x1, y0, y1, 1, w00, w01, w10, w11) * tint[k, 1] * shade
-                    r2 = _texel(textures, ti, x0, x1, y0, y1, 2, w00, w01, w10, w11) * tint[k, 2] * shade
+                    ti2 = (ti + 1) % textures.shape[0]
+                    u2 = (l2[0] * um - l2[1] * vm) * l2[2] + l2[3]
+                    v2 = (l2[1] * um + l2[0] * vm) * l2[2] + l2[4]
+                    a0, a1, a2 = _bilinear3(textures, ti, um * scale - 0.5, vm * scale - 0.5)
+                    c0, c1, c2 = _bilinear3(textures, ti2, u2 * scale - 0.5, v2 * scale - 0.5)
+                    r0, r1, r2 = a0 + c0, a1 + c1, a2 + c2
+                    # blend of the two layers, contrast restored (texture.surface_albedo_ref)
+                    r0 = min(max(0.5 + contrast * (r0 / 510.0 - 0.5), 0.0), 1.0) * 255.0 * tint[k, 0] * shade
+                    r1 = min(max(0.5 + contrast * (r1 / 510.0 - 0.5), 0.0), 1.0) * 255.0 * tint[k, 1] * shade
+                    r2 = min(max(0.5 + contrast * (r2 / 510.0 - 0.5), 0.0), 1.0) * 255.0 * tint[k, 2] * shade
                 for ch in range(3):
                     val = r0 if ch == 0 else (r1 if ch == 1 else r2)
                     if noise_std > 0:

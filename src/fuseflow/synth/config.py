@@ -26,9 +26,10 @@ class SensorModel:
     kind: str
     """'structured-light' (axial sigma from Nguyen et al. 2012) or 'stereo' (sigma = z^2 s / (f b))."""
     depth_range: tuple[float, float]
-    """(min, max) metres of the sensor; depth outside is missing. Kinect v1: 0.4-4.5 m (Microsoft
-    Kinect for Windows spec, default mode, extended to the Nguyen fit's 0.5-3.0 m upward);
-    D435: 0.3-6 m (Intel D400 datasheet rev. 9, 'ideal range' 0.3-3 m, max ~10 m)."""
+    """(min, max) metres of the sensor; depth outside is missing. Kinect v1: 0.4-4.5 m, an
+    assumption between the 0.5-5 m of raw data Khoshelham & Elberink 2012 measured and the
+    0.8-4 m (default) / 0.4-3 m (near) modes of the Kinect for Windows SDK; D435: 0.3-6 m
+    (Intel D400 datasheet: minimum ~0.3 m at 848x480, 'ideal range' 0.3-3 m, max ~10 m)."""
     baseline_m: float
     """Projector/emitter-to-camera (Kinect: 0.075 m, Khoshelham & Elberink 2012) or stereo
     baseline (D435: 0.050 m, Intel D400 datasheet)."""

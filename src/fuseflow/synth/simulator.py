@@ -3,7 +3,7 @@
 Rendering casts one ray per pixel through Open3D's RaycastingScene (Embree, CPU). Rays go
 through integer pixel coordinates (u, v) with direction R^T K^-1 [u, v, 1], so the hit distance
 *is* the z-depth and ``z K^-1 [u, v, 1]`` back-projects onto the surface exactly (float32).
-Colour is the part's texture at the hit (bilinear), times its tint, Lambert-shaded by two fixed
+Colour is the part's two-layer texture at the hit (bilinear, texture.surface_albedo_ref), times its tint, Lambert-shaded by two fixed
 directional lights plus ambient (view-independent, as matching between cameras needs).
 """
 
@@ -20,7 +20,7 @@ from fuseflow.synth.config import SimConfig
 from fuseflow.synth.noise import apply_depth_noise
 from fuseflow.synth.rigs import camera_centres, make_rig
 from fuseflow.synth.scene import Scene, build_scene
-from fuseflow.synth.texture import make_textures, sample_texture_ref
+from fuseflow.synth.texture import make_textures, surface_albedo_ref
 from fuseflow.types import Frame, Rig
 
 __all__ = ["SimFrame", "Simulator"]
@@ -227,13 +227,18 @@ def _shade(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, l
            color_noise, noise_std):  # fmt: skip
     """Per-pixel depth_gt, incidence angle, part id and colour (numba kernel ``shade_nb``;
     ``_shade_ref`` is its numpy twin). See ``shade_nb`` for the arguments."""
+    from fuseflow.synth import texture as T
     from fuseflow.synth._kernels import shade_nb
     from fuseflow.synth.texture import TEXTURE_METRES
+
+    def _layer2() -> np.ndarray:
+        a = np.radians(T.LAYER2_ROT_DEG)
+        return np.array([np.cos(a), np.sin(a), 1 / T.LAYER2_SCALE, *T.LAYER2_SHIFT])
 
     c = np.ascontiguousarray
     return shade_nb(c(t_hit, np.float32), c(prim, np.uint32), c(bary, np.float32), c(normals, np.float32),
                     c(rays, np.float32), c(tri_uv, np.float32), c(tex, np.int64), c(tint, np.float32),
-                    c(pid, np.int32), textures, textures.shape[1] / TEXTURE_METRES, lights, light_w,
+                    c(pid, np.int32), textures, textures.shape[1] / TEXTURE_METRES, _layer2(), T.CONTRAST, lights, light_w,
                     float(ambient), c(color_noise, np.float32), float(noise_std))  # fmt: skip
 
 
@@ -254,7 +259,7 @@ def _shade_ref(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, texture
     b = bary.reshape(-1, 2)[okf]
     uv = tri_uv[idx]
     uvm = (1 - b[:, :1] - b[:, 1:]) * uv[:, 0] + b[:, :1] * uv[:, 1] + b[:, 1:] * uv[:, 2]
-    albedo = sample_texture_ref(textures, tex[idx], uvm) * tint[idx]
+    albedo = surface_albedo_ref(textures, tex[idx], uvm) * tint[idx]
     lam = np.clip(n_face.reshape(-1, 3)[okf] @ lights.T, 0.0, None) @ light_w
     shade = ambient + (1 - ambient) * lam
     rgb = np.zeros((N * H * W, 3), np.float32)

@@ -14,10 +14,38 @@ import os
 
 import numpy as np
 
-__all__ = ["TEXTURE_PX", "TEXTURE_METRES", "make_textures", "sample_texture", "sample_texture_ref"]
+__all__ = ["TEXTURE_PX", "TEXTURE_METRES", "make_textures", "sample_texture", "sample_texture_ref",
+           "layer2_uv", "surface_albedo_ref"]  # fmt: skip
 
 TEXTURE_PX = 1024
 TEXTURE_METRES = 2.0  # one texture tile spans 2 m: 1.95 mm per texel
+
+# A surface's albedo blends two tiles: its own texture at uv, and the next texture at uv rotated by
+# 37 deg and scaled by 1 / 1.37 (period 2.74 m along rotated axes). The two periods are
+# incommensurate, so the pattern never repeats on a surface (a single 2 m tile repeated on the 9 m
+# studio floor gave SIFT grids of wrong but epipolar-consistent matches, one period apart).
+LAYER2_ROT_DEG = 37.0
+LAYER2_SCALE = 1.37
+LAYER2_SHIFT = (0.37, 0.71)  # metres
+CONTRAST = 1.3  # the blend of two independent tiles has 1/sqrt(2) of their contrast; restore most
+
+
+def layer2_uv(uv_m: np.ndarray) -> np.ndarray:
+    """(M, 2) surface coordinates (metres) of the second texture layer."""
+    a = math.radians(LAYER2_ROT_DEG)
+    c, s = math.cos(a), math.sin(a)
+    u, v = uv_m[:, 0], uv_m[:, 1]
+    return np.stack(
+        [(c * u - s * v) / LAYER2_SCALE + LAYER2_SHIFT[0], (s * u + c * v) / LAYER2_SCALE + LAYER2_SHIFT[1]], 1
+    )
+
+
+def surface_albedo_ref(textures: np.ndarray, tex_id: np.ndarray, uv_m: np.ndarray) -> np.ndarray:
+    """(M, 3) float32 albedo in [0, 1] of surface points: the two-layer blend (numpy reference of
+    the shading kernel's lookup)."""
+    a = sample_texture_ref(textures, tex_id, uv_m)
+    b = sample_texture_ref(textures, (tex_id + 1) % len(textures), layer2_uv(uv_m).astype(np.float32))
+    return np.clip(0.5 + CONTRAST * (0.5 * (a + b) - 0.5), 0.0, 1.0).astype(np.float32)
 
 
 def _value_noise(rng: np.random.Generator, size: int) -> np.ndarray:
