@@ -144,6 +144,14 @@ def colmap_backbone(frame, rig, config) -> BackboneResult:
             opts.ba_refine_extra_params = False
             opts.num_threads = 2
             opts.random_seed = int(config.seed)
+            # A rig frame is N images with wide baselines and few (50-400) matches per pair, not a
+            # video: COLMAP's defaults (30 inliers and a 25 % inlier ratio to register an image,
+            # 100 inliers and 16 deg to initialise) split an 8-camera simulated studio into three
+            # 3-image models. These thresholds register all 8 (rotation error 0.12 deg there).
+            opts.mapper.abs_pose_min_num_inliers = 15
+            opts.mapper.abs_pose_min_inlier_ratio = 0.1
+            opts.mapper.init_min_num_inliers = 50
+            opts.mapper.init_min_tri_angle = 4.0
             out = tmp / "sparse"
             out.mkdir()
             try:
