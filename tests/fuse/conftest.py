@@ -91,3 +91,8 @@ def render(rig: Rig, rects, noise: float = 0.0, seed: int = 0, only: dict | None
         depth=torch.from_numpy(np.stack(depths)),
         present=torch.ones(len(rig), dtype=torch.bool),
     )
+
+
+# test modules import these helpers as ``from _fuse_scenes import ...`` (importlib import mode
+# gives conftest no importable name of its own)
+sys.modules.setdefault("_fuse_scenes", sys.modules[__name__])

@@ -1,0 +1,453 @@
+"""The compiled CPU path of FUSE: the arithmetic of mcm / cvgc / weights / ash / rps fused
+into a few numba loops (DESIGN.md 2; ../shared/notes/fuse-cpu-feasibility.md).
+
+Same float32 operations in the same order as the PyTorch reference, so results agree up to
+float rounding of exp / sqrt and float32 reductions (tests/fuse/test_numba.py states the
+tolerance). Structure, and why:
+
+1. ``_pixels`` (parallel over camera rows): MCM (eq. 16-18) on the 3x3 window, the candidate
+   test of eq. (27) *before* any projection (exact: omega <= 2c), back-projection, CVGC over
+   <= K_max neighbours (eq. 19-21), the joint weight (22), the minimum-weight filter, the world
+   point and its coarse cell coordinates (eq. 23's key computed during back-projection). One
+   pass over the depth maps, no full-size temporaries besides the outputs.
+2. ``_compact``: per-row counts -> prefix sum -> parallel scatter into input order.
+3. ``_coarse_ids``: an open-addressing hash of coarse keys with a last-key cache (neighbouring
+   pixels share a coarse cell ~90 % of the time); counting sort of the points by coarse cell
+   (stable, so input order is kept inside a cell) instead of a global sort.
+4. ``_fine_pass`` / ``_select`` (parallel over coarse cells): eq. (24)-(25) fine keys, a stable
+   local sort, fine-cell densities for rho_bar, then eq. (26) and the weighted FPS of eq. (28)
+   inside every fine cell.
+
+numba is imported here only; ``import fuseflow`` does not load it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from numba import njit, prange
+
+from fuseflow.fuse.ash import COARSE_OFFSET, FIXED_OFFSET
+from fuseflow.fuse.config import FuseConfig
+from fuseflow.fuse.cvgc import relative_transforms
+from fuseflow.types import FusedCloud
+
+__all__ = ["fuse_numba"]
+
+_F = np.float32
+
+
+@njit(cache=True, parallel=True, fastmath=False)
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, row_count):
+    """Stage 1, one pass per pixel. prm: float32 parameters (see _params)."""
+    n, h, w = depth.shape
+    alpha, beta, eps, r_c, tau, min_w, s_c = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6]
+    use_mcm, use_cvgc, vis = prm[7] > 0, prm[8] > 0, prm[9] > 0
+    qlim = prm[10]
+    half = _F(0.5)
+    two = _F(2.0)
+    nine = _F(9.0)
+    kn = nbr.shape[1]
+    for row in prange(n * h):
+        i = row // h
+        v = row - i * h
+        cnt = 0
+        fx, s, cx = Kf[i, 0, 0], Kf[i, 0, 1], Kf[i, 0, 2]
+        fy, cy = Kf[i, 1, 1], Kf[i, 1, 2]
+        for u in range(w):
+            base = (i * h + v) * w + u
+            flags[base] = 0
+            z = depth[i, v, u]
+            if z <= 0:
+                continue
+            if use_mcm:
+                # eq. (16)-(17) on the 3x3 window; a window pixel without depth -> c = 0
+                if u == 0 or v == 0 or u == w - 1 or v == h - 1:
+                    continue
+                full = True
+                sm = _F(0.0)
+                for dv in range(-1, 2):
+                    for du in range(-1, 2):
+                        d = depth[i, v + dv, u + du]
+                        if d <= 0:
+                            full = False
+                        sm += d
+                if not full:
+                    continue
+                mean = sm / nine
+                var = _F(0.0)
+                for dv in range(-1, 2):
+                    for du in range(-1, 2):
+                        e = depth[i, v + dv, u + du] - mean
+                        var += e * e
+                var = var / nine
+                gx = (depth[i, v, u + 1] - depth[i, v, u - 1]) * half
+                gy = (depth[i, v + 1, u] - depth[i, v - 1, u]) * half
+                g = np.sqrt(gx * gx + gy * gy) / (z + eps)
+                vv = var / (z * z + eps)
+                c = np.exp(-alpha * g - beta * vv)  # eq. (18)
+            else:
+                c = _F(1.0)
+            if not c > r_c:  # eq. (27)
+                continue
+            yn = (_F(v) - cy) / fy
+            xn = ((_F(u) - cx) - s * yn) / fx
+            x = xn * z
+            y = yn * z
+            wg = c
+            if use_cvgc:
+                agree = 0
+                votes = 0
+                for kk in range(kn):
+                    j = nbr[i, kk]
+                    if j < 0 or not present[j]:
+                        continue
+                    m = M_rel[i, j]
+                    xj = m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3]
+                    yj = m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3]
+                    zj = m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3]
+                    if not zj > eps:
+                        continue
+                    xnj = xj / zj
+                    ynj = yj / zj
+                    uj = np.floor(Kf[j, 0, 0] * xnj + Kf[j, 0, 1] * ynj + Kf[j, 0, 2] + half)
+                    vj = np.floor(Kf[j, 1, 1] * ynj + Kf[j, 1, 2] + half)
+                    if uj < 0 or uj > w - 1 or vj < 0 or vj > h - 1:
+                        continue
+                    d = depth[j, int(vj), int(uj)]
+                    if d <= 0:
+                        continue
+                    r = abs(zj - d) / (zj + eps)  # eq. (20)
+                    if r < tau:
+                        agree += 1
+                        votes += 1
+                    elif (not vis) or d > zj:
+                        votes += 1
+                if votes > 0:
+                    wg = _F(agree) / _F(votes)  # eq. (21)
+            om = two * c * wg / (c + wg + eps)  # eq. (22)
+            if not om >= min_w:
+                continue
+            t = T_wc[i]
+            px = t[0, 0] * x + t[0, 1] * y + t[0, 2] * z + t[0, 3]
+            py = t[1, 0] * x + t[1, 1] * y + t[1, 2] * z + t[1, 3]
+            pz = t[2, 0] * x + t[2, 1] * y + t[2, 2] * z + t[2, 3]
+            qx = np.floor(px / s_c)
+            qy = np.floor(py / s_c)
+            qz = np.floor(pz / s_c)
+            flags[base] = 1 if (abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim) else 2
+            out_P[base, 0] = px
+            out_P[base, 1] = py
+            out_P[base, 2] = pz
+            out_w[base] = om
+            cnt += 1
+        row_count[row] = cnt
+
+
+@njit(cache=True, parallel=True)
+def _compact(flags, out_P, out_w, s_c, row_start, h, w, P, om, q, pix, cam, oor):
+    nrows = row_start.shape[0] - 1
+    for row in prange(nrows):
+        k = row_start[row]
+        i = row // h
+        base0 = row * w
+        for u in range(w):
+            f = flags[base0 + u]
+            if f == 0:
+                continue
+            b = base0 + u
+            P[k, 0] = out_P[b, 0]
+            P[k, 1] = out_P[b, 1]
+            P[k, 2] = out_P[b, 2]
+            om[k] = out_w[b]
+            if f == 1:
+                q[k, 0] = np.int64(np.floor(out_P[b, 0] / s_c))
+                q[k, 1] = np.int64(np.floor(out_P[b, 1] / s_c))
+                q[k, 2] = np.int64(np.floor(out_P[b, 2] / s_c))
+            pix[k] = (row - i * h) * w + u
+            cam[k] = i
+            oor[k] = f == 2
+            k += 1
+
+
+@njit(cache=True)
+def _coarse_ids(q, keep, offset, bits):
+    """Coarse cell id (first-appearance order) of every kept point, -1 for the others."""
+    m = q.shape[0]
+    size = 1
+    while size < 2 * m + 16:
+        size *= 2
+    mask = size - 1
+    tkeys = np.full(size, -1, dtype=np.int64)
+    tvals = np.empty(size, dtype=np.int64)
+    ids = np.full(m, -1, dtype=np.int64)
+    n_cells = 0
+    last_key = -2
+    last_id = -1
+    for p in range(m):
+        if not keep[p]:
+            continue
+        key = ((q[p, 0] + offset) << (2 * bits)) | ((q[p, 1] + offset) << bits) | (q[p, 2] + offset)
+        if key == last_key:
+            ids[p] = last_id
+            continue
+        hsh = (key * np.int64(-7046029254386353131)) >> 20
+        slot = hsh & mask
+        while True:
+            tk = tkeys[slot]
+            if tk == key:
+                cid = tvals[slot]
+                break
+            if tk == -1:
+                tkeys[slot] = key
+                tvals[slot] = n_cells
+                cid = n_cells
+                n_cells += 1
+                break
+            slot = (slot + 1) & mask
+        ids[p] = cid
+        last_key = key
+        last_id = cid
+    return ids, n_cells
+
+
+@njit(cache=True)
+def _bucket(ids, n_cells):
+    """Counting sort of points by cell id, stable: (start (C+1,), members (kept M,))."""
+    counts = np.zeros(n_cells + 1, dtype=np.int64)
+    for p in range(ids.shape[0]):
+        if ids[p] >= 0:
+            counts[ids[p] + 1] += 1
+    for c in range(n_cells):
+        counts[c + 1] += counts[c]
+    start = counts.copy()
+    members = np.empty(counts[n_cells], dtype=np.int64)
+    fill = counts[:n_cells].copy()
+    for p in range(ids.shape[0]):
+        c = ids[p]
+        if c >= 0:
+            members[fill[c]] = p
+            fill[c] += 1
+    return start, members
+
+
+@njit(cache=True, parallel=True)
+def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n):
+    """Eq. (23)-(25) per coarse cell: fine keys, stable local sort (members reordered in place),
+    and the per-cell sum of fine-cell densities (for rho_bar) and fine-cell count."""
+    s_c, s0, s_min, s_max, eps, adaptive, fixed = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5] > 0, prm[6]
+    s_c3 = prm[7]
+    n_cells = start.shape[0] - 1
+    for c in prange(n_cells):
+        a = start[c]
+        b = start[c + 1]
+        n = b - a
+        if adaptive:
+            rho = _F(n) / s_c3  # eq. (23)
+            sf = s0 / np.sqrt(rho + eps)  # eq. (24)
+            if sf < s_min:
+                sf = s_min
+            if sf > s_max:
+                sf = s_max
+        else:
+            sf = fixed
+        csize[c] = sf
+        # fine keys, grouped by first appearance through a small open-addressing table
+        # (an O(n) counting sort instead of a comparison sort); stable: input order kept
+        keys = np.empty(n, dtype=np.int64)
+        gid = np.empty(n, dtype=np.int64)
+        tsize = 2 * n + 1
+        tk = np.full(tsize, -1, dtype=np.int64)
+        tv = np.empty(tsize, dtype=np.int64)
+        ng = 0
+        last_k = np.int64(-1)
+        last_g = 0
+        for t in range(n):
+            p = members[a + t]
+            k3 = np.int64(0)
+            if adaptive:
+                for ax in range(3):
+                    o = _F(q[p, ax]) * s_c
+                    f = np.floor((P[p, ax] - o) / sf)  # eq. (25)
+                    fi = np.int64(f)
+                    if fi < 0:
+                        fi = 0
+                    if fi > 127:
+                        fi = 127
+                    k3 = (k3 << 7) | fi
+            keys[t] = k3
+            if k3 == last_k:
+                gid[t] = last_g
+                continue
+            slot = (k3 * 40503) % tsize
+            while True:
+                if tk[slot] == k3:
+                    g = tv[slot]
+                    break
+                if tk[slot] == -1:
+                    tk[slot] = k3
+                    tv[slot] = ng
+                    g = ng
+                    ng += 1
+                    break
+                slot += 1
+                if slot == tsize:
+                    slot = 0
+            gid[t] = g
+            last_k = k3
+            last_g = g
+        gstart = np.zeros(ng + 1, dtype=np.int64)
+        for t in range(n):
+            gstart[gid[t] + 1] += 1
+        for g in range(ng):
+            gstart[g + 1] += gstart[g]
+        fill = gstart[:ng].copy()
+        tmp = np.empty(n, dtype=np.int64)
+        for t in range(n):
+            g = gid[t]
+            tmp[fill[g]] = members[a + t]
+            fkey[a + fill[g]] = g
+            fill[g] += 1
+        sf3 = sf * sf * sf
+        rsum = 0.0
+        for g in range(ng):
+            rsum += _F(gstart[g + 1] - gstart[g]) / sf3
+        for t in range(n):
+            members[a + t] = tmp[t]
+        nf = ng
+        cell_rho_sum[c] = rsum
+        cell_fine_n[c] = nf
+
+
+@njit(cache=True, parallel=True)
+def _select(P, om, start, members, fkey, csize, prm, selected):
+    """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell."""
+    k0, ratio, k_max, rho_bar, mode, k_const = prm[0], prm[1], int(prm[2]), prm[3], int(prm[4]), int(prm[5])
+    n_cells = start.shape[0] - 1
+    for c in prange(n_cells):
+        a = start[c]
+        b = start[c + 1]
+        sf = csize[c]
+        sf3 = sf * sf * sf
+        t0 = a
+        d2 = np.empty(k_max * 0 + (b - a), dtype=np.float32)
+        while t0 < b:
+            t1 = t0 + 1
+            while t1 < b and fkey[t1] == fkey[t0]:
+                t1 += 1
+            n = t1 - t0
+            if mode == 0:
+                rho = _F(n) / sf3
+                kf = np.ceil(_F(k0) * (rho / rho_bar) * _F(ratio))  # eq. (26)
+                k = int(kf)
+                if k < 1:
+                    k = 1
+                if k > k_max:
+                    k = k_max
+            else:
+                k = k_const
+            # first pick: highest omega, ties -> first in input order
+            best = t0
+            for t in range(t0 + 1, t1):
+                if om[members[t]] > om[members[best]]:
+                    best = t
+            selected[members[best]] = True
+            for t in range(t0, t1):
+                d2[t - t0] = np.inf
+            last = members[best]
+            for _r in range(1, k):
+                bs = _F(0.0)
+                bt = -1
+                for t in range(t0, t1):
+                    p = members[t]
+                    if selected[p]:
+                        continue
+                    dx = P[p, 0] - P[last, 0]
+                    dy = P[p, 1] - P[last, 1]
+                    dz = P[p, 2] - P[last, 2]
+                    dd = dx * dx + dy * dy + dz * dz
+                    if dd < d2[t - t0]:
+                        d2[t - t0] = dd
+                    sc = np.sqrt(d2[t - t0]) * om[p]  # eq. (28)
+                    if sc > bs:
+                        bs = sc
+                        bt = t
+                if bt < 0:
+                    break
+                last = members[bt]
+                selected[last] = True
+            t0 = t1
+
+
+def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
+    """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
+    depth = p.depth.contiguous().numpy()
+    n, h, w = depth.shape
+    Kf = p.K.numpy().astype(np.float32)
+    M_rel = relative_transforms(p.T_cam_world).numpy()
+    T_wc = p.T_world_cam.numpy().astype(np.float32)
+    nbr = p.graph.index.numpy().astype(np.int64)
+    present = p.present.numpy().astype(np.bool_)
+    adaptive = cfg.use_ash
+    s_c = cfg.coarse_size if adaptive else cfg.fixed_size
+    qlim = (COARSE_OFFSET if adaptive else FIXED_OFFSET) - 1
+    prm = np.array(
+        [cfg.alpha, cfg.beta, cfg.eps, cfg.r_c, cfg.tau, cfg.min_weight, s_c]
+        + [float(cfg.use_mcm), float(cfg.use_cvgc), float(cfg.visibility_aware), qlim],
+        dtype=np.float32,
+    )
+    npx = n * h * w
+    flags = np.empty(npx, dtype=np.int8)
+    out_P = np.empty((npx, 3), dtype=np.float32)
+    out_w = np.empty(npx, dtype=np.float32)
+    row_count = np.zeros(n * h, dtype=np.int64)
+    _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, row_count)
+    row_start = np.zeros(n * h + 1, dtype=np.int64)
+    np.cumsum(row_count, out=row_start[1:])
+    m = int(row_start[-1])
+    P = np.empty((m, 3), dtype=np.float32)
+    om = np.empty(m, dtype=np.float32)
+    q = np.empty((m, 3), dtype=np.int64)
+    pix = np.empty(m, dtype=np.int64)
+    cam = np.empty(m, dtype=np.int64)
+    oor = np.empty(m, dtype=np.bool_)
+    _compact(flags, out_P, out_w, np.float32(s_c), row_start, h, w, P, om, q, pix, cam, oor)
+    del out_P, out_w, flags
+    out_of_range = int(oor.sum())
+    bits = 14 if adaptive else 21
+    offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
+    ids, n_cells = _coarse_ids(q, ~oor, offset, bits)
+    start, members = _bucket(ids, n_cells)
+    fkey = np.empty(members.shape[0], dtype=np.int64)
+    csize = np.empty(n_cells, dtype=np.float32)
+    rho_sum = np.empty(n_cells, dtype=np.float64)
+    fine_n = np.empty(n_cells, dtype=np.int64)
+    prm2 = np.array(
+        [s_c, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps, float(adaptive), cfg.fixed_size, np.float32(s_c**3)], dtype=np.float32
+    )
+    _fine_pass(P, q, start, members, prm2, fkey, csize, rho_sum, fine_n)
+    if cfg.use_rps and adaptive:
+        mode, k_const = 0, 0
+        total = int(fine_n.sum())
+        rho_bar = float(np.float32(rho_sum.sum() / max(total, 1)))
+    else:
+        mode = 1
+        k_const = cfg.k_fixed if not cfg.use_rps else int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
+        rho_bar = 1.0
+    prm3 = np.array([cfg.k0, cfg.ratio, cfg.k_max, rho_bar, mode, k_const], dtype=np.float32)
+    selected = np.zeros(m, dtype=np.bool_)
+    _select(P, om, start, members, fkey, csize, prm3, selected)
+    # output in the fine-cell order of the members array
+    order = members[selected[members]]
+    cam_s = cam[order]
+    color = p.color.reshape(n, h * w, 3).numpy()
+    rgb = color[cam_s, pix[order]]
+    rig_index = p.rig_index.numpy()[cam_s].astype(np.int16)
+    cloud = FusedCloud(
+        torch.from_numpy(np.ascontiguousarray(P[order])),
+        torch.from_numpy(np.ascontiguousarray(rgb)),
+        torch.from_numpy(np.ascontiguousarray(om[order])),
+        torch.from_numpy(rig_index),
+    )
+    valid_pixels = int(np.count_nonzero(depth))
+    return cloud, valid_pixels, m - out_of_range, out_of_range

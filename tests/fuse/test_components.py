@@ -1,0 +1,170 @@
+"""Each equation of FUSE on tiny hand-computed inputs (paper eq. 16-28)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from _fuse_scenes import PLANE_Z, Rect, look_at, make_rig, render
+
+from fuseflow.errors import ValidationError
+from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, neighbour_graph, preset
+from fuseflow.fuse.ash import adaptive_hash, fixed_hash
+from fuseflow.fuse.cvgc import cvgc_counts, omega_geo, project_votes, relative_transforms
+from fuseflow.fuse.mcm import confidence, gradient_and_variance
+from fuseflow.fuse.neighbours import NeighbourGraph
+from fuseflow.fuse.rps import cell_counts, select_representatives
+from fuseflow.fuse.weights import joint_weight
+
+
+def test_config_presets_and_validation():
+    assert PRESETS["default"] == FuseConfig()
+    assert PRESETS["paper"].visibility_aware is False and PRESETS["paper"].min_weight == 0.0
+    assert PRESETS["paper"].tau == 0.05
+    assert not ABLATIONS["w/o CVGC"].use_cvgc and not ABLATIONS["w/o MCM"].use_mcm
+    assert not ABLATIONS["w/o ASH"].use_ash and not ABLATIONS["w/o RPS"].use_rps
+    with pytest.raises(ValidationError, match="tau"):
+        FuseConfig(tau=0.0)
+    with pytest.raises(ValidationError, match="window"):
+        FuseConfig(window=4)
+    with pytest.raises(ValidationError, match="no FUSE preset"):
+        preset("nope")
+
+
+def test_mcm_gradient_variance_hand_computed():
+    # 3x3 depth with a 0.1 m step to the right: centre pixel (1, 1)
+    d = torch.tensor([[[2.0, 2.0, 2.1], [2.0, 2.0, 2.1], [2.0, 2.0, 2.1]]])
+    g, v, full = gradient_and_variance(d, 3, eps=0.0)
+    assert bool(full[0, 1, 1]) and not bool(full[0, 0, 0])  # border windows leave the image
+    assert g[0, 1, 1].item() == pytest.approx(0.05 / 2.0, rel=1e-5)  # (2.1 - 2.0) / 2 / z
+    values = np.array([2.0, 2.0, 2.1] * 3)
+    assert v[0, 1, 1].item() == pytest.approx(values.var() / 4.0, rel=1e-4)
+    c = confidence(d, alpha=20.0, beta=6000.0, eps=0.0)
+    want = math.exp(-20.0 * 0.025 - 6000.0 * values.var() / 4.0)
+    assert c[0, 1, 1].item() == pytest.approx(want, rel=1e-4)
+    assert c[0, 0, 0].item() == 0.0  # incomplete window = edge pixel
+
+
+def test_mcm_defaults_meet_the_design_targets():
+    """DESIGN.md 2.1: smooth 45-degree surface c > 0.8, a 5 % depth edge c < 0.05 (f = 525, z = 2 m,
+    0.3 % relative noise)."""
+    rng = np.random.default_rng(0)
+    f, z0 = 525.0, 2.0
+    u = np.arange(64)
+    plane = z0 * (1 + u / f)[None, :].repeat(64, 0)  # slope of one pixel footprint per pixel
+    plane = plane * (1 + 0.003 * rng.standard_normal(plane.shape))
+    cfg = FuseConfig()
+    c = confidence(torch.tensor(plane[None], dtype=torch.float32), cfg.alpha, cfg.beta)
+    assert float(c[0, 1:-1, 1:-1].median()) > 0.8
+    edge = np.full((16, 16), z0)
+    edge[:, 8:] *= 1.05
+    c = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.alpha, cfg.beta)
+    assert float(c[0, 2:-2, 7:9].max()) < 0.05
+    assert float(c[0, 2:-2, 2:5].min()) > 0.99
+    off = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.alpha, cfg.beta, use_mcm=False)
+    assert bool((off == 1).all())
+
+
+def test_cvgc_residual_and_votes_hand_computed():
+    K = torch.tensor([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    M = torch.tensor([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0]])  # j = i
+    depth_j = torch.zeros(101, 101)
+    depth_j[50, 50] = 2.05  # 2.5 % behind a point at z = 2 -> agree
+    depth_j[50, 60] = 2.5  # 25 % behind -> free-space violation, votes against
+    depth_j[50, 40] = 1.0  # in front -> point occluded in j
+    X = torch.tensor([[0.0, 0.0, 2.0], [0.2, 0.0, 2.0], [-0.2, 0.0, 2.0], [0.0, 0.2, 2.0], [5.0, 0.0, 2.0]])
+    agree, vote = project_votes(X, M, K, depth_j, tau=0.05, visibility_aware=False)
+    assert agree.tolist() == [True, False, False, False, False]
+    assert vote.tolist() == [True, True, True, False, False]  # no depth / outside image: no vote
+    agree, vote = project_votes(X, M, K, depth_j, tau=0.05, visibility_aware=True)
+    assert vote.tolist() == [True, True, False, False, False]  # occluded: no vote
+    # eq. (21): share of agreeing votes, c where there is none
+    w = omega_geo(torch.tensor([1, 0, 0]), torch.tensor([2, 1, 0]), torch.tensor([0.9, 0.9, 0.7]))
+    assert w.tolist() == pytest.approx([0.5, 0.0, 0.7])
+
+
+def test_relative_transform_is_camera_i_to_camera_j():
+    rig = make_rig([(-0.3, 0, 0), (0.3, 0.1, 0)])
+    T = rig.T_cam_world()
+    M = relative_transforms(T)
+    X_w = np.array([0.1, 0.2, 2.0, 1.0])
+    Xi = rig[0].T_cam_world @ X_w
+    Xj = rig[1].T_cam_world @ X_w
+    got = M[0, 1].double().numpy() @ Xi
+    assert np.allclose(got, Xj[:3], atol=1e-5)
+
+
+def test_joint_weight_harmonic_mean():
+    c = torch.tensor([1.0, 0.9, 0.9, 0.0])
+    g = torch.tensor([1.0, 0.1, 0.9, 1.0])
+    w = joint_weight(c, g, eps=0.0)
+    assert w.tolist() == pytest.approx([1.0, 2 * 0.09 / 1.0, 0.9, 0.0])
+    assert bool((w <= 2 * torch.minimum(c, g)).all())  # the dual gate
+
+
+def test_ash_hand_computed():
+    s_c = 0.2
+    # 8 points in coarse cell (0,0,0), 1 point in cell (1,0,0)
+    P = torch.tensor([[0.01 * i + 0.0007, 0.05, 0.05] for i in range(8)] + [[0.25, 0.01, 0.01]], dtype=torch.float32)
+    cells = adaptive_hash(P, s_c, s0=0.01, s_min=0.002, s_max=0.05, eps=0.0)
+    rho = 8 / s_c**3
+    s_f = min(max(0.01 / math.sqrt(rho), 0.002), 0.05)
+    assert cells.cell_size[0].item() == pytest.approx(s_f, rel=1e-5)
+    assert cells.cell_size[8].item() == pytest.approx(min(max(0.01 / math.sqrt(1 / s_c**3), 0.002), 0.05), rel=1e-5)
+    fine_x = (cells.key[:8] >> 14) & 127
+    assert fine_x.tolist() == [math.floor((0.01 * i + 0.0007) / s_f) for i in range(8)]
+    assert len(set(cells.key.tolist())) == len({math.floor((0.01 * i + 0.0007) / s_f) for i in range(8)}) + 1
+    fixed = fixed_hash(P, 0.1)
+    assert len(set(fixed.key.tolist())) == 2
+
+
+def test_rps_weighted_fps_hand_computed():
+    # one cell, four points on a line; omega favours point 1; k = 3
+    P = torch.tensor([[0.0, 0, 0], [0.001, 0, 0], [0.004, 0, 0], [0.010, 0, 0]])
+    omega = torch.tensor([0.5, 0.9, 0.8, 0.3])
+    inv = torch.zeros(4, dtype=torch.int64)
+    sel = select_representatives(P, omega, inv, torch.tensor([3]), 3)
+    # round 1: highest omega (1); round 2: argmax d*omega = {0: .0005, 2: .0024, 3: .0027} -> 3;
+    # round 3: d to {1, 3}: {0: .001*.5, 2: .003*.8} -> 2
+    assert sel.tolist() == [1, 3, 2]
+    # eq. (26): denser cell gets more points
+    key = torch.tensor([5, 5, 5, 5, 9])
+    size = torch.full((5,), 0.01)
+    inv, counts, k = cell_counts(key, size, k0=1.0, ratio=1.0, k_max=3, density_adaptive=True, k_fixed=0)
+    assert counts.tolist() == [4, 1] and k.tolist() == [2, 1]  # rho / rho_bar = 4 / 2.5 -> ceil 1.6 = 2
+
+
+def test_neighbour_graph_bounded_and_cached():
+    eyes = [(np.cos(a) * 1.5, 0.0, PLANE_Z - np.sin(a) * 1.5) for a in np.linspace(0.3, 2.8, 6)]
+    rig = make_rig(eyes)
+    g = neighbour_graph(rig, k_max=2)
+    assert g.index.shape == (6, 2)
+    assert all(i not in row for i, row in enumerate(g.index.tolist()))
+    assert neighbour_graph(rig, k_max=2).index.data_ptr() != g.index.data_ptr()  # copies out
+    from fuseflow.fuse.neighbours import _graph_cached
+
+    hits = _graph_cached.cache_info().hits
+    neighbour_graph(rig, k_max=2)
+    assert _graph_cached.cache_info().hits == hits + 1
+    # an arc around one target: every camera has a neighbour, ordered by overlap
+    assert (g.index[:, 0] >= 0).all()
+    assert bool((g.overlap[:, 0] >= g.overlap[:, 1]).all())
+    # cameras looking away from each other: no neighbours
+    far = make_rig([(0, 0, 0), (0, 0, 1.0)])
+    far = far.with_extrinsics({"cam0": look_at((0, 0, 0), (0, 0, -1.0)), "cam1": look_at((0, 0, 1.0), (0, 0, 2.0))})
+    assert (neighbour_graph(far, k_max=2, min_overlap=0.05).index == -1).all()
+
+
+def test_cvgc_counts_uses_graph_and_present():
+    rig = make_rig([(-0.3, 0, 0), (0.3, 0, 0)])
+    fr = render(rig, [Rect(PLANE_Z)])
+    K = rig.K()
+    T = rig.T_cam_world()
+    X = torch.tensor([[0.0, 0.0, 2.0]])
+    graph = NeighbourGraph(torch.tensor([[1], [0]]), torch.tensor([[1.0], [1.0]]))
+    a, v = cvgc_counts(X, torch.tensor([0]), fr.depth, K, T, graph, torch.tensor([True, True]))
+    assert (a.item(), v.item()) == (1, 1)
+    a, v = cvgc_counts(X, torch.tensor([0]), fr.depth, K, T, graph, torch.tensor([True, False]))
+    assert (a.item(), v.item()) == (0, 0)
