@@ -111,9 +111,7 @@ def test_numba_equals_torch_degraded_cases():
     assert len(rt.cloud) > 0 and rt.report.isolated == ("cam0",)
     # two cameras with no overlap (looking in opposite directions)
     far = make_rig([(0.0, 0.0, 0.0), (0.0, 0.0, 1.0)])
-    far = far.with_extrinsics(
-        {"cam0": look_at((0, 0, 0), (0, 0, -1.0)), "cam1": look_at((0, 0, 1.0), (0, 0, 2.0))}
-    )
+    far = far.with_extrinsics({"cam0": look_at((0, 0, 0), (0, 0, -1.0)), "cam1": look_at((0, 0, 1.0), (0, 0, 2.0))})
     fr = render(far, [Rect(PLANE_Z), Rect(-1.5)], noise=0.002)
     rt, _ = both(fr, far, cfg)
     assert set(rt.report.isolated) == {"cam0", "cam1"} and len(rt.cloud) > 0

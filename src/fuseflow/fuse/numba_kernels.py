@@ -423,7 +423,8 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
     prm2 = np.array(
-        [s_c, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps, float(adaptive), cfg.fixed_size, np.float32(s_c**3)], dtype=np.float32
+        [s_c, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps, float(adaptive), cfg.fixed_size, np.float32(s_c**3)],
+        dtype=np.float32,
     )
     _fine_pass(P, q, start, members, prm2, fkey, csize, rho_sum, fine_n)
     if cfg.use_rps and adaptive:
