@@ -19,6 +19,7 @@ from fuseflow.io import (
     write_ply,
     write_rig,
 )
+from fuseflow.pipeline import run, stream
 from fuseflow.types import Calibration, Camera, Frame, FusedCloud, Rig, View
 
 __version__ = "0.1.0"
@@ -42,6 +43,8 @@ __all__ = [
     "read_calibration",
     "read_ply",
     "read_rig",
+    "run",
+    "stream",
     "write_calibration",
     "write_frame",
     "write_ply",
