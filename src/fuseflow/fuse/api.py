@@ -79,6 +79,7 @@ class _Prepared:
     present: torch.Tensor  # (N,) bool
     graph: NeighbourGraph  # indices in frame order
     ids: tuple[str, ...]
+    valid_per_view: tuple[int, ...]  # pixels with depth in range, per view
 
 
 def resolve_backend(config: FuseConfig, device: torch.device) -> str:
@@ -100,7 +101,7 @@ def resolve_backend(config: FuseConfig, device: torch.device) -> str:
     return "numba"
 
 
-def _prepare(frame: Frame, rig: Rig, config: FuseConfig) -> _Prepared:
+def _prepare(frame: Frame, rig: Rig, config: FuseConfig, backend: str = "torch") -> _Prepared:
     if not isinstance(frame, Frame):
         raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
     if not isinstance(rig, Rig):
@@ -125,8 +126,14 @@ def _prepare(frame: Frame, rig: Rig, config: FuseConfig) -> _Prepared:
     present = frame.present
     lo = torch.tensor([max(c.depth_range[0], config.delta) for c in cams], dtype=torch.float32, device=dev)
     hi = torch.tensor([min(c.depth_range[1], config.z_max) for c in cams], dtype=torch.float32, device=dev)
-    depth = valid_depth(frame.depth, lo, hi)
-    depth = torch.where(present[:, None, None], depth, torch.zeros_like(depth))
+    if backend == "numba" and frame.depth.dtype == torch.float32:
+        from fuseflow.fuse.numba_kernels import gate_depth
+
+        depth, per_view = gate_depth(frame.depth, lo, hi, present)  # one parallel pass
+    else:
+        depth = valid_depth(frame.depth, lo, hi)
+        depth = torch.where(present[:, None, None], depth, torch.zeros_like(depth))
+        per_view = tuple((depth > 0).flatten(1).sum(dim=1).tolist())
     T = np.stack([c.T_cam_world for c in cams])
     T_wc = np.stack([c.T_world_cam for c in cams])[:, :3, :]
     graph = neighbour_graph(sub, config.k_neighbours, config.min_overlap)
@@ -140,6 +147,7 @@ def _prepare(frame: Frame, rig: Rig, config: FuseConfig) -> _Prepared:
         present=present,
         graph=graph,
         ids=tuple(frame.camera_ids),
+        valid_per_view=per_view,
     )
 
 
@@ -221,8 +229,10 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
     """
     cfg = FuseConfig() if config is None else config
     t0 = time.perf_counter()
-    p = _prepare(frame, rig, cfg)
-    backend = resolve_backend(cfg, p.depth.device)
+    if not isinstance(frame, Frame):
+        raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
+    backend = resolve_backend(cfg, frame.depth.device) if isinstance(cfg, FuseConfig) else "torch"
+    p = _prepare(frame, rig, cfg, backend)
     if backend == "numba":
         from fuseflow.fuse.numba_kernels import fuse_numba
 
@@ -234,7 +244,7 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
     ms = (time.perf_counter() - t0) * 1000.0
     pres = p.present.tolist()
     missing = tuple(cid for cid, ok in zip(p.ids, pres) if not ok)
-    per_view = (p.depth > 0).flatten(1).sum(dim=1).tolist()
+    per_view = p.valid_per_view
     empty = tuple(cid for cid, ok, nv in zip(p.ids, pres, per_view) if ok and nv == 0)
     idx = p.graph.index.tolist()
     isolated = tuple(

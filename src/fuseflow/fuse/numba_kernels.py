@@ -32,9 +32,40 @@ from fuseflow.fuse.config import FuseConfig
 from fuseflow.fuse.cvgc import relative_transforms
 from fuseflow.types import FusedCloud
 
-__all__ = ["fuse_numba"]
+__all__ = ["fuse_numba", "gate_depth"]
 
 _F = np.float32
+
+
+@njit(cache=True, parallel=True)
+def _gate(depth, lo, hi, present, out, row_count):
+    """api.valid_depth and the absent-view mask in one pass: out = depth where lo < depth < hi
+    in a present view, else 0; row_count[row] = kept pixels of that row."""
+    n, h, w = depth.shape
+    for row in prange(n * h):
+        i = row // h
+        v = row - i * h
+        cnt = 0
+        a, b, ok = lo[i], hi[i], present[i]
+        for u in range(w):
+            z = depth[i, v, u]
+            if ok and z > a and z < b:
+                out[i, v, u] = z
+                cnt += 1
+            else:
+                out[i, v, u] = 0.0
+        row_count[row] = cnt
+
+
+def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present: torch.Tensor):
+    """(gated depth (N, H, W) float32 tensor, valid pixels per view): what api._prepare computes
+    with torch (valid_depth, then zero for absent views), as one compiled pass."""
+    d = depth.contiguous().numpy()
+    n, h, w = d.shape
+    out = np.empty_like(d)
+    rows = np.empty(n * h, dtype=np.int64)
+    _gate(d, lo.numpy(), hi.numpy(), present.numpy().astype(np.bool_), out, rows)
+    return torch.from_numpy(out), tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
 
 
 @njit(cache=True, parallel=True, fastmath=False)
@@ -379,6 +410,39 @@ def _select(P, om, start, members, fkey, csize, prm, selected):
             t0 = t1
 
 
+@njit(cache=True)
+def _out_positions(members, selected, pos):
+    """pos[t] = output slot of members[t] when it is selected (fine-cell order), else -1."""
+    k = 0
+    for t in range(members.shape[0]):
+        if selected[members[t]]:
+            pos[t] = k
+            k += 1
+        else:
+            pos[t] = -1
+    return k
+
+
+@njit(cache=True, parallel=True)
+def _gather(members, pos, P, om, cam, pix, color, rig_index, hw, xyz, rgb, wgt, src):
+    """The output cloud in one parallel pass (numpy fancy indexing took ~45 ms at N = 8)."""
+    for t in prange(members.shape[0]):
+        k = pos[t]
+        if k < 0:
+            continue
+        a = members[t]
+        xyz[k, 0] = P[a, 0]
+        xyz[k, 1] = P[a, 1]
+        xyz[k, 2] = P[a, 2]
+        wgt[k] = om[a]
+        c = cam[a]
+        q = c * hw + pix[a]
+        rgb[k, 0] = color[q, 0]
+        rgb[k, 1] = color[q, 1]
+        rgb[k, 2] = color[q, 2]
+        src[k] = rig_index[c]
+
+
 def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
     depth = p.depth.contiguous().numpy()
@@ -439,16 +503,15 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     selected = np.zeros(m, dtype=np.bool_)
     _select(P, om, start, members, fkey, csize, prm3, selected)
     # output in the fine-cell order of the members array
-    order = members[selected[members]]
-    cam_s = cam[order]
-    color = p.color.reshape(n, h * w, 3).numpy()
-    rgb = color[cam_s, pix[order]]
-    rig_index = p.rig_index.numpy()[cam_s].astype(np.int16)
-    cloud = FusedCloud(
-        torch.from_numpy(np.ascontiguousarray(P[order])),
-        torch.from_numpy(np.ascontiguousarray(rgb)),
-        torch.from_numpy(np.ascontiguousarray(om[order])),
-        torch.from_numpy(rig_index),
-    )
-    valid_pixels = int(np.count_nonzero(depth))
+    pos = np.empty(members.shape[0], dtype=np.int64)
+    k = _out_positions(members, selected, pos)
+    xyz = np.empty((k, 3), dtype=np.float32)
+    rgb = np.empty((k, 3), dtype=np.uint8)
+    wgt = np.empty(k, dtype=np.float32)
+    src = np.empty(k, dtype=np.int16)
+    color = p.color.contiguous().reshape(n * h * w, 3).numpy()
+    rig_index = p.rig_index.numpy().astype(np.int16)
+    _gather(members, pos, P, om, cam, pix, color, rig_index, h * w, xyz, rgb, wgt, src)
+    cloud = FusedCloud(torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src))
+    valid_pixels = int(sum(p.valid_per_view))
     return cloud, valid_pixels, m - out_of_range, out_of_range
