@@ -830,11 +830,11 @@ def write_fig5(path: Path, results: dict, pc: PaperConfig) -> Path:
             if 10.0**lo <= v <= 10.0**hi:
                 y = Y(v)
                 cv2.line(img, (lm, y), (Wd - r, y), (225, 225, 225) if m != 1 else (190, 190, 190), 1)
-                cv2.putText(img, f"{v:g}", (lm - 60, y + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+                cv2.putText(img, f"{v:g}", (lm - 45, y + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     for n in ns:
         cv2.putText(img, str(n), (X(n) - 5, Hd - b + 22), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(img, "number of cameras N", (lm + 200, Hd - 20), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, "FPS", (15, t + 10), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, "FPS", (15, (t + Hd - b) // 2), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)  # clear of the ticks
     W_, H_ = pc.resolution
     cv2.putText(img, f"Fusion FPS vs N, {W_}x{H_}, CPU (2 cores), mean +- std over frames", (lm, 30), font, 0.55,
                 (0, 0, 0), 1, cv2.LINE_AA)  # fmt: skip
