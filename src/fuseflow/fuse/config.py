@@ -40,7 +40,7 @@ Backend = Literal["auto", "torch", "numba"]
 # The variance term separates the two cases 47x, the gradient term only 5x, so beta carries
 # the edge test: beta = 6000 gives 3.36 on the edge alone and 0.072 on the smooth surface;
 # alpha = 20 adds 0.5 on the edge and 0.1 on the smooth surface. Check: smooth c = exp(-0.17)
-# = 0.84 > 0.8, edge c = exp(-3.86) = 0.021 < 0.05. tests/fuse/test_mcm.py checks both numbers
+# = 0.84 > 0.8, edge c = exp(-3.86) = 0.021 < 0.05. tests/fuse/test_components.py::test_mcm_defaults_meet_the_design_targets checks both numbers
 # on synthetic depth maps.
 MCM_ALPHA = 20.0
 MCM_BETA = 6000.0
