@@ -90,6 +90,14 @@ def test_tsdf_fusion_is_non_empty_and_near_the_plane(backend):
     assert abs(float(c.rgb.float().mean()) - 128) < 10  # the texture's mean grey
 
 
+def test_tsdf_fusion_of_a_single_camera_gives_its_surface():
+    # weight_threshold 1.0 keeps voxels seen by >= 2 views; with one view it must not return nothing
+    frame, rig = make_scene(1)
+    check_cloud(B.tsdf_fusion(frame, rig, config=B.TSDFConfig(voxel=0.02)), 0.02 / 2)
+    frame, rig = make_scene(2, present=[True, False])
+    check_cloud(B.tsdf_fusion(frame, rig, config=B.TSDFConfig(voxel=0.02)), 0.02 / 2)
+
+
 def test_tsdf_voxel_argument_and_absent_views():
     frame, rig = make_scene(2)
     coarse = B.tsdf_fusion(frame, rig, voxel=0.04)

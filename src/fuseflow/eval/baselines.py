@@ -203,7 +203,9 @@ class TSDFConfig:
 
     weight_threshold: float = 1.0
     """Minimum integrated weight of a voxel for point extraction (VoxelBlockGrid). Each view adds
-    at most 1, so Open3D's default of 3.0 would drop every voxel seen by fewer than 3 cameras."""
+    at most 1, so Open3D's default of 3.0 would drop every voxel seen by fewer than 3 cameras;
+    1.0 keeps voxels seen by at least 2 views. With fewer views than that (one camera), the
+    threshold is lowered to views - 0.5, so a single view still gives its surface, not nothing."""
 
     backend: str = "vbg"
     """"vbg": tensor ``o3d.t.geometry.VoxelBlockGrid`` (default). "scalable": legacy
@@ -304,7 +306,7 @@ def _tsdf_vbg(prepared, cfg: TSDFConfig, device: torch.device) -> FusedCloud:
     for depth_img, c, K, T, depth_max, blocks in views:
         color_img = o3d.t.geometry.Image(o3c.Tensor(c.astype(np.float32) / 255.0)).to(dev)
         vbg.integrate(blocks, depth_img, color_img, K, K, T, 1.0, depth_max, cfg.trunc_voxels)
-    pcd = vbg.extract_point_cloud(cfg.weight_threshold)
+    pcd = vbg.extract_point_cloud(min(cfg.weight_threshold, len(views) - 0.5))
     if "positions" not in pcd.point or pcd.point.positions.shape[0] == 0:
         return FusedCloud.empty(device)
     return _from_o3d(pcd.to_legacy(), device)
