@@ -364,6 +364,7 @@ def calibrate(
             config,
             color=frame.color.detach().cpu().numpy(),
             counts=sr.edge_counts,
+            matches=bb.matches,
         )
         for k, Tk in rr.T_cam_world.items():
             T[ids[k]] = Tk

@@ -56,12 +56,13 @@ class CalibConfig:
     cell of the coarse search grid."""
 
     use_matches: bool = True
-    """Add the backbone's keypoint matches (when it has them) as correspondences whose pixel in
-    camera j does not move with s; they make lateral baselines observable (beyond the paper)."""
+    """Edges with >= 20 backbone keypoint matches (when it has them) take their correspondences
+    from the matches, whose pixels do not move with s, instead of from reprojection (beyond the
+    paper; see ``correspondences.match_correspondences``)."""
 
-    match_px: float = 6.0
-    """RC gate on a keypoint match: the reprojection of X_i must land within this many pixels
-    of the matched keypoint. Range > 0. Default: ~3x the backbone's reprojection error + slack."""
+    match_rel_tol: float = 0.01
+    """Floor of the robust gate on keypoint matches: a match is kept when the scale it implies is
+    within max(3 robust sigmas, this relative band) of its edge's median. Range (0, 1)."""
 
     random_correspondences: bool = False
     """Ablation "w/o RC" (Table III): uniform random pixels of i projected into j, no depth
@@ -79,6 +80,16 @@ class CalibConfig:
 
     scale_grid: int = 96
     """Points of the coarse log-spaced 1-D scale search (DESIGN.md 3). Range >= 8."""
+
+    coarse_candidates: int = 3
+    """Local maxima of the wide-gate coarse count that get a fine search at the tight gate
+    (``depth_tau_final``); the best fine count wins. Range >= 1. Default: on the simulated
+    studio ring the wide-gate count alone peaked at a wrong scale (docs/gmac.md)."""
+
+    informative_cos: float = 0.25
+    """The coarse search counts only samples whose surface normal has |cos| >= this with the
+    edge's baseline (surfaces parallel to the baseline are consistent at every scale and bias
+    the count). Range [0, 1). 0 counts every sample."""
 
     scale_span: float = 100.0
     """The coarse search covers [s0 / span, s0 * span], s0 from sensor depth over backbone
@@ -142,9 +153,11 @@ class CalibConfig:
         need(0 < self.depth_tau < 1, f"depth_tau must be in (0, 1), got {self.depth_tau}")
         need(0 < self.depth_tau_final < 1, f"depth_tau_final must be in (0, 1), got {self.depth_tau_final}")
         need(0 < self.max_step < 1, f"max_step must be in (0, 1), got {self.max_step}")
-        need(self.match_px > 0, f"match_px must be > 0, got {self.match_px}")
+        need(0 < self.match_rel_tol < 1, f"match_rel_tol must be in (0, 1), got {self.match_rel_tol}")
         need(self.huber_delta > 0, f"huber_delta must be > 0, got {self.huber_delta}")
         need(self.scale_grid >= 8, f"scale_grid must be >= 8, got {self.scale_grid}")
+        need(self.coarse_candidates >= 1, f"coarse_candidates must be >= 1, got {self.coarse_candidates}")
+        need(0 <= self.informative_cos < 1, f"informative_cos must be in [0, 1), got {self.informative_cos}")
         need(self.scale_span > 1, f"scale_span must be > 1, got {self.scale_span}")
         need(0 < self.fixed_point_tol < 1, f"fixed_point_tol must be in (0, 1), got {self.fixed_point_tol}")
         need(self.fixed_point_iters >= 1, f"fixed_point_iters must be >= 1, got {self.fixed_point_iters}")

@@ -35,6 +35,11 @@ class RefineResult:
         fitness: "i-j" -> ICP inlier share. rmse_mm: "i-j" -> ICP inlier RMSE in mm.
         moved_mm: camera index -> how far the refinement moved the camera centre, mm.
         edges_used: ICP edges given to the pose graph.
+        accepted: whether the refined poses were kept. They are kept only when they fit the
+            depth better than the GMAC poses on the refined edges (mean ICP inlier RMSE at
+            ``icp_max_distance`` lower and mean fitness not lower); otherwise the GMAC poses
+            are returned unchanged (a refinement must not make things worse).
+        check: the numbers behind ``accepted``: mean fitness / RMSE (mm) before and after.
     """
 
     T_cam_world: dict[int, np.ndarray]
@@ -42,6 +47,8 @@ class RefineResult:
     rmse_mm: dict[str, float]
     moved_mm: dict[str, float]
     edges_used: int
+    accepted: bool = True
+    check: dict[str, float] | None = None
 
 
 #: ICP results below this inlier share are not used (no real overlap).
@@ -70,6 +77,7 @@ def refine_poses(
     config: CalibConfig,
     color: np.ndarray | None = None,
     counts: Mapping[tuple[int, int], int] | None = None,
+    matches: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> RefineResult:
     """Point-to-plane ICP per edge + pose-graph optimisation.
 
@@ -78,6 +86,9 @@ def refine_poses(
         depth: (N, H, W) float32 metres. K: (N, 3, 3). depth_range: (N, 2).
         edges: overlapping pairs (i, j) to register. color: (N, H, W, 3) uint8 (coloured ICP;
             None = point-to-plane). counts: edge -> correspondences, to pick each camera's best.
+        matches: the backbone's keypoint matches (i, j) -> (uv_i, uv_j): held-out evidence for
+            the acceptance check (ICP minimises the cloud residual, so that residual cannot judge
+            it; the matches' 3-D misfit can).
     """
     try:
         import open3d as o3d
@@ -86,7 +97,7 @@ def refine_poses(
     reg = o3d.pipelines.registration
     nodes = sorted(T_cam_world)
     if len(nodes) < 2:
-        return RefineResult(dict(T_cam_world), {}, {}, {}, 0)
+        return RefineResult(dict(T_cam_world), {}, {}, {}, 0, False)
     clouds = {
         k: _cloud(o3d, depth[k], K[k], depth_range[k], config.icp_voxel, None if color is None else color[k])
         for k in nodes
@@ -155,8 +166,66 @@ def refine_poses(
             )
     out, moved = {}, {}
     for k in nodes:
-        P = np.asarray(graph.nodes[index[k]].pose)
-        out[k] = invert_rigid(P)
+        out[k] = invert_rigid(np.asarray(graph.nodes[index[k]].pose))
+    accepted, check = False, None
+    if used:
+        check = _fit_check(reg, clouds, edges, T_cam_world, out, config.icp_max_distance)
+        m0 = _match_misfit(matches, T_cam_world, depth, K, depth_range)
+        if m0 is not None:
+            check["match_misfit_before_mm"] = m0
+            check["match_misfit_after_mm"] = _match_misfit(matches, out, depth, K, depth_range)
+            accepted = check["match_misfit_after_mm"] < m0
+        else:
+            accepted = (
+                check["rmse_after_mm"] < check["rmse_before_mm"] and check["fitness_after"] >= check["fitness_before"]
+            )
+    if not accepted:
+        out = {k: np.array(T_cam_world[k], dtype=np.float64) for k in nodes}
+    for k in nodes:
         c_old = invert_rigid(T_cam_world[k])[:3, 3]
-        moved[str(k)] = float(np.linalg.norm(P[:3, 3] - c_old) * 1000.0)
-    return RefineResult(out, fitness, rmse, moved, used)
+        moved[str(k)] = float(np.linalg.norm(invert_rigid(out[k])[:3, 3] - c_old) * 1000.0)
+    return RefineResult(out, fitness, rmse, moved, used, accepted, check)
+
+
+def _fit_check(reg, clouds, edges, T_before, T_after, max_dist: float) -> dict[str, float]:
+    """Mean Open3D fitness / inlier RMSE (mm) of the depth clouds over ``edges`` under both pose sets."""
+    out = {}
+    for tag, T in (("before", T_before), ("after", T_after)):
+        fit, rm = [], []
+        for i, j in edges:
+            if i in T and j in T:
+                ev = reg.evaluate_registration(clouds[i], clouds[j], max_dist, T[j] @ invert_rigid(T[i]))
+                fit.append(float(ev.fitness))
+                rm.append(float(ev.inlier_rmse) * 1000.0)
+        out[f"fitness_{tag}"] = float(np.mean(fit)) if fit else 0.0
+        out[f"rmse_{tag}_mm"] = float(np.mean(rm)) if rm else float("inf")
+    return out
+
+
+#: The match-misfit check needs at least this many matches with depth in both cameras.
+MIN_CHECK_MATCHES = 30
+
+
+def _match_misfit(matches, T, depth, K, depth_range) -> float | None:
+    """Median 3-D distance (mm) between matched sensor points after moving camera i's into j
+    with poses T; None when there are fewer than MIN_CHECK_MATCHES usable matches."""
+    if not matches:
+        return None
+    res = []
+    for (i, j), (uv_i, uv_j) in matches.items():
+        if i not in T or j not in T:
+            continue
+        pts = []
+        for k, uv in ((i, uv_i), (j, uv_j)):
+            H, W = depth[k].shape
+            u = np.clip(np.floor(uv[:, 0] + 0.5).astype(int), 0, W - 1)
+            v = np.clip(np.floor(uv[:, 1] + 0.5).astype(int), 0, H - 1)
+            z = depth[k][v, u].astype(np.float64)
+            z = np.where((z > depth_range[k][0]) & (z < depth_range[k][1]), z, 0.0)
+            P = np.stack([(u - K[k][0, 2]) / K[k][0, 0] * z, (v - K[k][1, 2]) / K[k][1, 1] * z, z], axis=1)
+            pts.append(P)
+        ok = (pts[0][:, 2] > 0) & (pts[1][:, 2] > 0)
+        M = T[j] @ invert_rigid(T[i])
+        res.append(np.linalg.norm(pts[0][ok] @ M[:3, :3].T + M[:3, 3] - pts[1][ok], axis=1))
+    r = np.concatenate(res) if res else np.zeros(0)
+    return float(np.median(r) * 1000.0) if len(r) >= MIN_CHECK_MATCHES else None
