@@ -15,7 +15,7 @@ from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.cvgc import cvgc_counts, omega_geo, project_votes, relative_transforms
 from fuseflow.fuse.mcm import confidence, gradient_and_variance
 from fuseflow.fuse.neighbours import NeighbourGraph
-from fuseflow.fuse.rps import cell_counts, select_representatives
+from fuseflow.fuse.rps import cell_counts, select_representatives, selection_priority
 from fuseflow.fuse.weights import joint_weight
 
 
@@ -29,6 +29,11 @@ def test_config_presets_and_validation():
         FuseConfig(tau=0.0)
     with pytest.raises(ValidationError, match="window"):
         FuseConfig(window=4)
+    assert PRESETS["paper"].range_priority is False  # eq. (28) ranks by omega alone
+    with pytest.raises(ValidationError, match="noise_sigma"):
+        FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
+    with pytest.raises(ValidationError, match="noise_sigma"):
+        FuseConfig(noise_sigma=(0.0012, 0.0019))
     with pytest.raises(ValidationError, match="no FUSE preset"):
         preset("nope")
 
@@ -134,6 +139,56 @@ def test_rps_weighted_fps_hand_computed():
     size = torch.full((5,), 0.01)
     inv, counts, k = cell_counts(key, size, k0=1.0, ratio=1.0, k_max=3, density_adaptive=True, k_fixed=0)
     assert counts.tolist() == [4, 1] and k.tolist() == [2, 1]  # rho / rho_bar = 4 / 2.5 -> ceil 1.6 = 2
+
+
+def test_range_priority_selects_the_near_point_of_equal_omega_first():
+    # one cell, a point 3.5 m from its camera and one 2 m from its camera, equal omega
+    P = torch.tensor([[0.0, 0, 0], [0.001, 0, 0], [0.005, 0, 0]])
+    omega = torch.tensor([0.9, 0.9, 0.9])
+    inv = torch.zeros(3, dtype=torch.int64)
+    sigma = FuseConfig().noise_sigma
+    assert select_representatives(P, omega, inv, torch.tensor([1]), 1).tolist() == [0]  # tie: input order
+    for z, near in (([3.5, 2.0, 3.5], 1), ([2.0, 3.5, 3.5], 0)):
+        pr = selection_priority(omega, torch.tensor(z), sigma)
+        # sigma(2 m) = 1.2 + 1.9 * 1.6^2 = 6.06 mm, sigma(3.5 m) = 19.46 mm
+        assert pr[near].item() == pytest.approx(0.9 / 0.006064, rel=1e-5)
+        assert select_representatives(P, pr, inv, torch.tensor([1]), 1).tolist() == [near]
+    # FPS round 2 (eq. 28 on the ranking value): d * omega / sigma. From point 1 (z = 2 m):
+    # point 0 at 1 mm, 3.5 m (0.001 / 0.01946 = 0.051) loses to point 2 at 4 mm, 3.5 m (0.206);
+    # a near point 2 mm away (0.002 / 0.00606 = 0.33) beats both.
+    pr = selection_priority(torch.full((4,), 0.9), torch.tensor([3.5, 2.0, 3.5, 2.0]), sigma)
+    P4 = torch.tensor([[0.0, 0, 0], [0.001, 0, 0], [0.005, 0, 0], [0.003, 0, 0]])
+    sel = select_representatives(P4, pr, torch.zeros(4, dtype=torch.int64), torch.tensor([3]), 3)
+    assert sel.tolist() == [1, 3, 2]
+
+
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_range_priority_prefers_the_near_camera_and_keeps_weights(backend):
+    from dataclasses import replace
+
+    from fuseflow.fuse import fuse
+
+    # cam0 2 m from the wall, cam1 1 m from it (both look at the same patch); cam0 comes first
+    # in input order, so ties (equal omega) go to the far camera without the switch
+    rig = make_rig([(0.05, 0.0, 0.0), (-0.05, 0.0, 1.0)])
+    frame = render(rig, [Rect(PLANE_Z)], noise=0.0005, seed=2)
+    base = FuseConfig(k_max=1, backend=backend)
+    off = fuse(frame, rig, base)
+    on = fuse(frame, rig, replace(base, range_priority=True))
+
+    # the near camera's footprint on the wall: |x|, |y| < ~0.6 m
+    def near_share(cloud):
+        xyz = cloud.xyz.numpy()
+        inner = (np.abs(xyz[:, 0]) < 0.4) & (np.abs(xyz[:, 1]) < 0.3)
+        return (cloud.camera.numpy()[inner] == 1).mean()
+
+    assert near_share(on) > 0.95 and near_share(on) > near_share(off) + 0.2
+    # only the selection changes: with every point of every cell kept, same points and weights
+    keep_all = replace(base, k_max=16, k0=1000.0)
+    a, b = fuse(frame, rig, keep_all), fuse(frame, rig, replace(keep_all, range_priority=True))
+    oa, ob = np.lexsort(a.xyz.numpy().T), np.lexsort(b.xyz.numpy().T)
+    assert np.array_equal(a.xyz.numpy()[oa], b.xyz.numpy()[ob])
+    assert np.array_equal(a.weight.numpy()[oa], b.weight.numpy()[ob])
 
 
 def test_neighbour_graph_bounded_and_cached():

@@ -72,12 +72,50 @@ def test_numba_equals_torch_on_simulated_rig(sim_frame, name):
     assert len(rt.cloud) > 1000  # a real scene, not a trivial one
 
 
+@pytest.mark.parametrize("k_max", [1, 3])
+def test_numba_equals_torch_with_range_priority(sim_frame, k_max):
+    frame, rig = sim_frame
+    cfg = replace(FuseConfig(), range_priority=True, k_max=k_max)
+    rt, _ = both(frame, rig, cfg)
+    off = fuse_with_report(frame, rig, replace(cfg, range_priority=False, backend="torch"))
+    # the switch changes which points win (not a no-op on a real scene), not how many cells
+    a, b = rt.cloud.xyz.numpy(), off.cloud.xyz.numpy()
+    moved = cKDTree(b.astype(np.float64)).query(a.astype(np.float64))[0] > 1e-6
+    assert moved.mean() > 0.01
+
+
+def test_numba_select_prefers_the_near_point_like_torch():
+    """The compiled _select with the ranking value of rps.selection_priority picks the near
+    point of a cell whose two points have equal omega, in either input order."""
+    from fuseflow.fuse.numba_kernels import _select
+    from fuseflow.fuse.rps import selection_priority
+
+    P = np.array([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0]], dtype=np.float32)
+    omega = torch.tensor([0.9, 0.9])
+    for z in ([3.5, 2.0], [2.0, 3.5]):
+        pr = selection_priority(omega, torch.tensor(z), FuseConfig().noise_sigma).numpy()
+        prm = np.array([1.0, 1.0, 1, 1.0, 1, 1], dtype=np.float32)  # k = 1 (mode 1)
+        sel = np.zeros(2, dtype=np.bool_)
+        _select(
+            P,
+            pr,
+            np.array([0, 2]),
+            np.array([0, 1]),
+            np.zeros(2, dtype=np.int64),
+            np.array([0.01], dtype=np.float32),
+            prm,
+            sel,
+        )
+        assert sel.tolist() == [z[0] < z[1], z[1] < z[0]]
+
+
 def test_numba_equals_torch_on_analytic_scene_with_noise_and_edges():
     eyes = [(-0.6, 0.0, 0.0), (0.0, 0.3, 0.0), (0.6, 0.0, 0.0)]
     rig = make_rig(eyes)
     rects = [Rect(PLANE_Z), Rect(1.5, -0.2, 0.2, -0.2, 0.2)]  # wall and a box in front (depth edges)
     frame = render(rig, rects, noise=0.003, seed=1)
-    for cfg in (FuseConfig(), FuseConfig(visibility_aware=False), FuseConfig(k_max=5, k0=2.0)):
+    configs = (FuseConfig(), FuseConfig(visibility_aware=False), FuseConfig(k_max=5, k0=2.0))
+    for cfg in configs + (FuseConfig(range_priority=True), FuseConfig(range_priority=True, k_max=5, k0=2.0)):
         rt, _ = both(frame, rig, cfg)
         assert len(rt.cloud) > 100
 

@@ -22,7 +22,7 @@ from fuseflow.fuse.config import FuseConfig
 from fuseflow.fuse.cvgc import _pixel_rays, cvgc_counts, omega_geo
 from fuseflow.fuse.mcm import confidence, valid_depth
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
-from fuseflow.fuse.rps import cell_counts, select_representatives
+from fuseflow.fuse.rps import cell_counts, select_representatives, selection_priority
 from fuseflow.fuse.weights import joint_weight
 from fuseflow.types import Frame, FusedCloud, Rig
 
@@ -184,6 +184,7 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     keep = omega >= cfg.min_weight
     X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
     P = _to_world(X, cam, p.T_world_cam)
+    z_s = X[:, 2]
     if cfg.use_ash:
         cells = adaptive_hash(P, cfg.coarse_size, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps)  # eq. (23)-(25)
     else:
@@ -191,7 +192,7 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     candidates = int(P.shape[0])
     out_of_range = int((~cells.keep).sum())
     if out_of_range:
-        P, cam, pix, omega = P[cells.keep], cam[cells.keep], pix[cells.keep], omega[cells.keep]
+        P, cam, pix, omega, z_s = P[cells.keep], cam[cells.keep], pix[cells.keep], omega[cells.keep], z_s[cells.keep]
         key, size = cells.key[cells.keep], cells.cell_size[cells.keep]
     else:
         key, size = cells.key, cells.cell_size
@@ -202,7 +203,8 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
         inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, k_const)
     else:  # w/o RPS: fixed k
         inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, cfg.k_fixed)
-    sel = select_representatives(P, omega, inv, k, cfg.k_max)  # eq. (28)
+    rank = selection_priority(omega, z_s, cfg.noise_sigma) if cfg.range_priority else omega
+    sel = select_representatives(P, rank, inv, k, cfg.k_max)  # eq. (28)
     cam_s = cam[sel]
     rgb = p.color.reshape(n, h * w, 3)[cam_s, pix[sel]]
     cloud = FusedCloud(

@@ -6,7 +6,7 @@ its derivation written next to it (DESIGN.md section 2). Presets:
 * ``FuseConfig()`` / ``PRESETS["default"]``: the project's defaults (visibility-aware CVGC,
   a minimum joint weight for RPS candidates).
 * ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
-  depth, eq. 27 filters on c only, no minimum joint weight).
+  depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
 """
@@ -126,6 +126,22 @@ class FuseConfig:
     of eq. (26), keeping the candidate filter (27) and the weighted FPS (28)."""
     k_fixed: int = 1
     """Points per cell when use_rps is False. 1..k_max."""
+    range_priority: bool = False
+    """Beyond the paper: rank the points of a fine cell by omega(x) / sigma(z(x)) instead of
+    omega(x) in eq. (28) (the first pick and the FPS score), where z is the point's depth in
+    its source camera and sigma the sensor's expected axial noise (``noise_sigma``). Omega
+    (MCM confidence and CVGC vote share, tau = 5 % of depth) does not rank points by their
+    noise, so a camera 4 m away (Kinect sigma 26 mm) wins a cell as often as one 2 m away
+    (6 mm) and FPS then picks its noise tail (docs/fuse.md, Quality). With this switch a
+    near camera's point is preferred in proportion to the noise ratio sigma(z_far) /
+    sigma(z_near). It only changes *which* points are selected: the output weight stays
+    omega (eq. 22), and the candidate filters (r_c, min_weight) are unchanged. Points are
+    still selected, never averaged (DESIGN.md 2)."""
+    noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
+    """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by
+    ``range_priority``; only the ratio between depths matters. Default: Kinect-class
+    structured light (Nguyen et al. 2012, the model above MCM_ALPHA; 6 mm at 2 m, 14 mm at
+    3 m, 26 mm at 4 m). A stereo sensor (sigma ~ z^2) is (small a, b, 0). a > 0, b >= 0."""
 
     # ---- execution
     backend: Backend = "auto"
@@ -176,6 +192,17 @@ class FuseConfig:
             bad("s_max", f"s_min ({self.s_min}) <= s_max <= coarse_size ({self.coarse_size})")
         if self.coarse_size / self.s_min > 127 or self.coarse_size / self.fixed_size > 1e6:
             bad("s_min", f">= coarse_size / 127 ({self.coarse_size / 127:.4g}) so a fine index fits 7 bits")
+        ns = self.noise_sigma
+        if (
+            not isinstance(ns, tuple)
+            or len(ns) != 3
+            or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in ns)
+            or not ns[0] > 0
+            or ns[1] < 0
+        ):
+            bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
+        if not isinstance(self.range_priority, bool):
+            bad("range_priority", "a bool")
         if self.backend not in ("auto", "torch", "numba"):
             bad("backend", "'auto', 'torch' or 'numba'")
 
@@ -196,7 +223,7 @@ ABLATIONS: dict[str, FuseConfig] = {
 
 PRESETS: dict[str, FuseConfig] = {
     "default": _DEFAULT,
-    "paper": replace(_DEFAULT, visibility_aware=False, min_weight=0.0),
+    "paper": replace(_DEFAULT, visibility_aware=False, min_weight=0.0, range_priority=False),
     **ABLATIONS,
 }
 

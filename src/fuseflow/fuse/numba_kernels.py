@@ -69,12 +69,15 @@ def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present:
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, row_count):
-    """Stage 1, one pass per pixel. prm: float32 parameters (see _params)."""
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, row_count):
+    """Stage 1, one pass per pixel. prm: float32 parameters (see fuse_numba). out_pr: the
+    range-aware ranking value omega / sigma(z) (rps.selection_priority) when prm[11] > 0,
+    else unused (may have length 1)."""
     n, h, w = depth.shape
     alpha, beta, eps, r_c, tau, min_w, s_c = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6]
     use_mcm, use_cvgc, vis = prm[7] > 0, prm[8] > 0, prm[9] > 0
     qlim = prm[10]
+    rp, na, nb, nz0 = prm[11] > 0, prm[12], prm[13], prm[14]
     half = _F(0.5)
     two = _F(2.0)
     nine = _F(9.0)
@@ -171,12 +174,15 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, row_
             out_P[base, 1] = py
             out_P[base, 2] = pz
             out_w[base] = om
+            if rp:
+                dz = z - nz0
+                out_pr[base] = om / (na + nb * (dz * dz))
             cnt += 1
         row_count[row] = cnt
 
 
 @njit(cache=True, parallel=True)
-def _compact(flags, out_P, out_w, s_c, row_start, h, w, P, om, q, pix, cam, oor):
+def _compact(flags, out_P, out_w, out_pr, rp, s_c, row_start, h, w, P, om, pr, q, pix, cam, oor):
     nrows = row_start.shape[0] - 1
     for row in prange(nrows):
         k = row_start[row]
@@ -191,6 +197,8 @@ def _compact(flags, out_P, out_w, s_c, row_start, h, w, P, om, q, pix, cam, oor)
             P[k, 1] = out_P[b, 1]
             P[k, 2] = out_P[b, 2]
             om[k] = out_w[b]
+            if rp:
+                pr[k] = out_pr[b]
             if f == 1:
                 q[k, 0] = np.int64(np.floor(out_P[b, 0] / s_c))
                 q[k, 1] = np.int64(np.floor(out_P[b, 1] / s_c))
@@ -352,7 +360,8 @@ def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n
 
 @njit(cache=True, parallel=True)
 def _select(P, om, start, members, fkey, csize, prm, selected):
-    """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell."""
+    """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell. om: the
+    ranking value (omega, or omega / sigma(z) with range_priority); only compared."""
     k0, ratio, k_max, rho_bar, mode, k_const = prm[0], prm[1], int(prm[2]), prm[3], int(prm[4]), int(prm[5])
     n_cells = start.shape[0] - 1
     for c in prange(n_cells):
@@ -457,26 +466,30 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     qlim = (COARSE_OFFSET if adaptive else FIXED_OFFSET) - 1
     prm = np.array(
         [cfg.alpha, cfg.beta, cfg.eps, cfg.r_c, cfg.tau, cfg.min_weight, s_c]
-        + [float(cfg.use_mcm), float(cfg.use_cvgc), float(cfg.visibility_aware), qlim],
+        + [float(cfg.use_mcm), float(cfg.use_cvgc), float(cfg.visibility_aware), qlim]
+        + [float(cfg.range_priority), *cfg.noise_sigma],
         dtype=np.float32,
     )
     npx = n * h * w
     flags = np.empty(npx, dtype=np.int8)
     out_P = np.empty((npx, 3), dtype=np.float32)
     out_w = np.empty(npx, dtype=np.float32)
+    rp = bool(cfg.range_priority)
+    out_pr = np.empty(npx if rp else 1, dtype=np.float32)
     row_count = np.zeros(n * h, dtype=np.int64)
-    _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, row_count)
+    _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, row_count)
     row_start = np.zeros(n * h + 1, dtype=np.int64)
     np.cumsum(row_count, out=row_start[1:])
     m = int(row_start[-1])
     P = np.empty((m, 3), dtype=np.float32)
     om = np.empty(m, dtype=np.float32)
+    pr = np.empty(m, dtype=np.float32) if rp else om  # the ranking value of eq. (28)
     q = np.empty((m, 3), dtype=np.int64)
     pix = np.empty(m, dtype=np.int64)
     cam = np.empty(m, dtype=np.int64)
     oor = np.empty(m, dtype=np.bool_)
-    _compact(flags, out_P, out_w, np.float32(s_c), row_start, h, w, P, om, q, pix, cam, oor)
-    del out_P, out_w, flags
+    _compact(flags, out_P, out_w, out_pr, rp, np.float32(s_c), row_start, h, w, P, om, pr, q, pix, cam, oor)
+    del out_P, out_w, out_pr, flags
     out_of_range = int(oor.sum())
     bits = 14 if adaptive else 21
     offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
@@ -501,7 +514,7 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
         rho_bar = 1.0
     prm3 = np.array([cfg.k0, cfg.ratio, cfg.k_max, rho_bar, mode, k_const], dtype=np.float32)
     selected = np.zeros(m, dtype=np.bool_)
-    _select(P, om, start, members, fkey, csize, prm3, selected)
+    _select(P, pr, start, members, fkey, csize, prm3, selected)
     # output in the fine-cell order of the members array
     pos = np.empty(members.shape[0], dtype=np.int64)
     k = _out_positions(members, selected, pos)

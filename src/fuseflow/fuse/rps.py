@@ -9,6 +9,9 @@ frame. The first pick of a cell is its highest-omega point; each further pick ma
 Points are selected, never averaged. Vectorised over all cells at once: one pass per round,
 k_max rounds (no per-cell Python loop).
 
+With ``FuseConfig.range_priority`` the ranking value of eq. (28) (first pick and FPS score)
+is omega / sigma(z) (``selection_priority``) instead of omega; the output weight stays omega.
+
 Tie-break (shared with the compiled kernel): equal omega or equal score -> the point that
 comes first in input order (camera, then row-major pixel).
 """
@@ -19,7 +22,7 @@ import math
 
 import torch
 
-__all__ = ["cell_counts", "select_representatives"]
+__all__ = ["cell_counts", "select_representatives", "selection_priority"]
 
 
 def cell_counts(
@@ -52,13 +55,29 @@ def cell_counts(
     return inv, counts, k
 
 
+def selection_priority(omega: torch.Tensor, z: torch.Tensor, noise_sigma: tuple[float, float, float]) -> torch.Tensor:
+    """omega / sigma(z), sigma(z) = a + b (z - z0)^2: the range-aware ranking value of eq. (28).
+
+    Args:
+        omega: (M,) float32 joint weights (eq. 22). z: (M,) float32 depth of each point in its
+            source camera (m). noise_sigma: (a, b, z0) of FuseConfig.noise_sigma.
+
+    Returns:
+        (M,) float32; same float32 operations as the compiled kernel (numba_kernels._pixels).
+    """
+    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
+    dz = z - z0
+    return omega / (a + b * (dz * dz))
+
+
 def select_representatives(
     P: torch.Tensor, omega: torch.Tensor, inv: torch.Tensor, k: torch.Tensor, k_max: int
 ) -> torch.Tensor:
     """Confidence-weighted FPS (eq. 28) inside every cell, all cells at once.
 
     Args:
-        P: (M, 3) float32 candidate points (world metres). omega: (M,) float32 eq. (22).
+        P: (M, 3) float32 candidate points (world metres). omega: (M,) float32 ranking value,
+            eq. (22)'s omega or ``selection_priority`` (only compared, never output).
         inv: (M,) int64 cell of each point. k: (C,) int64 points to keep per cell.
 
     Returns:
