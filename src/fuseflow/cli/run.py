@@ -110,6 +110,7 @@ def demo_cmd(
 
     t = Table(title="FuseFlow demo: errors against the simulator's ground truth", show_header=False)
     t.add_row("rig", f"{res.cameras} cameras, {res.frames} frames, {res.resolution[0]}x{res.resolution[1]}, dynamic")
+    t.add_row("GMAC cameras placed", f"{res.cameras_placed} of {res.cameras}")
     t.add_row("GMAC rotation error", f"{res.rotation_error_deg:.3f} deg (mean over camera pairs)")
     t.add_row("GMAC translation error", f"{res.translation_error_mm:.1f} mm (no scale alignment)")
     t.add_row("FUSE Chamfer distance", f"{res.chamfer_mm:.1f} mm (mean over frames)")

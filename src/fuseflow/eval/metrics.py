@@ -99,7 +99,7 @@ def _nn_dist(query: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """Distance from each query point to its nearest reference point (metres)."""
     if len(query) == 0:
         return np.zeros(0)
-    d, _ = _kdtree(ref).query(query, k=1)
+    d, _ = _kdtree(ref).query(query, k=1, workers=-1)  # every core: the queries are independent
     return np.asarray(d, dtype=np.float64)
 
 
