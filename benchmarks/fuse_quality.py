@@ -19,7 +19,7 @@ depth range; see _reference), then the mean over frames:
 * points per frame; ms per frame (median, this process, after one warm-up call per method).
 
 Rows: FUSE (default), the paper preset (eq. 20-21 and 27 as written), each ablation of
-fuseflow.fuse.ABLATIONS, VoxelBlockGrid TSDF 1 cm, naive (every valid pixel) and naive + voxel
+fuseflow.fuse.ABLATIONS, the default with visibility_aware / min_weight / range_priority changed, VoxelBlockGrid TSDF 1 cm, naive (every valid pixel) and naive + voxel
 1 cm. The density section runs FUSE with other s0 (eq. 24; it sets the points per fine cell)
 and k_max on the static rig.
 """
@@ -48,6 +48,8 @@ def _methods():
     rows.update({f"FUSE {k}": f(v) for k, v in ABLATIONS.items()})
     rows["FUSE visibility_aware=False"] = f(replace(FuseConfig(), visibility_aware=False))
     rows["FUSE min_weight=0"] = f(replace(FuseConfig(), min_weight=0.0))
+    rp = not FuseConfig().range_priority  # the switch flipped from the default
+    rows[f"FUSE range_priority={rp}"] = f(replace(FuseConfig(), range_priority=rp))
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
     rows["naive"] = naive_fusion
     rows["naive + voxel 1 cm"] = lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)
@@ -115,6 +117,43 @@ def _reference(sf, rig) -> np.ndarray:
     return pts[seen].astype(np.float32)
 
 
+def _tail_cells(sf, rig, gt, cfg) -> dict:
+    """Where FUSE's points beyond 2 cm come from (torch reference, one frame): the RPS inputs
+    (candidates, their fine cell, k per cell) are captured around select_representatives."""
+    import importlib
+
+    from scipy.spatial import cKDTree
+
+    from fuseflow.fuse import fuse
+
+    api = importlib.import_module("fuseflow.fuse.api")
+    cap: dict = {}
+    orig = api.select_representatives
+
+    def grab(P, omega, inv, k, k_max):
+        sel = orig(P, omega, inv, k, k_max)
+        cap.update(P=P.numpy(), inv=inv.numpy(), k=k.numpy(), sel=sel.numpy())
+        return sel
+
+    api.select_representatives = grab
+    try:
+        fuse(sf.frame, rig, replace(cfg, backend="torch"))
+    finally:
+        api.select_representatives = orig
+    inv, sel, k = cap["inv"], cap["sel"], cap["k"]
+    bad = cKDTree(gt).query(cap["P"])[0] > 0.02
+    n = np.bincount(inv)
+    good = np.bincount(inv, weights=(~bad).astype(np.float64))
+    c = inv[sel[bad[sel]]]  # cells of the selected points beyond 2 cm
+    return {
+        "candidates_beyond_2cm": float(bad.mean()),
+        "selected_beyond_2cm": float(bad[sel].mean()),
+        "tail_in_cells_without_good_candidate": float((good[c] == 0).mean()),
+        "tail_in_singleton_cells": float((n[c] == 1).mean()),
+        "tail_in_cells_with_k_good_candidates": float((good[c] >= k[c]).mean()),
+    }
+
+
 def _run_rig(name: str, dynamic: bool, methods: dict, frames: int, seed: int, res: tuple[int, int]) -> list[dict]:
     from fuseflow.synth import SimConfig, Simulator
 
@@ -157,10 +196,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--resolution", default="640x480")
     ap.add_argument("--no-density", action="store_true", help="skip the density / quality trade-off rows")
+    ap.add_argument("--only", default=None, help="comma-separated method names (default: all rows)")
+    ap.add_argument(
+        "--tail-cells",
+        action="store_true",
+        help="only print where FUSE's points beyond 2 cm sit (static rig, frame 0, default config)",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.resolution.lower().split("x"))
+    if args.tail_cells:
+        from fuseflow.fuse import FuseConfig
+        from fuseflow.synth import SimConfig, Simulator
+
+        sim = Simulator(SimConfig(cameras=8, frames=1, resolution=(w, h), dynamic=False, seed=args.seed, rig="ring"))
+        sf = sim.render(0)
+        gt = _reference(sf, sim.rig)
+        for rp in (False, True):
+            out = _tail_cells(sf, sim.rig, gt, replace(FuseConfig(), range_priority=rp))
+            print(f"range_priority={rp}: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in out.items()))
+        return 0
     methods = _methods()
+    if args.only:
+        want = [m.strip() for m in args.only.split(",")]
+        unknown = sorted(set(want) - set(methods))
+        if unknown:
+            ap.error(f"unknown methods {unknown}; methods are {sorted(methods)}")
+        methods = {m: methods[m] for m in want}
     rows = []
     rows += _run_rig("static", False, methods, args.frames, args.seed, (w, h))
     rows += _run_rig("dynamic", True, methods, args.frames, args.seed, (w, h))
