@@ -131,11 +131,11 @@ def sim_frame(n: int, seed: int):
     try:
         from fuseflow.synth import SimConfig, Simulator
 
-        sim = Simulator(SimConfig(cameras=n, frames=1, scene="room", dynamic=False, noise="kinect", seed=seed))
+        sim = Simulator(SimConfig(cameras=n, frames=1, scene="studio", dynamic=False, noise="kinect", seed=seed))
         rig = sim.rig
         ref = {c.id: c.T_cam_world for c in rig}
         bare = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rig))
-        return sim.render(0).frame, bare, ref, "fuseflow.synth room, kinect noise"
+        return sim.render(0).frame, bare, ref, "fuseflow.synth studio ring, kinect noise"
     except ImportError:
         frame, rig, ref = _room_frame(n, seed)
         return frame, rig, ref, "analytic room (benchmark-local), kinect noise"
@@ -370,8 +370,8 @@ def main(argv=None) -> int:
                 )
             print(f"\nInjected wrong-match edge pruned by CC in {robust['pruned']}/{robust['injected']} seeds.")
             everything[data] = {"label": label, "rows": rows, "robustness": robust}
-    if a.json:
-        a.json.write_text(json.dumps(everything, indent=1, default=float))
+            if a.json:  # after every data set, so a long run leaves its finished parts
+                a.json.write_text(json.dumps(everything, indent=1, default=float))
     return 0
 
 

@@ -235,7 +235,9 @@ def build_correspondences(
     return Correspondences(g.i, g.j, RX[ok], Y, g.t, w, np.zeros(len(w), bool), n[ok])
 
 
-def match_correspondences(g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, config: CalibConfig) -> Correspondences:
+def match_correspondences(
+    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, config: CalibConfig
+) -> Correspondences:
     """The backbone's keypoint matches of edge i -> j as correspondences (both pixels fixed).
 
     Unlike reprojection correspondences they do not depend on s, so they cannot confirm a wrong
