@@ -266,6 +266,21 @@ def test_reference_metrics_agree_with_single_metrics():
     assert r.outlier_share == M.outlier_share(pts, gt, 0.02)
 
 
+def test_reference_metrics_sampled_queries_estimate_the_full_means():
+    rng = np.random.default_rng(6)
+    gt = rng.uniform(0, 1, (40000, 3))
+    pts = gt[:30000] + rng.normal(0, 0.01, (30000, 3))
+    full = M.reference_metrics(pts, gt)
+    part = M.reference_metrics(pts, gt, sample=5000, seed=1)
+    assert part.chamfer.chamfer_mm == pytest.approx(full.chamfer.chamfer_mm, rel=0.05)
+    assert part.fscore.f_score == pytest.approx(full.fscore.f_score, abs=0.02)
+    assert part.outlier_share == pytest.approx(full.outlier_share, abs=0.02)
+    assert part.chamfer != full.chamfer  # it did sample
+    assert M.reference_metrics(pts, gt, sample=10**6) == full  # fewer points than sample: exact
+    with pytest.raises(ValidationError):
+        M.reference_metrics(pts, gt, sample=0)
+
+
 def test_inputs_fusedcloud_tensor_numpy_agree():
     pts = grid_plane(0.01).astype(np.float32)
     cloud = FusedCloud.from_numpy(pts, np.zeros((len(pts), 3)), np.ones(len(pts)), np.zeros(len(pts)))

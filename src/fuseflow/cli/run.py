@@ -113,7 +113,7 @@ def demo_cmd(
     t.add_row("GMAC cameras placed", f"{res.cameras_placed} of {res.cameras}")
     t.add_row("GMAC rotation error", f"{res.rotation_error_deg:.3f} deg (mean over camera pairs)")
     t.add_row("GMAC translation error", f"{res.translation_error_mm:.1f} mm (no scale alignment)")
-    t.add_row("FUSE Chamfer distance", f"{res.chamfer_mm:.1f} mm (mean over frames)")
+    t.add_row("FUSE Chamfer distance", f"{res.chamfer_mm:.1f} mm (first, middle, last frame)")
     t.add_row("FUSE F-score @ 1 cm", f"{res.fscore_1cm:.3f}")
     t.add_row("points > 2 cm from surface", f"{100 * res.outlier_share_2cm:.2f} %")
     t.add_row("points per frame", f"{res.points_per_frame:.0f}")

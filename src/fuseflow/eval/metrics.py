@@ -567,12 +567,17 @@ def _fscore(d_pred: np.ndarray, d_gt: np.ndarray, threshold: float) -> FScoreRes
     return FScoreResult(threshold, p, r, f)
 
 
-def _both_dists(points: Any, gt_points: Any) -> tuple[np.ndarray, np.ndarray]:
+def _both_dists(points: Any, gt_points: Any, sample: int | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     pts = as_points(points)
     gt = _check_reference(gt_points)
     if len(pts) == 0:
-        return np.zeros(0), np.full(len(gt), np.inf)
-    return _nn_dist(pts, gt), _nn_dist(gt, pts)
+        return np.zeros(0), np.full(min(len(gt), sample or len(gt)), np.inf)
+    rng = np.random.default_rng(seed)
+
+    def queries(a: np.ndarray) -> np.ndarray:
+        return a if sample is None or len(a) <= sample else a[rng.choice(len(a), sample, replace=False)]
+
+    return _nn_dist(queries(pts), gt), _nn_dist(queries(gt), pts)
 
 
 def chamfer_distance(points: Any, gt_points: Any) -> ChamferResult:
@@ -608,12 +613,23 @@ def f_score(points: Any, gt_points: Any, threshold: float = 0.01) -> FScoreResul
 
 
 def reference_metrics(
-    points: Any, gt_points: Any, f_threshold: float = 0.01, outlier_threshold: float = 0.02
+    points: Any,
+    gt_points: Any,
+    f_threshold: float = 0.01,
+    outlier_threshold: float = 0.02,
+    sample: int | None = None,
+    seed: int = 0,
 ) -> ReferenceMetrics:
-    """CD, F-score and outlier share from one pair of KD-tree passes (same definitions as above)."""
+    """CD, F-score and outlier share from one pair of KD-tree passes (same definitions as above).
+
+    ``sample``: query at most this many random points of each side (seeded by ``seed``); the
+    KD-trees still hold every point, so each mean is an unbiased estimate of the full one. None
+    (default) = every point, exact."""
     if outlier_threshold <= 0:
         raise ValidationError(f"outlier_threshold must be > 0 metres, got {outlier_threshold}")
-    d_pred, d_gt = _both_dists(points, gt_points)
+    if sample is not None and sample < 1:
+        raise ValidationError(f"sample must be >= 1 or None, got {sample}")
+    d_pred, d_gt = _both_dists(points, gt_points, sample, seed)
     share = float((d_pred > outlier_threshold).mean()) if len(d_pred) else 0.0
     return ReferenceMetrics(_chamfer(d_pred, d_gt), _fscore(d_pred, d_gt, f_threshold), share)
 
