@@ -137,7 +137,7 @@ class FuseConfig:
     sigma(z_near). It only changes *which* points are selected: the output weight stays
     omega (eq. 22), and the candidate filters (r_c, min_weight) are unchanged. Points are
     still selected, never averaged (DESIGN.md 2). Off by default: on the simulated 8-camera
-    rigs it moved the share beyond 2 cm only from 6.83 % to 6.78 %, because most of that tail
+    rigs it moved the share beyond 2 cm only from 6.80 % to 6.74 %, because most of that tail
     sits in cells with no better candidate (docs/fuse.md, Quality)."""
     noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
     """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by
