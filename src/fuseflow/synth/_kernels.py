@@ -18,24 +18,12 @@ warnings.filterwarnings("ignore", message="The TBB threading layer requires", ca
 def sample_texture_nb(textures, tex_id, uv_px):  # pragma: no cover - compiled
     """Bilinear, wrap-around: textures (K, S, S, 3) uint8; uv_px (M, 2) float32 texel coords."""
     M = uv_px.shape[0]
-    S = textures.shape[1]
     out = np.empty((M, 3), np.float32)
     for m in numba.prange(M):
-        px = uv_px[m, 0] - 0.5
-        py = uv_px[m, 1] - 0.5
-        fx0 = np.floor(px)
-        fy0 = np.floor(py)
-        fx = px - fx0
-        fy = py - fy0
-        x0 = int(fx0) % S
-        y0 = int(fy0) % S
-        x1 = (x0 + 1) % S
-        y1 = (y0 + 1) % S
-        k = tex_id[m]
-        for c in range(3):
-            a = textures[k, y0, x0, c] * (1 - fx) + textures[k, y0, x1, c] * fx
-            b = textures[k, y1, x0, c] * (1 - fx) + textures[k, y1, x1, c] * fx
-            out[m, c] = (a * (1 - fy) + b * fy) / 255.0
+        r, g, b = _bilinear3(textures, tex_id[m], uv_px[m, 0] - 0.5, uv_px[m, 1] - 0.5)
+        out[m, 0] = r / 255.0
+        out[m, 1] = g / 255.0
+        out[m, 2] = b / 255.0
     return out
 
 
