@@ -180,7 +180,7 @@ def metric_scale(
     for e in edges:
         try:
             fe = fixed_point_scale(all_geoms[e], cams_used, s_c, config, step=geoms_for_edges)
-            if fe.estimate.count >= config.min_correspondences and fe.s > 0:
+            if fe.s > 0 and (fe.estimate.count >= config.min_correspondences or _all_matches(fe.correspondences)):
                 edge_scales[e], edge_counts[e] = fe.s, fe.estimate.count
                 continue
         except CalibrationError:
@@ -261,6 +261,13 @@ def metric_scale(
         peak_spread=coarse.peak_spread,
         warnings=tuple(warnings),
     )
+
+
+def _all_matches(corrs) -> bool:
+    """True when an edge's correspondences are all gated keypoint matches (both directions had at
+    least MIN_MATCHES): those are s-independent and precise, so the edge stands on fewer than
+    ``min_correspondences`` of them."""
+    return bool(corrs) and all(len(c) and bool(np.all(c.is_match)) for c in corrs)
 
 
 def _corrupt_step(corrupt, cams):

@@ -43,7 +43,7 @@ __all__ = [
 
 #: An edge with at least this many gated keypoint matches takes its correspondences from them
 #: alone (``use_matches``); fewer, and it falls back to reprojection correspondences.
-MIN_MATCHES = 20
+MIN_MATCHES = 5
 
 #: Relative depth gradient at which the validity weight drops to 1/e (per pixel, central diff).
 VALIDITY_GRADIENT = 0.01
