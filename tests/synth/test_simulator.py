@@ -280,3 +280,23 @@ def test_bad_frame_index(studio_clean):
 
 
 _ = math
+
+
+def test_observable_mask_drops_visible_points_beyond_the_depth_range():
+    """The reference surface for scoring a fused cloud: visible AND measurable (depth_range:
+    0.4-4.5 m with the Kinect model; the studio's walls are 5-8 m from some cameras)."""
+    from fuseflow.synth import observable_mask
+
+    sim = _sim(scene="studio", cameras=8, frames=1, noise="kinect", seed=3)
+    sf = sim.render(0)
+    P = sf.surface_points.numpy().astype(np.float64)
+    Nn = sf.surface_normals.numpy().astype(np.float64)
+    vis = visible_mask(P, Nn, sf.depth_gt.numpy(), sim.rig)
+    obs = observable_mask(P, Nn, sf.depth_gt.numpy(), sim.rig)
+    assert not (obs & ~vis).any()
+    assert 0.1 * vis.sum() < obs.sum() < 0.9 * vis.sum()  # the studio's far walls drop out (25 % kept)
+    # every kept point is within some camera's depth range (z-depth, with the 1 cm + 1 % tolerance)
+    z = np.stack([P @ c.T_cam_world[2, :3] + c.T_cam_world[2, 3] for c in sim.rig])
+    hi = np.array([c.depth_range[1] for c in sim.rig])[:, None]
+    near = ((z > 0) & (z <= hi * 1.01 + 0.01)).any(0)
+    assert near[obs].all()

@@ -134,7 +134,9 @@ def _fuse_recording(rec: Path, out: Path, calib: Path | None, frames: str | None
     ppf = summary["points_per_frame"]
     t.add_row("points per frame", f"{ppf['mean']:.0f} (min {ppf['min']}, max {ppf['max']})")
     ms = summary["fuse_ms_per_frame"]
-    t.add_row("fusion", f"{ms['median']:.1f} ms per frame median ({ms['mean']:.1f} mean) on {device} ({backend} backend)")
+    t.add_row(
+        "fusion", f"{ms['median']:.1f} ms per frame median ({ms['mean']:.1f} mean) on {device} ({backend} backend)"
+    )
     t.add_row("wall time", f"{wall:.1f} s with reading and writing ({len(positions) / wall:.2f} frames/s)")
     t.add_row("clouds", str(out / "clouds"))
     console.print(t)

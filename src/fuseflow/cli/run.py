@@ -46,7 +46,9 @@ def run_cmd(
     out: Path = typer.Option(..., "--out", help="Output directory: calib.json, clouds/<frame>.ply, summary.json."),
     calib: Path = typer.Option(None, "--calib", help="Use these extrinsics (calib.json) instead of running GMAC."),
     use_rig: bool = typer.Option(False, "--use-rig", help="Use the extrinsics in rig.json instead of running GMAC."),
-    calib_frame: int = typer.Option(None, "--calib-frame", help="Frame position GMAC calibrates on (default: first good)."),
+    calib_frame: int = typer.Option(
+        None, "--calib-frame", help="Frame position GMAC calibrates on (default: first good)."
+    ),
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     recalibrate: str = typer.Option("off", "--recalibrate", help="off | auto: re-run GMAC when a camera is bumped."),

@@ -153,17 +153,11 @@ def _subsample(frame, rig, stride: int):
 
 
 def _observable_surface(sf, rig) -> np.ndarray:
-    """GT surface samples a camera can measure: visible (noise-free depth test) AND inside that
-    camera's depth_range. The simulator's own ``surface_visible_only`` ignores the sensor range,
-    which put walls 5-8 m away into the reference and made completeness meaningless."""
-    from fuseflow.synth.simulator import visible_mask
+    """GT surface samples a camera can measure (fuseflow.synth.observable_mask)."""
+    from fuseflow.synth.simulator import observable_mask
 
-    d = sf.depth_gt.numpy().copy()
-    for k, c in enumerate(rig.cameras):
-        lo, hi = c.depth_range
-        d[k][(d[k] < lo) | (d[k] > hi)] = 0
     pts = sf.surface_points.numpy()
-    keep = visible_mask(pts, sf.surface_normals.numpy(), d, rig)
+    keep = observable_mask(pts, sf.surface_normals.numpy(), sf.depth_gt.numpy(), rig)
     return pts[keep].astype(np.float64)
 
 

@@ -10,7 +10,7 @@ the code it tests). Open3D and numba are imported when a Simulator renders, not 
 
 from fuseflow.synth.config import KINECT_V1, REALSENSE_D435, SensorModel, SimConfig
 from fuseflow.synth.recording import GroundTruth, read_ground_truth, read_surface_ply, simulate_recording
-from fuseflow.synth.simulator import SimFrame, Simulator, overlap_matrix, visible_mask
+from fuseflow.synth.simulator import SimFrame, Simulator, observable_mask, overlap_matrix, visible_mask
 
 __all__ = [
     "GroundTruth",
@@ -25,4 +25,5 @@ __all__ = [
     "read_surface_ply",
     "simulate_recording",
     "visible_mask",
+    "observable_mask",
 ]

@@ -286,6 +286,18 @@ def visible_mask(points: np.ndarray, normals: np.ndarray, depth_gt: np.ndarray, 
     )  # fmt: skip
 
 
+def observable_mask(points: np.ndarray, normals: np.ndarray, depth_gt: np.ndarray, rig: Rig) -> np.ndarray:
+    """(S,) bool: surface samples a camera can *measure*: visible (``visible_mask`` on the
+    noise-free depth) and inside that camera's depth_range. ``surface_visible_only`` ignores the
+    sensor range, so studio walls 5-8 m away stay in the reference surface; scoring a fused cloud
+    against them makes completeness (and the Chamfer distance) meaningless."""
+    d = np.array(depth_gt, dtype=np.float32, copy=True)
+    for k, c in enumerate(rig.cameras):
+        lo, hi = c.depth_range
+        d[k][(d[k] < lo) | (d[k] > hi)] = 0
+    return visible_mask(points, normals, d, rig)
+
+
 def visible_mask_ref(points: np.ndarray, normals: np.ndarray, depth_gt: np.ndarray, rig: Rig,
                      tol_m: float = 0.01, tol_rel: float = 0.01) -> np.ndarray:  # fmt: skip
     """Plain numpy reference of ``visible_mask``."""
