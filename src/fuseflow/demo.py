@@ -71,11 +71,11 @@ def align_world(est: Rig, ref: Rig) -> np.ndarray:
         # one camera's pose fixes the frame change exactly: ref_world <- cam <- est_world
         c = ids[0]
         return invert_rigid(ref[c].T_cam_world) @ est[c].T_cam_world
-    from fuseflow.pipeline import _rigid_align
+    from fuseflow.pipeline import rigid_align
 
     src = np.stack([est[c].T_world_cam[:3, 3] for c in ids])
     dst = np.stack([ref[c].T_world_cam[:3, 3] for c in ids])
-    return _rigid_align(src, dst)
+    return rigid_align(src, dst)
 
 
 def _transform(cloud: FusedCloud, A: np.ndarray) -> np.ndarray:

@@ -38,6 +38,9 @@ from fuseflow.io.recording import Recording, write_json_atomic
 from fuseflow.types import Calibration, Frame, FusedCloud, Rig, invert_rigid
 
 __all__ = [
+    "placed_rig",
+    "reindex_cameras",
+    "rigid_align",
     "PipelineConfig",
     "FrameRecord",
     "RunSummary",
@@ -284,7 +287,7 @@ def first_good_frame(rec: Recording, min_valid: float = 0.2, limit: int = 30) ->
     )
 
 
-def _rigid_align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+def rigid_align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """4x4 rigid A minimising |A src_k - dst_k| over camera centres (Kabsch), src, dst (M, 3)."""
     mu_s, mu_d = src.mean(0), dst.mean(0)
     H = (src - mu_s).T @ (dst - mu_d)
@@ -312,7 +315,7 @@ def merge_recalibration(old: Rig, new: Calibration, moved: Iterable[str]) -> Rig
     centre = lambda T: invert_rigid(T)[:3, 3]  # noqa: E731
     src = np.stack([centre(new.T_cam_world[c]) for c in anchors])
     dst = np.stack([centre(old[c].T_cam_world) for c in anchors])
-    A = _rigid_align(src, dst)  # old_world_from_new_world
+    A = rigid_align(src, dst)  # old_world_from_new_world
     A_inv = invert_rigid(A)
     updates = {c: new.T_cam_world[c] @ A_inv for c in moved if c in new.T_cam_world}
     return old.with_extrinsics(updates)
@@ -328,7 +331,7 @@ def _fuse_fn(config: PipelineConfig) -> Callable[[Frame, Rig], FusedCloud]:
     return lambda frame, rig: fuse(frame, rig, cfg)
 
 
-def _reindex(cloud: FusedCloud, sel: list[int]) -> FusedCloud:
+def reindex_cameras(cloud: FusedCloud, sel: list[int]) -> FusedCloud:
     """``cloud.camera`` indexes the fused subset of cameras; map it to the source rig's indices."""
     lut = torch.tensor(sel, dtype=torch.int16, device=cloud.camera.device)
     return FusedCloud(cloud.xyz, cloud.rgb, cloud.weight, lut[cloud.camera.long()])
@@ -351,7 +354,7 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
         torch.cuda.synchronize()
     ms = (time.perf_counter() - t0) * 1000.0
     if len(sel) != full:
-        cloud = _reindex(cloud, sel)
+        cloud = reindex_cameras(cloud, sel)
     pairs = pair_agreement(frame, rig, config.health_samples, config.health_tau)
     agreement = camera_agreement(pairs)
     record = FrameRecord(
@@ -365,7 +368,7 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
     return cloud, record
 
 
-def _placed_rig(rig: Rig, calibration: Calibration) -> Rig:
+def placed_rig(rig: Rig, calibration: Calibration) -> Rig:
     """The cameras of ``rig`` that ``calibration`` places, with its extrinsics (FuseFlowError if < 1)."""
     placed = [i for i, c in enumerate(rig.ids) if c in calibration.T_cam_world]
     if not placed:
@@ -405,7 +408,7 @@ def stream(
     if isinstance(source, (str, Path)):
         source = open_recording(source)
     if isinstance(calibration, Calibration):
-        rig = _placed_rig(source.rig, calibration)
+        rig = placed_rig(source.rig, calibration)
     else:
         rig = _resolve_rig(source.rig, calibration)
     fuse = _fuse_fn(config)
@@ -414,7 +417,7 @@ def stream(
             yield fuse(frame.to(config.device), rig)
             continue
         sel = [frame.camera_ids.index(c) for c in rig.ids if c in frame.camera_ids]
-        yield _reindex(fuse(frame.subset(sel).to(config.device), rig), sel)
+        yield reindex_cameras(fuse(frame.subset(sel).to(config.device), rig), sel)
 
 
 def _peak_rss_mb() -> float:
@@ -462,7 +465,7 @@ def run(
         rig, calib_source = _resolve_rig(rec.rig, calibration), "given"
         write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}))
     elif calib_json.exists():
-        rig, calib_source = _placed_rig(rec.rig, read_calibration(calib_json)), f"resumed from {calib_json}"
+        rig, calib_source = placed_rig(rec.rig, read_calibration(calib_json)), f"resumed from {calib_json}"
     elif use_rig_extrinsics and rec.rig.is_calibrated:
         rig, calib_source = rec.rig, "rig.json"
         write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "rig.json"}))
@@ -476,7 +479,7 @@ def run(
             warnings.append(f"GMAC could not place cameras {unplaced}; they are left out of fusion")
         warnings.extend(str(w) for w in cal.report.get("warnings", []))
         write_calibration(calib_json, cal)
-        rig = _placed_rig(rec.rig, cal)
+        rig = placed_rig(rec.rig, cal)
         calib_source = f"GMAC on frame {rec.frame_numbers[calib_t]}"
 
     positions = list(frames if frames is not None else range(len(rec)))

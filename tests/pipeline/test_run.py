@@ -126,7 +126,6 @@ def test_recalibrate_auto_restores_agreement(bumped_rec, tmp_path, monkeypatch):
     by an oracle that returns the true poses in a *different* world frame (as GMAC would: its
     world is its reference camera), so the merge must do the frame change."""
     import fuseflow.calib as calib_mod
-    from fuseflow.pipeline import _placed_rig  # noqa: F401  (the pipeline's own helper stays importable)
 
     rec, cam, t_bump, T_new = bumped_rec
     true_rig = open_recording(rec).rig.with_extrinsics({cam: T_new})

@@ -43,3 +43,13 @@ def parse_int_list(spec: str, option: str) -> list[int]:
     except ValueError:
         fail(f"{option} expects comma-separated integers, got {spec!r}")
         raise  # unreachable
+
+
+def progress(description: str):
+    """A transient rich progress bar (description, bar, done/total, elapsed, eta) on the CLI console."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+
+    return Progress(
+        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        "eta", TimeRemainingColumn(), console=console, transient=True,
+    )  # fmt: skip

@@ -34,11 +34,11 @@ def _rig_for(recording, calib: Path | None):
     """The rig to fuse with: --calib's extrinsics (cameras it does not place are left out), or
     rig.json's; exits with NO_EXTRINSICS when there are none."""
     from fuseflow.io import read_calibration
-    from fuseflow.pipeline import _placed_rig
+    from fuseflow.pipeline import placed_rig
 
     rig = recording.rig
     if calib is not None:
-        return _placed_rig(rig, read_calibration(calib))
+        return placed_rig(rig, read_calibration(calib))
     if not any(c.is_calibrated for c in rig):
         fail(f"{recording.path}: rig.json has {NO_EXTRINSICS}")
     if not rig.is_calibrated:
@@ -66,11 +66,11 @@ def fuse_cmd(
 
 
 def _fuse_recording(rec: Path, out: Path, calib: Path | None, frames: str | None, device: str, preset: str) -> None:
-    from fuseflow.cli.run import _progress
+    from fuseflow.cli.app import progress
     from fuseflow.fuse import PRESETS, fuse_with_report
     from fuseflow.io import open_recording, write_calibration
     from fuseflow.io.ply import write_ply
-    from fuseflow.pipeline import _reindex, cloud_path
+    from fuseflow.pipeline import cloud_path, reindex_cameras
     from fuseflow.types import Calibration
 
     if preset not in PRESETS:
@@ -94,7 +94,7 @@ def _fuse_recording(rec: Path, out: Path, calib: Path | None, frames: str | None
     warnings: dict[str, int] = {}
     backend = ""
     t0 = time.perf_counter()
-    with _progress("fusing") as bar:
+    with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))
         for done, t in enumerate(positions, start=1):
             frame = recording[t]
@@ -103,7 +103,7 @@ def _fuse_recording(rec: Path, out: Path, calib: Path | None, frames: str | None
             res = fuse_with_report(frame.to(device), rig, cfg)
             cloud = res.cloud.to("cpu")
             if len(sel) != len(recording.rig):
-                cloud = _reindex(cloud, sel)  # camera = index in the recording's rig
+                cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
             write_ply(cloud_path(out, frame.index), cloud)
             points.append(len(cloud))
             fuse_ms.append(res.report.ms)

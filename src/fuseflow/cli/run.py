@@ -7,16 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail, parse_range
-
-
-def _progress(description: str):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
-
-    return Progress(
-        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-        "eta", TimeRemainingColumn(), console=console, transient=True,
-    )  # fmt: skip
+from fuseflow.cli.app import app, console, fail, parse_range, progress
 
 
 def _print_summary(s) -> None:
@@ -78,7 +69,7 @@ def run_cmd(
         ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus)
     cfg = PipelineConfig(device=device, recalibrate=recalibrate)
     positions = parse_range(frames, len(recording))
-    with _progress("fusing") as bar:
+    with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))
         summary = run(
             recording, out, calibration=calibration, config=cfg, frames=positions, calib_frame=calib_frame,
@@ -98,7 +89,7 @@ def demo_cmd(
     """Simulate a dynamic rig, calibrate it with GMAC, fuse it with FUSE, score it against ground truth."""
     from fuseflow.demo import run_demo
 
-    with _progress("demo") as bar:
+    with progress("demo") as bar:
         task = bar.add_task("fusing", total=frames, visible=False)
 
         def stage(s: str) -> None:
