@@ -223,3 +223,29 @@ def test_cvgc_counts_uses_graph_and_present():
     assert (a.item(), v.item()) == (1, 1)
     a, v = cvgc_counts(X, torch.tensor([0]), fr.depth, K, T, graph, torch.tensor([True, False]))
     assert (a.item(), v.item()) == (0, 0)
+
+
+def test_lone_cell_mean_drops_only_lone_points_of_dense_coarse_cells():
+    """k = 0 for a one-point fine cell when its coarse cell averages >= lone_cell_mean points per
+    occupied fine cell; a lone point of a sparse coarse cell, and a populated cell, keep k >= 1."""
+    from fuseflow.fuse.ash import FINE_BITS
+    from fuseflow.fuse.rps import cell_counts, select_representatives
+
+    coarse = lambda c: c << (3 * FINE_BITS)  # noqa: E731
+    # coarse 1: fine cells 0 (6 points), 1 (6 points), 2 (lone) -> 13 / 3 = 4.3 per fine cell
+    # coarse 2: fine cells 0 (1 point), 1 (2 points) -> 1.5 per fine cell (sparse)
+    key = torch.tensor(
+        [coarse(1) | 0] * 6 + [coarse(1) | 1] * 6 + [coarse(1) | 2] + [coarse(2) | 0] + [coarse(2) | 1] * 2
+    )
+    size = torch.full((len(key),), 0.02)
+    inv, counts, k_off = cell_counts(key, size, 3.0, 1.0, 3, True, 0)
+    _, _, k_on = cell_counts(key, size, 3.0, 1.0, 3, True, 0, lone_cell_mean=4.0)
+    lone_cell = int(inv[12])
+    assert k_off[lone_cell] >= 1 and k_on[lone_cell] == 0
+    others = torch.arange(len(k_on)) != lone_cell
+    assert torch.equal(k_on[others], k_off[others])
+    P = torch.rand(len(key), 3)
+    sel = select_representatives(P, torch.rand(len(key)), inv, k_on, 3)
+    assert 12 not in sel.tolist() and 13 in sel.tolist()  # sparse coarse cell's lone point stays
+    with pytest.raises(ValidationError, match="lone_cell_mean"):
+        FuseConfig(lone_cell_mean=-1.0)

@@ -84,6 +84,17 @@ def test_numba_equals_torch_with_range_priority(sim_frame, k_max):
     assert moved.mean() > 0.01
 
 
+@pytest.mark.parametrize("lone", [2.0, 4.0])
+def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone):
+    frame, rig = sim_frame
+    rt, _ = both(frame, rig, replace(FuseConfig(), lone_cell_mean=lone))
+    off = fuse_with_report(frame, rig, replace(FuseConfig(), backend="torch"))
+    # it only removes points (lone ones), never adds or moves one
+    a, b = rt.cloud.xyz.numpy().astype(np.float64), off.cloud.xyz.numpy().astype(np.float64)
+    assert len(a) < len(b)
+    assert (cKDTree(b).query(a)[0] <= 1e-7).all()
+
+
 def test_numba_select_prefers_the_near_point_like_torch():
     """The compiled _select with the ranking value of rps.selection_priority picks the near
     point of a cell whose two points have equal omega, in either input order."""
@@ -94,7 +105,7 @@ def test_numba_select_prefers_the_near_point_like_torch():
     omega = torch.tensor([0.9, 0.9])
     for z in ([3.5, 2.0], [2.0, 3.5]):
         pr = selection_priority(omega, torch.tensor(z), FuseConfig().noise_sigma).numpy()
-        prm = np.array([1.0, 1.0, 1, 1.0, 1, 1], dtype=np.float32)  # k = 1 (mode 1)
+        prm = np.array([1.0, 1.0, 1, 1.0, 1, 1, 0.0])  # k = 1 (mode 1), lone_cell_mean off
         sel = np.zeros(2, dtype=np.bool_)
         _select(
             P,
@@ -103,6 +114,7 @@ def test_numba_select_prefers_the_near_point_like_torch():
             np.array([0, 1]),
             np.zeros(2, dtype=np.int64),
             np.array([0.01], dtype=np.float32),
+            np.array([1]),
             prm,
             sel,
         )

@@ -197,7 +197,7 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     else:
         key, size = cells.key, cells.cell_size
     if cfg.use_rps and cfg.use_ash:
-        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, True, 0)  # eq. (26)
+        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, True, 0, cfg.lone_cell_mean)  # eq. (26)
     elif cfg.use_rps:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
         k_const = int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
         inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, k_const)

@@ -139,6 +139,15 @@ class FuseConfig:
     still selected, never averaged (DESIGN.md 2). Off by default: on the simulated 8-camera
     rigs it moved the share beyond 2 cm only from 6.80 % to 6.74 %, because most of that tail
     sits in cells with no better candidate (docs/fuse.md, Quality)."""
+    lone_cell_mean: float = 0.0
+    """Beyond the paper; 0 = off (eq. 26 as written). When > 0, a fine cell holding a single
+    candidate gets k = 0 (no representative) if its coarse cell holds at least
+    ``lone_cell_mean`` candidates per occupied fine cell: on a surface sampled that densely a
+    cell with one point is off the surface (axial noise tail, flying pixel), and eq. (26)'s
+    k >= 1 would keep it while thinning the dense surface cells around it (docs/fuse.md,
+    Quality: 70 % of the selected points beyond 2 cm were alone in their fine cell). Sparse
+    regions (few candidates per fine cell, e.g. far range where s_f hits s_max) are untouched.
+    Needs use_ash and use_rps."""
     noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
     """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by
     ``range_priority``; only the ratio between depths matters. Default: Kinect-class
@@ -203,6 +212,8 @@ class FuseConfig:
             or ns[1] < 0
         ):
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
+        if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
+            bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
         if not isinstance(self.range_priority, bool):
             bad("range_priority", "a bool")
         if self.backend not in ("auto", "torch", "numba"):

@@ -359,10 +359,12 @@ def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n
 
 
 @njit(cache=True, parallel=True)
-def _select(P, om, start, members, fkey, csize, prm, selected):
+def _select(P, om, start, members, fkey, csize, fine_n, prm, selected):
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell. om: the
-    ranking value (omega, or omega / sigma(z) with range_priority); only compared."""
-    k0, ratio, k_max, rho_bar, mode, k_const = prm[0], prm[1], int(prm[2]), prm[3], int(prm[4]), int(prm[5])
+    ranking value (omega, or omega / sigma(z) with range_priority); only compared. fine_n:
+    occupied fine cells per coarse cell (for lone_cell_mean, prm[6], 0 = off)."""
+    k0, ratio, k_max, rho_bar = _F(prm[0]), _F(prm[1]), int(prm[2]), _F(prm[3])
+    mode, k_const, lone_mean = int(prm[4]), int(prm[5]), prm[6]
     n_cells = start.shape[0] - 1
     for c in prange(n_cells):
         a = start[c]
@@ -376,6 +378,9 @@ def _select(P, om, start, members, fkey, csize, prm, selected):
             while t1 < b and fkey[t1] == fkey[t0]:
                 t1 += 1
             n = t1 - t0
+            if mode == 0 and lone_mean > 0 and n == 1 and float(b - a) >= lone_mean * float(fine_n[c]):
+                t0 = t1  # a lone point in a densely sampled coarse cell: k = 0 (lone_cell_mean)
+                continue
             if mode == 0:
                 rho = _F(n) / sf3
                 kf = np.ceil(_F(k0) * (rho / rho_bar) * _F(ratio))  # eq. (26)
@@ -512,9 +517,9 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
         mode = 1
         k_const = cfg.k_fixed if not cfg.use_rps else int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
         rho_bar = 1.0
-    prm3 = np.array([cfg.k0, cfg.ratio, cfg.k_max, rho_bar, mode, k_const], dtype=np.float32)
+    prm3 = np.array([cfg.k0, cfg.ratio, cfg.k_max, rho_bar, mode, k_const, cfg.lone_cell_mean], dtype=np.float64)
     selected = np.zeros(m, dtype=np.bool_)
-    _select(P, pr, start, members, fkey, csize, prm3, selected)
+    _select(P, pr, start, members, fkey, csize, fine_n, prm3, selected)
     # output in the fine-cell order of the members array
     pos = np.empty(members.shape[0], dtype=np.int64)
     k = _out_positions(members, selected, pos)

@@ -22,6 +22,8 @@ import math
 
 import torch
 
+from fuseflow.fuse.ash import FINE_BITS
+
 __all__ = ["cell_counts", "select_representatives", "selection_priority"]
 
 
@@ -33,6 +35,7 @@ def cell_counts(
     k_max: int,
     density_adaptive: bool,
     k_fixed: int,
+    lone_cell_mean: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Group points by key and apply eq. (26).
 
@@ -40,6 +43,8 @@ def cell_counts(
         key: (M,) int64 cell keys. cell_size: (M,) float32 s_f of each point's cell.
         density_adaptive: True = eq. (26) with the fine-cell density; False with ``k_fixed``
             (the "w/o RPS" ablation) or, when k_fixed is None-like (0), with rho_bar (w/o ASH).
+        lone_cell_mean: FuseConfig.lone_cell_mean (adaptive keys only): k = 0 for a one-point fine
+            cell whose coarse cell averages at least this many points per occupied fine cell.
 
     Returns:
         inverse (M,) int64 cell index of each point, counts (C,) int64, k (C,) int64.
@@ -52,6 +57,15 @@ def cell_counts(
     rho = counts.to(torch.float32) / size**3
     rho_bar = rho.mean()
     k = torch.ceil(k0 * (rho / rho_bar) * ratio).clamp(1, k_max).to(torch.int64)
+    if lone_cell_mean > 0:
+        # coarse cell of each fine cell (the key's high bits, ash.py): candidates per occupied fine cell
+        _, cinv = torch.unique(uniq >> (3 * FINE_BITS), return_inverse=True)
+        csum = torch.zeros(int(cinv.max()) + 1, dtype=torch.float64, device=key.device).scatter_add_(
+            0, cinv, counts.to(torch.float64)
+        )
+        cnf = torch.bincount(cinv).to(torch.float64)
+        lone = (counts == 1) & (csum[cinv] >= lone_cell_mean * cnf[cinv])
+        k = torch.where(lone, torch.zeros_like(k), k)
     return inv, counts, k
 
 
@@ -96,6 +110,7 @@ def select_representatives(
     first = torch.ones(m, dtype=torch.bool, device=dev)
     cell_sorted = inv[order]
     first[1:] = cell_sorted[1:] != cell_sorted[:-1]
+    first &= k[cell_sorted] >= 1  # k = 0 (lone_cell_mean): the cell keeps nothing
     pick = [order[first]]  # round 1: highest omega per cell (cells in ascending order)
     picked_cell = [cell_sorted[first]]
     d2 = torch.full((m,), math.inf, dtype=torch.float32, device=dev)
