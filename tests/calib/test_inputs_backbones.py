@@ -115,3 +115,27 @@ def test_cli_calibrate_writes_calibration(icl2, tmp_path):
     assert cal.report["closed_form"] == "zonly" and "s* =" in res.output
     bad = CliRunner().invoke(cli_app, ["calibrate", str(icl2), "--out", str(out), "--frame", "5"])
     assert bad.exit_code != 0 and "out of range" in bad.output
+
+
+def test_wrong_backbone_pose_is_never_placed_silently(scene_builder, backbone_builder):
+    """A backbone that registers a camera 40 deg off (what COLMAP did on a simulated studio
+    seed): GMAC either leaves it out or names it in suspect_cameras with a warning; a right
+    calibration of the same scene has no suspect and agreement above the threshold."""
+    from scipy.spatial.transform import Rotation
+
+    frame, rig, T = scene_builder(6, seed=1)
+    good = calibrate(frame, rig, backbone_result=backbone_builder(T, 3.0))
+    assert good.report["suspect_cameras"] == []
+    assert min(v for v in good.report["depth_agreement"].values() if v is not None) > 0.8
+    bb = backbone_builder(T, 3.0)
+    T0 = bb.T_cam_world.copy()
+    C = -T0[2, :3, :3].T @ T0[2, :3, 3]
+    T0[2, :3, :3] = Rotation.from_euler("y", 40, degrees=True).as_matrix() @ T0[2, :3, :3]
+    T0[2, :3, 3] = -T0[2, :3, :3] @ C
+    cal = calibrate(frame, rig, backbone_result=BackboneResult(T0, bb.registered, name="wrong"))
+    placed_silently = "c2" in cal.T_cam_world and "c2" not in cal.report["suspect_cameras"]
+    assert not placed_silently, cal.report["depth_agreement"]
+    if "c2" in cal.T_cam_world:
+        assert any("disagree with their neighbours' depth" in w for w in cal.report["warnings"])
+    with pytest.raises(ValidationError, match="min_depth_agreement"):
+        CalibConfig(min_depth_agreement=1.5)

@@ -378,6 +378,8 @@ def calibrate(
         refine_report = asdict(rr)
         refine_report.pop("T_cam_world")
         timings["refine"] = time.perf_counter() - t
+    agreement = depth_agreement(frame, rig, T) if config.min_depth_agreement > 0 and T else {}
+    suspect = [c for c, a in agreement.items() if a is not None and a < config.min_depth_agreement]
     timings["total"] = time.perf_counter() - t_start
     name = lambda e: f"{ids[e[0]]}-{ids[e[1]]}"  # noqa: E731
     report = {
@@ -404,13 +406,42 @@ def calibrate(
         "cycle_residuals_mm": _rename(sr.cycle_residuals_mm, ids),
         "unconnected_cameras": unconnected,
         "unregistered_cameras": [ids[k] for k in np.flatnonzero(~bb.registered)],
+        "depth_agreement": agreement,
+        "suspect_cameras": suspect,
         "warnings": list(sr.warnings)
-        + _placement_warnings(unconnected, [ids[k] for k in np.flatnonzero(~bb.registered)]),
+        + _placement_warnings(unconnected, [ids[k] for k in np.flatnonzero(~bb.registered)])
+        + _agreement_warnings(suspect, agreement, config.min_depth_agreement),
         "ill_conditioned": any("ill-conditioned" in w for w in sr.warnings),
         "refinement": refine_report,
         "timings_s": timings,
     }
     return Calibration(T, report)
+
+
+def depth_agreement(frame: Frame, rig: Rig, T_cam_world: dict[str, np.ndarray]) -> dict[str, float | None]:
+    """Per placed camera, the mean share of its depth its neighbours confirm under the
+    extrinsics ``T_cam_world`` (``pipeline.pair_agreement``: CVGC's visibility-aware projection,
+    tau = 5 %); None for a camera with no neighbour vote."""
+    from fuseflow.pipeline import camera_agreement, pair_agreement
+
+    placed = [c for c in frame.camera_ids if c in T_cam_world]
+    if len(placed) < 2:
+        return dict.fromkeys(placed)
+    sub = frame.subset([frame.camera_ids.index(c) for c in placed])
+    placed_rig = Rig(tuple(rig[c].with_extrinsics(T_cam_world[c]) for c in placed))
+    a = camera_agreement(pair_agreement(sub, placed_rig))
+    return {c: (float(v) if np.isfinite(v) else None) for c, v in zip(placed, a)}
+
+
+def _agreement_warnings(suspect: list[str], agreement: dict[str, float | None], limit: float) -> list[str]:
+    if not suspect:
+        return []
+    vals = ", ".join(f"{c} {agreement[c]:.2f}" for c in suspect)
+    return [
+        f"cameras {suspect} disagree with their neighbours' depth under these extrinsics ({vals}; below "
+        f"{limit:.2f}): the backbone's poses are probably wrong (wrong matches between similar views); "
+        "check the images for overlap and texture, or calibrate on another frame (--frame)"
+    ]
 
 
 def _placement_warnings(unconnected: list[str], unregistered: list[str]) -> list[str]:
