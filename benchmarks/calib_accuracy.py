@@ -272,7 +272,8 @@ def run_seed(frame, rig, ref, seed, rows, robust, backbone="colmap", noise=(0.3,
         except fuseflow.FuseFlowError as exc:
             rows.setdefault(name, []).append({"failed": True, "error": str(exc)})
             continue
-        add(name, cal.T_cam_world, t_bb + time.perf_counter() - t, {"pruned": len(cal.report["pruned_edges"])})
+        extra = {"pruned": len(cal.report["pruned_edges"]), "suspect": len(cal.report.get("suspect_cameras", []))}
+        add(name, cal.T_cam_world, t_bb + time.perf_counter() - t, extra)
         if cal0 is None or name.startswith("GMAC point"):
             cal0 = cal
     if cal0 is not None and cal0.report["scale_naive_median_depth_ratio"]:
@@ -369,6 +370,13 @@ def main(argv=None) -> int:
                     f"{fmt([r['seconds'] for r in ok])} | {fmt([r['placed'] for r in ok])} | {len(rs) - len(ok)}/{len(rs)} |"
                 )
             print(f"\nInjected wrong-match edge pruned by CC in {robust['pruned']}/{robust['injected']} seeds.")
+            default = [r for r in rows.get("GMAC point-to-plane (default)", []) if not r.get("failed")]
+            bad = [r for r in default if r["rot"] > 1.0]
+            print(
+                f"GMAC default: {len(bad)}/{len(default)} seeds with a rotation error above 1 deg (backbone "
+                f"failures); the depth-agreement check named suspect cameras in {sum(r['suspect'] > 0 for r in bad)} "
+                f"of them and in {sum(r['suspect'] > 0 for r in default if r['rot'] <= 1.0)} of the others."
+            )
             everything[data] = {"label": label, "rows": rows, "robustness": robust}
             if a.json:  # after every data set, so a long run leaves its finished parts
                 a.json.write_text(json.dumps(everything, indent=1, default=float))

@@ -50,7 +50,7 @@ def _methods():
     rows["FUSE min_weight=0"] = f(replace(FuseConfig(), min_weight=0.0))
     rp = not FuseConfig().range_priority  # the switch flipped from the default
     rows[f"FUSE range_priority={rp}"] = f(replace(FuseConfig(), range_priority=rp))
-    for lone in (2.0, 3.0, 4.0):  # beyond the paper: drop lone points of densely sampled coarse cells
+    for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells
         if lone != FuseConfig().lone_cell_mean:
             rows[f"FUSE lone_cell_mean={lone:g}"] = f(replace(FuseConfig(), lone_cell_mean=lone))
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)

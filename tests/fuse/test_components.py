@@ -30,6 +30,7 @@ def test_config_presets_and_validation():
     with pytest.raises(ValidationError, match="window"):
         FuseConfig(window=4)
     assert PRESETS["paper"].range_priority is False  # eq. (28) ranks by omega alone
+    assert PRESETS["paper"].lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
     with pytest.raises(ValidationError, match="noise_sigma"):
         FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
     with pytest.raises(ValidationError, match="noise_sigma"):

@@ -57,7 +57,7 @@ def cell_counts(
     rho = counts.to(torch.float32) / size**3
     rho_bar = rho.mean()
     k = torch.ceil(k0 * (rho / rho_bar) * ratio).clamp(1, k_max).to(torch.int64)
-    if lone_cell_mean > 0:
+    if lone_cell_mean > 0 and counts.numel():
         # coarse cell of each fine cell (the key's high bits, ash.py): candidates per occupied fine cell
         _, cinv = torch.unique(uniq >> (3 * FINE_BITS), return_inverse=True)
         csum = torch.zeros(int(cinv.max()) + 1, dtype=torch.float64, device=key.device).scatter_add_(
