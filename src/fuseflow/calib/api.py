@@ -408,7 +408,7 @@ def calibrate(
         "unregistered_cameras": [ids[k] for k in np.flatnonzero(~bb.registered)],
         "depth_agreement": agreement,
         "suspect_cameras": suspect,
-        "warnings": list(sr.warnings)
+        "warnings": [_edge_names(w, ids) for w in sr.warnings]
         + _placement_warnings(unconnected, [ids[k] for k in np.flatnonzero(~bb.registered)])
         + _agreement_warnings(suspect, agreement, config.min_depth_agreement),
         "ill_conditioned": any("ill-conditioned" in w for w in sr.warnings),
@@ -442,6 +442,13 @@ def _agreement_warnings(suspect: list[str], agreement: dict[str, float | None], 
         f"{limit:.2f}): the backbone's poses are probably wrong (wrong matches between similar views); "
         "check the images for overlap and texture, or calibrate on another frame (--frame)"
     ]
+
+
+def _edge_names(text: str, ids) -> str:
+    """The scale stage's warnings name edges by index, "(0, 4)"; users know camera ids."""
+    import re
+
+    return re.sub(r"\((\d+), (\d+)\)", lambda m: f"{ids[int(m[1])]}-{ids[int(m[2])]}", text)
 
 
 def _placement_warnings(unconnected: list[str], unregistered: list[str]) -> list[str]:
