@@ -58,3 +58,18 @@ def test_info_on_bad_path_is_one_line_error(tmp_path):
     p = subprocess.run([sys.executable, "-m", "fuseflow", "info", str(tmp_path)], capture_output=True, text=True)
     assert p.returncode == 2
     assert "not a recording" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_warnings_and_errors_print_brackets_verbatim(capsys):
+    """rich reads "[cam00-cam04, ...]" as a markup tag and drops it; messages are escaped."""
+    import typer
+
+    from fuseflow.cli.app import fail, warn
+
+    warn("edges [cam00-cam04, cam01-cam05] have fewer than 50 correspondences")
+    assert "[cam00-cam04, cam01-cam05]" in capsys.readouterr().out
+    try:
+        fail("cameras [bold] and [cam02-cam03] are odd")
+    except typer.Exit:
+        pass
+    assert "[bold] and [cam02-cam03]" in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 app = typer.Typer(
     name="fuseflow",
@@ -19,9 +20,15 @@ err_console = Console(stderr=True)
 
 
 def fail(message: str, code: int = 2) -> None:
-    """Print a one-line error and exit (CLI only)."""
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    """Print a one-line error and exit (CLI only). The message is printed verbatim (escaped:
+    rich would read "[cam00-cam04, ...]" as a markup tag and drop it)."""
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def warn(message: str) -> None:
+    """Print a warning line, verbatim (escaped like ``fail``)."""
+    console.print(f"[yellow]warning:[/] {escape(message)}", highlight=False)
 
 
 def parse_range(spec: str | None, n: int) -> range:

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fuseflow.cli.app import app, console, fail
+from fuseflow.cli.app import app, console, fail, warn
 
 
 @app.command()
@@ -53,5 +53,5 @@ def calibrate(
     if r["unconnected_cameras"]:
         console.print(f"[yellow]unconnected (not placed):[/] {r['unconnected_cameras']}")
     for w in r["warnings"]:
-        console.print(f"[yellow]warning:[/] {w}")
+        warn(w)
     console.print(f"wrote {out}")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail, parse_range
+from fuseflow.cli.app import app, console, fail, parse_range, warn
 from fuseflow.errors import FuseFlowError
 
 NO_EXTRINSICS = "no extrinsics: run fuseflow calibrate first or pass --calib"
@@ -141,4 +141,4 @@ def _fuse_recording(rec: Path, out: Path, calib: Path | None, frames: str | None
     t.add_row("clouds", str(out / "clouds"))
     console.print(t)
     for w, n in warnings.items():
-        console.print(f"[yellow]warning:[/] {w} ({n} frames)", highlight=False)
+        warn(f"{w} ({n} frames)")

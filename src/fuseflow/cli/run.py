@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail, parse_range, progress
+from fuseflow.cli.app import app, console, fail, parse_range, progress, warn
 
 
 def _print_summary(s) -> None:
@@ -28,7 +28,7 @@ def _print_summary(s) -> None:
         t.add_row("recalibrated at", ", ".join(map(str, s.recalibrations)))
     console.print(t)
     for w in s.warnings:
-        console.print(f"[yellow]warning:[/] {w}", highlight=False)
+        warn(w)
 
 
 @app.command("run")
@@ -116,7 +116,7 @@ def demo_cmd(
     t.add_row("rerun", res.rrd or "not written (pip install 'fuseflow[viz]')")
     console.print(t)
     for w in res.warnings:
-        console.print(f"[yellow]warning:[/] {w}", highlight=False)
+        warn(w)
 
 
 def _view_inputs(path: Path):
