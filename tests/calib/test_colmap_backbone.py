@@ -115,3 +115,24 @@ def test_edges_with_few_precise_matches_are_kept(studio_like):
     cal = calibrate(frame, rig, CalibConfig(min_correspondences=10_000))
     counts = cal.report["correspondence_counts"]
     assert counts and all(v < 10_000 for v in counts.values())  # only match-only edges survive
+
+
+def test_global_scale_comes_from_match_only_edges(studio_like):
+    """global_from_matches: s* is estimated on the kept match-only edges alone (reprojection
+    edges still join CC); off, on every kept edge."""
+    from dataclasses import replace
+
+    from fuseflow.calib import calibrate, get_backbone
+
+    frame, rig, T = studio_like
+    bb = get_backbone("colmap")(frame, rig, CalibConfig())
+    on = calibrate(frame, rig, CalibConfig(), backbone_result=bb)
+    off = calibrate(frame, rig, replace(CalibConfig(), global_from_matches=False), backbone_result=bb)
+    assert off.report["scale_edges"] == off.report["kept_edges"]
+    counts = on.report["correspondence_counts"]
+    assert set(on.report["scale_edges"]) <= set(on.report["kept_edges"])
+    if len(on.report["scale_edges"]) < len(on.report["kept_edges"]):
+        # the edges left out of s* are the reprojection ones (many more correspondences)
+        left = set(on.report["kept_edges"]) - set(on.report["scale_edges"])
+        assert min(counts[e] for e in left) >= CalibConfig().min_correspondences
+        assert on.report["scale"] != off.report["scale"]

@@ -95,6 +95,9 @@ class ScaleResult:
     converged: bool
     peak_spread: float
     warnings: tuple[str, ...]
+    scale_edges: tuple[tuple[int, int], ...] = ()
+    """The kept edges whose correspondences gave s* (the match-only ones with
+    ``global_from_matches``, else all kept edges)."""
 
 
 def _directed(geoms_by_edge: dict[tuple[int, int], list[EdgeGeometry]], edges) -> list[EdgeGeometry]:
@@ -176,12 +179,15 @@ def metric_scale(
     # (the paper's fixed-correspondence approximation), so it shows up in the cycle residuals
     # instead of vanishing.
     edge_scales, edge_counts = {}, {}
+    match_only: set[tuple[int, int]] = set()
     final_cfg = replace(config, depth_tau=min(config.depth_tau_final, config.depth_tau))
     for e in edges:
         try:
             fe = fixed_point_scale(all_geoms[e], cams_used, s_c, config, step=geoms_for_edges)
             if fe.s > 0 and (fe.estimate.count >= config.min_correspondences or _all_matches(fe.correspondences)):
                 edge_scales[e], edge_counts[e] = fe.s, fe.estimate.count
+                if _all_matches(fe.correspondences):
+                    match_only.add(e)
                 continue
         except CalibrationError:
             pass
@@ -214,7 +220,12 @@ def metric_scale(
             warnings.append("the edge graph has no triangle: cycle check replaced by the median of per-edge scales")
     else:
         kept, pruned, mode, res, res0, res_mm = tuple(usable), (), "off", {}, {}, {}
-    fp = fixed_point_scale(_directed(all_geoms, kept), cams_used, s_c, config, step=geoms_for_edges)
+    global_edges = list(kept)
+    if config.use_matches and config.global_from_matches:
+        kept_matches = [e for e in kept if e in match_only]
+        if len(kept_matches) >= 2:
+            global_edges = kept_matches
+    fp = fixed_point_scale(_directed(all_geoms, global_edges), cams_used, s_c, config, step=geoms_for_edges)
     if not fp.converged:
         warnings.append(f"the scale fixed point did not converge in {fp.iterations} steps (history {fp.history[-3:]})")
     s_final, est, iters, conv = fp.s, fp.estimate, fp.iterations, fp.converged
@@ -260,6 +271,7 @@ def metric_scale(
         converged=conv,
         peak_spread=coarse.peak_spread,
         warnings=tuple(warnings),
+        scale_edges=tuple(global_edges),
     )
 
 
@@ -399,6 +411,7 @@ def calibrate(
         "correspondence_counts": {name(e): v for e, v in sr.edge_counts.items()},
         "edges": [name(e) for e in sr.edges],
         "kept_edges": [name(e) for e in sr.kept],
+        "scale_edges": [name(e) for e in sr.scale_edges],
         "pruned_edges": [name(e) for e in sr.pruned],
         "cycle_mode": sr.cycle_mode,
         "cycle_residuals_relative": _rename(sr.cycle_residuals, ids),

@@ -56,9 +56,15 @@ class CalibConfig:
     cell of the coarse search grid."""
 
     use_matches: bool = True
-    """Edges with >= 20 backbone keypoint matches (when it has them) take their correspondences
-    from the matches, whose pixels do not move with s, instead of from reprojection (beyond the
-    paper; see ``correspondences.match_correspondences``)."""
+    """Edges with >= 5 gated backbone keypoint matches per direction (when it has them) take
+    their correspondences from the matches, whose pixels do not move with s, instead of from
+    reprojection (beyond the paper; see ``correspondences.match_correspondences``)."""
+
+    global_from_matches: bool = True
+    """With ``use_matches``: when at least two kept edges are match-only, the global s* is
+    estimated from those edges alone; reprojection edges still take part in CC and connect
+    cameras (every placed camera gets the one s*). Reprojection correspondences are biased low
+    on rings (docs/gmac.md); matches are not."""
 
     match_rel_tol: float = 0.01
     """Floor of the robust gate on keypoint matches: a match is kept when the scale it implies is
