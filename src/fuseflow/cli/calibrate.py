@@ -47,9 +47,16 @@ def calibrate(
     )
     t = Table("edge", "scale", "corr.", "status", box=None)
     for e, s in r["edge_scales"].items():
-        t.add_row(e, f"{s:.5g}", str(r["correspondence_counts"][e]), "pruned" if e in r["pruned_edges"] else "kept")
+        status = "pruned" if e in r["pruned_edges"] else ("kept, gives s*" if e in r["scale_edges"] else "kept")
+        t.add_row(e, f"{s:.5g}", str(r["correspondence_counts"][e]), status)
     console.print(t)
     console.print(f"cycle check: {r['cycle_mode']}; pruned edges: {r['pruned_edges'] or 'none'}")
+    agree = {c: a for c, a in r["depth_agreement"].items() if a is not None}
+    if agree:
+        worst = min(agree, key=agree.get)
+        console.print(
+            f"depth agreement with neighbours: lowest {agree[worst]:.2f} ({worst}), suspect: {r['suspect_cameras'] or 'none'}"
+        )
     if r["unconnected_cameras"]:
         console.print(f"[yellow]unconnected (not placed):[/] {r['unconnected_cameras']}")
     for w in r["warnings"]:
