@@ -126,16 +126,17 @@ def _room_frame(n: int, seed: int, size=(640, 480)):
     return frame, fuseflow.Rig(cams), {f"c{k}": Ts[k] for k in range(n)}
 
 
-def sim_frame(n: int, seed: int):
-    """(frame, bare rig, reference {id: T}, data label)."""
+def sim_frame(n: int, seed: int, scene: str = "studio", dynamic: bool = False):
+    """(frame, bare rig, reference {id: T}, data label): frame 0 of a simulated ring, Kinect noise."""
     try:
         from fuseflow.synth import SimConfig, Simulator
 
-        sim = Simulator(SimConfig(cameras=n, frames=1, scene="studio", dynamic=False, noise="kinect", seed=seed))
+        sim = Simulator(SimConfig(cameras=n, frames=1, scene=scene, dynamic=dynamic, noise="kinect", seed=seed))
         rig = sim.rig
         ref = {c.id: c.T_cam_world for c in rig}
         bare = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rig))
-        return sim.render(0).frame, bare, ref, "fuseflow.synth studio ring, kinect noise"
+        label = f"fuseflow.synth {scene} ring{', dynamic' if dynamic else ''}, kinect noise"
+        return sim.render(0).frame, bare, ref, label
     except ImportError:
         frame, rig, ref = _room_frame(n, seed)
         return frame, rig, ref, "analytic room (benchmark-local), kinect noise"

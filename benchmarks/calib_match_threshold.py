@@ -12,13 +12,16 @@ section 4) and the cameras placed.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
-import fuseflow
 from fuseflow.calib import calibrate, get_backbone
 from fuseflow.calib import correspondences as corr
 from fuseflow.calib.config import PRESETS
 from fuseflow.eval.metrics import pose_errors
-from fuseflow.synth import SimConfig, Simulator
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from calib_accuracy import sim_frame  # noqa: E402
 
 FRAMES = {
     "demo studio (dynamic, seed 1)": dict(scene="studio", dynamic=True, seed=1),
@@ -35,17 +38,16 @@ def main() -> int:
     print("| frame | " + " | ".join(f"{t} matches" for t in ths) + " |")
     print("|---|" + "---|" * len(ths))
     for label, kw in FRAMES.items():
-        sim = Simulator(SimConfig(cameras=8, frames=1, noise="kinect", **kw))
-        frame = sim.render(0).frame
-        ref = {c.id: c.T_cam_world for c in sim.rig}
-        rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in sim.rig))
+        frame, rig, ref, _ = sim_frame(8, kw["seed"], kw["scene"], kw["dynamic"])
         bb = get_backbone("colmap")(frame, rig, PRESETS["default"])
         cells = []
+        default = corr.MIN_MATCHES
         for t in ths:
             corr.MIN_MATCHES = t
             cal = calibrate(frame, rig, PRESETS["default"], backbone_result=bb)
             e = pose_errors(cal.T_cam_world, ref)
             cells.append(f"{e.translation_mm:.1f} mm ({len(cal.T_cam_world)} placed)")
+        corr.MIN_MATCHES = default
         print(f"| {label} | " + " | ".join(cells) + " |", flush=True)
     return 0
 

@@ -15,14 +15,12 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import fuseflow
 from fuseflow.calib import calibrate, get_backbone
 from fuseflow.calib.config import PRESETS
 from fuseflow.eval.metrics import pose_errors
-from fuseflow.synth import SimConfig, Simulator
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from calib_accuracy import _scaled, oracle_scale  # noqa: E402
+from calib_accuracy import _scaled, oracle_scale, sim_frame  # noqa: E402
 
 FRAMES = [
     ("demo studio (dynamic, seed 1)", dict(scene="studio", dynamic=True, seed=1)),
@@ -35,10 +33,7 @@ def main() -> int:
     print("| frame | all kept edges | match-only edges (default) | naive median ratio | best scale |")
     print("|---|---|---|---|---|")
     for label, kw in FRAMES:
-        sim = Simulator(SimConfig(cameras=8, frames=1, noise="kinect", **kw))
-        frame = sim.render(0).frame
-        ref = {c.id: c.T_cam_world for c in sim.rig}
-        rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in sim.rig))
+        frame, rig, ref, _ = sim_frame(8, kw["seed"], kw["scene"], kw["dynamic"])
         bb = get_backbone("colmap")(frame, rig, PRESETS["default"])
         cells = []
         for on in (False, True):

@@ -184,9 +184,10 @@ def metric_scale(
     for e in edges:
         try:
             fe = fixed_point_scale(all_geoms[e], cams_used, s_c, config, step=geoms_for_edges)
-            if fe.s > 0 and (fe.estimate.count >= config.min_correspondences or _all_matches(fe.correspondences)):
+            matched = _all_matches(fe.correspondences)
+            if fe.s > 0 and (fe.estimate.count >= config.min_correspondences or matched):
                 edge_scales[e], edge_counts[e] = fe.s, fe.estimate.count
-                if _all_matches(fe.correspondences):
+                if matched:
                     match_only.add(e)
                 continue
         except CalibrationError:
