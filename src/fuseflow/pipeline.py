@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from fuseflow.errors import FuseFlowError, ValidationError
+from fuseflow.geometry import camera_agreement, pair_agreement
 from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.ply import write_ply
@@ -146,66 +147,6 @@ def cloud_path(out_dir: str | Path, index: int) -> Path:
 
 
 # --------------------------------------------------------------------------- health
-
-
-def health_stride(height: int, width: int, samples: int) -> int:
-    """Pixel stride that leaves about ``samples`` pixels per view (>= 1)."""
-    return max(1, int(np.sqrt(height * width / max(samples, 1))))
-
-
-def pair_agreement(frame: Frame, rig: Rig, samples: int = 5000, tau: float = 0.05, k_max: int = 4) -> np.ndarray:
-    """How well each pair of neighbouring cameras agree on the geometry they both see.
-
-    For camera i, every valid pixel of a subsampled grid (about ``samples`` per view) is
-    back-projected and projected into each neighbour j of FUSE's neighbour graph (K_max =
-    ``k_max``), as CVGC does (eq. 19-20, visibility-aware: a point merely occluded in j does not
-    vote). j agrees when the relative residual is below ``tau`` (eq. 21). Both directions of a
-    pair are pooled.
-
-    Returns:
-        (N, N) float64, symmetric: S[i, j] = agreeing / voting samples of the pair (i, j) in
-        [0, 1]; NaN where the pair cast no vote (not neighbours, a missing view, no depth).
-    """
-    from fuseflow.fuse.cvgc import _pixel_rays, project_votes, relative_transforms
-    from fuseflow.fuse.neighbours import neighbour_graph
-
-    n, h, w = frame.depth.shape
-    stride = health_stride(h, w, samples)
-    depth = frame.depth[:, ::stride, ::stride]
-    depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.zeros_like(depth))
-    depth = torch.where(frame.present[:, None, None], depth, torch.zeros_like(depth))
-    K = rig.K(device=frame.device).clone()
-    K[:, :2, :] /= stride  # pixel centres at integer coordinates: u_sub = u / stride
-    M = relative_transforms(rig.T_cam_world(device=frame.device))
-    xn, yn = _pixel_rays(K, depth.shape[1], depth.shape[2])
-    graph = neighbour_graph(rig, k_max=k_max)
-    agree = np.zeros((n, n))
-    votes = np.zeros((n, n))
-    for i in range(n):
-        m = depth[i] > 0
-        if not bool(m.any()):
-            continue
-        z = depth[i][m]
-        X = torch.stack([xn[i][m] * z, yn[i][m] * z, z], dim=1)
-        for j in graph.index[i].tolist():
-            if j < 0 or not bool(frame.present[j]):
-                continue
-            a, v = project_votes(X, M[i, j], K[j], depth[j], tau, True)
-            agree[i, j] += float(a.sum())
-            votes[i, j] += float(v.sum())
-    agree, votes = agree + agree.T, votes + votes.T
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(votes > 0, agree / votes, np.nan)
-
-
-def camera_agreement(pairs: np.ndarray) -> np.ndarray:
-    """Per camera, the mean agreement of its pairs (``pair_agreement``); NaN with no pair. (N,)"""
-    out = np.full(pairs.shape[0], np.nan)
-    for i in range(pairs.shape[0]):
-        row = pairs[i][np.isfinite(pairs[i])]
-        if row.size:
-            out[i] = float(row.mean())
-    return out
 
 
 class HealthMonitor:

@@ -12,11 +12,12 @@ from _fuse_scenes import PLANE_Z, Rect, look_at, make_rig, render
 from fuseflow.errors import ValidationError
 from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, neighbour_graph, preset
 from fuseflow.fuse.ash import adaptive_hash, fixed_hash
-from fuseflow.fuse.cvgc import cvgc_counts, omega_geo, project_votes, relative_transforms
+from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
 from fuseflow.fuse.mcm import confidence, gradient_and_variance
 from fuseflow.fuse.neighbours import NeighbourGraph
 from fuseflow.fuse.rps import cell_counts, select_representatives, selection_priority
 from fuseflow.fuse.weights import joint_weight
+from fuseflow.geometry import project_votes, relative_transforms
 
 
 def test_config_presets_and_validation():
@@ -199,7 +200,7 @@ def test_neighbour_graph_bounded_and_cached():
     assert g.index.shape == (6, 2)
     assert all(i not in row for i, row in enumerate(g.index.tolist()))
     assert neighbour_graph(rig, k_max=2).index.data_ptr() != g.index.data_ptr()  # copies out
-    from fuseflow.fuse.neighbours import _graph_cached
+    from fuseflow.geometry.overlap import _graph_cached
 
     hits = _graph_cached.cache_info().hits
     neighbour_graph(rig, k_max=2)

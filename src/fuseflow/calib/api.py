@@ -31,6 +31,7 @@ from fuseflow.calib.cycles import prune_by_cycles
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.scale import naive_median_scale
 from fuseflow.errors import ValidationError
+from fuseflow.geometry import depth_agreement
 from fuseflow.types import Calibration, Frame, Rig, invert_rigid
 
 __all__ = ["calibrate", "metric_scale", "ScaleResult", "check_inputs", "MIN_VALID_DEPTH"]
@@ -430,21 +431,6 @@ def calibrate(
         "timings_s": timings,
     }
     return Calibration(T, report)
-
-
-def depth_agreement(frame: Frame, rig: Rig, T_cam_world: dict[str, np.ndarray]) -> dict[str, float | None]:
-    """Per placed camera, the mean share of its depth its neighbours confirm under the
-    extrinsics ``T_cam_world`` (``pipeline.pair_agreement``: CVGC's visibility-aware projection,
-    tau = 5 %); None for a camera with no neighbour vote."""
-    from fuseflow.pipeline import camera_agreement, pair_agreement
-
-    placed = [c for c in frame.camera_ids if c in T_cam_world]
-    if len(placed) < 2:
-        return dict.fromkeys(placed)
-    sub = frame.subset([frame.camera_ids.index(c) for c in placed])
-    placed_rig = Rig(tuple(rig[c].with_extrinsics(T_cam_world[c]) for c in placed))
-    a = camera_agreement(pair_agreement(sub, placed_rig))
-    return {c: (float(v) if np.isfinite(v) else None) for c, v in zip(placed, a)}
 
 
 def _agreement_warnings(suspect: list[str], agreement: dict[str, float | None], limit: float) -> list[str]:

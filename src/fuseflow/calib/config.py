@@ -144,7 +144,7 @@ class CalibConfig:
 
     min_depth_agreement: float = 0.8
     """Final check (beyond the paper): with the calibrated extrinsics each camera's depth is
-    projected into its neighbours' as FUSE's CVGC does (``pipeline.pair_agreement``, tau = 5 %);
+    projected into its neighbours' as FUSE's CVGC does (``fuseflow.geometry.pair_agreement``, tau = 5 %);
     a camera whose mean agreement is below this is listed in ``suspect_cameras`` with a
     warning, since its backbone pose is probably wrong (a scale cannot cause that). Measured:
     right calibrations 0.91-0.97 on the simulated rigs and 0.95-0.99 on ICL; a COLMAP model

@@ -19,11 +19,12 @@ import torch
 from fuseflow.errors import ValidationError
 from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.config import FuseConfig
-from fuseflow.fuse.cvgc import _pixel_rays, cvgc_counts, omega_geo
+from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
 from fuseflow.fuse.mcm import confidence, valid_depth
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
 from fuseflow.fuse.rps import cell_counts, select_representatives, selection_priority
 from fuseflow.fuse.weights import joint_weight
+from fuseflow.geometry.camera import pixel_rays
 from fuseflow.types import Frame, FusedCloud, Rig
 
 __all__ = ["fuse", "fuse_with_report", "FuseResult", "FuseReport", "resolve_backend"]
@@ -167,7 +168,7 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     c = confidence(depth, cfg.alpha, cfg.beta, cfg.window, cfg.eps, cfg.use_mcm)  # eq. (16)-(18)
     valid_pixels = int((depth > 0).sum())
     cand = (c > cfg.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
-    xn, yn = _pixel_rays(p.K, h, w)
+    xn, yn = pixel_rays(p.K, h, w)
     z = depth[cand]
     X = torch.stack([xn[cand] * z, yn[cand] * z, z], dim=1)
     nz = torch.nonzero(cand)

@@ -29,7 +29,7 @@ from numba import njit, prange
 
 from fuseflow.fuse.ash import COARSE_OFFSET, FIXED_OFFSET
 from fuseflow.fuse.config import FuseConfig
-from fuseflow.fuse.cvgc import relative_transforms
+from fuseflow.geometry.camera import relative_transforms
 from fuseflow.types import FusedCloud
 
 __all__ = ["fuse_numba", "gate_depth"]

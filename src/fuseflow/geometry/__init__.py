@@ -1,0 +1,35 @@
+"""Shared multi-view geometry, the layer below FUSE, GMAC and the pipeline (DESIGN.md 5).
+
+- :mod:`camera`: pixel rays, back-projection, relative transforms E_j E_i^-1.
+- :mod:`overlap`: field-of-view overlap between calibrated cameras and the bounded neighbour
+  graph built from it (CVGC's N_i, paper III-C-2).
+- :mod:`agreement`: projection into another camera, depth lookup, the agreement vote (eq.
+  19-20), and the per-pair / per-camera depth agreement built on it.
+
+Imports only :mod:`fuseflow.types` and :mod:`fuseflow.errors`; ``fuse`` and ``calib`` both
+call it and never each other.
+"""
+
+from fuseflow.geometry.agreement import (
+    camera_agreement,
+    depth_agreement,
+    pair_agreement,
+    project_votes,
+    subsample_stride,
+)
+from fuseflow.geometry.camera import backproject, pixel_rays, relative_transforms
+from fuseflow.geometry.overlap import NeighbourGraph, fov_overlap, neighbour_graph
+
+__all__ = [
+    "NeighbourGraph",
+    "backproject",
+    "camera_agreement",
+    "depth_agreement",
+    "fov_overlap",
+    "neighbour_graph",
+    "pair_agreement",
+    "pixel_rays",
+    "project_votes",
+    "relative_transforms",
+    "subsample_stride",
+]
