@@ -55,9 +55,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import ray
 
-    from fuseflow.distributed import RayOptions
     from fuseflow.io import open_recording, write_ply
     from fuseflow.pipeline import cloud_path
+    from fuseflow.pipeline.ray import RayOptions
 
     rows = []
     with tempfile.TemporaryDirectory(prefix="fuseflow-ray-bench-") as tmp:

@@ -12,7 +12,7 @@ from fuseflow.pipeline import cloud_path, run
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra fuseflow[ray] (installed with [test])")
 
-from fuseflow.distributed import RayOptions, ray_frame_results  # noqa: E402
+from fuseflow.pipeline.ray import RayOptions, ray_frame_results  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -1,16 +1,35 @@
-"""FuseFlow's command line. ``fuseflow --help`` lists the commands; each module adds one."""
+"""FuseFlow's command line. ``fuseflow --help`` lists the commands.
+
+Every command is registered here, in ``COMMANDS`` (name -> the module whose ``command``
+function implements it) and ``GROUPS`` (sub-apps), and nowhere else: a module that is not
+listed is not a command. Each command parses its options, makes one library call and prints.
+"""
 
 from __future__ import annotations
 
-from fuseflow.cli import bench_calib as _bench_calib  # noqa: F401  (registers `fuseflow bench calib`)
-from fuseflow.cli import bench_paper as _bench_paper  # noqa: F401  (registers `fuseflow bench` and `bench paper`)
-from fuseflow.cli import calibrate as _calibrate  # noqa: F401  (registers `fuseflow calibrate`)
-from fuseflow.cli import convert, info  # noqa: F401  (registers the commands)
-from fuseflow.cli import fuse as _fuse  # noqa: F401  (registers `fuseflow fuse`)
-from fuseflow.cli import run as _run  # noqa: F401  (registers `fuseflow run`, `demo`, `view`)
-from fuseflow.cli import simulate as _simulate  # noqa: F401  (registers `fuseflow simulate`)
-from fuseflow.cli.app import app, err_console
+from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, run, simulate, view
+from fuseflow.cli.app import app, error, guarded
 from fuseflow.errors import FuseFlowError
+
+COMMANDS = {
+    "demo": demo,
+    "simulate": simulate,
+    "info": info,
+    "convert": convert,
+    "calibrate": calibrate,
+    "fuse": fuse,
+    "run": run,
+    "view": view,
+}
+"""Command name -> module defining ``command(...)`` (typer parameters)."""
+
+GROUPS = {"bench": bench.bench_app}
+"""Command groups (typer sub-apps)."""
+
+for _name, _module in COMMANDS.items():
+    app.command(_name)(guarded(_module.command))
+for _name, _group in GROUPS.items():
+    app.add_typer(_group, name=_name)
 
 
 def main() -> None:
@@ -18,8 +37,8 @@ def main() -> None:
     try:
         app()
     except FuseFlowError as exc:
-        err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        error(str(exc))
         raise SystemExit(2) from None
 
 
-__all__ = ["app", "main"]
+__all__ = ["COMMANDS", "GROUPS", "app", "main"]

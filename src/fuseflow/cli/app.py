@@ -1,11 +1,21 @@
-"""The typer application. Command modules register themselves on ``app``; this is the only
-layer that prints or exits (library code raises FuseFlowError instead)."""
+"""The typer application and the console helpers every command prints through.
+
+The CLI is the only layer that prints or exits (library code raises FuseFlowError instead).
+Commands are registered in one list, ``fuseflow.cli.COMMANDS``. Text is printed verbatim:
+``say``, ``warn`` and ``fail`` escape rich markup, so "[cam00-cam04, ...]" or "fuseflow[ray]"
+are never taken for markup tags and dropped; help text is plain (``rich_markup_mode=None``).
+"""
 
 from __future__ import annotations
+
+import functools
+from collections.abc import Callable
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+
+from fuseflow.errors import FuseFlowError
 
 app = typer.Typer(
     name="fuseflow",
@@ -13,16 +23,37 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,
 )
 
 console = Console()
 err_console = Console(stderr=True)
 
 
+def say(message: str) -> None:
+    """Print a line verbatim (rich markup escaped)."""
+    console.print(escape(message), highlight=False)
+
+
+def print_table(title: str, rows: list[tuple[str, str]]) -> None:
+    """A two-column table (name, value), every cell verbatim."""
+    from rich.table import Table
+
+    t = Table(title=escape(title), show_header=False)
+    for name, value in rows:
+        t.add_row(escape(name), escape(str(value)))
+    console.print(t)
+
+
+def error(message: str) -> None:
+    """Print "error: message" to stderr, verbatim."""
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
 def fail(message: str, code: int = 2) -> None:
     """Print a one-line error and exit (CLI only). The message is printed verbatim (escaped:
     rich would read "[cam00-cam04, ...]" as a markup tag and drop it)."""
-    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    error(message)
     raise typer.Exit(code)
 
 
@@ -50,6 +81,32 @@ def parse_int_list(spec: str, option: str) -> list[int]:
     except ValueError:
         fail(f"{option} expects comma-separated integers, got {spec!r}")
         raise  # unreachable
+
+
+def guarded(command: Callable[..., None]) -> Callable[..., None]:
+    """``command`` with FuseFlowError (bad recording, calib.json, rig, ...) turned into a one-line
+    error and exit code 2, however the app is invoked (console script or typer's CliRunner)."""
+
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except FuseFlowError as exc:
+            fail(str(exc))
+
+    return wrapper
+
+
+def check_device(device: str) -> str:
+    """``--device``: cpu, cuda or cuda:N, and CUDA only where torch sees a GPU."""
+    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+        fail(f"--device must be cpu or cuda, got {device!r}")
+    if device.startswith("cuda"):
+        import torch
+
+        if not torch.cuda.is_available():
+            fail(f"--device {device}: torch sees no CUDA device on this machine (use --device cpu)")
+    return device
 
 
 def progress(description: str):

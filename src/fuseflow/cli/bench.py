@@ -11,10 +11,9 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, fail
+from fuseflow.cli.app import fail
 
 bench_app = typer.Typer(help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True)
-app.add_typer(bench_app, name="bench")
 
 
 def _script(name: str) -> Path:
@@ -40,3 +39,8 @@ def bench_fuse(
     if no_baselines:
         argv.append("--no-baselines")
     raise typer.Exit(mod["main"](argv))
+
+
+# the subcommands of other modules register on bench_app when imported
+from fuseflow.cli import bench_calib as _bench_calib  # noqa: E402, F401
+from fuseflow.cli import bench_paper as _bench_paper  # noqa: E402, F401

@@ -7,11 +7,10 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fuseflow.cli.app import app, console, fail, warn
+from fuseflow.cli.app import console, fail, say, warn
 
 
-@app.command()
-def calibrate(
+def command(
     rec: Path = typer.Argument(..., help="Recording directory (any layout `fuseflow info` reads)."),
     out: Path = typer.Option(..., "--out", "-o", help="calib.json to write."),
     frame: int = typer.Option(0, "--frame", "-t", help="Frame index to calibrate from."),
@@ -40,25 +39,25 @@ def calibrate(
     calib = run_gmac(recording[frame], rig, config)
     fuseflow.write_calibration(out, calib)
     r = calib.report
-    console.print(
-        f"[bold]GMAC[/] {rec} frame {frame}: backbone {r['backbone']}, s* = {r['scale']:.6g} "
+    say(
+        f"GMAC {rec} frame {frame}: backbone {r['backbone']}, s* = {r['scale']:.6g} "
         f"(naive median ratio {r['scale_naive_median_depth_ratio']}), {len(calib.T_cam_world)}/{len(rig)} cameras placed, "
         f"{r['timings_s']['total']:.1f} s"
     )
-    t = Table("edge", "scale", "corr.", "status", box=None)
+    t = Table("edge", "scale", "corr.", "status", box=None)  # camera ids and numbers: no markup
     for e, s in r["edge_scales"].items():
         status = "pruned" if e in r["pruned_edges"] else ("kept, gives s*" if e in r["scale_edges"] else "kept")
         t.add_row(e, f"{s:.5g}", str(r["correspondence_counts"][e]), status)
     console.print(t)
-    console.print(f"cycle check: {r['cycle_mode']}; pruned edges: {r['pruned_edges'] or 'none'}")
+    say(f"cycle check: {r['cycle_mode']}; pruned edges: {r['pruned_edges'] or 'none'}")
     agree = {c: a for c, a in r["depth_agreement"].items() if a is not None}
     if agree:
         worst = min(agree, key=agree.get)
-        console.print(
+        say(
             f"depth agreement with neighbours: lowest {agree[worst]:.2f} ({worst}), suspect: {r['suspect_cameras'] or 'none'}"
         )
     if r["unconnected_cameras"]:
-        console.print(f"[yellow]unconnected (not placed):[/] {r['unconnected_cameras']}")
+        warn(f"unconnected (not placed): {r['unconnected_cameras']}")
     for w in r["warnings"]:
         warn(w)
-    console.print(f"wrote {out}")
+    say(f"wrote {out}")

@@ -6,11 +6,10 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail, parse_int_list, parse_range
+from fuseflow.cli.app import console, fail, parse_int_list, parse_range
 
 
-@app.command()
-def convert(
+def command(
     src: Path = typer.Argument(..., help="Dataset directory: Open3D/Redwood/ICL-NUIM (color/, depth/) or TUM RGB-D."),
     out: Path = typer.Argument(..., help="Output recording directory (must not exist or be empty)."),
     virtual_rig: str = typer.Option(

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fuseflow.cli.app import app, console
+from fuseflow.cli.app import console
 
 
 def recording_summary(path: Path) -> dict:
@@ -47,8 +47,7 @@ def recording_summary(path: Path) -> dict:
     return summary
 
 
-@app.command()
-def info(
+def command(
     rec: Path = typer.Argument(..., help="Recording directory (FuseFlow, Open3D/Redwood/ICL or TUM layout)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON instead of a table."),
 ) -> None:

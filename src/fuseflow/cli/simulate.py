@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail
+from fuseflow.cli.app import fail, progress, say
 
 _EFFECTS = ("axial_noise", "lateral_noise", "quantization", "flying_pixels", "grazing_dropout", "range_dropout",
             "random_dropout", "color_noise")  # fmt: skip
@@ -32,8 +32,7 @@ def _parse_resolution(spec: str) -> tuple[int, int]:
     return w, h
 
 
-@app.command()
-def simulate(
+def command(
     out: Path = typer.Argument(..., help="Output directory (must not already hold a recording)."),
     cameras: int = typer.Option(8, "--cameras", help="Number of cameras, 1..64."),
     frames: int = typer.Option(10, "--frames", help="Number of frames."),
@@ -51,8 +50,6 @@ def simulate(
     ),
 ) -> None:
     """Simulate a camera rig around a scene; write the recording, gt.json, GT depth and surfaces."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
-
     from fuseflow.synth import SimConfig, simulate_recording
 
     w, h = _parse_resolution(resolution)
@@ -61,14 +58,11 @@ def simulate(
         rig=rig, calib_error_deg=calib_error_deg, calib_error_mm=calib_error_mm, **_parse_disable(disable),
     )  # fmt: skip
     t0 = time.perf_counter()
-    with Progress(
-        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-        TimeRemainingColumn(), console=console, transient=True,
-    ) as bar:  # fmt: skip
+    with progress("simulating") as bar:
         task = bar.add_task(f"simulating {cameras} cameras x {frames} frames", total=frames)
         simulate_recording(out, cfg, uncalibrated=uncalibrated,
                            progress=lambda done, total: bar.update(task, completed=done))  # fmt: skip
-    console.print(
+    say(
         f"wrote {out}: {frames} frames x {cameras} cameras {w}x{h}, scene {scene}"
         f"{' (dynamic)' if dynamic else ''}, noise {noise}, seed {seed} in {time.perf_counter() - t0:.1f} s"
     )

@@ -1,5 +1,7 @@
 """Scale-out of per-frame fusion over a Ray cluster (optional extra ``fuseflow[ray]``).
 
+Formerly ``fuseflow.distributed``; ``RayOptions`` is also exported by ``fuseflow.pipeline``.
+
 FUSE keeps no state between frames, so a long recording parallelises over frames. This module
 uses Ray and no scheduler of its own:
 
@@ -18,9 +20,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fuseflow.errors import FuseFlowError
+
+if TYPE_CHECKING:
+    from fuseflow.pipeline.config import PipelineConfig
+    from fuseflow.pipeline.records import FrameRecord
+    from fuseflow.types import FusedCloud, Rig
 
 __all__ = ["RayOptions", "ray_frame_results", "import_ray"]
 
@@ -53,7 +60,7 @@ _RECORDINGS: dict[str, Any] = {}
 
 
 def _fuse_task(
-    rec_path: str, position: int, sel: Sequence[int], rig: Any, pipeline_config: Any, fail_once: str | None,
+    rec_path: str, position: int, sel: Sequence[int], rig: Rig, pipeline_config: PipelineConfig, fail_once: str | None,
     threads: int = 1,
 ):  # fmt: skip
     """One frame: load, fuse, measure agreement. Returns (position, arrays, record, load ms).
@@ -67,7 +74,7 @@ def _fuse_task(
     import torch
 
     from fuseflow.io.datasets import open_recording
-    from fuseflow.pipeline import process_frame
+    from fuseflow.pipeline.frames import process_frame
 
     if fail_once is not None and not os.path.exists(fail_once):
         # test hook: the first attempt of this task kills its worker process
@@ -96,11 +103,11 @@ def ray_frame_results(
     rec_path: str,
     positions: Sequence[int],
     sel: Sequence[int],
-    rig: Any,
-    pipeline_config: Any,
+    rig: Rig,
+    pipeline_config: PipelineConfig,
     options: RayOptions = RayOptions(),
     fail_once: dict[int, str] | None = None,
-) -> Iterator[tuple[int, Any, Any, float]]:
+) -> Iterator[tuple[int, FusedCloud, FrameRecord, float]]:
     """Fuse ``positions`` of the recording at ``rec_path`` on Ray; yield in order
     (position, FusedCloud, FrameRecord, load_ms).
 

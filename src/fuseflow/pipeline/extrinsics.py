@@ -1,0 +1,77 @@
+"""Which extrinsics a run fuses with: a calibration applied to a rig, a recalibration merged
+into the old world frame, and camera indices mapped back to the recording's rig."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import torch
+
+from fuseflow.errors import FuseFlowError, ValidationError
+from fuseflow.types import Calibration, FusedCloud, Rig, invert_rigid
+
+__all__ = ["placed_rig", "resolve_rig", "rigid_align", "merge_recalibration", "reindex_cameras"]
+
+
+def placed_rig(rig: Rig, calibration: Calibration) -> Rig:
+    """The cameras of ``rig`` that ``calibration`` places, with its extrinsics (FuseFlowError if < 1)."""
+    placed = [i for i, c in enumerate(rig.ids) if c in calibration.T_cam_world]
+    if not placed:
+        raise FuseFlowError(f"the calibration places none of the cameras {list(rig.ids)}")
+    return calibration.apply(rig.subset(placed))
+
+
+def resolve_rig(rig: Rig, calibration: Calibration | Rig | None) -> Rig:
+    """``rig`` with the extrinsics of ``calibration`` (a Calibration applied to it, a calibrated
+    Rig used as is, None: the rig's own); FuseFlowError when a camera is left without extrinsics."""
+    if isinstance(calibration, Rig):
+        rig = calibration
+    elif isinstance(calibration, Calibration):
+        rig = calibration.apply(rig)
+    elif calibration is not None:
+        raise ValidationError(f"calibration must be a Calibration, a Rig or None, got {type(calibration).__name__}")
+    if not rig.is_calibrated:
+        missing = [c.id for c in rig if not c.is_calibrated]
+        raise FuseFlowError(
+            f"cameras without extrinsics: {missing}; calibrate first (fuseflow calibrate) or pass --calib"
+        )
+    return rig
+
+
+def rigid_align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """4x4 rigid A minimising |A src_k - dst_k| over camera centres (Kabsch), src, dst (M, 3)."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    H = (src - mu_s).T @ (dst - mu_d)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    A = np.eye(4)
+    A[:3, :3] = R
+    A[:3, 3] = mu_d - R @ mu_s
+    return A
+
+
+def merge_recalibration(old: Rig, new: Calibration, moved: Iterable[str]) -> Rig:
+    """Put the ``moved`` cameras' new poses into the old world frame; others keep theirs.
+
+    GMAC's world frame is arbitrary (a reference camera), so the new calibration is aligned
+    to the old one on the cameras that did not move (camera-centre Kabsch; rotations follow
+    from the alignment). Needs >= 2 unmoved cameras placed by both, else the new calibration
+    replaces the old one whole.
+    """
+    moved = set(moved)
+    anchors = [c.id for c in old.cameras if c.id not in moved and c.id in new.T_cam_world and c.T_cam_world is not None]
+    if len(anchors) < 2:
+        return new.apply(old)
+    src = np.stack([invert_rigid(new.T_cam_world[c])[:3, 3] for c in anchors])
+    dst = np.stack([invert_rigid(old[c].T_cam_world)[:3, 3] for c in anchors])
+    A_inv = invert_rigid(rigid_align(src, dst))  # A = old_world_from_new_world
+    updates = {c: new.T_cam_world[c] @ A_inv for c in moved if c in new.T_cam_world}
+    return old.with_extrinsics(updates)
+
+
+def reindex_cameras(cloud: FusedCloud, sel: list[int]) -> FusedCloud:
+    """``cloud.camera`` indexes the fused subset of cameras; map it to the source rig's indices."""
+    lut = torch.tensor(sel, dtype=torch.int16, device=cloud.camera.device)
+    return FusedCloud(cloud.xyz, cloud.rgb, cloud.weight, lut[cloud.camera.long()])

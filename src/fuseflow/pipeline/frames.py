@@ -1,0 +1,105 @@
+"""Per-frame work of the pipeline: fuse one frame and measure its health (``process_frame``),
+pick the frame to calibrate on (``first_good_frame``), and ``stream`` clouds from a source.
+
+Stateless: the same inputs give the same outputs, in any process (see pipeline/ray.py)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from fuseflow.errors import FuseFlowError
+from fuseflow.io.datasets import open_recording
+from fuseflow.io.recording import Recording
+from fuseflow.pipeline.config import PipelineConfig
+from fuseflow.pipeline.extrinsics import placed_rig, reindex_cameras, resolve_rig
+from fuseflow.pipeline.health import frame_health
+from fuseflow.pipeline.records import FrameRecord
+from fuseflow.types import Calibration, Frame, FusedCloud, Rig
+
+__all__ = ["process_frame", "first_good_frame", "stream", "select_views"]
+
+
+def select_views(frame: Frame, sel: list[int], device: str) -> Frame:
+    """The views ``sel`` (positions in the frame) of ``frame``, on ``device``."""
+    if len(sel) != frame.num_views:
+        frame = frame.subset(sel)
+    return frame.to(device)
+
+
+def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig) -> tuple[FusedCloud, FrameRecord]:
+    """Fuse one frame and measure its cameras' agreement: the per-frame work of ``run``.
+
+    ``sel`` picks the frame's views that ``rig`` has (cameras GMAC could not place are left
+    out); the cloud's ``camera`` indexes the frame's full camera list.
+    """
+    from fuseflow.fuse import fuse
+
+    full = frame.num_views
+    frame = select_views(frame, sel, config.device)
+    t0 = time.perf_counter()
+    cloud = fuse(frame, rig, config.fuse_config())
+    if frame.device.type == "cuda":
+        torch.cuda.synchronize()
+    ms = (time.perf_counter() - t0) * 1000.0
+    if len(sel) != full:
+        cloud = reindex_cameras(cloud, sel)
+    pairs, agreement = frame_health(frame, rig, config.health_samples, config.health_tau)
+    record = FrameRecord(
+        index=frame.index,
+        points=len(cloud),
+        fuse_ms=round(ms, 3),
+        missing=list(frame.missing),
+        agreement=agreement,
+        pairs=pairs,
+    )
+    return cloud, record
+
+
+def first_good_frame(rec: Recording, min_valid: float = 0.2, limit: int = 30) -> int:
+    """Index of the first frame (among the first ``limit``) with every camera present and at least
+    ``min_valid`` of each camera's pixels with depth; FuseFlowError when none is."""
+    for t in range(min(len(rec), limit)):
+        f = rec[t]
+        valid = (f.depth > 0).flatten(1).float().mean(1)
+        if bool(f.present.all()) and bool((valid >= min_valid).all()):
+            return t
+    raise FuseFlowError(
+        f"no frame among the first {min(len(rec), limit)} has every camera present with >= "
+        f"{min_valid:.0%} valid depth; pass --calib with known extrinsics or --calib-frame"
+    )
+
+
+def stream(
+    source: Recording | str | Path | Any,
+    calibration: Calibration | Rig | None = None,
+    config: PipelineConfig = PipelineConfig(),
+) -> Iterator[FusedCloud]:
+    """Yield one FusedCloud per frame of ``source``, fused with FUSE.
+
+    Args:
+        source: a Recording, a recording path, or any object with ``.rig`` that iterates
+            Frames (a live source such as RealSenseSource).
+        calibration: extrinsics to use (a Calibration, or a calibrated Rig); None = the
+            source rig's own extrinsics. Cameras a Calibration does not place (GMAC reports
+            them unconnected) are left out of fusion.
+    """
+    from fuseflow.fuse import fuse
+
+    if isinstance(source, (str, Path)):
+        source = open_recording(source)
+    if isinstance(calibration, Calibration):
+        rig = placed_rig(source.rig, calibration)
+    else:
+        rig = resolve_rig(source.rig, calibration)
+    cfg = config.fuse_config()
+    for frame in source:
+        if tuple(frame.camera_ids) == rig.ids:
+            yield fuse(frame.to(config.device), rig, cfg)
+            continue
+        sel = [frame.camera_ids.index(c) for c in rig.ids if c in frame.camera_ids]
+        yield reindex_cameras(fuse(frame.subset(sel).to(config.device), rig, cfg), sel)

@@ -1,0 +1,256 @@
+"""``run(rec, out_dir)``: FUSE-Flow end to end (paper III-D, eq. 29): calibrate once, fuse every
+frame, watch the cameras' health, write clouds, the calibration, a per-frame log and a summary.
+
+The outline, one named step each: ``choose_calibration`` -> ``_plan`` (what to fuse, what to
+resume) -> ``_fuse_frames`` (fuse, write, watch health, recalibrate a bumped camera) ->
+``summarise``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fuseflow.errors import FuseFlowError, ValidationError
+from fuseflow.io.calibration import read_calibration, write_calibration
+from fuseflow.io.datasets import open_recording
+from fuseflow.io.ply import write_ply
+from fuseflow.io.recording import Recording, write_json_atomic
+from fuseflow.pipeline.config import PipelineConfig
+from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig, resolve_rig
+from fuseflow.pipeline.frames import first_good_frame, process_frame
+from fuseflow.pipeline.health import HealthMonitor
+from fuseflow.pipeline.outputs import cloud_path, peak_rss_mb, read_frame_log
+from fuseflow.pipeline.ray import RayOptions
+from fuseflow.pipeline.records import FrameRecord, RunSummary
+from fuseflow.types import Calibration, FusedCloud, Rig
+
+__all__ = ["run", "choose_calibration", "CalibrationChoice", "summarise"]
+
+OnFrame = Callable[[FrameRecord, int, int], None]
+
+
+@dataclass
+class CalibrationChoice:
+    """The extrinsics a run fuses with and where they came from."""
+
+    rig: Rig
+    """The placed cameras with their extrinsics, in the recording's rig order."""
+    source: str
+    """Human-readable origin: "given", "rig.json", "resumed from ...", "GMAC on frame N"."""
+    frame: int | None = None
+    """Frame number GMAC calibrated on (None when GMAC did not run)."""
+    warnings: list[str] = field(default_factory=list)
+
+
+def choose_calibration(
+    rec: Recording,
+    out: Path,
+    calibration: Calibration | None,
+    config: PipelineConfig,
+    calib_frame: int | None,
+    use_rig_extrinsics: bool,
+) -> CalibrationChoice:
+    """Given extrinsics, else OUT/calib.json of an earlier run, else rig.json's (when asked),
+    else GMAC on ``calib_frame`` (default: the first good frame). Writes OUT/calib.json."""
+    calib_json = out / "calib.json"
+    if calibration is not None:
+        rig = resolve_rig(rec.rig, calibration)
+        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}))
+        return CalibrationChoice(rig, "given")
+    if calib_json.exists():
+        return CalibrationChoice(placed_rig(rec.rig, read_calibration(calib_json)), f"resumed from {calib_json}")
+    if use_rig_extrinsics and rec.rig.is_calibrated:
+        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}))
+        return CalibrationChoice(rec.rig, "rig.json")
+    from fuseflow.calib import calibrate
+
+    t = calib_frame if calib_frame is not None else first_good_frame(rec, config.min_valid_depth)
+    cal = calibrate(rec[t], rec.rig, config.calib_config())
+    warnings = []
+    unplaced = [c for c in rec.rig.ids if c not in cal.T_cam_world]
+    if unplaced:
+        warnings.append(f"GMAC could not place cameras {unplaced}; they are left out of fusion")
+    warnings.extend(str(w) for w in cal.report.get("warnings", []))
+    write_calibration(calib_json, cal)
+    number = rec.frame_numbers[t]
+    return CalibrationChoice(placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings)
+
+
+@dataclass
+class _RunState:
+    """What the frame loop carries from frame to frame (explicit, per run)."""
+
+    rig: Rig
+    monitor: HealthMonitor
+    calib_json: Path
+    records: list[FrameRecord] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    fuse_ms: list[float] = field(default_factory=list)
+    fused_now: int = 0
+    resumed: int = 0
+
+
+def _recalibrate(rec: Recording, t: int, sel: list[int], state: _RunState, flagged: list[str], config) -> bool:
+    """Re-run GMAC on frame position ``t`` and merge the flagged cameras' new poses into the old
+    world frame; False (and a warning) when GMAC fails."""
+    from fuseflow.calib import calibrate
+
+    number = rec.frame_numbers[t]
+    try:
+        cal = calibrate(rec[t].subset(sel), state.rig, config.calib_config())
+    except FuseFlowError as exc:
+        state.warnings.append(f"recalibration at frame {number} failed: {exc}")
+        return False
+    state.rig = merge_recalibration(state.rig, cal, flagged)
+    report = cal.report.to_json() if hasattr(cal.report, "to_json") else cal.report
+    write_calibration(
+        state.calib_json,
+        Calibration(
+            {c.id: c.T_cam_world for c in state.rig},
+            {"source": f"recalibrated at frame {number}", "gmac": report},
+        ),
+    )
+    for c in flagged:
+        state.monitor.reset(c)
+    return True
+
+
+def _frame_results(
+    rec: Recording, todo: list[int], sel: list[int], state: _RunState, config: PipelineConfig, ray: RayOptions | None
+) -> Iterator[tuple[FusedCloud, FrameRecord]]:
+    """(cloud, record) of each position in ``todo``, in order: in this process with the rig as it
+    is when the frame's turn comes (a recalibration changes it), or as Ray tasks (no
+    recalibration there: the rig is fixed)."""
+    if ray is None:
+        for t in todo:
+            yield process_frame(rec[t], sel, state.rig, config)
+        return
+    from fuseflow.pipeline.ray import ray_frame_results
+
+    for _, cloud, record, _ in ray_frame_results(str(rec.path), todo, sel, state.rig, config, ray):
+        yield cloud, record
+
+
+def _fuse_frames(
+    rec: Recording,
+    out: Path,
+    positions: list[int],
+    state: _RunState,
+    config: PipelineConfig,
+    ray: RayOptions | None,
+    on_frame: OnFrame | None,
+) -> None:
+    """Resume the frames OUT already has, fuse the others; write each cloud and log line."""
+    sel = [rec.rig.index(c) for c in state.rig.ids]
+    log_path = out / "frames.jsonl"
+    previous = read_frame_log(log_path)
+    done = {t for t in positions if rec.frame_numbers[t] in previous and cloud_path(out, rec.frame_numbers[t]).exists()}
+    results = _frame_results(rec, [t for t in positions if t not in done], sel, state, config, ray)
+    n = len(state.rig)
+    with open(log_path, "a") as log:
+        for k, t in enumerate(positions):
+            number = rec.frame_numbers[t]
+            if t in done:
+                record = previous[number]
+                state.resumed += 1
+                if record.pairs.size:  # rebuild the health baselines
+                    state.monitor.update(record.pairs.reshape(n, n))
+            else:
+                cloud, record = next(results)
+                state.fuse_ms.append(record.fuse_ms)
+                write_ply(cloud_path(out, number), cloud)
+                record.flagged = state.monitor.update(record.pairs.reshape(n, n))
+                if record.flagged and config.recalibrate == "auto":
+                    record.recalibrated = _recalibrate(rec, t, sel, state, record.flagged, config)
+                log.write(json.dumps(record.to_json()) + "\n")
+                log.flush()
+                state.fused_now += 1
+            state.records.append(record)
+            if on_frame:
+                on_frame(record, k + 1, len(positions))
+
+
+def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationChoice, wall: float, device: str):
+    """The RunSummary of the frames in ``state`` (dropped views, bumped cameras, timings)."""
+    dropped: dict[str, int] = {}
+    bumped: dict[str, int] = {}
+    for r in state.records:
+        for c in r.missing:
+            dropped[c] = dropped.get(c, 0) + 1
+        for c in r.flagged:
+            bumped.setdefault(c, r.index)
+    warnings = list(state.warnings)
+    warnings += [
+        f"camera {c} was missing in {n} frames; those frames were fused from the other views"
+        for c, n in dropped.items()
+    ]
+    warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
+    pts = np.array([r.points for r in state.records], dtype=np.float64)
+    stat = (lambda f: float(f(pts))) if pts.size else (lambda f: 0.0)  # noqa: E731
+    return RunSummary(
+        recording=str(rec.path),
+        out_dir=str(out),
+        frames=len(state.records),
+        frames_fused_now=state.fused_now,
+        frames_resumed=state.resumed,
+        fps=(state.fused_now / wall) if state.fused_now and wall > 0 else 0.0,
+        ms_per_frame=float(np.median(state.fuse_ms)) if state.fuse_ms else 0.0,
+        points_per_frame={"mean": stat(np.mean), "min": stat(np.min), "max": stat(np.max)},
+        peak_memory_mb=peak_rss_mb(),
+        device=device,
+        calibration=choice.source,
+        calibration_frame=choice.frame,
+        dropped_views=dropped,
+        bumped_cameras=bumped,
+        recalibrations=[r.index for r in state.records if r.recalibrated],
+        warnings=warnings,
+    )
+
+
+def run(
+    rec: Recording | str | Path,
+    out_dir: str | Path,
+    calibration: Calibration | None = None,
+    config: PipelineConfig = PipelineConfig(),
+    frames: range | None = None,
+    calib_frame: int | None = None,
+    use_rig_extrinsics: bool = False,
+    on_frame: OnFrame | None = None,
+    ray: RayOptions | None = None,
+) -> RunSummary:
+    """Calibrate once, fuse every frame, write clouds, the calibration and a summary.
+
+    Resumes: frames whose cloud exists in ``out_dir`` are skipped (their records are read back
+    from frames.jsonl), and an existing ``out_dir/calib.json`` is reused.
+
+    Args:
+        calibration: known extrinsics; None = GMAC on ``calib_frame`` (default: the first good
+            frame), unless ``use_rig_extrinsics`` and the recording's rig is calibrated.
+        frames: which frame positions to fuse (default all).
+        on_frame: called after each frame with (record, done, total), e.g. for a progress bar.
+        ray: ``RayOptions`` to fuse frames as Ray tasks (outputs are identical to the
+            single-process run); None = fuse in this process.
+    """
+    if ray is not None and config.recalibrate == "auto":
+        raise ValidationError(
+            "recalibrate='auto' needs frames fused in order in one process; it is not available with Ray"
+        )
+    if not isinstance(rec, Recording):
+        rec = open_recording(rec)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
+    monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
+    state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
+    positions = list(frames if frames is not None else range(len(rec)))
+    t_start = time.perf_counter()
+    _fuse_frames(rec, out, positions, state, config, ray, on_frame)
+    summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
+    write_json_atomic(out / "summary.json", summary.to_json())
+    return summary

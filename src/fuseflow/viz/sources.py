@@ -1,0 +1,98 @@
+"""What ``fuseflow view`` shows: the clouds of a run directory (or a calibrated recording fused
+on the fly), the rig to draw as frustums, and the world's up direction."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fuseflow.errors import FuseFlowError, RecordingError
+from fuseflow.types import FusedCloud, Rig
+
+__all__ = ["ViewSource", "view_source", "world_up", "render_pngs", "send_to_rerun"]
+
+
+@dataclass(frozen=True)
+class ViewSource:
+    """A rig to draw (None when unknown) and (frame number, cloud loader) pairs in frame order."""
+
+    rig: Rig | None
+    items: list[tuple[int, Callable[[], FusedCloud]]]
+
+
+def _run_rig(path: Path) -> Rig | None:
+    """The calibrated rig of a run directory, or None when its recording is gone or unreadable."""
+    from fuseflow.io import open_recording, read_calibration
+
+    summary = path / "summary.json"
+    if not ((path / "calib.json").exists() and summary.exists()):
+        return None
+    try:
+        rec = open_recording(json.loads(summary.read_text())["recording"])
+        return read_calibration(path / "calib.json").apply(rec.rig)
+    except (FuseFlowError, OSError, KeyError, ValueError):  # the recording moved: no frustums
+        return None
+
+
+def view_source(path: str | Path) -> ViewSource:
+    """The clouds of a run directory (``path/clouds/*.ply``), or of a calibrated recording fused
+    frame by frame; RecordingError when there is nothing to show."""
+    from fuseflow.io import open_recording, read_ply
+
+    path = Path(path)
+    if (path / "clouds").is_dir():
+        clouds = sorted((path / "clouds").glob("*.ply"))
+        if not clouds:
+            raise RecordingError(f"{path / 'clouds'} holds no .ply files")
+        return ViewSource(_run_rig(path), [(int(p.stem), (lambda p=p: read_ply(p))) for p in clouds])
+    rec = open_recording(path)
+    if not rec.rig.is_calibrated:
+        raise RecordingError(
+            f"{path}: rig.json has no extrinsics; view a run directory (fuseflow run) or calibrate first"
+        )
+    from fuseflow.fuse import fuse
+
+    return ViewSource(rec.rig, [(rec.frame_numbers[t], (lambda t=t: fuse(rec[t], rec.rig))) for t in range(len(rec))])
+
+
+def world_up(rig: Rig | None) -> tuple[float, float, float]:
+    """The world's up direction: the mean of the cameras' up axes (-y in OpenCV axes), since rig
+    cameras are mounted roughly upright; (0, -1, 0) (the first camera's frame) without a rig."""
+    if rig is None or not rig.is_calibrated:
+        return (0.0, -1.0, 0.0)
+    up = np.mean([-c.T_cam_world[1, :3] for c in rig], axis=0)  # row 1 of R = camera y in world
+    n = float(np.linalg.norm(up))
+    return tuple((up / n).tolist()) if n > 1e-6 else (0.0, -1.0, 0.0)
+
+
+def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb") -> int:
+    """Render each frame of ``source`` to OUT/<frame:06d>.png from one orbit view framed on the
+    first non-empty cloud (headless); returns the number of PNGs."""
+    from fuseflow.viz.render import orbit_camera, save_cloud_png
+
+    view = None
+    for number, load in source.items:
+        cloud = load()
+        if view is None and len(cloud):
+            view = orbit_camera(cloud.xyz.numpy(), up=world_up(source.rig))
+        K, T = view if view is not None else (None, None)
+        save_cloud_png(Path(out_dir) / f"{number:06d}.png", cloud, color_by=color_by, K=K, T_cam_world=T)
+    return len(source.items)
+
+
+def send_to_rerun(source: ViewSource, rrd: str | Path | None = None) -> int:
+    """Log the rig (frustums) and each cloud on rerun's frame timeline: to the viewer, or to the
+    file ``rrd``; returns the number of frames."""
+    from fuseflow.viz.rerun_log import RerunLogger
+
+    logger = RerunLogger(save_to=rrd, spawn=rrd is None)
+    if source.rig is not None:
+        logger.log_rig(source.rig)
+    for number, load in source.items:
+        logger.log_cloud(number, load())
+    logger.close()
+    return len(source.items)
