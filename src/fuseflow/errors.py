@@ -7,7 +7,7 @@ calls ``sys.exit``; the CLI turns these into one-line messages and a non-zero ex
 
 from __future__ import annotations
 
-__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError"]
+__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError", "OutputError"]
 
 
 class FuseFlowError(Exception):
@@ -24,3 +24,8 @@ class RecordingError(FuseFlowError, OSError):
 
 class FormatError(FuseFlowError, ValueError):
     """A file exists but its content does not follow the format it claims (JSON schema, PLY)."""
+
+
+class OutputError(FuseFlowError, OSError):
+    """An output location cannot be used: a file where a directory is needed (or the reverse),
+    no permission, a read-only filesystem, or a used output directory that does not match."""

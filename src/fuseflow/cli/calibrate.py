@@ -27,7 +27,9 @@ def command(
     import fuseflow
     from fuseflow.calib import CalibConfig
     from fuseflow.calib import calibrate as run_gmac
+    from fuseflow.io.paths import check_output_file
 
+    check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
     recording = fuseflow.open_recording(rec)
     if not 0 <= frame < len(recording):
         fail(f"--frame {frame} is out of range: the recording has {len(recording)} frames")

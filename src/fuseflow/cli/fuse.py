@@ -17,6 +17,9 @@ def command(
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (cpu runs the compiled numba path)."),
     preset: str = typer.Option("default", "--preset", help="FUSE preset: default, paper, 'w/o CVGC', ..."),
+    force: bool = typer.Option(
+        False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
+    ),
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
     from fuseflow.fuse import PRESETS
@@ -38,13 +41,16 @@ def command(
         s = fuse_recording(
             recording, out, calibration, positions, preset, device,
             on_frame=lambda done, total: bar.update(task, completed=done),
-            calibration_source=str(calib) if calib is not None else None,
+            calibration_source=str(calib) if calib is not None else None, force=force,
         )  # fmt: skip
     ppf, ms = s.points_per_frame, s.fuse_ms_per_frame
     print_table(
         f"FUSE: {out}",
         [
-            ("frames", f"{s.frames} ({s.cameras} cameras, preset {preset})"),
+            (
+                "frames",
+                f"{s.frames} ({s.cameras} cameras, preset {preset}; {s.frames_resumed} kept from an earlier call)",
+            ),
             ("points per frame", f"{ppf['mean']:.0f} (min {ppf['min']}, max {ppf['max']})"),
             (
                 "fusion",
@@ -54,5 +60,7 @@ def command(
             ("clouds", str(Path(out) / "clouds")),
         ],
     )
+    if s.left_out:
+        warn(f"the calibration does not place cameras {s.left_out}; they are left out of fusion")
     for w, n in s.warnings.items():
         warn(f"{w} ({n} frames)")

@@ -43,6 +43,9 @@ def command(
     ray: bool = typer.Option(False, "--ray", help="Fuse frames as Ray tasks (pip install 'fuseflow[ray]')."),
     ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local Ray)."),
     ray_cpus: int = typer.Option(None, "--ray-cpus", help="CPUs of a local Ray (default all)."),
+    force: bool = typer.Option(
+        False, "--force", help="Delete the outputs of a different earlier run in --out and start over."
+    ),
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
     from fuseflow.io import open_recording, read_calibration
@@ -60,7 +63,7 @@ def command(
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))
         summary = run(
             recording, out, calibration=calibration, config=cfg, frames=positions, calib_frame=calib_frame,
-            use_rig_extrinsics=use_rig, ray=ray_opts,
+            use_rig_extrinsics=use_rig, ray=ray_opts, force=force,
             on_frame=lambda r, done, total: bar.update(task, completed=done),
         )  # fmt: skip
     _print_summary(summary)

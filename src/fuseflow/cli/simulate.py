@@ -50,6 +50,7 @@ def command(
     ),
 ) -> None:
     """Simulate a camera rig around a scene; write the recording, gt.json, GT depth and surfaces."""
+    from fuseflow.io.paths import prepare_output_dir
     from fuseflow.synth import SimConfig, simulate_recording
 
     w, h = _parse_resolution(resolution)
@@ -57,6 +58,7 @@ def command(
         cameras=cameras, frames=frames, scene=scene, dynamic=dynamic, resolution=(w, h), noise=noise, seed=seed,
         rig=rig, calib_error_deg=calib_error_deg, calib_error_mm=calib_error_mm, **_parse_disable(disable),
     )  # fmt: skip
+    prepare_output_dir(out)  # a file in the way, no permission, read-only: one line, before any work
     t0 = time.perf_counter()
     with progress("simulating") as bar:
         task = bar.add_task(f"simulating {cameras} cameras x {frames} frames", total=frames)

@@ -18,11 +18,20 @@ from typing import Any
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import write_calibration
 from fuseflow.io.datasets import open_recording
+from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
 from fuseflow.io.recording import Recording, write_json_atomic
 from fuseflow.pipeline.extrinsics import placed_rig, reindex_cameras
 from fuseflow.pipeline.frames import select_views
-from fuseflow.pipeline.outputs import cloud_path
+from fuseflow.pipeline.outputs import (
+    OutputManifest,
+    calibration_digest,
+    cloud_path,
+    config_digest,
+    fuseflow_version,
+    open_output,
+    recording_fingerprint,
+)
 from fuseflow.types import Calibration, Rig
 
 __all__ = ["fuse_recording", "FuseRunSummary", "rig_for_fusion"]
@@ -45,6 +54,10 @@ class FuseRunSummary:
     wall_s: float
     warnings: dict[str, int] = field(default_factory=dict)
     """Each kind of degraded input FUSE reported, with the number of frames it happened in."""
+    left_out: list[str] = field(default_factory=list)
+    """Cameras of the recording the calibration does not place (not fused)."""
+    frames_resumed: int = 0
+    """Frames whose cloud an earlier call with the same manifest had written (not fused again)."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -64,6 +77,29 @@ def rig_for_fusion(rec: Recording, calibration: Calibration | None) -> Rig:
             f"{rec.path}: rig.json has no extrinsics for cameras {missing}; run fuseflow calibrate first or pass --calib"
         )
     return rig
+
+
+def _manifest(rec: Recording, rig: Rig, preset: str) -> OutputManifest:
+    return OutputManifest(
+        command="fuse",
+        recording=str(Path(rec.path).resolve()),
+        recording_fingerprint=recording_fingerprint(rec),
+        calibration=f"given:{calibration_digest({c.id: c.T_cam_world for c in rig})}",
+        config=config_digest({"preset": preset}),
+        fuseflow_version=fuseflow_version(),
+    )
+
+
+def read_ply_header_count(path: Path) -> int:
+    """Number of points a PLY file declares (``element vertex N``), read from its header only."""
+    with open(path, "rb") as f:
+        for raw in f:
+            line = raw.decode("ascii", errors="replace").strip()
+            if line.startswith("element vertex"):
+                return int(line.split()[-1])
+            if line == "end_header":
+                break
+    return 0
 
 
 def _warning_kinds(report) -> list[str]:
@@ -90,6 +126,7 @@ def fuse_recording(
     device: str = "cpu",
     on_frame: Callable[[int, int], None] | None = None,
     calibration_source: str | None = None,
+    force: bool = False,
 ) -> FuseRunSummary:
     """FUSE the frames at positions ``frames`` (default all) of ``rec`` into OUT/clouds.
 
@@ -99,6 +136,9 @@ def fuse_recording(
         device: "cpu" (compiled numba path) or "cuda".
         on_frame: called with (done, total) after each frame, e.g. for a progress bar.
         calibration_source: where ``calibration`` came from (e.g. its file), for calib.json.
+        force: start over in a used ``out_dir`` whose manifest does not match (see
+            ``pipeline.outputs.open_output``); with a matching manifest, frames already written
+            are kept, not fused again.
     """
     from fuseflow.fuse import PRESETS, fuse_with_report
 
@@ -109,24 +149,28 @@ def fuse_recording(
     positions = list(frames if frames is not None else range(len(rec)))
     if not positions:
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output_dir(out_dir)
+    open_output(out, _manifest(rec, rig, preset), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
     write_calibration(out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}))
     sel = [rec.rig.index(c) for c in rig.ids]
-    points, fuse_ms, warnings, backend = [], [], Counter(), ""
+    points, fuse_ms, warnings, backend, resumed = [], [], Counter(), "", 0
     t0 = time.perf_counter()
     for done, t in enumerate(positions, start=1):
-        frame = rec[t]
-        res = fuse_with_report(select_views(frame, sel, device), rig, PRESETS[preset])
-        cloud = res.cloud.to("cpu")
-        if len(sel) != len(rec.rig):
-            cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
-        write_ply(cloud_path(out, frame.index), cloud)
-        points.append(len(cloud))
-        fuse_ms.append(res.report.ms)
-        backend = res.report.backend
-        warnings.update(_warning_kinds(res.report))
+        path = cloud_path(out, rec.frame_numbers[t])
+        if path.exists():  # written by an earlier call with the same manifest
+            points.append(read_ply_header_count(path))
+            resumed += 1
+        else:
+            res = fuse_with_report(select_views(rec[t], sel, device), rig, PRESETS[preset])
+            cloud = res.cloud.to("cpu")
+            if len(sel) != len(rec.rig):
+                cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
+            write_ply(path, cloud)
+            points.append(len(cloud))
+            fuse_ms.append(res.report.ms)
+            backend = res.report.backend
+            warnings.update(_warning_kinds(res.report))
         if on_frame:
             on_frame(done, len(positions))
     summary = FuseRunSummary(
@@ -137,9 +181,14 @@ def fuse_recording(
         backend=backend,
         device=device,
         points_per_frame={"mean": statistics.fmean(points), "min": min(points), "max": max(points)},
-        fuse_ms_per_frame={"median": statistics.median(fuse_ms), "mean": statistics.fmean(fuse_ms)},
+        fuse_ms_per_frame={
+            "median": statistics.median(fuse_ms) if fuse_ms else 0.0,
+            "mean": statistics.fmean(fuse_ms) if fuse_ms else 0.0,
+        },
         wall_s=time.perf_counter() - t0,
         warnings=dict(warnings),
+        left_out=[c for c in rec.rig.ids if c not in rig.ids],
+        frames_resumed=resumed,
     )
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary

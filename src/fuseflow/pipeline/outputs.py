@@ -1,16 +1,37 @@
 """The output directory of a run: where clouds go, the per-frame log (frames.jsonl) that lets a
-run resume, and the summary. Every file is written atomically (an interrupted run leaves only
-complete files)."""
+run resume, the summary, and the manifest (manifest.json) that says what produced the
+directory, so that a run resumes only its own work. Every file is written atomically (an
+interrupted run leaves only complete files)."""
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import importlib.metadata
 import json
 import resource
+import shutil
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
+import numpy as np
+
+from fuseflow.errors import OutputError
 from fuseflow.pipeline.records import FrameRecord
 
-__all__ = ["cloud_path", "read_frame_log", "peak_rss_mb"]
+__all__ = [
+    "cloud_path",
+    "read_frame_log",
+    "peak_rss_mb",
+    "OutputManifest",
+    "open_output",
+    "recording_fingerprint",
+    "calibration_digest",
+    "config_digest",
+    "MANIFEST",
+    "fuseflow_version",
+]
 
 
 def cloud_path(out_dir: str | Path, index: int) -> Path:
@@ -35,3 +56,122 @@ def read_frame_log(path: Path) -> dict[int, FrameRecord]:
 def peak_rss_mb() -> float:
     """Peak resident memory of this process, MB."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+MANIFEST = "manifest.json"
+"""The file in OUT that says what produced it (``OutputManifest``)."""
+
+_OUTPUTS = ("clouds", "frames.jsonl", "summary.json", "calib.json", MANIFEST)
+"""What a run or fuse writes in OUT (``--force`` removes exactly these)."""
+
+
+def _digest(doc: Any) -> str:
+    """Short SHA-256 of a JSON-able document (sorted keys: same content, same digest)."""
+    text = json.dumps(doc, sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def fuseflow_version() -> str:
+    try:
+        return importlib.metadata.version("fuseflow")
+    except importlib.metadata.PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
+
+
+@dataclass(frozen=True)
+class OutputManifest:
+    """What produced an output directory: a resume is allowed only when this matches."""
+
+    command: str
+    """"run" or "fuse"."""
+    recording: str
+    """The recording's resolved path (informative: a moved recording with the same content resumes)."""
+    recording_fingerprint: str
+    """Digest of the rig (rig.json: ids, intrinsics, resolution, extrinsics) and the frame list."""
+    calibration: str
+    """Where the extrinsics come from: "rig.json", "given:<digest of the extrinsics>" or
+    "gmac:<digest of CalibConfig>:frame=<position or first-good>"."""
+    config: str
+    """Digest of the settings that change the outputs (FUSE, GMAC, health, recalibration)."""
+    fuseflow_version: str
+
+    def differences(self, other: OutputManifest) -> list[str]:
+        """Human-readable differences that forbid resuming ``other`` as ``self`` (path excluded)."""
+        names = {
+            "command": "command",
+            "recording_fingerprint": "recording content (rig.json or frame list)",
+            "calibration": "calibration",
+            "config": "settings",
+            "fuseflow_version": "fuseflow version",
+        }
+        out = []
+        for key, what in names.items():
+            a, b = getattr(other, key), getattr(self, key)
+            if a != b:
+                out.append(f"{what}: was {a}, now {b}")
+        return out
+
+
+def recording_fingerprint(rec) -> str:
+    """Digest of a recording's rig and frame list (``OutputManifest.recording_fingerprint``)."""
+    from fuseflow.io.recording import rig_to_json
+
+    return _digest({"rig": rig_to_json(rec.rig), "frames": list(rec.frame_numbers)})
+
+
+def calibration_digest(T_cam_world: dict[str, np.ndarray]) -> str:
+    """Digest of extrinsics (rounded to 1e-9 m / rad: the same calibration read back from JSON
+    matches)."""
+    return _digest({c: np.round(np.asarray(T, dtype=np.float64), 9).tolist() for c, T in sorted(T_cam_world.items())})
+
+
+def config_digest(*configs: Any) -> str:
+    """Digest of dataclass configs (None for defaults is spelled out by the caller)."""
+    return _digest([dataclasses.asdict(c) if dataclasses.is_dataclass(c) else c for c in configs])
+
+
+def _used(out: Path) -> bool:
+    return any((out / name).exists() for name in _OUTPUTS if name != "clouds") or any(out.glob("clouds/*.ply"))
+
+
+def _clear(out: Path) -> None:
+    for name in _OUTPUTS:
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
+def open_output(out: Path, manifest: OutputManifest, force: bool = False) -> bool:
+    """Make ``out`` ready for a run described by ``manifest``; True when it resumes earlier work.
+
+    A new or empty directory starts fresh. A used one resumes only when its manifest matches
+    (same command, recording content, calibration, settings and version); otherwise OutputError
+    says what differs and offers ``--force``. ``force`` removes the earlier outputs (only the
+    files FuseFlow writes) and starts over. The manifest is written before any other output.
+    """
+    from fuseflow.io.recording import write_json_atomic
+
+    resumed = False
+    if force:
+        _clear(out)
+    elif (out / MANIFEST).exists():
+        try:
+            old = OutputManifest(**json.loads((out / MANIFEST).read_text()))
+        except (json.JSONDecodeError, TypeError, OSError) as exc:
+            raise OutputError(f"{out / MANIFEST}: unreadable ({exc}); use --force to start over") from None
+        diff = manifest.differences(old)
+        if diff:
+            raise OutputError(
+                f"{out} holds the outputs of a different {old.command} ({'; '.join(diff)}); "
+                "choose another --out, or pass --force to delete them and start over"
+            )
+        resumed = True
+    elif _used(out):
+        raise OutputError(
+            f"{out} already holds outputs with no {MANIFEST} (an older fuseflow or another tool): "
+            "choose another --out, or pass --force to delete them and start over"
+        )
+    write_json_atomic(out / MANIFEST, dataclasses.asdict(manifest))
+    return resumed

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,18 +19,29 @@ import numpy as np
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.datasets import open_recording
+from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
 from fuseflow.io.recording import Recording, write_json_atomic
 from fuseflow.pipeline.config import PipelineConfig
-from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig, resolve_rig
+from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
 from fuseflow.pipeline.frames import first_good_frame, process_frame
 from fuseflow.pipeline.health import HealthMonitor
-from fuseflow.pipeline.outputs import cloud_path, peak_rss_mb, read_frame_log
+from fuseflow.pipeline.outputs import (
+    OutputManifest,
+    calibration_digest,
+    cloud_path,
+    config_digest,
+    fuseflow_version,
+    open_output,
+    peak_rss_mb,
+    read_frame_log,
+    recording_fingerprint,
+)
 from fuseflow.pipeline.ray import RayOptions
 from fuseflow.pipeline.records import FrameRecord, RunSummary
 from fuseflow.types import Calibration, FusedCloud, Rig
 
-__all__ = ["run", "choose_calibration", "CalibrationChoice", "summarise"]
+__all__ = ["run", "choose_calibration", "CalibrationChoice", "summarise", "run_manifest"]
 
 OnFrame = Callable[[FrameRecord, int, int], None]
 
@@ -59,12 +70,13 @@ def choose_calibration(
     """Given extrinsics, else OUT/calib.json of an earlier run, else rig.json's (when asked),
     else GMAC on ``calib_frame`` (default: the first good frame). Writes OUT/calib.json."""
     calib_json = out / "calib.json"
+    if calib_json.exists():  # an earlier run of the same manifest (open_output checked it)
+        rig, warnings = _placed(rec.rig, read_calibration(calib_json))
+        return CalibrationChoice(rig, f"resumed from {calib_json}", warnings=warnings)
     if calibration is not None:
-        rig = resolve_rig(rec.rig, calibration)
+        rig, warnings = _placed(rec.rig, calibration)
         write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}))
-        return CalibrationChoice(rig, "given")
-    if calib_json.exists():
-        return CalibrationChoice(placed_rig(rec.rig, read_calibration(calib_json)), f"resumed from {calib_json}")
+        return CalibrationChoice(rig, "given", warnings=warnings)
     if use_rig_extrinsics and rec.rig.is_calibrated:
         write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}))
         return CalibrationChoice(rec.rig, "rig.json")
@@ -80,6 +92,45 @@ def choose_calibration(
     write_calibration(calib_json, cal)
     number = rec.frame_numbers[t]
     return CalibrationChoice(placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings)
+
+
+def _placed(rig: Rig, calibration: Calibration) -> tuple[Rig, list[str]]:
+    """The cameras ``calibration`` places, with its extrinsics only (never mixed with rig.json's:
+    two calibrations have two world frames), and a warning naming the cameras left out."""
+    placed = placed_rig(rig, calibration)
+    left_out = [c for c in rig.ids if c not in placed.ids]
+    warnings = []
+    if left_out:
+        warnings.append(f"the calibration does not place cameras {left_out}; they are left out of fusion")
+    return placed, warnings
+
+
+def run_manifest(
+    rec: Recording,
+    calibration: Calibration | None,
+    config: PipelineConfig,
+    calib_frame: int | None,
+    use_rig_extrinsics: bool,
+) -> OutputManifest:
+    """What a ``run`` with these arguments writes (``open_output`` compares it on resume)."""
+    if calibration is not None:
+        calib = f"given:{calibration_digest(calibration.T_cam_world)}"
+    elif use_rig_extrinsics and rec.rig.is_calibrated:
+        calib = "rig.json"
+    else:
+        frame = "first-good" if calib_frame is None else rec.frame_numbers[calib_frame]
+        calib = f"gmac:{config_digest(config.calib_config())}:frame={frame}"
+    settings = config_digest(
+        config.fuse_config(), {k: v for k, v in asdict(config).items() if k not in ("fuse", "calib", "device")}
+    )
+    return OutputManifest(
+        command="run",
+        recording=str(Path(rec.path).resolve()),
+        recording_fingerprint=recording_fingerprint(rec),
+        calibration=calib,
+        config=settings,
+        fuseflow_version=fuseflow_version(),
+    )
 
 
 @dataclass
@@ -223,11 +274,16 @@ def run(
     use_rig_extrinsics: bool = False,
     on_frame: OnFrame | None = None,
     ray: RayOptions | None = None,
+    force: bool = False,
 ) -> RunSummary:
     """Calibrate once, fuse every frame, write clouds, the calibration and a summary.
 
-    Resumes: frames whose cloud exists in ``out_dir`` are skipped (their records are read back
-    from frames.jsonl), and an existing ``out_dir/calib.json`` is reused.
+    Resumes: when ``out_dir`` holds an earlier run with the same manifest (recording content,
+    calibration source, settings, version: ``pipeline.outputs.OutputManifest``), frames whose
+    cloud exists are skipped (their records are read back from frames.jsonl) and its calib.json
+    is reused. A used ``out_dir`` that does not match is an OutputError saying what differs,
+    unless ``force`` (delete the earlier outputs and start over). The output location is
+    checked before any work starts.
 
     Args:
         calibration: known extrinsics; None = GMAC on ``calib_frame`` (default: the first good
@@ -236,15 +292,20 @@ def run(
         on_frame: called after each frame with (record, done, total), e.g. for a progress bar.
         ray: ``RayOptions`` to fuse frames as Ray tasks (outputs are identical to the
             single-process run); None = fuse in this process.
+        force: start over in a used ``out_dir`` whose manifest does not match.
     """
     if ray is not None and config.recalibrate == "auto":
         raise ValidationError(
             "recalibrate='auto' needs frames fused in order in one process; it is not available with Ray"
         )
+    if isinstance(calibration, Rig):  # a calibrated rig: its extrinsics are the calibration
+        calibration = Calibration({c.id: c.T_cam_world for c in calibration if c.is_calibrated}, {"source": "given"})
+    elif calibration is not None and not isinstance(calibration, Calibration):
+        raise ValidationError(f"calibration must be a Calibration, a Rig or None, got {type(calibration).__name__}")
+    out = prepare_output_dir(out_dir)
     if not isinstance(rec, Recording):
         rec = open_recording(rec)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    open_output(out, run_manifest(rec, calibration, config, calib_frame, use_rig_extrinsics), force)
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
