@@ -99,3 +99,22 @@ def test_partial_calibration_is_never_filled_from_rig_json(small_rec, tmp_path, 
     expect(res, 0, "does not place cameras", "cam02")
     cloud = read_ply(next((tmp_path / "o" / "clouds").glob("*.ply")))
     assert set(cloud.camera.tolist()) <= {0, 1}
+
+
+def test_interrupted_run_says_how_to_resume(small_rec, tmp_path, monkeypatch, invoke, expect):
+    import fuseflow.pipeline.runner as runner
+
+    real = runner.process_frame
+    calls = []
+
+    def interrupt_second(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(runner, "process_frame", interrupt_second)
+    out = tmp_path / "o"
+    expect(invoke("run", small_rec, "--out", out, "--use-rig"), 130, "interrupted", "run the same command again")
+    monkeypatch.setattr(runner, "process_frame", real)
+    expect(invoke("run", small_rec, "--out", out, "--use-rig"), 0, "1 fused now, 1 resumed")

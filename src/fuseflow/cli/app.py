@@ -85,7 +85,8 @@ def parse_int_list(spec: str, option: str) -> list[int]:
 
 def guarded(command: Callable[..., None]) -> Callable[..., None]:
     """``command`` with FuseFlowError (bad recording, calib.json, rig, ...) turned into a one-line
-    error and exit code 2, however the app is invoked (console script or typer's CliRunner)."""
+    error and exit code 2, and Ctrl-C into a line saying how to resume and exit code 130, however
+    the app is invoked (console script or typer's CliRunner)."""
 
     @functools.wraps(command)
     def wrapper(*args, **kwargs):
@@ -93,6 +94,12 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
             return command(*args, **kwargs)
         except FuseFlowError as exc:
             fail(str(exc))
+        except KeyboardInterrupt:
+            fail(
+                "interrupted; every output written so far is complete: run the same command again "
+                "to resume (run and fuse skip the frames already written)",
+                code=130,
+            )
 
     return wrapper
 
