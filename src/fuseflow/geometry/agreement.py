@@ -16,6 +16,8 @@ Every product is written element by element, in the order the compiled CPU kerne
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import torch
 
@@ -80,6 +82,24 @@ def subsample_stride(height: int, width: int, samples: int) -> int:
     return max(1, int(np.sqrt(height * width / max(samples, 1))))
 
 
+@contextlib.contextmanager
+def _one_thread():
+    """Run torch's CPU ops on one thread. The agreement measure works on a few thousand samples
+    per view: with torch's thread pool beside numba's (the pipeline fuses with numba), each tiny
+    op paid for waking and spinning threads. Measured on a 4-camera 320x240 frame, 2 cores: 7-8 ms
+    per frame on one thread, 194-509 ms on two while other processes loaded the cores
+    (``benchmarks/run_throughput.py`` measures ``run`` against FUSE alone)."""
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
 def pair_agreement(frame: Frame, rig: Rig, samples: int = 5000, tau: float = 0.05, k_max: int = 4) -> np.ndarray:
     """How well each pair of neighbouring cameras agree on the geometry they both see.
 
@@ -95,6 +115,13 @@ def pair_agreement(frame: Frame, rig: Rig, samples: int = 5000, tau: float = 0.0
         (N, N) float64, symmetric: S[i, j] = agreeing / voting samples of the pair (i, j) in
         [0, 1]; NaN where the pair cast no vote (not neighbours, a missing view, no depth).
     """
+    if frame.depth.device.type != "cpu":
+        return _pair_agreement(frame, rig, samples, tau, k_max)
+    with _one_thread():
+        return _pair_agreement(frame, rig, samples, tau, k_max)
+
+
+def _pair_agreement(frame: Frame, rig: Rig, samples: int, tau: float, k_max: int) -> np.ndarray:
     n, h, w = frame.depth.shape
     stride = subsample_stride(h, w, samples)
     depth = frame.depth[:, ::stride, ::stride]
