@@ -7,6 +7,14 @@ listed is not a command. Each command parses its options, makes one library call
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import typer
+
 from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, run, simulate, view
 from fuseflow.cli.app import app, error, guarded
 from fuseflow.errors import FuseFlowError
@@ -32,13 +40,57 @@ for _name, _group in GROUPS.items():
     app.add_typer(_group, name=_name)
 
 
+NATIVE_LOG = Path(tempfile.gettempdir()) / "fuseflow-native.log"
+"""Where messages that native libraries (libpng, COLMAP/glog, Open3D) print on stderr go, unless
+``--verbose`` or FUSEFLOW_VERBOSE=1: they would otherwise precede FuseFlow's own one-line error."""
+
+
+@app.callback()
+def _options(
+    verbose: bool = typer.Option(
+        False, "--verbose", help=f"Show native libraries' stderr messages (otherwise kept in {NATIVE_LOG})."
+    ),
+) -> None:
+    """FuseFlow: target-free calibration (GMAC) and stateless fusion (FUSE) for multi-camera RGB-D rigs."""
+
+
+@contextlib.contextmanager
+def _native_stderr_to_log(enabled: bool):
+    """Point file descriptor 2 (where C/C++ libraries write) at NATIVE_LOG while Python's
+    sys.stderr (FuseFlow's own errors and warnings) keeps the terminal."""
+    if not enabled:
+        yield
+        return
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        log = os.open(NATIVE_LOG, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError:  # no writable temp dir: leave stderr alone
+        yield
+        return
+    python_stderr = sys.stderr
+    sys.stderr = os.fdopen(os.dup(saved), "w", buffering=1)
+    os.dup2(log, 2)
+    os.close(log)
+    try:
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+        sys.stderr.close()
+        sys.stderr = python_stderr
+
+
 def main() -> None:
     """Entry point: run the app, turning FuseFlowError into a one-line message and exit code 2."""
-    try:
-        app()
-    except FuseFlowError as exc:
-        error(str(exc))
-        raise SystemExit(2) from None
+    verbose = "--verbose" in sys.argv[1:] or os.environ.get("FUSEFLOW_VERBOSE", "") not in ("", "0")
+    with _native_stderr_to_log(not verbose):
+        try:
+            app()
+        except FuseFlowError as exc:
+            error(str(exc))
+            raise SystemExit(2) from None
 
 
 __all__ = ["COMMANDS", "GROUPS", "app", "main"]

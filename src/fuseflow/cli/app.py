@@ -27,7 +27,7 @@ app = typer.Typer(
 )
 
 console = Console()
-err_console = Console(stderr=True)
+err_console = Console(stderr=True)  # writes to sys.stderr at print time (see cli.main)
 
 
 def say(message: str) -> None:

@@ -1,0 +1,46 @@
+"""The CLI's console: text printed verbatim (no rich markup eaten), native libraries' stderr noise
+kept off the terminal, commands registered in one list."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+from typer.testing import CliRunner
+
+from fuseflow.cli import app
+
+
+def test_help_and_errors_keep_square_brackets(tmp_path):
+    res = CliRunner().invoke(app, ["run", "--help"])
+    assert "pip install 'fuseflow[ray]'" in res.output
+    res = CliRunner().invoke(app, ["info", str(tmp_path / "no[pe]")])
+    assert res.exit_code == 2 and "no[pe]" in res.output
+
+
+def test_native_stderr_goes_to_the_log_not_the_terminal(tmp_path):
+    script = textwrap.dedent(
+        """
+        import functools, os, sys
+        sys.argv = ["fuseflow", "info", "/nonexistent-recording"]
+        import fuseflow.cli as c
+        orig = c.info.command
+        @functools.wraps(orig)
+        def noisy(*a, **k):
+            os.write(2, b"libpng warning: iCCP: known incorrect sRGB profile\\n")
+            return orig(*a, **k)
+        [x for x in c.app.registered_commands if x.name == "info"][0].callback = c.guarded(noisy)
+        c.main()
+        """
+    )
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    env.pop("FUSEFLOW_VERBOSE", None)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "error: /nonexistent-recording: no such file or directory"
+    assert "libpng" in (tmp_path / "fuseflow-native.log").read_text()
+    env["FUSEFLOW_VERBOSE"] = "1"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    assert "libpng warning" in proc.stderr and "error: /nonexistent-recording" in proc.stderr
