@@ -17,3 +17,13 @@ if [ -n "$extras" ]; then
 else
     .venv/bin/python -m pip install -q -e .
 fi
+# Compile the numba kernels now (cached on disk beside the installed package), so that a
+# newcomer's first simulated or fused frame does not wait ~20 s for the compiler.
+warm=$(mktemp -d)
+if .venv/bin/fuseflow simulate "$warm/rec" --cameras 2 --frames 1 --resolution 64x48 >/dev/null \
+    && .venv/bin/fuseflow fuse "$warm/rec" --out "$warm/out" >/dev/null; then
+    echo "compiled the FUSE and simulator kernels" >&2
+else
+    echo "warning: kernel warm-up failed; the first frame will compile them" >&2
+fi
+rm -rf "$warm"
