@@ -73,9 +73,10 @@ def write_realsense_bag(
         return Time(sec=sec, nanosec=int(round((t - sec) * 1e9)))
 
     path.unlink(missing_ok=True)
-    with Writer(path) as w:
-        if compress:
-            w.set_compression(Writer.CompressionFormat.LZ4)
+    w = Writer(path)
+    if compress:
+        w.set_compression(Writer.CompressionFormat.LZ4)  # rs-record's compressed mode
+    with w:
         conns: dict[str, object] = {}
 
         def put(topic: str, msgtype: str, msg: object, t_ns: int, trailer: bytes = b"") -> None:

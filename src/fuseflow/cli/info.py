@@ -1,4 +1,5 @@
-"""`fuseflow info REC`: what a recording holds."""
+"""`fuseflow info REC`: what a recording holds. Parsing and printing only: the summary is
+``fuseflow.io.summary.recording_summary``."""
 
 from __future__ import annotations
 
@@ -9,42 +10,7 @@ import typer
 from rich.table import Table
 
 from fuseflow.cli.app import app, console
-
-
-def recording_summary(path: Path) -> dict:
-    from fuseflow.io.datasets import SequenceRecording, open_recording
-
-    rec = open_recording(path)
-    rig = rec.rig
-    missing = rec.missing_views()
-    summary = {
-        "path": str(path),
-        "layout": getattr(rec, "layout", "fuseflow"),
-        "frames": len(rec),
-        "cameras": len(rig),
-        "resolution": list(rig.resolution),
-        "calibrated": rig.is_calibrated,
-        "camera_list": [
-            {
-                "id": c.id,
-                "width": c.width,
-                "height": c.height,
-                "fx": c.K[0, 0],
-                "fy": c.K[1, 1],
-                "cx": c.K[0, 2],
-                "cy": c.K[1, 2],
-                "depth_scale": c.depth_scale,
-                "depth_range": list(c.depth_range),
-                "calibrated": c.is_calibrated,
-                "missing_views": len(missing.get(c.id, [])),
-            }
-            for c in rig.cameras
-        ],
-        "missing_views": missing,
-    }
-    if isinstance(rec, SequenceRecording):
-        summary["poses"] = rec.has_poses
-    return summary
+from fuseflow.io.summary import recording_summary  # noqa: F401  (re-exported: older callers import it here)
 
 
 @app.command()
@@ -75,5 +41,19 @@ def info(
             str(c["missing_views"]),
         )
     console.print(t)
+    if "timing" in s:
+        tm = s["timing"]
+        sp = tm["spread_ms"]
+        console.print(
+            f"views paired by device timestamp within {tm['tolerance_ms']:.1f} ms; spread per frame: median "
+            f"{sp['median']:.2f} ms, p95 {sp['p95']:.2f} ms, max {sp['max']:.2f} ms",
+            highlight=False,
+        )
+        tt = Table("camera", "fps", "stream frames", "gaps", "longest gap ms", "dropped views", "first view s", box=None)
+        for cid, c in tm["cameras"].items():
+            first = "-" if c["first_view_s"] is None else f"{c['first_view_s']:.4f}"
+            tt.add_row(cid, f"{c['fps']:.2f}", str(c["stream_frames"]), str(c["gaps"]), f"{c['longest_gap_ms']:.1f}",
+                       str(c["dropped_views"]), first)  # fmt: skip
+        console.print(tt)
     if "poses" in s:
         console.print("single moving camera; trajectory poses: " + ("yes" if s["poses"] else "no"))
