@@ -295,8 +295,8 @@ class OffsetEstimate:
         frames: the offset in frames; +k = k frames late (its view at frame t shows what the
             neighbours showed at t - k); 0 when no shift is consistently better.
         ms: ``frames`` times the frame period in milliseconds (NaN without a period).
-        consistency: share of usable frames whose best shift is the chosen one, in [0, 1].
-        gain: median over usable frames of score(best shift) - score(shift 0).
+        consistency: share of the frames having the chosen shift on which it is the best shift.
+        gain: median over frames of score(chosen shift) - score(shift 0).
         frames_used: frames with a score for shift 0 and for the chosen shift.
         median_score: shift -> median score over usable frames.
     """
@@ -322,9 +322,10 @@ def estimate_frame_offset(
     ``scores[t, k]`` is the agreement (e.g. ``fuseflow.geometry.pair_agreement`` averaged over
     the camera's neighbours, in [0, 1]) of the camera's view at frame t with its neighbours'
     views at frame ``t + shifts[k]``; NaN where that frame does not exist or nothing voted.
-    A camera k frames late agrees best at shift -k. The offset is reported only when the best
-    shift wins on at least ``min_consistency`` of the usable frames and by a median margin of
-    ``min_gain`` over shift 0 ("consistently better"); a static scene, where every shift
+    A camera k frames late agrees best at shift -k. The candidate is the shift whose per-frame
+    margin over shift 0 has the largest median; it is reported only when that median margin is
+    at least ``min_gain`` and the candidate is the best shift on at least ``min_consistency``
+    of the frames that have it ("consistently better"); a static scene, where every shift
     agrees equally, gives 0.
 
     Args:
@@ -349,17 +350,23 @@ def estimate_frame_offset(
 
     if usable.sum() < min_frames:
         return none(int(usable.sum()))
-    rows = np.where(np.isfinite(sc[usable]), sc[usable], -np.inf)
-    best = np.argmax(rows, axis=1)
-    counts = np.bincount(best, minlength=len(shifts))
-    k = int(np.argmax(counts))
-    if k == z:
-        return none(int(usable.sum()), float(counts[k] / usable.sum()))
-    both = np.isfinite(sc[usable][:, k])
-    gain = float(np.median(sc[usable][both, k] - sc[usable][both, z])) if both.any() else 0.0
-    consistency = float(counts[k] / usable.sum())
-    if both.sum() < min_frames or consistency < min_consistency or gain < min_gain:
-        return none(int(both.sum()), consistency, gain)
+    # the candidate: the shift whose paired margin over shift 0 has the largest median
+    gains = np.full(len(shifts), -np.inf)
+    for k in range(len(shifts)):
+        both = usable & np.isfinite(sc[:, k])
+        if k != z and both.sum() >= min_frames:
+            gains[k] = float(np.median(sc[both, k] - sc[both, z]))
+    k = int(np.argmax(gains))
+    if not np.isfinite(gains[k]) or gains[k] < min_gain:
+        return none(int(usable.sum()), 0.0, float(max(gains[k], 0.0)) if np.isfinite(gains[k]) else 0.0)
+    # consistency: among frames that have the candidate shift, how often it is the best shift
+    have = usable & np.isfinite(sc[:, k])
+    rows = np.where(np.isfinite(sc[have]), sc[have], -np.inf)
+    consistency = float((np.argmax(rows, axis=1) == k).mean())
+    gain = float(gains[k])
+    if consistency < min_consistency:
+        return none(int(have.sum()), consistency, gain)
+    both = have
     frames = -shifts[k]
     return OffsetEstimate(frames, frames * period_s * 1000.0 if period_s else float("nan"), consistency, gain,
                           int(both.sum()), med)  # fmt: skip
