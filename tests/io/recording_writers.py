@@ -72,6 +72,7 @@ def write_realsense_bag(
         sec = int(np.floor(t))
         return Time(sec=sec, nanosec=int(round((t - sec) * 1e9)))
 
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.unlink(missing_ok=True)
     w = Writer(path)
     if compress:

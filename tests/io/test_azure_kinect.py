@@ -39,7 +39,13 @@ def _recording(tmp_path: Path, name: str, serial: str | None, calib: bool = True
     rng = np.random.default_rng(len(name))
     color = rng.integers(0, 256, (T, 720, 1280, 4), dtype=np.uint8)
     # depth: a tilted plane in the depth camera (NFOV unbinned, 640x576), millimetres
-    Kd = np.array([[DEPTH_P[2] * 1024, 0, DEPTH_P[0] * 1024 - 192 - 0.5], [0, DEPTH_P[3] * 1024, DEPTH_P[1] * 1024 - 180 - 0.5], [0, 0, 1]])
+    Kd = np.array(
+        [
+            [DEPTH_P[2] * 1024, 0, DEPTH_P[0] * 1024 - 192 - 0.5],
+            [0, DEPTH_P[3] * 1024, DEPTH_P[1] * 1024 - 180 - 0.5],
+            [0, 0, 1],
+        ]
+    )
     plane = _plane(Kd, (640, 576), np.array([0.1, -0.2, 1.0]), 1.5)
     depth = np.rint(plane * 1000).astype(np.uint16)[None].repeat(T, 0)
     depth[:, :10] = 0
@@ -54,7 +60,13 @@ def test_mkv_intrinsics_timestamps_colour_and_raw_depth_round_trip(tmp_path):
     m = AzureKinectMkv(path)
     assert m.id == "000111222333" and (m.width, m.height) == (1280, 720) and m.depth_size == (640, 576)
     # the SDK's mode tables: colour 720p = 1280x960 binned, crop (0, 120); pixel centres at integers
-    Kc = np.array([[COLOR_P[2] * 1280, 0, COLOR_P[0] * 1280 - 0.5], [0, COLOR_P[3] * 960, COLOR_P[1] * 960 - 120 - 0.5], [0, 0, 1]])
+    Kc = np.array(
+        [
+            [COLOR_P[2] * 1280, 0, COLOR_P[0] * 1280 - 0.5],
+            [0, COLOR_P[3] * 960, COLOR_P[1] * 960 - 120 - 0.5],
+            [0, 0, 1],
+        ]
+    )
     assert np.allclose(m.K, Kc, rtol=0, atol=1e-9) and np.allclose(m.K_depth, Kd, rtol=0, atol=1e-9)
     assert np.allclose(m.T_color_depth[:3, :3], R_C) and np.allclose(m.T_color_depth[:3, 3], T_C)
     assert np.array_equal(np.round(m.timestamps * 1e6).astype(np.int64), stamps)
@@ -114,3 +126,9 @@ def test_bad_mkv_files_give_one_line_errors(tmp_path):
         AzureKinectMkv(junk)
     with pytest.raises(RecordingError, match=r"missing\.mkv: no such file"):
         convert([tmp_path / "missing.mkv"], tmp_path / "o")
+
+
+def test_missing_extra_is_named(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "av", None)
+    with pytest.raises(RecordingError, match=r"pip install 'fuseflow\[recordings\]'"):
+        AzureKinectMkv(tmp_path / "any.mkv")

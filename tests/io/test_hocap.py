@@ -69,6 +69,8 @@ def test_without_flag_rig_is_uncalibrated_and_bad_layouts_fail(tmp_path):
     (broken / "frames" / "meta.json").write_text(json.dumps({"realsense": {"serials": ["1"], "width": 640}}))
     with pytest.raises(FormatError, match=r"meta\.json: expected realsense\.serials, realsense\.width"):
         read_hocap(broken)
-    (broken / "frames" / "meta.json").write_text(json.dumps({"realsense": {"serials": ["1"], "width": 640, "height": 480}}))
+    (broken / "frames" / "meta.json").write_text(
+        json.dumps({"realsense": {"serials": ["1"], "width": 640, "height": 480}})
+    )
     with pytest.raises(RecordingError, match=r"no calibration/intrinsics/ folder"):
         read_hocap(broken)

@@ -50,13 +50,15 @@ def converted(sim, tmp_path_factory):
     rng = np.random.default_rng(7)
     base_ns = 50_000_000_000
     stamps = {}
-    for i, cam in enumerate(rig.cameras):
+    for cam in rig.cameras:
         color = np.stack([read_color(sim / cam.id / "color" / f"{t:06d}.png") for t in range(FRAMES)])
         depth = np.stack([read_depth_raw(sim / cam.id / "depth" / f"{t:06d}.png") for t in range(FRAMES)])
         k = np.arange(FRAMES) + (LATE if cam.id == "cam03" else 0)
         ns = base_ns + np.round(k * 1e9 / FPS).astype(np.int64) + rng.integers(-3_000_000, 3_000_000, FRAMES)
         stamps[cam.id] = ns
-        write_realsense_bag(bags / f"{cam.id}.bag", cam.id, color, depth, ns / 1e9, cam.K, depth_units=1 / cam.depth_scale)
+        write_realsense_bag(
+            bags / f"{cam.id}.bag", cam.id, color, depth, ns / 1e9, cam.K, depth_units=1 / cam.depth_scale
+        )
     out = tmp_path_factory.mktemp("conv") / "rec"
     s = convert([bags], out)
     return s, out, stamps, rig
@@ -75,7 +77,9 @@ def test_four_bags_convert_and_timestamps_show_the_late_camera(converted, sim):
     rec = open_recording(out)
     assert rec.missing_views()["cam03"] == [0, 1]
     # frame f of the conversion holds cam03's view of instant f - 2, bit-exactly
-    assert np.array_equal(read_depth_raw(out / "cam03/depth/000005.png"), read_depth_raw(sim / "cam03/depth/000003.png"))
+    assert np.array_equal(
+        read_depth_raw(out / "cam03/depth/000005.png"), read_depth_raw(sim / "cam03/depth/000003.png")
+    )
     info = json.loads(runner.invoke(app, ["info", str(out), "--json"]).output)["timing"]
     first = {c: v["first_view_s"] for c, v in info["cameras"].items()}
     assert first["cam03"] - first["cam00"] == pytest.approx(LATE / FPS, abs=0.007)

@@ -147,7 +147,10 @@ def test_bad_bags_give_one_line_errors_naming_file_and_stream(tmp_path):
     with pytest.raises(FormatError, match=r"trunc\.bag: not a readable ROS1 bag"):
         RealSenseBag(trunc)
     nodepth = write_realsense_bag(tmp_path / "nodepth.bag", "N", color, depth, st, K, write_depth=False)
-    with pytest.raises(FormatError, match=r"nodepth\.bag: no depth stream \(expected a topic like /device_0/sensor_N/Depth_0/image/data\)"):
+    with pytest.raises(
+        FormatError,
+        match=r"nodepth\.bag: no depth stream \(expected a topic like /device_0/sensor_N/Depth_0/image/data\)",
+    ):
         RealSenseBag(nodepth)
     small = write_realsense_bag(tmp_path / "small.bag", "S", color[:, :48, :64], depth[:, :48, :64], st, K)
     with pytest.raises(RecordingError, match=r"small\.bag: colour stream is 64x48, but .*good\.bag is 96x72"):
@@ -158,3 +161,9 @@ def test_bad_bags_give_one_line_errors_naming_file_and_stream(tmp_path):
     notbag.write_bytes(b"#ROSBAG V2.0\nrubbish")
     with pytest.raises(FormatError, match=r"x\.bag"):
         RealSenseBag(notbag)
+
+
+def test_missing_extra_is_named(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rosbags", None)
+    with pytest.raises(RecordingError, match=r"pip install 'fuseflow\[recordings\]'"):
+        RealSenseBag(tmp_path / "any.bag")

@@ -49,7 +49,9 @@ def info(
             f"{sp['median']:.2f} ms, p95 {sp['p95']:.2f} ms, max {sp['max']:.2f} ms",
             highlight=False,
         )
-        tt = Table("camera", "fps", "stream frames", "gaps", "longest gap ms", "dropped views", "first view s", box=None)
+        tt = Table(
+            "camera", "fps", "stream frames", "gaps", "longest gap ms", "dropped views", "first view s", box=None
+        )
         for cid, c in tm["cameras"].items():
             first = "-" if c["first_view_s"] is None else f"{c['first_view_s']:.4f}"
             tt.add_row(cid, f"{c['fps']:.2f}", str(c["stream_frames"]), str(c["gaps"]), f"{c['longest_gap_ms']:.1f}",

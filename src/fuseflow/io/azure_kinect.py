@@ -96,7 +96,9 @@ def _rt(cam: dict, where: str) -> np.ndarray:
         T[:3, :3] = np.asarray(cam["Rt"]["Rotation"], dtype=np.float64).reshape(3, 3)
         T[:3, 3] = np.asarray(cam["Rt"]["Translation"], dtype=np.float64).reshape(3)
     except (KeyError, TypeError, ValueError):
-        raise FormatError(f"{where}: camera {cam.get('Location')!r}: Rt needs Rotation (9) and Translation (3)") from None
+        raise FormatError(
+            f"{where}: camera {cam.get('Location')!r}: Rt needs Rotation (9) and Translation (3)"
+        ) from None
     return T
 
 
@@ -155,13 +157,17 @@ class AzureKinectMkv:
         self.serial = gmeta.get("K4A_DEVICE_SERIAL_NUMBER") or None
         self.start_offset_ns = int(gmeta.get("K4A_START_OFFSET_NS", "0") or 0)
         if self.depth_mode not in DEPTH_MODES:
-            raise FormatError(f"{src}: DEPTH track: K4A_DEPTH_MODE {self.depth_mode!r} is not one of {sorted(DEPTH_MODES)}")
+            raise FormatError(
+                f"{src}: DEPTH track: K4A_DEPTH_MODE {self.depth_mode!r} is not one of {sorted(DEPTH_MODES)}"
+            )
         try:
             fmt, res = str(self.color_mode).split("_")
             height = int(res.rstrip("Pp"))
             cbin, ccrop, cout = COLOR_MODES[height]
         except (ValueError, KeyError):
-            raise FormatError(f"{src}: COLOR track: K4A_COLOR_MODE {self.color_mode!r} is not <FORMAT>_<720..3072>P") from None
+            raise FormatError(
+                f"{src}: COLOR track: K4A_COLOR_MODE {self.color_mode!r} is not <FORMAT>_<720..3072>P"
+            ) from None
         self.color_fourcc = fmt.upper()
         calib = None
         for s in container.streams:
@@ -174,7 +180,10 @@ class AzureKinectMkv:
             raise FormatError(f"{src}: no calibration.json attachment (k4arecorder attaches the device calibration; "
                               "recordings made without a device have none)")  # fmt: skip
         where = f"{src}: calibration.json"
-        dcam, ccam = _camera(calib, "CALIBRATION_CameraLocationD0", where), _camera(calib, "CALIBRATION_CameraLocationPV0", where)
+        dcam, ccam = (
+            _camera(calib, "CALIBRATION_CameraLocationD0", where),
+            _camera(calib, "CALIBRATION_CameraLocationPV0", where),
+        )
         dbin, dcrop, dout, self.depth_range = DEPTH_MODES[self.depth_mode]
         self.K_depth, self.dist_depth = _K_dist(mode_specific_intrinsics(_params(dcam, where), dbin, dcrop))
         cp = _params(ccam, where)
@@ -268,7 +277,9 @@ class AzureKinectMkv:
             import cv2
 
             w, h = self.depth_size
-            uv = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(-1, 1, 2)
+            uv = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(
+                -1, 1, 2
+            )
             xy = cv2.undistortPoints(uv, self.K_depth, self.dist_depth).reshape(h, w, 2)
             self._rays_cache = xy
         return self._rays_cache

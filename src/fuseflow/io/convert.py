@@ -144,7 +144,9 @@ def convert(
                f"{p.tolerance * 1000:.1f} ms (max spread {spread_ms:.1f} ms), {int(p.dropped.sum())} dropped views")  # fmt: skip
         return ConvertSummary(kind, out, res.rig, len(p.index), msg, time.perf_counter() - t0, details)
     if len(srcs) != 1:
-        raise ValidationError(f"convert: several inputs must all be .bag or .mkv files (got {', '.join(map(str, srcs))})")
+        raise ValidationError(
+            f"convert: several inputs must all be .bag or .mkv files (got {', '.join(map(str, srcs))})"
+        )
     src = srcs[0]
     from fuseflow.io.hocap import convert_hocap, is_hocap
 
@@ -171,7 +173,9 @@ def _convert_dataset(src, out, virtual_rig, cameras, every, frames, tum_intrinsi
             raise ValidationError("--cameras and --every must be positive")
         idx = [k * every for k in range(cameras)]
         if idx[-1] >= len(rec):
-            raise ValidationError(f"--cameras {cameras} --every {every} needs frame {idx[-1]}, the dataset has {len(rec)}")
+            raise ValidationError(
+                f"--cameras {cameras} --every {every} needs frame {idx[-1]}, the dataset has {len(rec)}"
+            )
         virtual_rig = idx
     if virtual_rig is not None:
         idx = [int(i) for i in virtual_rig]

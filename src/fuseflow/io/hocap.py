@@ -98,7 +98,9 @@ def read_hocap(path: str | Path) -> HoCapSequence:
         serials = [str(s) for s in meta["realsense"]["serials"]]
         W, H = int(meta["realsense"]["width"]), int(meta["realsense"]["height"])
     except (KeyError, TypeError, ValueError):
-        raise FormatError(f"{seq / 'meta.json'}: expected realsense.serials, realsense.width, realsense.height") from None
+        raise FormatError(
+            f"{seq / 'meta.json'}: expected realsense.serials, realsense.width, realsense.height"
+        ) from None
     cal = next((c for c in (seq / "calibration", seq.parent / "calibration", seq.parent.parent / "calibration")
                 if (c / "intrinsics").is_dir()), None)  # fmt: skip
     if cal is None:
@@ -137,7 +139,9 @@ def read_hocap(path: str | Path) -> HoCapSequence:
                 M = np.eye(4)
                 M[:3, :] = np.asarray(doc["extrinsics"][s], dtype=np.float64).reshape(3, 4)
             except (KeyError, TypeError, ValueError):
-                raise FormatError(f"{ext_file}: extrinsics[{s!r}] must be 12 numbers (row-major 3x4 camera -> master)") from None
+                raise FormatError(
+                    f"{ext_file}: extrinsics[{s!r}] must be 12 numbers (row-major 3x4 camera -> master)"
+                ) from None
             T_master_cam = check_rigid(M, f"{ext_file}: extrinsics[{s!r}]")
             reference[s] = invert_rigid(T_master_cam)
     return HoCapSequence(seq, Rig(tuple(cams)), files, reference, master, ext_file)

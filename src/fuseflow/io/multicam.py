@@ -149,7 +149,9 @@ def convert_streams(
         if progress is not None:
             progress(i + 1, len(streams))
     rig = Rig(
-        tuple(Camera(s.id, s.width, s.height, s.K, depth_scale=s.depth_scale, depth_range=s.depth_range) for s in streams)
+        tuple(
+            Camera(s.id, s.width, s.height, s.K, depth_scale=s.depth_scale, depth_range=s.depth_range) for s in streams
+        )
     )
     write_rig(out, rig)
     write_timestamps(out, range(F), view_t, {s.id: s.timestamps for s in streams}, pairing.tolerance, dev_f)

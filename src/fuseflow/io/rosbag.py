@@ -105,7 +105,9 @@ def _decode_color(img: ImageMessage, where: str) -> np.ndarray:
     buf = np.frombuffer(img.data, dtype=np.uint8).reshape(img.height, img.step)
     ch = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "8uc1": 1, "yuv422": 2, "uyvy": 2, "yuyv": 2}
     if enc not in ch:
-        raise FormatError(f"{where}: colour encoding {img.encoding!r} is not supported (rgb8, bgr8, rgba8, bgra8, mono8, yuv422, YUYV)")
+        raise FormatError(
+            f"{where}: colour encoding {img.encoding!r} is not supported (rgb8, bgr8, rgba8, bgra8, mono8, yuv422, YUYV)"
+        )
     px = buf[:, : img.width * ch[enc]].reshape(img.height, img.width, ch[enc])
     if enc == "rgb8":
         return px.copy()
@@ -186,7 +188,9 @@ class RealSenseBag:
         self._depth, self._color = depth, color
         for s, what in ((depth, "depth"), (color, "colour")):
             if s.K is None or s.size is None:
-                raise FormatError(f"{self.source}: {s.topic.rsplit('/image', 1)[0]}/info/camera_info missing: no {what} intrinsics")
+                raise FormatError(
+                    f"{self.source}: {s.topic.rsplit('/image', 1)[0]}/info/camera_info missing: no {what} intrinsics"
+                )
             if not s.stamp:
                 raise FormatError(f"{self.source}: {s.topic}: no {what} frames")
         if self.depth_units is None:

@@ -60,7 +60,9 @@ def _check_stamps(stamps: Sequence[np.ndarray], names: Sequence[str] | None) -> 
             raise ValidationError(f"{who}: timestamps must be finite seconds")
         if np.any(np.diff(a) <= 0):
             k = int(np.argmax(np.diff(a) <= 0))
-            raise ValidationError(f"{who}: timestamps must increase strictly (index {k + 1}: {a[k + 1]!r} after {a[k]!r})")
+            raise ValidationError(
+                f"{who}: timestamps must increase strictly (index {k + 1}: {a[k + 1]!r} after {a[k]!r})"
+            )
         out.append(a)
     return out
 
@@ -184,7 +186,12 @@ def stream_stats(stamps: np.ndarray) -> StreamStats:
     d = np.diff(s)
     med = float(np.median(d))
     return StreamStats(
-        int(s.size), 1.0 / med if med > 0 else 0.0, int((d > 1.5 * med).sum()), float(d.max()), float(s[0]), float(s[-1])
+        int(s.size),
+        1.0 / med if med > 0 else 0.0,
+        int((d > 1.5 * med).sum()),
+        float(d.max()),
+        float(s[0]),
+        float(s[-1]),
     )
 
 
@@ -216,7 +223,9 @@ class Timestamps:
 
 
 def _nullable(a: np.ndarray) -> list[Any]:
-    return [None if not np.isfinite(v) else (int(v) if float(v).is_integer() and abs(v) < 2**53 else float(v)) for v in a]
+    return [
+        None if not np.isfinite(v) else (int(v) if float(v).is_integer() and abs(v) < 2**53 else float(v)) for v in a
+    ]
 
 
 def write_timestamps(
@@ -278,10 +287,14 @@ def read_timestamps(root: str | Path) -> Timestamps | None:
             dev[cid] = np.array([np.nan if v is None else v for v in c.get("device_frame", [])], dtype=np.float64)
             stream[cid] = np.array(c.get("stream", []), dtype=np.float64)
             if view[cid].shape != frames.shape:
-                raise FormatError(f"{path}: camera {cid!r}: 'timestamp' has {view[cid].size} entries, 'frames' {frames.size}")
+                raise FormatError(
+                    f"{path}: camera {cid!r}: 'timestamp' has {view[cid].size} entries, 'frames' {frames.size}"
+                )
         return Timestamps(frames, float(doc.get("tolerance_s", float("nan"))), view, dev, stream)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise FormatError(f"{path}: expected fields 'frames' and 'cameras' {{id: {{'timestamp': [...]}}}}: {exc}") from None
+        raise FormatError(
+            f"{path}: expected fields 'frames' and 'cameras' {{id: {{'timestamp': [...]}}}}: {exc}"
+        ) from None
 
 
 # --------------------------------------------------------------------------- frame offset
@@ -341,7 +354,10 @@ def estimate_frame_offset(
     if len(set(shifts)) != len(shifts) or 0 not in shifts:
         raise ValidationError(f"shifts must be distinct and contain 0, got {shifts}")
     z = shifts.index(0)
-    med = {s: (float(np.nanmedian(sc[:, k])) if np.isfinite(sc[:, k]).any() else float("nan")) for k, s in enumerate(shifts)}
+    med = {
+        s: (float(np.nanmedian(sc[:, k])) if np.isfinite(sc[:, k]).any() else float("nan"))
+        for k, s in enumerate(shifts)
+    }
     usable = np.isfinite(sc[:, z]) & (np.isfinite(sc).sum(axis=1) >= 2)
     ms = float("nan") if not period_s else 0.0
 

@@ -75,7 +75,9 @@ def apply_desync(rec_dir: str | Path, offsets: Mapping[str, int] | str) -> dict[
         if cid not in rig.ids:
             raise ValidationError(f"desync: unknown camera {cid!r}; cameras are {', '.join(rig.ids)}")
         if not isinstance(k, int) or abs(k) >= frames:
-            raise ValidationError(f"desync: camera {cid!r}: offset must be an int with |k| < {frames} frames, got {k!r}")
+            raise ValidationError(
+                f"desync: camera {cid!r}: offset must be an int with |k| < {frames} frames, got {k!r}"
+            )
     if "desync" in gt:
         raise RecordingError(f"{gt_path}: this recording is already desynchronised ({gt['desync']})")
     for cid, k in offsets.items():
