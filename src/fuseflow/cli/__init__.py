@@ -5,12 +5,16 @@ from __future__ import annotations
 from fuseflow.cli import bench_calib as _bench_calib  # noqa: F401  (registers `fuseflow bench calib`)
 from fuseflow.cli import bench_paper as _bench_paper  # noqa: F401  (registers `fuseflow bench` and `bench paper`)
 from fuseflow.cli import calibrate as _calibrate  # noqa: F401  (registers `fuseflow calibrate`)
-from fuseflow.cli import convert, info  # noqa: F401  (registers the commands)
+from fuseflow.cli import convert, info, simulate
 from fuseflow.cli import fuse as _fuse  # noqa: F401  (registers `fuseflow fuse`)
 from fuseflow.cli import run as _run  # noqa: F401  (registers `fuseflow run`, `demo`, `view`)
-from fuseflow.cli import simulate as _simulate  # noqa: F401  (registers `fuseflow simulate`)
 from fuseflow.cli.app import app, err_console
 from fuseflow.errors import FuseFlowError
+
+# plain `command` functions (the one-list registration of the restructured CLI)
+app.command("simulate")(simulate.command)
+app.command("info")(info.command)
+app.command("convert")(convert.command)
 
 
 def main() -> None:

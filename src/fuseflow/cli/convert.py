@@ -7,12 +7,11 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail, parse_int_list
+from fuseflow.cli.app import console, fail, parse_int_list
 from fuseflow.errors import FuseFlowError
 
 
-@app.command()
-def convert(
+def command(
     paths: list[Path] = typer.Argument(
         ...,
         help="Inputs, then the output directory. Inputs: RealSense .bag / Azure Kinect .mkv files (one per camera) "

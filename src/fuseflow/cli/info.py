@@ -9,12 +9,11 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fuseflow.cli.app import app, console
+from fuseflow.cli.app import console
 from fuseflow.io.summary import recording_summary  # noqa: F401  (re-exported: older callers import it here)
 
 
-@app.command()
-def info(
+def command(
     rec: Path = typer.Argument(..., help="Recording directory (FuseFlow, Open3D/Redwood/ICL or TUM layout)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON instead of a table."),
 ) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import app, console, fail
+from fuseflow.cli.app import console, fail
 
 _EFFECTS = ("axial_noise", "lateral_noise", "quantization", "flying_pixels", "grazing_dropout", "range_dropout",
             "random_dropout", "color_noise")  # fmt: skip
@@ -32,8 +32,7 @@ def _parse_resolution(spec: str) -> tuple[int, int]:
     return w, h
 
 
-@app.command()
-def simulate(
+def command(
     out: Path = typer.Argument(..., help="Output directory (must not already hold a recording)."),
     cameras: int = typer.Option(8, "--cameras", help="Number of cameras, 1..64."),
     frames: int = typer.Option(10, "--frames", help="Number of frames."),
