@@ -18,7 +18,7 @@ Conventions at the boundary: the extrinsics message maps the group's reference s
 the stream (``device::get_extrinsics`` fetches pin stream -> stream; ``quat2rot`` is the usual
 Hamilton rotation), so T_color_depth = T_color_ref inv(T_depth_ref). ``Image.header.stamp`` is
 the frame timestamp (milliseconds in the device's timestamp domain, stored as ROS time) and
-``header.seq`` the frame counter. librealsense >= 2.50 appends a float32 ``depth_units`` after
+``header.seq`` the frame counter. Recent librealsense appends a float32 ``depth_units`` after
 ``data`` in each Image (its ``header.version == "1"`` serializer); both layouts are read.
 Depth registered to colour in the file (same intrinsics, identity extrinsics) is copied
 bit-exactly; otherwise it is aligned to colour (``align_depth_to_color``). Colour distortion
