@@ -1,4 +1,5 @@
-"""`fuseflow convert`: a dataset (Open3D/Redwood/ICL, TUM) to a FuseFlow recording or virtual rig."""
+"""`fuseflow convert SRC... OUT`: camera recordings (.bag, .mkv), HO-Cap, or a dataset to a FuseFlow
+recording. Parsing and printing only: the work is ``fuseflow.io.convert.convert``."""
 
 from __future__ import annotations
 
@@ -6,12 +7,21 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import console, fail, parse_int_list, parse_range
+from fuseflow.cli.app import fail, parse_int_list, say
 
 
 def command(
-    src: Path = typer.Argument(..., help="Dataset directory: Open3D/Redwood/ICL-NUIM (color/, depth/) or TUM RGB-D."),
-    out: Path = typer.Argument(..., help="Output recording directory (must not exist or be empty)."),
+    paths: list[Path] = typer.Argument(
+        ...,
+        help="Inputs, then the output directory. Inputs: RealSense .bag / Azure Kinect .mkv files (one per camera) "
+        "or a directory of them; an HO-Cap sequence; an Open3D/Redwood/ICL-NUIM or TUM RGB-D dataset.",
+    ),
+    tolerance_ms: float = typer.Option(
+        None, "--tolerance-ms", help=".bag/.mkv: pair views within this many ms (default: half a frame period)."
+    ),
+    with_extrinsics: bool = typer.Option(
+        False, "--with-extrinsics", help="HO-Cap: keep the reference extrinsics in rig.json (master camera = world)."
+    ),
     virtual_rig: str = typer.Option(
         None, "--virtual-rig", help="Frame indices, e.g. 0,30,60: one camera per frame of a static scene."
     ),
@@ -25,29 +35,17 @@ def command(
     ),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty output directory."),
 ) -> None:
-    """Convert a dataset into a FuseFlow recording; with --virtual-rig/--cameras, a K-camera static rig
-    whose reference extrinsics come from the dataset's trajectory."""
-    from fuseflow.io.datasets import SequenceRecording, convert_sequence, make_virtual_rig, open_recording
+    """Convert recordings into one FuseFlow recording: several cameras' .bag/.mkv files paired by
+    timestamp, an HO-Cap sequence, or a dataset (with --virtual-rig/--cameras, a K-camera static rig
+    whose reference extrinsics come from the dataset's trajectory)."""
+    from fuseflow.io.convert import convert as run_convert
 
-    if out.exists() and any(out.iterdir()) and not force:
-        fail(f"{out}: output directory is not empty (use --force to write into it)")
-    rec = SequenceRecording.tum(src, tum_intrinsics) if (src / "rgb.txt").exists() else open_recording(src)
-    if not isinstance(rec, SequenceRecording):
-        fail(f"{src}: already a FuseFlow recording; nothing to convert")
-    if virtual_rig is not None and cameras is not None:
-        fail("give either --virtual-rig or --cameras, not both")
-    if cameras is not None:
-        if cameras < 1 or every < 1:
-            fail("--cameras and --every must be positive")
-        indices = [k * every for k in range(cameras)]
-        if indices[-1] >= len(rec):
-            fail(f"--cameras {cameras} --every {every} needs frame {indices[-1]}, the dataset has {len(rec)}")
-        virtual_rig = ",".join(map(str, indices))
-    if virtual_rig is not None:
-        idx = parse_int_list(virtual_rig, "--virtual-rig")
-        rig = make_virtual_rig(rec, idx, out)
-        console.print(f"wrote a {len(rig)}-camera virtual rig (frames {idx}) to {out}")
-    else:
-        rng = parse_range(frames, len(rec))
-        convert_sequence(rec, out, list(rng))
-        console.print(f"wrote {len(rng)} frames of one camera to {out}")
+    if len(paths) < 2:
+        fail("convert needs at least one input and the output directory")
+    s = run_convert(
+        paths[:-1], paths[-1], tolerance_s=None if tolerance_ms is None else tolerance_ms / 1000.0,
+        with_extrinsics=with_extrinsics,
+        virtual_rig=None if virtual_rig is None else parse_int_list(virtual_rig, "--virtual-rig"),
+        cameras=cameras, every=every, frames=frames, tum_intrinsics=tum_intrinsics, force=force,
+    )  # fmt: skip
+    say(f"{s.message} ({s.seconds:.1f} s)")

@@ -1,4 +1,5 @@
-"""`fuseflow info REC`: what a recording holds."""
+"""`fuseflow info REC`: what a recording holds. Parsing and printing only: the summary is
+``fuseflow.io.summary.recording_summary``."""
 
 from __future__ import annotations
 
@@ -6,45 +7,10 @@ import json
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
-from fuseflow.cli.app import console
-
-
-def recording_summary(path: Path) -> dict:
-    from fuseflow.io.datasets import SequenceRecording, open_recording
-
-    rec = open_recording(path)
-    rig = rec.rig
-    missing = rec.missing_views()
-    summary = {
-        "path": str(path),
-        "layout": getattr(rec, "layout", "fuseflow"),
-        "frames": len(rec),
-        "cameras": len(rig),
-        "resolution": list(rig.resolution),
-        "calibrated": rig.is_calibrated,
-        "camera_list": [
-            {
-                "id": c.id,
-                "width": c.width,
-                "height": c.height,
-                "fx": c.K[0, 0],
-                "fy": c.K[1, 1],
-                "cx": c.K[0, 2],
-                "cy": c.K[1, 2],
-                "depth_scale": c.depth_scale,
-                "depth_range": list(c.depth_range),
-                "calibrated": c.is_calibrated,
-                "missing_views": len(missing.get(c.id, [])),
-            }
-            for c in rig.cameras
-        ],
-        "missing_views": missing,
-    }
-    if isinstance(rec, SequenceRecording):
-        summary["poses"] = rec.has_poses
-    return summary
+from fuseflow.cli.app import console, say
 
 
 def command(
@@ -52,19 +18,21 @@ def command(
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON instead of a table."),
 ) -> None:
     """Show cameras, frames, resolution, calibration state and missing views of a recording."""
+    from fuseflow.io.summary import recording_summary
+
     s = recording_summary(rec)
     if as_json:
         typer.echo(json.dumps(s, indent=2))
         return
     w, h = s["resolution"]
-    console.print(
-        f"[bold]{s['path']}[/] ({s['layout']}): {s['frames']} frames, {s['cameras']} cameras, {w}x{h}, "
-        + ("calibrated" if s["calibrated"] else "[yellow]not calibrated[/]")
+    say(
+        f"{s['path']} ({s['layout']}): {s['frames']} frames, {s['cameras']} cameras, {w}x{h}, "
+        + ("calibrated" if s["calibrated"] else "not calibrated")
     )
     t = Table("camera", "size", "fx, fy", "cx, cy", "depth/m", "range m", "calib", "missing", box=None)
     for c in s["camera_list"]:
         t.add_row(
-            c["id"],
+            escape(c["id"]),
             f"{c['width']}x{c['height']}",
             f"{c['fx']:.1f}, {c['fy']:.1f}",
             f"{c['cx']:.1f}, {c['cy']:.1f}",
@@ -74,5 +42,20 @@ def command(
             str(c["missing_views"]),
         )
     console.print(t)
+    if "timing" in s:
+        tm = s["timing"]
+        sp = tm["spread_ms"]
+        say(
+            f"views paired by device timestamp within {tm['tolerance_ms']:.1f} ms; spread per frame: median "
+            f"{sp['median']:.2f} ms, p95 {sp['p95']:.2f} ms, max {sp['max']:.2f} ms"
+        )
+        tt = Table(
+            "camera", "fps", "stream frames", "gaps", "longest gap ms", "dropped views", "first view s", box=None
+        )
+        for cid, c in tm["cameras"].items():
+            first = "-" if c["first_view_s"] is None else f"{c['first_view_s']:.4f}"
+            tt.add_row(escape(cid), f"{c['fps']:.2f}", str(c["stream_frames"]), str(c["gaps"]), f"{c['longest_gap_ms']:.1f}",
+                       str(c["dropped_views"]), first)  # fmt: skip
+        console.print(tt)
     if "poses" in s:
-        console.print("single moving camera; trajectory poses: " + ("yes" if s["poses"] else "no"))
+        say("single moving camera; trajectory poses: " + ("yes" if s["poses"] else "no"))

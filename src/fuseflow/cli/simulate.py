@@ -48,12 +48,17 @@ def command(
     disable: str = typer.Option(
         "", "--disable", help="Comma-separated noise effects to switch off: " + ", ".join(_EFFECTS) + "."
     ),
+    desync: str = typer.Option(
+        "", "--desync", help="CAM:FRAMES[,...]: camera CAM (id or index) runs FRAMES frames late (negative: early)."
+    ),
 ) -> None:
     """Simulate a camera rig around a scene; write the recording, gt.json, GT depth and surfaces."""
     from fuseflow.io.paths import prepare_output_dir
     from fuseflow.synth import SimConfig, simulate_recording
+    from fuseflow.synth.desync import apply_desync, parse_desync
 
     w, h = _parse_resolution(resolution)
+    parse_desync(desync)  # syntax checked before the (long) simulation; ids resolved after it
     cfg = SimConfig(
         cameras=cameras, frames=frames, scene=scene, dynamic=dynamic, resolution=(w, h), noise=noise, seed=seed,
         rig=rig, calib_error_deg=calib_error_deg, calib_error_mm=calib_error_mm, **_parse_disable(disable),
@@ -64,7 +69,10 @@ def command(
         task = bar.add_task(f"simulating {cameras} cameras x {frames} frames", total=frames)
         simulate_recording(out, cfg, uncalibrated=uncalibrated,
                            progress=lambda done, total: bar.update(task, completed=done))  # fmt: skip
+    offsets = apply_desync(out, desync) if desync else {}
     say(
         f"wrote {out}: {frames} frames x {cameras} cameras {w}x{h}, scene {scene}"
-        f"{' (dynamic)' if dynamic else ''}, noise {noise}, seed {seed} in {time.perf_counter() - t0:.1f} s"
+        f"{' (dynamic)' if dynamic else ''}, noise {noise}, seed {seed}"
+        + (f", desync {offsets}" if offsets else "")
+        + f" in {time.perf_counter() - t0:.1f} s"
     )
