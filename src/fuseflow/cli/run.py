@@ -24,6 +24,8 @@ def _print_summary(s) -> None:
         rows.append(("bumped cameras", ", ".join(f"{c} (from frame {f})" for c, f in s.bumped_cameras.items())))
     if s.recalibrations:
         rows.append(("recalibrated at", ", ".join(map(str, s.recalibrations))))
+    if s.sync_offsets:
+        rows.append(("out of sync", ", ".join(f"{c}: {k:+d} frames" for c, k in s.sync_offsets.items())))
     print_table(f"FUSE-Flow run: {s.out_dir}", rows)
     for w in s.warnings:
         warn(w)
@@ -46,6 +48,12 @@ def command(
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier run in --out and start over."
     ),
+    sync_offsets: str = typer.Option(
+        "check",
+        "--sync-offsets",
+        help="off | check: report cameras whose depth agrees best with their neighbours' earlier or later "
+        "frames (a camera out of sync) | auto: also re-time them for fusion.",
+    ),
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
     from fuseflow.io import open_recording, read_calibration
@@ -57,7 +65,9 @@ def command(
     recording = open_recording(rec)
     calibration = read_calibration(calib) if calib is not None else None
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None
-    cfg = PipelineConfig(device=device, recalibrate=recalibrate)
+    if sync_offsets == "auto" and ray_opts is not None:
+        fail("--sync-offsets auto re-times views in this process; use check or off with --ray")
+    cfg = PipelineConfig(device=device, recalibrate=recalibrate, sync=sync_offsets)
     positions = parse_range(frames, len(recording))
     with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))

@@ -100,7 +100,9 @@ def _one_thread():
         torch.set_num_threads(n)
 
 
-def pair_agreement(frame: Frame, rig: Rig, samples: int = 5000, tau: float = 0.05, k_max: int = 4) -> np.ndarray:
+def pair_agreement(
+    frame: Frame, rig: Rig, samples: int = 5000, tau: float = 0.05, k_max: int = 4, only: int | None = None
+) -> np.ndarray:
     """How well each pair of neighbouring cameras agree on the geometry they both see.
 
     For camera i, every valid pixel of a subsampled grid (about ``samples`` per view) is
@@ -114,14 +116,15 @@ def pair_agreement(frame: Frame, rig: Rig, samples: int = 5000, tau: float = 0.0
     Returns:
         (N, N) float64, symmetric: S[i, j] = agreeing / voting samples of the pair (i, j) in
         [0, 1]; NaN where the pair cast no vote (not neighbours, a missing view, no depth).
+        With ``only = i``, just the pairs of camera i are computed (the others are NaN).
     """
     if frame.depth.device.type != "cpu":
-        return _pair_agreement(frame, rig, samples, tau, k_max)
+        return _pair_agreement(frame, rig, samples, tau, k_max, only)
     with _one_thread():
-        return _pair_agreement(frame, rig, samples, tau, k_max)
+        return _pair_agreement(frame, rig, samples, tau, k_max, only)
 
 
-def _pair_agreement(frame: Frame, rig: Rig, samples: int, tau: float, k_max: int) -> np.ndarray:
+def _pair_agreement(frame: Frame, rig: Rig, samples: int, tau: float, k_max: int, only: int | None) -> np.ndarray:
     n, h, w = frame.depth.shape
     stride = subsample_stride(h, w, samples)
     depth = frame.depth[:, ::stride, ::stride]
@@ -141,7 +144,7 @@ def _pair_agreement(frame: Frame, rig: Rig, samples: int, tau: float, k_max: int
         z = depth[i][m]
         X = torch.stack([xn[i][m] * z, yn[i][m] * z, z], dim=1)
         for j in graph.index[i].tolist():
-            if j < 0 or not bool(frame.present[j]):
+            if j < 0 or not bool(frame.present[j]) or (only is not None and only not in (i, j)):
                 continue
             a, v = project_votes(X, M[i, j], K[j], depth[j], tau, True)
             agree[i, j] += float(a.sum())

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
+from fuseflow.io.recording import Recording
 
 __all__ = [
     "TIMESTAMPS_FORMAT",
@@ -44,6 +45,8 @@ __all__ = [
     "read_timestamps",
     "Timestamps",
     "estimate_frame_offset",
+    "ShiftedRecording",
+    "shift_views",
 ]
 
 TIMESTAMPS_FORMAT = "fuseflow-timestamps/1"
@@ -386,3 +389,43 @@ def estimate_frame_offset(
     frames = -shifts[k]
     return OffsetEstimate(frames, frames * period_s * 1000.0 if period_s else float("nan"), consistency, gain,
                           int(both.sum()), med)  # fmt: skip
+
+
+class ShiftedRecording(Recording):
+    """A recording whose cameras are re-timed by whole frames: camera c's view at position t is
+    the base recording's view at t + offsets[c] (a camera k frames late shows instant t at
+    t + k). Views shifted past either end are dropped views. Made by ``shift_views``."""
+
+    def __init__(self, base: Recording, offsets: Mapping[str, int]):
+        self.base = base
+        self.offsets = {c: int(k) for c, k in offsets.items()}
+        self.rig, self.path, self.frame_numbers = base.rig, base.path, base.frame_numbers
+        self._position = {n: t for t, n in enumerate(base.frame_numbers)}
+
+    def _load_view(self, cam_index: int, number: int):
+        t = self._position[number] + self.offsets.get(self.rig.ids[cam_index], 0)
+        if not 0 <= t < len(self.base):
+            return None
+        return self.base._load_view(cam_index, self.base.frame_numbers[t])
+
+    def missing_views(self) -> dict[str, list[int]]:
+        base = self.base.missing_views()
+        out: dict[str, list[int]] = {}
+        for c in self.rig.ids:
+            k = self.offsets.get(c, 0)
+            gone = set(base.get(c, []))
+            out[c] = [
+                n
+                for t, n in enumerate(self.frame_numbers)
+                if not 0 <= t + k < len(self.frame_numbers) or self.frame_numbers[t + k] in gone
+            ]
+        return {c: v for c, v in out.items() if v}
+
+
+def shift_views(rec: Recording, offsets: Mapping[str, int]) -> Recording:
+    """``rec`` with camera c's views taken ``offsets[c]`` frames later (``ShiftedRecording``):
+    what ``fuseflow run --sync-offsets`` fuses. Unknown camera ids are a ValidationError."""
+    unknown = [c for c in offsets if c not in rec.rig.ids]
+    if unknown:
+        raise ValidationError(f"sync offsets name cameras {unknown} that the rig {list(rec.rig.ids)} does not have")
+    return ShiftedRecording(rec, offsets)

@@ -94,6 +94,8 @@ class RunSummary:
     bumped_cameras: dict[str, int]
     recalibrations: list[int]
     warnings: list[str]
+    sync_offsets: dict[str, int] = field(default_factory=dict)
+    """Cameras the sync check found late (+k frames) or early (-k); applied when ``sync="auto"``."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

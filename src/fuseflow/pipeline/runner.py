@@ -133,6 +133,23 @@ def run_manifest(
     )
 
 
+def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tuple[Recording, dict[str, int]]:
+    """The camera-sync check (``config.sync``): report late or early cameras, and with "auto"
+    return the recording with them re-timed (``io.timesync.shift_views``)."""
+    if config.sync == "off":
+        return rec, {}
+    from fuseflow.io.timesync import shift_views
+    from fuseflow.pipeline.sync import check_sync
+
+    sel = [rec.rig.index(c) for c in state.rig.ids]
+    report = check_sync(rec, state.rig, sel, max_shift=config.sync_max_shift)
+    state.warnings.extend(report.warnings())
+    offsets = report.late()
+    if config.sync == "auto" and offsets:
+        return shift_views(rec, offsets), offsets
+    return rec, offsets
+
+
 @dataclass
 class _RunState:
     """What the frame loop carries from frame to frame (explicit, per run)."""
@@ -298,6 +315,8 @@ def run(
         raise ValidationError(
             "recalibrate='auto' needs frames fused in order in one process; it is not available with Ray"
         )
+    if ray is not None and config.sync == "auto":
+        raise ValidationError("sync='auto' re-times views in this process; it is not available with Ray")
     if isinstance(calibration, Rig):  # a calibrated rig: its extrinsics are the calibration
         calibration = Calibration({c.id: c.T_cam_world for c in calibration if c.is_calibrated}, {"source": "given"})
     elif calibration is not None and not isinstance(calibration, Calibration):
@@ -309,9 +328,11 @@ def run(
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
+    rec, offsets = _check_sync(rec, state, config)
     positions = list(frames if frames is not None else range(len(rec)))
     t_start = time.perf_counter()
     _fuse_frames(rec, out, positions, state, config, ray, on_frame)
     summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
+    summary.sync_offsets = offsets
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary
