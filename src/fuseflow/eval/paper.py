@@ -38,10 +38,17 @@ import numpy as np
 
 from fuseflow.errors import FuseFlowError, ValidationError
 
-__all__ = ["PaperConfig", "QUICK", "FULL", "TABLES", "plan", "run", "render_markdown", "ICL_PATH"]
+__all__ = ["PaperConfig", "QUICK", "FULL", "TABLES", "plan", "run", "render_markdown", "ICL_DIR", "icl_path"]
 
-ICL_PATH = Path(__file__).resolve().parents[4] / "shared" / "data" / "icl-livingroom1"
-"""The ICL-NUIM living room kt1 sequence (shared data, never copied into the repository)."""
+ICL_DIR = "icl-livingroom1"
+"""Folder of the ICL-NUIM living room kt1 sequence inside the data folder (the shared data, never
+copied into the repository; ``fuseflow bench paper --data-dir`` names the data folder)."""
+
+
+def icl_path(data_dir: str | Path) -> Path:
+    """The ICL-NUIM living room kt1 sequence inside ``data_dir`` (the shared data folder)."""
+    return Path(data_dir) / ICL_DIR
+
 
 TABLES = ("gmac", "static", "dynamic", "ablation", "extrinsics", "fps")
 
@@ -199,13 +206,19 @@ def icl_indices(n: int, seed: int, length: int = 211) -> list[int]:
     return [start + 26 * k for k in range(n)]
 
 
-def icl_sample(n: int, seed: int, pc: PaperConfig, icl_path: Path = ICL_PATH) -> Sample:
-    """The ICL virtual rig of N cameras (one static frame), subsampled by ``pc.icl_stride``."""
+def icl_sample(n: int, seed: int, pc: PaperConfig, icl_dir: Path | None) -> Sample:
+    """The ICL virtual rig of N cameras (one static frame), subsampled by ``pc.icl_stride``.
+
+    ``icl_dir``: the ICL-NUIM living room kt1 folder (:func:`icl_path`); None raises
+    ValidationError (the ICL cells need the data folder)."""
     from fuseflow.io import make_virtual_rig, open_recording
 
-    if not icl_path.is_dir():
-        raise ValidationError(f"the ICL-NUIM data was not found at {icl_path}")
-    seq = open_recording(icl_path)
+    if icl_dir is None:
+        raise ValidationError("the ICL-NUIM cells need the data folder: pass data_dir (or icl=False)")
+    icl_dir = Path(icl_dir)
+    if not icl_dir.is_dir():
+        raise ValidationError(f"the ICL-NUIM data was not found at {icl_dir}")
+    seq = open_recording(icl_dir)
     idx = icl_indices(n, seed, len(seq))
     with tempfile.TemporaryDirectory(prefix="fuseflow-icl-") as tmp:
         rig = make_virtual_rig(seq, idx, Path(tmp) / "rig")
@@ -393,7 +406,15 @@ def _slug(*parts: Any) -> str:
     return "".join(ch if ch.isalnum() or ch in "-." else "-" for ch in s)
 
 
-def _fusion_cell(dataset: str, n: int, method: str, seed: int, pc: PaperConfig, with_metrics: bool = True) -> dict:
+def _fusion_cell(
+    dataset: str,
+    n: int,
+    method: str,
+    seed: int,
+    pc: PaperConfig,
+    with_metrics: bool = True,
+    icl_dir: Path | None = None,
+) -> dict:
     """Fuse every frame of one data set / seed with ``method``: per-frame timings, then metrics.
 
     The first frame is fused once untimed (numba compilation, Open3D start-up), then the process
@@ -401,7 +422,7 @@ def _fusion_cell(dataset: str, n: int, method: str, seed: int, pc: PaperConfig, 
     busy-wait) do not steal the 2 cores; all frames are timed back to back before any metric runs.
     """
     fn = fusion_method(method)
-    samples = _samples(dataset, n, seed, pc)
+    samples = _samples(dataset, n, seed, pc, icl_dir)
     fn(samples[0].frame, samples[0].rig)  # warm-up
     time.sleep(0.3)
     timed_runs = [timed(fn, s) for s in samples]
@@ -416,16 +437,16 @@ def _fusion_cell(dataset: str, n: int, method: str, seed: int, pc: PaperConfig, 
     return {"frames": frames, "label": samples[0].label}
 
 
-def _samples(dataset: str, n: int, seed: int, pc: PaperConfig) -> list[Sample]:
+def _samples(dataset: str, n: int, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> list[Sample]:
     if dataset == "icl":
-        return [icl_sample(n, seed, pc)]
+        return [icl_sample(n, seed, pc, icl_dir)]
     scene, dynamic = {"sim-room": ("room", False), "sim-studio-dyn": ("studio", True)}[dataset]
     return [_SIMS.sample(scene, dynamic, n, seed, t, pc) for t in range(pc.frames)]
 
 
-def _gmac_cell(dataset: str, backbone: str, seed: int, pc: PaperConfig) -> dict:
+def _gmac_cell(dataset: str, backbone: str, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> dict:
     pc = pc.for_calibration()
-    s = _samples(dataset, pc.calib_cameras, seed, pc)[0]
+    s = _samples(dataset, pc.calib_cameras, seed, pc, icl_dir)[0]
     cals = calibrations(s, backbone, seed, GMAC_ROWS)
     rows = {}
     for name, c in cals.items():
@@ -436,13 +457,13 @@ def _gmac_cell(dataset: str, backbone: str, seed: int, pc: PaperConfig) -> dict:
     return {"rows": rows, "label": s.label}
 
 
-def _extrinsics_cell(dataset: str, source: str, seed: int, pc: PaperConfig) -> dict:
+def _extrinsics_cell(dataset: str, source: str, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> dict:
     """FUSE on every frame with extrinsics from ``source``: "GT", "<backbone>:GMAC" or
     "<backbone>:Original" (calibrated on the first frame of the seed), at the calibration
     resolution."""
     pc = pc.for_calibration()
     n = pc.pipeline_cameras
-    samples = _samples(dataset, n, seed, pc)
+    samples = _samples(dataset, n, seed, pc, icl_dir)
     rig = samples[0].rig
     pose = None
     if source != "GT":
@@ -472,12 +493,18 @@ def extrinsic_sources(pc: PaperConfig) -> list[str]:
     return out
 
 
-def plan(pc: PaperConfig, tables: Sequence[str] = TABLES, icl: bool = True) -> list[Cell]:
-    """Every cell of the requested tables, in run order."""
+def plan(
+    pc: PaperConfig, tables: Sequence[str] = TABLES, icl: bool = True, data_dir: str | Path | None = None
+) -> list[Cell]:
+    """Every cell of the requested tables, in run order.
+
+    ``icl``: include the ICL-NUIM cells; they read ``data_dir``/icl-livingroom1 when computed
+    (:func:`icl_path`; None: computing one raises ValidationError)."""
     bad = sorted(set(tables) - set(TABLES))
     if bad:
         raise ValidationError(f"unknown tables {bad}; choose from {list(TABLES)}")
     static_sets = ["sim-room"] + (["icl"] if icl else [])
+    icl_dir = icl_path(data_dir) if data_dir is not None else None
     cells: list[Cell] = []
     seeds = range(pc.seeds)
 
@@ -491,7 +518,7 @@ def plan(pc: PaperConfig, tables: Sequence[str] = TABLES, icl: bool = True) -> l
             for ds in static_sets:
                 for b in pc.backbones:
                     for sd in range(pc.calib_seeds):
-                        add(table, f"{ds}-{b}-s{sd}", lambda ds=ds, b=b, sd=sd: _gmac_cell(ds, b, sd, pc),
+                        add(table, f"{ds}-{b}-s{sd}", lambda ds=ds, b=b, sd=sd: _gmac_cell(ds, b, sd, pc, icl_dir),
                             dataset=ds, backbone=b, seed=sd)  # fmt: skip
         elif table in ("static", "dynamic"):
             sets = static_sets if table == "static" else ["sim-studio-dyn"]
@@ -499,7 +526,7 @@ def plan(pc: PaperConfig, tables: Sequence[str] = TABLES, icl: bool = True) -> l
                 for n in pc.cameras:
                     for sd in seeds:
                         for m in METHODS:
-                            add(table, f"{ds}-N{n}-s{sd}-{m}", lambda ds=ds, n=n, m=m, sd=sd: _fusion_cell(ds, n, m, sd, pc),
+                            add(table, f"{ds}-N{n}-s{sd}-{m}", lambda ds=ds, n=n, m=m, sd=sd: _fusion_cell(ds, n, m, sd, pc, icl_dir=icl_dir),
                                 dataset=ds, n=n, method=m, seed=sd)  # fmt: skip
         elif table == "ablation":
             n = pc.pipeline_cameras
@@ -512,7 +539,7 @@ def plan(pc: PaperConfig, tables: Sequence[str] = TABLES, icl: bool = True) -> l
             for ds in static_sets:
                 for sd in seeds:
                     for src in extrinsic_sources(pc):
-                        add(table, f"{ds}-s{sd}-{src}", lambda ds=ds, src=src, sd=sd: _extrinsics_cell(ds, src, sd, pc),
+                        add(table, f"{ds}-s{sd}-{src}", lambda ds=ds, src=src, sd=sd: _extrinsics_cell(ds, src, sd, pc, icl_dir),
                             dataset=ds, source=src, seed=sd)  # fmt: skip
         elif table == "fps":
             for n in pc.fps_cameras:
@@ -548,9 +575,13 @@ def run(
     command: str = "",
     progress: Callable[[int, int, str], None] | None = None,
     icl: bool = True,
+    data_dir: str | Path | None = None,
 ) -> dict[str, Path]:
     """Compute the missing cells (cached ones are skipped), then write ``paper_tables.md`` and
-    the Fig. 5 PNG. Returns {"markdown": path, "fig5": path or absent, "cells": n computed}."""
+    the Fig. 5 PNG. Returns {"markdown": path, "fig5": path or absent, "cells": n computed}.
+
+    ``icl`` includes the ICL-NUIM cells, read from ``data_dir``/icl-livingroom1 (the shared data
+    folder, :func:`icl_path`); ``data_dir`` may be None when every ICL cell is already cached."""
     out = Path(out)
     (out / "cells").mkdir(parents=True, exist_ok=True)
     cfg_file = out / "config.json"
@@ -562,7 +593,7 @@ def run(
                 "use another --out folder or delete it"
             )
     cfg_file.write_text(json.dumps({"config": _clean(asdict(pc))}, indent=1))
-    cells = plan(pc, tables, icl=icl)
+    cells = plan(pc, tables, icl=icl, data_dir=data_dir)
     done = 0
     for i, cell in enumerate(cells):
         path = _cell_path(out, cell)
