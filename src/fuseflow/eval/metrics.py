@@ -326,6 +326,17 @@ def _fit_plane(pts: np.ndarray) -> tuple[np.ndarray, float]:
     return vt[2], float(-vt[2] @ c)
 
 
+def _refine_plane(pts: np.ndarray, n: np.ndarray, d: float, threshold: float) -> tuple[np.ndarray, float]:
+    """PFR step 2 (LO-RANSAC): refit the plane n.x + d = 0 to its inliers within ``threshold``
+    metres by least squares, twice (stops early when fewer than 3 inliers remain)."""
+    for _refine in range(2):
+        inl = np.abs(pts @ n + d) <= threshold
+        if inl.sum() < 3:
+            break
+        n, d = _fit_plane(pts[inl])
+    return n, d
+
+
 def plane_fitting_residual(
     points: Any,
     distance_threshold: float = 0.01,
@@ -388,12 +399,7 @@ def plane_fitting_residual(
         hyp = _ransac_plane(remaining, distance_threshold, num_iterations, sample_size, rng)
         if hyp is None:
             break
-        n, d = hyp
-        for _refine in range(2):
-            inl = np.abs(remaining @ n + d) <= distance_threshold
-            if inl.sum() < 3:
-                break
-            n, d = _fit_plane(remaining[inl])
+        n, d = _refine_plane(remaining, *hyp, distance_threshold)
         inl = np.abs(remaining @ n + d) <= distance_threshold
         if inl.sum() < need:
             break

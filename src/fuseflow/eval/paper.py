@@ -689,6 +689,23 @@ def render_markdown(
     results: dict, pc: PaperConfig, command: str, tables: Sequence[str], fig5: Path | None = None
 ) -> str:
     """All requested tables as Markdown, with the machine, library versions and the command."""
+    L = _md_preamble(pc, command)
+    for table in tables:
+        if table == "gmac":
+            L += _md_gmac(results, pc)
+        elif table in ("static", "dynamic"):
+            L += _md_fusion(results, pc, table)
+        elif table == "ablation":
+            L += _md_ablation(results, pc)
+        elif table == "extrinsics":
+            L += _md_extrinsics(results, pc)
+        elif table == "fps":
+            L += _md_fps(results, pc, fig5)
+    return "\n".join(L)
+
+
+def _md_preamble(pc: PaperConfig, command: str) -> list[str]:
+    """Title, command, machine and the sizes / definitions paragraph."""
     W, H = pc.resolution
     icl_res = f"{640 // pc.icl_stride}x{480 // pc.icl_stride}"
     L = [f"# FuseFlow paper tables ({pc.name} run)", ""]
@@ -706,106 +723,132 @@ def render_markdown(
         "warm-up call); peak RSS is the whole process's (Python, torch, Open3D included).",
         "",
     ]
+    return L
+
+
+def _md_gmac(results: dict, pc: PaperConfig) -> list[str]:
+    """Table I / III: GMAC and its ablations, per data set and backbone."""
+    L: list[str] = []
     cells = [c for c, _ in results.values()]
-    for table in tables:
-        if table == "gmac":
-            L += ["## Table I / III analogue: GMAC calibration and its ablations", ""]
+    L += ["## Table I / III analogue: GMAC calibration and its ablations", ""]
+    L += [
+        f"N = {pc.calib_cameras}; one calibration per seed, mean ± std over seeds. Backbones: colmap = "
+        "pycolmap SIFT + incremental mapping (the only learned-free backbone that runs offline here; "
+        "VGGT / MapAnything / VGGSfM checkpoints are not available); perturbed = ground truth with "
+        f"{PERTURB[0]} deg / {PERTURB[1]:g} mm per-camera noise at an unknown scale (a stand-in that "
+        "isolates GMAC's scale recovery from the backbone). 'Original' = the backbone's poses scaled by "
+        "the median sensor-depth / backbone-depth ratio. Time includes the backbone. Errors are means over "
+        "pairs of the cameras a row placed (GMAC leaves out cameras without a kept edge; 'cameras placed'), "
+        "so rows that place different cameras differ in rotation error without rotating anything: GMAC "
+        "only rescales the backbone's translations (no refinement in these presets).",
+        "",
+    ]
+    for ds in dict.fromkeys(c.meta["dataset"] for c in cells if c.table == "gmac"):
+        for b in pc.backbones:
+            sel = [res for c, res in results.values() if c.table == "gmac" and c.meta["dataset"] == ds
+                   and c.meta["backbone"] == b]  # fmt: skip
+            if not sel:
+                continue
+            L += [f"### {DATASET_LABEL[ds]}, backbone {b}", ""]
             L += [
-                f"N = {pc.calib_cameras}; one calibration per seed, mean ± std over seeds. Backbones: colmap = "
-                "pycolmap SIFT + incremental mapping (the only learned-free backbone that runs offline here; "
-                "VGGT / MapAnything / VGGSfM checkpoints are not available); perturbed = ground truth with "
-                f"{PERTURB[0]} deg / {PERTURB[1]:g} mm per-camera noise at an unknown scale (a stand-in that "
-                "isolates GMAC's scale recovery from the backbone). 'Original' = the backbone's poses scaled by "
-                "the median sensor-depth / backbone-depth ratio. Time includes the backbone. Errors are means over "
-                "pairs of the cameras a row placed (GMAC leaves out cameras without a kept edge; 'cameras placed'), "
-                "so rows that place different cameras differ in rotation error without rotating anything: GMAC "
-                "only rescales the backbone's translations (no refinement in these presets).",
-                "",
+                "| method | rot. error (deg) | trans. error (mm) | cameras placed | time (s) | failed |",
+                "|---|---|---|---|---|---|",
             ]
-            for ds in dict.fromkeys(c.meta["dataset"] for c in cells if c.table == "gmac"):
-                for b in pc.backbones:
-                    sel = [res for c, res in results.values() if c.table == "gmac" and c.meta["dataset"] == ds
-                           and c.meta["backbone"] == b]  # fmt: skip
-                    if not sel:
-                        continue
-                    L += [f"### {DATASET_LABEL[ds]}, backbone {b}", ""]
-                    L += [
-                        "| method | rot. error (deg) | trans. error (mm) | cameras placed | time (s) | failed |",
-                        "|---|---|---|---|---|---|",
-                    ]
-                    for row in [ORIGINAL, *GMAC_ROWS]:
-                        if row == ORIGINAL and b == "perturbed":
-                            L.append(f"| {row} | n/a: the stand-in has no depth for a naive scale | | | | |")
-                            continue
-                        rs = [r["rows"][row] for r in sel if row in r["rows"]]
-                        ok = [r for r in rs if not r.get("failed")]
-                        L.append(
-                            f"| {row} | {ms([r['rot_deg'] for r in ok])} | {ms([r['trans_mm'] for r in ok], 1)} | "
-                            f"{ms([r.get('placed') for r in ok], 1)} of {pc.calib_cameras} | "
-                            f"{ms([r.get('seconds') for r in ok], 1)} | {len(rs) - len(ok)}/{len(rs)} |"
-                        )
-                    L.append("")
-        elif table in ("static", "dynamic"):
-            title = "Table IV / VI analogue: static scenes" if table == "static" else "Table V analogue: dynamic scene"
-            L += [f"## {title}", ""]
-            for ds in dict.fromkeys(c.meta["dataset"] for c in cells if c.table == table):
-                L += [f"### {DATASET_LABEL[ds]}", ""]
-                for n in pc.cameras:
-                    rows = [
-                        (m, _frames(results, lambda c, m=m, n=n, ds=ds, table=table: c.table == table and c.meta["dataset"] == ds
-                                    and c.meta["n"] == n and c.meta["method"] == m))
-                        for m in METHODS
-                    ]  # fmt: skip
-                    L += [f"N = {n}:", ""] + _fusion_table(rows, gt=ds != "icl") + [""]
-        elif table == "ablation":
-            L += [f"## Table VII analogue: FUSE ablations (dynamic studio, N = {pc.pipeline_cameras})", ""]
-            rows = [
-                (f"FUSE ({a})" if a in ("default", "paper") else a,
-                 _frames(results, lambda c, a=a: c.table == "ablation" and c.meta["method"] == a))
-                for a in ABLATION_ROWS
-            ]  # fmt: skip
-            L += _fusion_table(rows, gt=True) + [""]
-        elif table == "extrinsics":
-            L += [f"## Table VIII analogue: FUSE (N = {pc.pipeline_cameras}) under fixed extrinsics", ""]
-            L += [
-                "Calibrated on the first frame of each seed; the estimate is moved into the reference world by "
-                "anchoring camera 0 (relative poses untouched) so CD compares with the true surface. 'pose' = the "
-                "calibration's rotation / translation error. A failed calibration (a camera not placed) has no frames.",
-                "",
-            ]
-            for ds in dict.fromkeys(c.meta["dataset"] for c in cells if c.table == "extrinsics"):
-                L += [f"### {DATASET_LABEL[ds]}", ""]
-                rows, poses = [], {}
-                for src in extrinsic_sources(pc):
-                    sel = [res for c, res in results.values() if c.table == "extrinsics" and c.meta["dataset"] == ds
-                           and c.meta["source"] == src]  # fmt: skip
-                    frames = [f for r in sel for f in r.get("frames", [])]
-                    nfail = sum(1 for r in sel if r.get("failed"))
-                    label = {"GT": "GT"}.get(src, src.replace(":", " + "))
-                    ps = [r["pose"] for r in sel if r.get("pose")]
-                    poses[label] = (ms([p["rot_deg"] for p in ps]), ms([p["trans_mm"] for p in ps], 1), nfail, len(sel))
-                    rows.append((label, frames))
-                tab = _fusion_table(rows, gt=ds != "icl", timing=False)
-                tab[0] = tab[0][:-1] + "| pose rot (deg) | pose trans (mm) | failed seeds |"
-                tab[1] += "---|---|---|"
-                for i, (label, _) in enumerate(rows):
-                    r, t, nf, nt = poses[label]
-                    tab[2 + i] += f" {r if label != 'GT' else '0'} | {t if label != 'GT' else '0'} | {nf}/{nt} |"
-                L += tab + [""]
-        elif table == "fps":
-            L += ["## Fig. 5 analogue: fusion FPS against N (dynamic studio)", ""]
-            if fig5 is not None:
-                L += [f"![FPS against N]({fig5.name})", ""]
-            L += ["| N | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
-            for n in pc.fps_cameras:
-                vals = [
-                    ms([f["fps"] for f in _frames(results, lambda c, n=n, m=m: c.table == "fps" and c.meta["n"] == n
-                                                  and c.meta["method"] == m)])
-                    for m in METHODS
-                ]  # fmt: skip
-                L.append(f"| {n} | " + " | ".join(vals) + " |")
+            for row in [ORIGINAL, *GMAC_ROWS]:
+                if row == ORIGINAL and b == "perturbed":
+                    L.append(f"| {row} | n/a: the stand-in has no depth for a naive scale | | | | |")
+                    continue
+                rs = [r["rows"][row] for r in sel if row in r["rows"]]
+                ok = [r for r in rs if not r.get("failed")]
+                L.append(
+                    f"| {row} | {ms([r['rot_deg'] for r in ok])} | {ms([r['trans_mm'] for r in ok], 1)} | "
+                    f"{ms([r.get('placed') for r in ok], 1)} of {pc.calib_cameras} | "
+                    f"{ms([r.get('seconds') for r in ok], 1)} | {len(rs) - len(ok)}/{len(rs)} |"
+                )
             L.append("")
-    return "\n".join(L)
+    return L
+
+
+def _md_fusion(results: dict, pc: PaperConfig, table: str) -> list[str]:
+    """Tables IV / VI (static) or V (dynamic): the fusion methods per data set and N."""
+    L: list[str] = []
+    cells = [c for c, _ in results.values()]
+    title = "Table IV / VI analogue: static scenes" if table == "static" else "Table V analogue: dynamic scene"
+    L += [f"## {title}", ""]
+    for ds in dict.fromkeys(c.meta["dataset"] for c in cells if c.table == table):
+        L += [f"### {DATASET_LABEL[ds]}", ""]
+        for n in pc.cameras:
+            rows = [
+                (m, _frames(results, lambda c, m=m, n=n, ds=ds, table=table: c.table == table and c.meta["dataset"] == ds
+                            and c.meta["n"] == n and c.meta["method"] == m))
+                for m in METHODS
+            ]  # fmt: skip
+            L += [f"N = {n}:", ""] + _fusion_table(rows, gt=ds != "icl") + [""]
+    return L
+
+
+def _md_ablation(results: dict, pc: PaperConfig) -> list[str]:
+    """Table VII: FUSE and its ablations."""
+    L: list[str] = []
+    L += [f"## Table VII analogue: FUSE ablations (dynamic studio, N = {pc.pipeline_cameras})", ""]
+    rows = [
+        (f"FUSE ({a})" if a in ("default", "paper") else a,
+         _frames(results, lambda c, a=a: c.table == "ablation" and c.meta["method"] == a))
+        for a in ABLATION_ROWS
+    ]  # fmt: skip
+    L += _fusion_table(rows, gt=True) + [""]
+    return L
+
+
+def _md_extrinsics(results: dict, pc: PaperConfig) -> list[str]:
+    """Table VIII: FUSE under fixed extrinsics from each source, with their pose errors."""
+    L: list[str] = []
+    cells = [c for c, _ in results.values()]
+    L += [f"## Table VIII analogue: FUSE (N = {pc.pipeline_cameras}) under fixed extrinsics", ""]
+    L += [
+        "Calibrated on the first frame of each seed; the estimate is moved into the reference world by "
+        "anchoring camera 0 (relative poses untouched) so CD compares with the true surface. 'pose' = the "
+        "calibration's rotation / translation error. A failed calibration (a camera not placed) has no frames.",
+        "",
+    ]
+    for ds in dict.fromkeys(c.meta["dataset"] for c in cells if c.table == "extrinsics"):
+        L += [f"### {DATASET_LABEL[ds]}", ""]
+        rows, poses = [], {}
+        for src in extrinsic_sources(pc):
+            sel = [res for c, res in results.values() if c.table == "extrinsics" and c.meta["dataset"] == ds
+                   and c.meta["source"] == src]  # fmt: skip
+            frames = [f for r in sel for f in r.get("frames", [])]
+            nfail = sum(1 for r in sel if r.get("failed"))
+            label = {"GT": "GT"}.get(src, src.replace(":", " + "))
+            ps = [r["pose"] for r in sel if r.get("pose")]
+            poses[label] = (ms([p["rot_deg"] for p in ps]), ms([p["trans_mm"] for p in ps], 1), nfail, len(sel))
+            rows.append((label, frames))
+        tab = _fusion_table(rows, gt=ds != "icl", timing=False)
+        tab[0] = tab[0][:-1] + "| pose rot (deg) | pose trans (mm) | failed seeds |"
+        tab[1] += "---|---|---|"
+        for i, (label, _) in enumerate(rows):
+            r, t, nf, nt = poses[label]
+            tab[2 + i] += f" {r if label != 'GT' else '0'} | {t if label != 'GT' else '0'} | {nf}/{nt} |"
+        L += tab + [""]
+    return L
+
+
+def _md_fps(results: dict, pc: PaperConfig, fig5: Path | None) -> list[str]:
+    """Fig. 5: fusion FPS against N (and the PNG link)."""
+    L: list[str] = []
+    L += ["## Fig. 5 analogue: fusion FPS against N (dynamic studio)", ""]
+    if fig5 is not None:
+        L += [f"![FPS against N]({fig5.name})", ""]
+    L += ["| N | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
+    for n in pc.fps_cameras:
+        vals = [
+            ms([f["fps"] for f in _frames(results, lambda c, n=n, m=m: c.table == "fps" and c.meta["n"] == n
+                                          and c.meta["method"] == m)])
+            for m in METHODS
+        ]  # fmt: skip
+        L.append(f"| {n} | " + " | ".join(vals) + " |")
+    L.append("")
+    return L
 
 
 def fps_series(results: dict, pc: PaperConfig) -> dict[str, list[tuple[int, float, float]]]:
