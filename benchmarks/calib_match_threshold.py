@@ -12,16 +12,12 @@ section 4) and the cameras placed.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 from fuseflow.calib import calibrate, get_backbone
 from fuseflow.calib import correspondences as corr
 from fuseflow.calib.config import PRESETS
+from fuseflow.eval.bench.calib_accuracy import sim_frame
 from fuseflow.eval.metrics import pose_errors
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from calib_accuracy import sim_frame  # noqa: E402
 
 FRAMES = {
     "demo studio (dynamic, seed 1)": dict(scene="studio", dynamic=True, seed=1),

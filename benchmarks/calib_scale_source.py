@@ -11,16 +11,12 @@ least-squares fit of the backbone's camera centres to the true ones). Translatio
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 from fuseflow.calib import calibrate, get_backbone
 from fuseflow.calib.config import PRESETS
+from fuseflow.eval.bench.calib_accuracy import oracle_scale, scaled, sim_frame
 from fuseflow.eval.metrics import pose_errors
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from calib_accuracy import _scaled, oracle_scale, sim_frame  # noqa: E402
 
 FRAMES = [
     ("demo studio (dynamic, seed 1)", dict(scene="studio", dynamic=True, seed=1)),
@@ -41,8 +37,8 @@ def main() -> int:
             cells.append(f"{pose_errors(cal.T_cam_world, ref).translation_mm:.1f}")
         ids = frame.camera_ids
         naive = cal.report["scale_naive_median_depth_ratio"]
-        cells.append(f"{pose_errors(_scaled(bb, ids, naive), ref).translation_mm:.1f}" if naive else "-")
-        cells.append(f"{pose_errors(_scaled(bb, ids, oracle_scale(bb, ids, ref)), ref).translation_mm:.1f}")
+        cells.append(f"{pose_errors(scaled(bb, ids, naive), ref).translation_mm:.1f}" if naive else "-")
+        cells.append(f"{pose_errors(scaled(bb, ids, oracle_scale(bb, ids, ref)), ref).translation_mm:.1f}")
         print(f"| {label} | " + " | ".join(cells) + " |", flush=True)
     return 0
 

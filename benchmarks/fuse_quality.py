@@ -7,7 +7,7 @@ Data: two simulated 8-camera rings at 640x480 (fuseflow.synth, scene "studio", K
 noise with flying pixels, lateral noise, quantisation and dropout; GT extrinsics): one static,
 one dynamic (walking figure, bouncing box, rolling sphere). ``--frames`` frames of each.
 
-Metrics (fuseflow.metrics, DESIGN.md section 4) per frame against the GT surface samples (1 cm
+Metrics (fuseflow.eval.metrics, DESIGN.md section 4) per frame against the GT surface samples (1 cm
 spacing) that some camera measures at that instant (noise-free depth test, inside the sensor's
 depth range; see _reference), then the mean over frames:
 
@@ -38,7 +38,7 @@ import numpy as np
 
 
 def _methods():
-    from fuseflow.baselines import naive_fusion, tsdf_fusion, voxel_downsampled_fusion
+    from fuseflow.eval.baselines import naive_fusion, tsdf_fusion, voxel_downsampled_fusion
     from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, fuse
 
     def f(cfg):
@@ -71,14 +71,13 @@ def _density_methods():
 
 def _score(cloud, gt) -> dict:
     # one pair of nearest-neighbour passes for CD, both F-scores and the outlier share (the
-    # definitions of fuseflow.metrics.chamfer_distance / f_score / outlier_share, same helpers)
-    from fuseflow.eval.metrics import _both_dists, _chamfer, _fscore
-    from fuseflow.metrics import outlier_ratio
+    # definitions of fuseflow.eval.metrics.chamfer_distance / f_score / outlier_share)
+    from fuseflow.eval.metrics import outlier_ratio, surface_distances
 
     pts = cloud.xyz.numpy()
-    d_pred, d_gt = _both_dists(pts, gt)
-    cd = _chamfer(d_pred, d_gt)
-    f5, f10 = _fscore(d_pred, d_gt, 0.005), _fscore(d_pred, d_gt, 0.01)
+    dist = surface_distances(pts, gt)
+    cd = dist.chamfer()
+    f5, f10 = dist.fscore(0.005), dist.fscore(0.01)
     return {
         "points": len(pts),
         "chamfer_mm": cd.chamfer_mm,
@@ -90,7 +89,7 @@ def _score(cloud, gt) -> dict:
         "f_1cm": f10.f_score,
         "precision_1cm": f10.precision,
         "recall_1cm": f10.recall,
-        "outlier_2cm": float((d_pred > 0.02).mean()) if len(d_pred) else 0.0,
+        "outlier_2cm": dist.outlier_share(0.02),
         "or_5mm": outlier_ratio(pts, radius=0.005).ratio,
     }
 

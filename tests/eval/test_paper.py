@@ -20,12 +20,13 @@ from fuseflow.errors import ValidationError
 from fuseflow.eval import paper
 
 runner = CliRunner()
+SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"  # ../shared/data of the project
 
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("paper") / "quick"
-    res = runner.invoke(app, ["bench", "paper", "--out", str(out), "--quick"])
+    res = runner.invoke(app, ["bench", "paper", "--out", str(out), "--quick", "--data-dir", str(SHARED_DATA)])
     assert res.exit_code == 0, res.output
     return out
 

@@ -208,7 +208,7 @@ def test_single_camera_and_no_overlap_fall_back_to_c():
 def test_64_cameras():
     """64 cameras fuse in one call. 80x60 keeps the test fast; at 32x24 (focal ~26 px) a pixel
     spans so much surface that MCM's gradient term marks almost every pixel unreliable."""
-    from fuseflow.baselines import naive_fusion
+    from fuseflow.eval.baselines import naive_fusion
     from fuseflow.synth import SimConfig, Simulator
 
     sim = Simulator(SimConfig(cameras=64, resolution=(80, 60), frames=1, seed=1))

@@ -1,29 +1,34 @@
-"""`fuseflow bench ...`: benchmark programs (benchmarks/*.py) reachable from the CLI.
+"""`fuseflow bench ...`: the benchmarks, as calls into fuseflow.eval (no file of the source tree).
 
-``bench_app`` is the sub-app; each benchmark module adds its command to it
-(this module: ``fuse``; cli/bench_calib.py: ``calib``).
+``bench_app`` is the group; its subcommands are registered in the list at the end of this module:
+``fuse`` (fuseflow.eval.bench.fuse_speed), ``calib`` (fuseflow.eval.bench.calib_accuracy) and
+``paper`` (fuseflow.eval.paper).
 """
 
 from __future__ import annotations
 
-import runpy
+import shlex
+import sys
 from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import fail
+from fuseflow.cli.app import fail, guarded, progress, say
 
-bench_app = typer.Typer(help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True)
-
-
-def _script(name: str) -> Path:
-    script = Path(__file__).resolve().parents[3] / "benchmarks" / name
-    if not script.is_file():
-        fail(f"the benchmark program is part of the source tree and was not found at {script}")
-    return script
+DATA_DIR_HELP = (
+    "The shared data folder holding icl-livingroom1 (ICL-NUIM). Default ../shared/data, relative to the "
+    "working directory (run from the project root), or the environment variable FUSEFLOW_DATA."
+)
 
 
-@bench_app.command("fuse")
+def _data_dir_option() -> Path:
+    return typer.Option(Path("../shared/data"), "--data-dir", envvar="FUSEFLOW_DATA", help=DATA_DIR_HELP)
+
+
+def _echo(line: str) -> None:
+    typer.echo(line)
+
+
 def bench_fuse(
     cameras: str = typer.Option("1,2,4,8,16", "--cameras", help="Comma list of camera counts N."),
     frames: int = typer.Option(7, "--frames", help="Timed frames per N (median over them, after warm-up)."),
@@ -32,15 +37,99 @@ def bench_fuse(
     no_baselines: bool = typer.Option(False, "--no-baselines", help="Time FUSE only."),
 ) -> None:
     """FUSE per-frame time and peak memory against VoxelBlockGrid TSDF and naive + voxel fusion."""
-    mod = runpy.run_path(str(_script("fuse_speed.py")), run_name="fuseflow_bench_fuse")
-    argv = ["--cameras", cameras, "--frames", str(frames), "--device", device]
-    if json_out is not None:
-        argv += ["--json", str(json_out)]
-    if no_baselines:
-        argv.append("--no-baselines")
-    raise typer.Exit(mod["main"](argv))
+    from fuseflow.eval.bench import BenchmarkFailed
+    from fuseflow.eval.bench.fuse_speed import DEFAULT_METHODS, parse_options, run_fuse_speed
+
+    cams, resolution = parse_options(cameras, "640x480")
+    command = f"fuseflow bench fuse --cameras {cameras} --frames {frames} --device {device}"
+    command += (f" --json {shlex.quote(str(json_out))}" if json_out is not None else "") + (
+        " --no-baselines" if no_baselines else ""
+    )
+    methods = ["fuse"] if no_baselines else list(DEFAULT_METHODS)
+    try:
+        run_fuse_speed(cams, frames, device=device, methods=methods, resolution=resolution, json_path=json_out,
+                       command=command, log=_echo)  # fmt: skip
+    except BenchmarkFailed as exc:
+        fail(str(exc), code=1)
 
 
-# the subcommands of other modules register on bench_app when imported
-from fuseflow.cli import bench_calib as _bench_calib  # noqa: E402, F401
-from fuseflow.cli import bench_paper as _bench_paper  # noqa: E402, F401
+def bench_calib(
+    seeds: int = typer.Option(10, "--seeds", help="Seeds per data set (issue 6 asks for >= 10)."),
+    data: str = typer.Option("sim4,sim8,icl8", "--data", help="Comma list of sim4, sim8, icl8."),
+    quick: bool = typer.Option(False, "--quick", help="2 seeds on sim8 and icl8."),
+    backbone: str = typer.Option(
+        "colmap", "--backbone", help="colmap (the default backbone) or perturbed (ground truth + noise: GMAC alone)."
+    ),
+    no_peer: bool = typer.Option(False, "--no-peer", help="Skip the Open3D multiway registration peer."),
+    json_out: Path = typer.Option(None, "--json", help="Also write every per-seed row as JSON."),
+    data_dir: Path = _data_dir_option(),
+) -> None:
+    """GMAC rotation / translation error and time per calibration, every variant and peer."""
+    from fuseflow.eval.bench.calib_accuracy import run_calib_accuracy
+    from fuseflow.eval.paper import icl_path
+
+    if quick:
+        seeds, data = 2, "sim8,icl8"
+    names = [d.strip() for d in data.split(",") if d.strip()]
+    icl = icl_path(data_dir)
+    if "icl8" in names and not icl.is_dir():
+        fail(f"icl8: the ICL-NUIM data is not at {icl}; pass --data-dir (or FUSEFLOW_DATA) or leave icl8 out of --data")
+    run_calib_accuracy(seeds, names, backbone, peer=not no_peer, icl=icl, json_path=json_out, log=_echo,
+                       progress=lambda line: typer.echo(line, err=True))  # fmt: skip
+
+
+def _paper_command(out: Path, quick: bool, tables: str, no_icl: bool) -> str:
+    """The command line quoted in paper_tables.md: the one typed, else one rebuilt from the options."""
+    command = "fuseflow bench paper " + " ".join(shlex.quote(a) for a in sys.argv[3:]) if len(sys.argv) > 2 else ""
+    if not command.strip() or "paper" not in sys.argv:
+        command = f"fuseflow bench paper --out {shlex.quote(str(out))}" + (" --quick" if quick else "")
+        command += f" --tables {tables}" + (" --no-icl" if no_icl else "")
+    return command
+
+
+def bench_paper(
+    out: Path = typer.Option(..., "--out", help="Output folder: cached cells (cells/*.json), paper_tables.md, PNG."),
+    quick: bool = typer.Option(False, "--quick", help="Tiny resolution, 2 frames, 2 seeds: a few minutes (CI)."),
+    tables: str = typer.Option(
+        "gmac,static,dynamic,ablation,extrinsics,fps",
+        "--tables",
+        help="Comma list of gmac (I/III), static (IV/VI), dynamic (V), ablation (VII), extrinsics (VIII), fps (Fig. 5).",
+    ),
+    no_icl: bool = typer.Option(False, "--no-icl", help="Skip the ICL-NUIM virtual rig (simulated data only)."),
+    data_dir: Path = _data_dir_option(),
+) -> None:
+    """Tables I/III, IV/VI, V, VII, VIII and Fig. 5 on simulated rigs and the ICL virtual rig.
+
+    Resumable: each cell is cached in OUT/cells and skipped when present; delete a file to redo it.
+    """
+    from fuseflow.eval import paper
+
+    names = [t.strip() for t in tables.split(",") if t.strip()]
+    bad = sorted(set(names) - set(paper.TABLES))
+    if not names or bad:
+        fail(f"--tables: unknown {bad or 'empty list'}; choose from {', '.join(paper.TABLES)}")
+    icl = not no_icl
+    if icl and not paper.icl_path(data_dir).is_dir():
+        fail(
+            f"the ICL-NUIM data is not at {paper.icl_path(data_dir)}; pass --data-dir (or FUSEFLOW_DATA), "
+            "or --no-icl to use simulated data only"
+        )
+    pc = paper.QUICK if quick else paper.FULL
+    command = _paper_command(out, quick, tables, no_icl)
+    with progress("cells") as bar:
+        task = bar.add_task("cells", total=None)
+
+        def step(i: int, n: int, key: str) -> None:
+            bar.update(task, total=n, completed=i, description=key[:60])
+
+        files = paper.run(out, pc, names, command=command, progress=step, icl=icl, data_dir=data_dir)
+    say(f"computed {files['computed']} cells; tables: {files['markdown']}")
+    if "fig5" in files:
+        say(f"Fig. 5: {files['fig5']}")
+
+
+bench_app = typer.Typer(
+    help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
+)
+for _name, _command in (("fuse", bench_fuse), ("calib", bench_calib), ("paper", bench_paper)):
+    bench_app.command(_name)(guarded(_command))

@@ -1,4 +1,5 @@
-"""`fuseflow demo`: simulate, calibrate, fuse and score against ground truth (fuseflow.demo)."""
+"""`fuseflow demo`: the whole product on simulated data, scored against ground truth
+(fuseflow.eval.demo.run_demo)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import console, progress, say, warn
+from fuseflow.cli.app import print_table, progress, say, warn
 
 
 def command(
@@ -16,7 +17,7 @@ def command(
     seed: int = typer.Option(1, "--seed", help="Simulator seed."),
 ) -> None:
     """Simulate a dynamic rig, calibrate it with GMAC, fuse it with FUSE, score it against ground truth."""
-    from fuseflow.demo import run_demo
+    from fuseflow.eval.demo import run_demo
 
     with progress("demo") as bar:
         task = bar.add_task("fusing", total=frames, visible=False)
@@ -28,21 +29,26 @@ def command(
             bar.update(task, completed=done, visible=True)
 
         res = run_demo(out, cameras=cameras, frames=frames, seed=seed, on_stage=stage, on_frame=frame)
-    from rich.table import Table
+    _print_result(res)
 
-    t = Table(title="FuseFlow demo: errors against the simulator's ground truth", show_header=False)
-    t.add_row("rig", f"{res.cameras} cameras, {res.frames} frames, {res.resolution[0]}x{res.resolution[1]}, dynamic")
-    t.add_row("GMAC cameras placed", f"{res.cameras_placed} of {res.cameras}")
-    t.add_row("GMAC rotation error", f"{res.rotation_error_deg:.3f} deg (mean over camera pairs)")
-    t.add_row("GMAC translation error", f"{res.translation_error_mm:.1f} mm (no scale alignment)")
-    t.add_row("FUSE Chamfer distance", f"{res.chamfer_mm:.1f} mm (first, middle, last frame)")
-    t.add_row("FUSE F-score @ 1 cm", f"{res.fscore_1cm:.3f}")
-    t.add_row("points > 2 cm from surface", f"{100 * res.outlier_share_2cm:.2f} %")
-    t.add_row("points per frame", f"{res.points_per_frame:.0f}")
-    t.add_row("FUSE time", f"{res.ms_per_frame:.0f} ms per frame")
-    t.add_row("wall time", f"simulate {res.simulate_s:.1f} s, calibrate + fuse {res.run_s:.1f} s")
-    t.add_row("pictures", ", ".join(res.png))
-    t.add_row("rerun", res.rrd or "not written (pip install 'fuseflow[viz]')")
-    console.print(t)
+
+def _print_result(res) -> None:
+    print_table(
+        "FuseFlow demo: errors against the simulator's ground truth",
+        [
+            ("rig", f"{res.cameras} cameras, {res.frames} frames, {res.resolution[0]}x{res.resolution[1]}, dynamic"),
+            ("GMAC cameras placed", f"{res.cameras_placed} of {res.cameras}"),
+            ("GMAC rotation error", f"{res.rotation_error_deg:.3f} deg (mean over camera pairs)"),
+            ("GMAC translation error", f"{res.translation_error_mm:.1f} mm (no scale alignment)"),
+            ("FUSE Chamfer distance", f"{res.chamfer_mm:.1f} mm (first, middle, last frame)"),
+            ("FUSE F-score @ 1 cm", f"{res.fscore_1cm:.3f}"),
+            ("points > 2 cm from surface", f"{100 * res.outlier_share_2cm:.2f} %"),
+            ("points per frame", f"{res.points_per_frame:.0f}"),
+            ("FUSE time", f"{res.ms_per_frame:.0f} ms per frame"),
+            ("wall time", f"simulate {res.simulate_s:.1f} s, calibrate + fuse {res.run_s:.1f} s"),
+            ("pictures", ", ".join(res.png)),
+            ("rerun", res.rrd or "not written (pip install 'fuseflow[viz]')"),
+        ],
+    )
     for w in res.warnings:
         warn(w)

@@ -40,6 +40,7 @@ __all__ = [
     "Plane",
     "PoseErrors",
     "ReferenceMetrics",
+    "SurfaceDistances",
     "TimingResult",
     "as_points",
     "chamfer_distance",
@@ -52,6 +53,7 @@ __all__ = [
     "pose_errors",
     "reference_metrics",
     "rotation_error_deg",
+    "surface_distances",
     "time_fn",
     "translation_error_mm",
 ]
@@ -324,6 +326,17 @@ def _fit_plane(pts: np.ndarray) -> tuple[np.ndarray, float]:
     return vt[2], float(-vt[2] @ c)
 
 
+def _refine_plane(pts: np.ndarray, n: np.ndarray, d: float, threshold: float) -> tuple[np.ndarray, float]:
+    """PFR step 2 (LO-RANSAC): refit the plane n.x + d = 0 to its inliers within ``threshold``
+    metres by least squares, twice (stops early when fewer than 3 inliers remain)."""
+    for _refine in range(2):
+        inl = np.abs(pts @ n + d) <= threshold
+        if inl.sum() < 3:
+            break
+        n, d = _fit_plane(pts[inl])
+    return n, d
+
+
 def plane_fitting_residual(
     points: Any,
     distance_threshold: float = 0.01,
@@ -386,12 +399,7 @@ def plane_fitting_residual(
         hyp = _ransac_plane(remaining, distance_threshold, num_iterations, sample_size, rng)
         if hyp is None:
             break
-        n, d = hyp
-        for _refine in range(2):
-            inl = np.abs(remaining @ n + d) <= distance_threshold
-            if inl.sum() < 3:
-                break
-            n, d = _fit_plane(remaining[inl])
+        n, d = _refine_plane(remaining, *hyp, distance_threshold)
         inl = np.abs(remaining @ n + d) <= distance_threshold
         if inl.sum() < need:
             break
@@ -550,34 +558,70 @@ class ReferenceMetrics:
     outlier_share: float
 
 
-def _chamfer(d_pred: np.ndarray, d_gt: np.ndarray) -> ChamferResult:
-    if len(d_pred) == 0:
-        return ChamferResult(float("inf"), float("nan"), float("inf"), 0, len(d_gt))
-    acc = float(d_pred.mean() * 1000.0)
-    comp = float(d_gt.mean() * 1000.0)
-    return ChamferResult((acc + comp) / 2.0, acc, comp, len(d_pred), len(d_gt))
+@dataclass(frozen=True)
+class SurfaceDistances:
+    """Nearest-neighbour distances between a reconstruction and reference surface samples, both
+    ways, from which CD, F-score and the outlier share follow (one pair of KD-tree passes for
+    all of them; :func:`surface_distances` builds it).
+
+    Attributes:
+        to_reference: (Q,) float64 metres, each queried predicted point -> nearest reference
+            sample (empty for an empty prediction).
+        to_prediction: (R,) float64 metres, each queried reference sample -> nearest predicted
+            point (inf for an empty prediction).
+    """
+
+    to_reference: np.ndarray
+    to_prediction: np.ndarray
+
+    def chamfer(self) -> ChamferResult:
+        """CD as :func:`chamfer_distance` defines it, from these distances."""
+        d_pred, d_gt = self.to_reference, self.to_prediction
+        if len(d_pred) == 0:
+            return ChamferResult(float("inf"), float("nan"), float("inf"), 0, len(d_gt))
+        acc = float(d_pred.mean() * 1000.0)
+        comp = float(d_gt.mean() * 1000.0)
+        return ChamferResult((acc + comp) / 2.0, acc, comp, len(d_pred), len(d_gt))
+
+    def fscore(self, threshold: float = 0.01) -> FScoreResult:
+        """F-score at ``threshold`` metres as :func:`f_score` defines it, from these distances."""
+        if threshold <= 0:
+            raise ValidationError(f"f_score: threshold must be > 0 metres, got {threshold}")
+        d_pred, d_gt = self.to_reference, self.to_prediction
+        p = float((d_pred < threshold).mean()) if len(d_pred) else 0.0
+        r = float((d_gt < threshold).mean()) if len(d_pred) else 0.0
+        f = 2 * p * r / (p + r) if p + r > 0 else 0.0
+        return FScoreResult(threshold, p, r, f)
+
+    def outlier_share(self, threshold: float = 0.02) -> float:
+        """Share of queried predicted points farther than ``threshold`` metres from the reference
+        (:func:`outlier_share`'s definition); 0.0 for an empty prediction."""
+        if threshold <= 0:
+            raise ValidationError(f"outlier_share: threshold must be > 0 metres, got {threshold}")
+        d_pred = self.to_reference
+        return float((d_pred > threshold).mean()) if len(d_pred) else 0.0
 
 
-def _fscore(d_pred: np.ndarray, d_gt: np.ndarray, threshold: float) -> FScoreResult:
-    if threshold <= 0:
-        raise ValidationError(f"f_score: threshold must be > 0 metres, got {threshold}")
-    p = float((d_pred < threshold).mean()) if len(d_pred) else 0.0
-    r = float((d_gt < threshold).mean()) if len(d_pred) else 0.0
-    f = 2 * p * r / (p + r) if p + r > 0 else 0.0
-    return FScoreResult(threshold, p, r, f)
+def surface_distances(points: Any, gt_points: Any, sample: int | None = None, seed: int = 0) -> SurfaceDistances:
+    """Nearest-neighbour distances both ways between ``points`` and ``gt_points``.
 
-
-def _both_dists(points: Any, gt_points: Any, sample: int | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    Args:
+        points: (M, 3) metres, the reconstruction (FusedCloud, tensor or array).
+        gt_points: (G, 3) metres, the reference surface samples (non-empty, else ValidationError).
+        sample: query at most this many random points of each side (seeded by ``seed``); the
+            KD-trees still hold every point. None = every point.
+        seed: seed of the random queries.
+    """
     pts = as_points(points)
     gt = _check_reference(gt_points)
     if len(pts) == 0:
-        return np.zeros(0), np.full(min(len(gt), sample or len(gt)), np.inf)
+        return SurfaceDistances(np.zeros(0), np.full(min(len(gt), sample or len(gt)), np.inf))
     rng = np.random.default_rng(seed)
 
     def queries(a: np.ndarray) -> np.ndarray:
         return a if sample is None or len(a) <= sample else a[rng.choice(len(a), sample, replace=False)]
 
-    return _nn_dist(queries(pts), gt), _nn_dist(queries(gt), pts)
+    return SurfaceDistances(_nn_dist(queries(pts), gt), _nn_dist(queries(gt), pts))
 
 
 def chamfer_distance(points: Any, gt_points: Any) -> ChamferResult:
@@ -594,7 +638,7 @@ def chamfer_distance(points: Any, gt_points: Any) -> ChamferResult:
         points: (M, 3) metres, the reconstruction.
         gt_points: (G, 3) metres, the reference surface samples.
     """
-    return _chamfer(*_both_dists(points, gt_points))
+    return surface_distances(points, gt_points).chamfer()
 
 
 def f_score(points: Any, gt_points: Any, threshold: float = 0.01) -> FScoreResult:
@@ -609,7 +653,7 @@ def f_score(points: Any, gt_points: Any, threshold: float = 0.01) -> FScoreResul
         gt_points: (G, 3) metres, the reference surface samples.
         threshold: d in metres (Tanks and Temples sets it per scene; default 1 cm).
     """
-    return _fscore(*_both_dists(points, gt_points), threshold)
+    return surface_distances(points, gt_points).fscore(threshold)
 
 
 def reference_metrics(
@@ -629,9 +673,8 @@ def reference_metrics(
         raise ValidationError(f"outlier_threshold must be > 0 metres, got {outlier_threshold}")
     if sample is not None and sample < 1:
         raise ValidationError(f"sample must be >= 1 or None, got {sample}")
-    d_pred, d_gt = _both_dists(points, gt_points, sample, seed)
-    share = float((d_pred > outlier_threshold).mean()) if len(d_pred) else 0.0
-    return ReferenceMetrics(_chamfer(d_pred, d_gt), _fscore(d_pred, d_gt, f_threshold), share)
+    dist = surface_distances(points, gt_points, sample, seed)
+    return ReferenceMetrics(dist.chamfer(), dist.fscore(f_threshold), dist.outlier_share(outlier_threshold))
 
 
 # --------------------------------------------------------------------------------------------
@@ -721,6 +764,37 @@ def pncc(
         max_points: evaluate at most this many points (random subset), or None for all.
         seed: seed of the subset.
     """
+    pts, cams = _pncc_inputs(points, frame, rig, max_points, seed)
+    m = len(pts)
+    if m == 0:
+        return PNCCResult(float("nan"), 0, 0, 0, 0, np.zeros(0))
+    color = frame.color.detach().cpu().numpy().astype(np.float64)
+    grey = color[..., 0] * 0.299 + color[..., 1] * 0.587 + color[..., 2] * 0.114
+    depth = frame.depth.detach().cpu().numpy()
+    present = frame.present.detach().cpu().numpy()
+    normals = _pca_normals(pts, normal_knn) if m >= normal_knn else None
+    visible, score, uv = _pncc_visibility(pts, cams, depth, present, normals, depth_tolerance, depth_tolerance_rel)
+
+    covis = visible.sum(0) >= 2
+    num_not_covisible = int((~covis).sum())
+    pidx = np.nonzero(covis)[0]
+    if len(pidx) == 0:
+        return PNCCResult(float("nan"), m, 0, num_not_covisible, 0, np.zeros(0))
+    best = np.argsort(-score[:, pidx], axis=0, kind="stable")[:2]  # (2, P): the two best views
+    ncc, textured = _patch_ncc(grey, uv, best, pidx, min_std)
+    return PNCCResult(
+        pncc=float(ncc.mean()) if len(ncc) else float("nan"),
+        num_points=m,
+        num_evaluated=len(ncc),
+        num_not_covisible=num_not_covisible,
+        num_flat=int((~textured).sum()),
+        ncc=ncc,
+    )
+
+
+def _pncc_inputs(points: Any, frame: Frame, rig: Rig, max_points: int | None, seed: int) -> tuple[np.ndarray, list]:
+    """PNCC's checks at the boundary, then the (M, 3) float64 points (random subset of
+    ``max_points``, seeded) and the rig's cameras in the frame's order."""
     pts = as_points(points)
     if not isinstance(frame, Frame):
         raise ValidationError(f"pncc: frame must be a fuseflow.Frame, got {type(frame).__name__}")
@@ -738,24 +812,32 @@ def pncc(
         raise ValidationError(f"pncc: max_points must be >= 1 or None, got {max_points}")
     if max_points is not None and len(pts) > max_points:
         pts = pts[np.sort(np.random.default_rng(seed).choice(len(pts), max_points, replace=False))]
-    m = len(pts)
-    if m == 0:
-        return PNCCResult(float("nan"), 0, 0, 0, 0, np.zeros(0))
+    return pts, cams
 
-    color = frame.color.detach().cpu().numpy().astype(np.float64)
-    grey = color[..., 0] * 0.299 + color[..., 1] * 0.587 + color[..., 2] * 0.114
-    depth = frame.depth.detach().cpu().numpy()
-    present = frame.present.detach().cpu().numpy()
-    n = len(cams)
 
-    normals = None
-    if m >= normal_knn:
-        import open3d as o3d
+def _pca_normals(pts: np.ndarray, knn: int) -> np.ndarray:
+    """(M, 3) unit normals of (M, 3) points: Open3D PCA over ``knn`` nearest neighbours."""
+    import open3d as o3d
 
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(normal_knn))
-        normals = np.asarray(pcd.normals)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn))
+    return np.asarray(pcd.normals)
 
+
+def _pncc_visibility(
+    pts: np.ndarray,
+    cams: list,
+    depth: np.ndarray,
+    present: np.ndarray,
+    normals: np.ndarray | None,
+    depth_tolerance: float,
+    depth_tolerance_rel: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PNCC steps 1-2 per camera j: visible (n, M) bool (in front, inside the 1-pixel margin,
+    passing the depth test against ``depth`` (n, H, W) metres), score (n, M) (|cos| between
+    normal and ray, or -z without normals; -inf where not visible) and uv (n, M, 2) pixels."""
+    n, m = len(cams), len(pts)
+    h, w = depth.shape[1:]
     visible = np.zeros((n, m), dtype=bool)
     score = np.full((n, m), -np.inf)
     uv = np.zeros((n, m, 2))
@@ -787,14 +869,16 @@ def pncc(
             score[j, idx] = np.nan_to_num(np.abs(np.sum(ray * n_cam, axis=1)), nan=0.0)
         else:
             score[j, idx] = -z[idx]
+    return visible, score, uv
 
-    covis = visible.sum(0) >= 2
-    num_not_covisible = int((~covis).sum())
-    pidx = np.nonzero(covis)[0]
-    if len(pidx) == 0:
-        return PNCCResult(float("nan"), m, 0, num_not_covisible, 0, np.zeros(0))
-    order = np.argsort(-score[:, pidx], axis=0, kind="stable")
-    best = order[:2]  # (2, P)
+
+def _patch_ncc(
+    grey: np.ndarray, uv: np.ndarray, best: np.ndarray, pidx: np.ndarray, min_std: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """PNCC steps 3-4: NCC of the bilinear 3x3 grey patches of points ``pidx`` in their two best
+    cameras ``best`` (2, P). grey: (n, H, W) float64 grey levels. Returns the NCC of the textured
+    points and the (P,) bool mask of points whose two patches are both textured."""
+    h, w = grey.shape[1:]
     offs = np.array([-1.0, 0.0, 1.0])
     du, dv = np.meshgrid(offs, offs)
     du, dv = du.ravel(), dv.ravel()
@@ -816,14 +900,7 @@ def pncc(
     sb = np.sqrt((b * b).sum(1))
     textured = (sa / 3.0 >= min_std) & (sb / 3.0 >= min_std)  # std over 9 samples = norm / 3
     ncc = (a * b).sum(1)[textured] / (sa * sb)[textured]
-    return PNCCResult(
-        pncc=float(ncc.mean()) if len(ncc) else float("nan"),
-        num_points=m,
-        num_evaluated=len(ncc),
-        num_not_covisible=num_not_covisible,
-        num_flat=int((~textured).sum()),
-        ncc=ncc,
-    )
+    return ncc, textured
 
 
 # --------------------------------------------------------------------------------------------

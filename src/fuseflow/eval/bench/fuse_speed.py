@@ -1,0 +1,383 @@
+"""FUSE per-frame time and peak memory vs Open3D VoxelBlockGrid TSDF and naive + voxel_down_sample.
+
+    fuseflow bench fuse --cameras 1,2,4,8,16 --json OUT
+    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_speed.py --json docs/data/fuse_speed.json
+
+What it does (issue 5):
+
+* Renders ``warmup + frames`` frames of a *dynamic* simulated ring of max(N) cameras at 640x480
+  (fuseflow.synth, Kinect-class noise, GT extrinsics) once, into a temporary folder (one .npy per
+  frame). A rig of N cameras is every (max / N)-th camera of that ring, so every N sees the same
+  frames. Frames differ (a figure walks, a box bounces): VoxelBlockGrid's time depends on content.
+* Each (method, N) runs in a fresh Python process (``python -m fuseflow.eval.bench.fuse_speed``),
+  so that peak memory is that method's alone: the child imports fuseflow, runs ``warmup`` frames
+  untimed (numba compilation, Open3D start-up), then resets the kernel's RSS high-water mark
+  (``echo 5 > /proc/self/clear_refs``) and times ``frames`` frames one after the other, loading
+  each from disk outside the timed region.
+  ``peak_mb`` is VmHWM (peak resident set, /proc/self/status) over the timed frames: the whole
+  process (interpreter, torch, Open3D, one input frame, the method's working memory), which
+  tracemalloc cannot see (torch / Open3D / numba allocate outside Python's allocator).
+  ``base_mb`` is the resident set just before the timed frames; peak - base is what the method
+  added. On CUDA, ``gpu_peak_mb`` is torch.cuda.max_memory_allocated over the timed frames.
+* ``ms`` is the median wall time of one call over the timed frames (perf_counter around the
+  call; CUDA synchronised): fuseflow.fuse.fuse, baselines.tsdf_fusion (tensor VoxelBlockGrid,
+  1 cm voxels, integrate every view then extract_point_cloud), baselines.voxel_downsampled_fusion
+  (back-project every valid pixel, Open3D voxel_down_sample at 1 cm).
+
+Output: report lines (a table) through ``log`` and, with ``json_path``, {"meta": ..., "rows":
+[one row per (method, N)]}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fuseflow.errors import ValidationError
+from fuseflow.eval.bench import BenchmarkFailed
+
+__all__ = [
+    "DEFAULT_METHODS",
+    "METHODS",
+    "FuseSpeedResult",
+    "format_row",
+    "parse_options",
+    "run_fuse_speed",
+]
+
+METHODS = {
+    "fuse": "FUSE (default preset; numba on CPU, PyTorch on CUDA)",
+    "fuse_torch": "FUSE, PyTorch reference backend (eager)",
+    "vbg": "Open3D tensor VoxelBlockGrid TSDF, 1 cm, integrate + extract_point_cloud",
+    "naive_voxel": "naive back-projection + Open3D voxel_down_sample 1 cm",
+}
+DEFAULT_METHODS = ("fuse", "vbg", "naive_voxel")
+
+
+@dataclass
+class FuseSpeedResult:
+    """What :func:`run_fuse_speed` measured.
+
+    Attributes:
+        rows: one dict per (method, N): ms (median), ms_min, ms_max, ms_all (milliseconds per
+            frame), points (median), peak_mb / base_mb (MiB, VmHWM / VmRSS of the child), device,
+            frames, warmup, and gpu_peak_mb on CUDA.
+        derived: ratios of medians: vbg_over_fuse_N8, fuse_t16_over_t8 (when both rows exist).
+        json_path: where the JSON was written, or None.
+    """
+
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    derived: dict[str, float] = field(default_factory=dict)
+    json_path: Path | None = None
+
+
+def _status_mb(field: str) -> float:
+    m = re.search(rf"{field}:\s+(\d+) kB", Path("/proc/self/status").read_text())
+    return int(m.group(1)) / 1024.0 if m else float("nan")
+
+
+def _reset_hwm() -> bool:
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def _subset(n_total: int, n: int) -> list[int]:
+    """n camera indices spread evenly round a ring of n_total (every n_total / n-th camera)."""
+    step = n_total / n
+    return sorted({int(round(k * step)) % n_total for k in range(n)})
+
+
+# ------------------------------------------------------------------------------------ options
+
+
+def parse_options(cameras: str, resolution: str) -> tuple[list[int], tuple[int, int]]:
+    """'1,2,4' and 'WxH' -> ([1, 2, 4], (W, H)); ValidationError on anything else."""
+    try:
+        cams = [int(x) for x in cameras.split(",") if x.strip()]
+        w, h = (int(v) for v in resolution.lower().split("x"))
+    except ValueError:
+        raise ValidationError(
+            f"--cameras expects integers and --resolution WxH, got {cameras!r}, {resolution!r}"
+        ) from None
+    return cams, (w, h)
+
+
+def _check(cams: Sequence[int], methods: Sequence[str], device: str) -> None:
+    if not cams or min(cams) < 1 or max(cams) > 16:
+        raise ValidationError("--cameras must be in 1..16 (one ring of cameras)")
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise ValidationError(f"unknown methods {bad}; choose from {list(METHODS)}")
+    if device.startswith("cuda"):
+        import torch
+
+        if not torch.cuda.is_available():
+            raise ValidationError("--device cuda: torch sees no CUDA device")
+
+
+# ------------------------------------------------------------------------------------ render
+
+
+def _render(work: Path, cameras: int, frames: int, resolution: tuple[int, int], seed: int) -> None:
+    import numpy as np
+
+    from fuseflow.io import write_rig
+    from fuseflow.synth import SimConfig, Simulator
+
+    sim = Simulator(
+        SimConfig(cameras=cameras, frames=frames, resolution=resolution, dynamic=True, seed=seed, rig="ring")
+    )
+    write_rig(work, sim.rig)
+    for t in range(frames):
+        f = sim.render(t).frame
+        np.save(work / f"depth_{t:03d}.npy", f.depth.numpy())
+        np.save(work / f"color_{t:03d}.npy", f.color.numpy())
+
+
+# ------------------------------------------------------------------------------------ child
+
+
+def _method_fn(method: str, rig: Any, dev: Any) -> Callable:
+    """``fn(frame) -> FusedCloud`` for a key of :data:`METHODS`."""
+    if method in ("fuse", "fuse_torch"):
+        from fuseflow.fuse import FuseConfig, fuse
+
+        cfg = FuseConfig(backend="torch") if method == "fuse_torch" else FuseConfig()
+        return lambda frame: fuse(frame.to(dev), rig, cfg)
+    if method == "vbg":
+        from fuseflow.eval.baselines import tsdf_fusion
+
+        return lambda frame: tsdf_fusion(frame, rig, voxel=0.01)
+    if method == "naive_voxel":
+        from fuseflow.eval.baselines import voxel_downsampled_fusion
+
+        return lambda frame: voxel_downsampled_fusion(frame, rig, voxel=0.01)
+    raise ValidationError(f"unknown method {method!r}")
+
+
+def _child(method: str, n: int, work: Path, warmup: int, frames: int, device: str) -> dict:
+    """One (method, N) row, timed in this (fresh) process over the frames rendered in ``work``."""
+    import gc
+
+    import numpy as np
+    import torch
+
+    from fuseflow import Frame
+    from fuseflow.io import read_rig
+
+    rig_all = read_rig(work)
+    sel = _subset(len(rig_all), n)
+    rig = rig_all.subset(sel)
+    dev = torch.device(device)
+    run = _method_fn(method, rig, dev)
+
+    def load(t: int) -> Frame:
+        d = np.load(work / f"depth_{t:03d}.npy")[sel]
+        c = np.load(work / f"color_{t:03d}.npy")[sel]
+        return Frame(t, rig.ids, torch.from_numpy(c), torch.from_numpy(d), torch.ones(len(sel), dtype=torch.bool))
+
+    for t in range(warmup):
+        run(load(t))
+    gc.collect()
+    if dev.type == "cuda":
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
+    base = _status_mb("VmRSS")
+    hwm_reset = _reset_hwm()
+    ms, pts = [], []
+    for t in range(warmup, warmup + frames):
+        frame = load(t)
+        t0 = time.perf_counter()
+        cloud = run(frame)
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+        ms.append((time.perf_counter() - t0) * 1000.0)
+        pts.append(len(cloud))
+        del cloud, frame
+    row = {
+        "method": method,
+        "cameras": n,
+        "ms": statistics.median(ms),
+        "ms_min": min(ms),
+        "ms_max": max(ms),
+        "ms_all": [round(x, 2) for x in ms],
+        "points": int(statistics.median(pts)),
+        "peak_mb": _status_mb("VmHWM"),
+        "base_mb": base,
+        "peak_is_whole_run": not hwm_reset,
+        "device": device,
+        "frames": frames,
+        "warmup": warmup,
+    }
+    if dev.type == "cuda":
+        row["gpu_peak_mb"] = torch.cuda.max_memory_allocated() / 2**20
+    return row
+
+
+def _time_in_child(method: str, n: int, work: Path, warmup: int, frames: int, device: str) -> dict:
+    """Run :func:`_child` in a fresh interpreter that imports this same fuseflow; its row."""
+    import fuseflow
+
+    row_file = work / f"row_{method}_{n}.json"
+    row_file.unlink(missing_ok=True)
+    cmd = [sys.executable, "-m", __name__, method, str(n), str(work), str(warmup), str(frames), device, str(row_file)]
+    src = str(Path(fuseflow.__file__).resolve().parents[1])  # the child imports this fuseflow
+    path = os.pathsep.join([src] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else []))
+    env = {**os.environ, "PYTHONWARNINGS": "ignore", "PYTHONPATH": path}
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if proc.returncode != 0 or not row_file.exists():
+        raise BenchmarkFailed(f"{method} N={n} failed:\n{proc.stderr[-3000:]}")
+    row = json.loads(row_file.read_text())
+    row_file.unlink()
+    return row
+
+
+# ------------------------------------------------------------------------------------ run
+
+
+def format_row(row: dict[str, Any]) -> str:
+    """One row as the report line the program prints."""
+    return (
+        f"{row['method']:12s} N={row['cameras']:2d}  {row['ms']:8.1f} ms  (min {row['ms_min']:.1f}, max {row['ms_max']:.1f})  "
+        f"peak {row['peak_mb']:6.0f} MB (base {row['base_mb']:.0f})  {row['points']:8d} points"
+    )
+
+
+def _derived(rows: list[dict[str, Any]]) -> dict[str, float]:
+    by = {(r["method"], r["cameras"]): r for r in rows}
+    derived = {}
+    if ("fuse", 8) in by and ("vbg", 8) in by:
+        derived["vbg_over_fuse_N8"] = by[("vbg", 8)]["ms"] / by[("fuse", 8)]["ms"]
+    if ("fuse", 8) in by and ("fuse", 16) in by:
+        derived["fuse_t16_over_t8"] = by[("fuse", 16)]["ms"] / by[("fuse", 8)]["ms"]
+    return derived
+
+
+def _meta(command: str, methods: Sequence[str], resolution: tuple[int, int], n_total: int, frames: int,
+          warmup: int, seed: int, derived: dict[str, float]) -> dict[str, Any]:  # fmt: skip
+    import numba
+    import open3d
+    import torch
+
+    return {
+        "command": command,
+        "methods": {m: METHODS[m] for m in methods},
+        "resolution": list(resolution),
+        "ring_cameras": n_total,
+        "frames": frames,
+        "warmup": warmup,
+        "seed": seed,
+        "scene": "studio, dynamic, Kinect-class noise, GT extrinsics",
+        "memory": "peak_mb = VmHWM of a fresh process per row over the timed frames (reset with "
+        "/proc/self/clear_refs after warm-up); base_mb = VmRSS before the timed frames",
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "torch_threads": torch.get_num_threads(),
+            "numba": numba.__version__,
+            "open3d": open3d.__version__,
+        },
+        "derived": derived,
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+    }
+
+
+def _ensure_frames(work: Path, n_total: int, total: int, resolution: tuple[int, int], seed: int, log) -> None:
+    if not (work / "rig.json").exists() or not (work / f"depth_{total - 1:03d}.npy").exists():
+        t0 = time.perf_counter()
+        log(f"rendering {total} frames of a {n_total}-camera dynamic ring at {resolution[0]}x{resolution[1]} ...")
+        _render(work, n_total, total, resolution, seed)
+        log(f"  {time.perf_counter() - t0:.0f} s")
+
+
+def run_fuse_speed(
+    cameras: Sequence[int] = (1, 2, 4, 8, 16),
+    frames: int = 7,
+    warmup: int = 2,
+    device: str = "cpu",
+    methods: Sequence[str] = DEFAULT_METHODS,
+    resolution: tuple[int, int] = (640, 480),
+    seed: int = 5,
+    work: Path | None = None,
+    json_path: Path | None = None,
+    command: str = "",
+    log: Callable[[str], None] | None = None,
+) -> FuseSpeedResult:
+    """Time every (method, N) in a fresh process each (module docstring) and report as it goes.
+
+    Args:
+        cameras: the N to time, each in 1..16 (subsets of one ring of max(cameras)).
+        frames: timed frames per (method, N); ``ms`` is the median over them.
+        warmup: untimed frames first (compilation, caches).
+        device: cpu or cuda (FUSE only; the baselines run on CPU).
+        methods: keys of :data:`METHODS`.
+        resolution: (W, H) pixels of the simulated cameras.
+        seed: simulator seed.
+        work: folder for the rendered frames (reused when complete); None = a temporary folder.
+        json_path: also write {"meta", "rows"} here (meta names ``command``, the machine, versions).
+        log: called with each report line (progress, one line per row, derived ratios).
+    Raises:
+        ValidationError: bad options (messages name the program's option).
+        BenchmarkFailed: a timed child process failed (its stderr tail is in the message).
+    """
+    log = log or (lambda s: None)
+    cams, methods = list(cameras), list(methods)
+    _check(cams, methods, device)
+    n_total = max(cams)
+    tmp = tempfile.TemporaryDirectory(prefix="fuse_speed_") if work is None else None
+    work = Path(tmp.name) if tmp is not None else Path(work)
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+        _ensure_frames(work, n_total, warmup + frames, resolution, seed, log)
+        result = FuseSpeedResult()
+        for n in cams:
+            for m in methods:
+                dev = device if m in ("fuse", "fuse_torch") else "cpu"
+                row = _time_in_child(m, n, work, warmup, frames, dev)
+                result.rows.append(row)
+                log(format_row(row))
+        result.derived = _derived(result.rows)
+        for k, v in result.derived.items():
+            log(f"{k}: {v:.2f}")
+        if json_path is not None:
+            meta = _meta(command, methods, resolution, n_total, frames, warmup, seed, result.derived)
+            json_path = Path(json_path)
+            json_path.parent.mkdir(parents=True, exist_ok=True)
+            json_path.write_text(json.dumps({"meta": meta, "rows": result.rows}, indent=1) + "\n")
+            result.json_path = json_path
+            log(f"wrote {json_path}")
+        return result
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+
+
+def _child_main(argv: list[str]) -> None:
+    """``python -m fuseflow.eval.bench.fuse_speed METHOD N WORK WARMUP FRAMES DEVICE ROW_JSON``."""
+    ap = argparse.ArgumentParser(description="one timed (method, N) row of fuseflow's fuse_speed benchmark")
+    for name in ("method", "n", "work", "warmup", "frames", "device", "row_json"):
+        ap.add_argument(name)
+    a = ap.parse_args(argv)
+    row = _child(a.method, int(a.n), Path(a.work), int(a.warmup), int(a.frames), a.device)
+    Path(a.row_json).write_text(json.dumps(row))
+
+
+if __name__ == "__main__":
+    _child_main(sys.argv[1:])
