@@ -294,8 +294,29 @@ def run_seed(frame, rig, ref, seed, rows, robust, backbone="colmap", noise=(0.3,
     reg = np.flatnonzero(bb.registered)
     if len(reg) >= 3:
         e = (int(reg[0]), int(reg[1]))
+
+        def _shifted_step(edge, offset):
+            """rc_step with edge's points in camera j shifted by offset metres along the
+            baseline (Y' = Y + offset t / |t|): the edge implies a baseline that much too long."""
+            from fuseflow.calib.scale import Correspondences, closed_form_scale
+            from fuseflow.calib.scale_search import rc_step
+
+            def step(geoms, cams_, s, config):
+                _, corrs = rc_step(geoms, cams_, s, config)
+                out = [
+                    c
+                    if (min(c.i, c.j), max(c.i, c.j)) != edge
+                    else Correspondences(
+                        c.i, c.j, c.RX, c.Y + offset * c.t / np.linalg.norm(c.t), c.t, c.w, c.is_match, c.n
+                    )
+                    for c in corrs
+                ]
+                return closed_form_scale(out, config.closed_form), out
+
+            return step
+
         try:
-            sr = metric_scale(bb, cams, CalibConfig(), corrupt={e: 0.3})
+            sr = metric_scale(bb, cams, CalibConfig(), step=_shifted_step(e, 0.3))
             robust["injected"] += 1
             robust["pruned"] += int(e in sr.pruned)
         except fuseflow.FuseFlowError:
