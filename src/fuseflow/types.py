@@ -447,7 +447,9 @@ class Calibration:
     Attributes:
         T_cam_world: mapping camera id -> (4, 4) float64 camera-from-world, metres. Cameras the
             calibration could not place are absent (and named in ``report``).
-        report: JSON-serialisable dict (scale, per-edge scales, residuals, warnings ...).
+        report: how they were obtained: a ``fuseflow.calib.CalibReport`` from GMAC (anything
+            with a ``to_json()`` is kept as it is), or a plain JSON-serialisable dict (a calib.json
+            read back, a given calibration). Both read by key: ``report["scale"]``.
     """
 
     T_cam_world: Mapping[str, np.ndarray]
@@ -460,7 +462,9 @@ class Calibration:
                 raise ValidationError(f"calibration camera ids must be non-empty strings, got {cid!r}")
             checked[cid] = check_rigid(T, f"calibration camera {cid!r}: T_cam_world")
         object.__setattr__(self, "T_cam_world", checked)
-        object.__setattr__(self, "report", dict(self.report))
+        # A typed report (it has to_json, e.g. CalibReport) stays typed; types cannot import calib.
+        if not hasattr(self.report, "to_json"):
+            object.__setattr__(self, "report", dict(self.report))
 
     @property
     def camera_ids(self) -> tuple[str, ...]:

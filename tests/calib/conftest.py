@@ -13,6 +13,8 @@ import torch
 
 from fuseflow import Camera, Frame, Rig
 from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.scale import Correspondences, closed_form_scale
+from fuseflow.calib.scale_search import rc_step
 
 ROOM = (np.array([-3.0, -2.0, -3.0]), np.array([3.0, 1.0, 3.0]))  # y down: floor at y = 1
 OBJECTS = [
@@ -120,3 +122,30 @@ def scene_builder():
 @pytest.fixture(scope="session")
 def backbone_builder():
     return truth_backbone
+
+
+def shifted_step(offsets: dict[tuple[int, int], float]):
+    """A fixed-point step (``metric_scale(..., step=)``) that corrupts edges: for edge (i, j)
+    (i < j) -> offset metres, that edge's points in camera j are shifted along the baseline,
+    Y' = Y + offset t / |t|, so the edge alone implies a baseline ``offset`` too long, as an edge
+    with wrong matches would (robustness check of CC)."""
+
+    def step(geoms, cams, s, config):
+        _, corrs = rc_step(geoms, cams, s, config)
+        out = []
+        for c in corrs:
+            f = offsets.get((min(c.i, c.j), max(c.i, c.j)))
+            if f is None:
+                out.append(c)
+            else:
+                out.append(
+                    Correspondences(c.i, c.j, c.RX, c.Y + f * c.t / np.linalg.norm(c.t), c.t, c.w, c.is_match, c.n)
+                )
+        return closed_form_scale(out, config.closed_form), out
+
+    return step
+
+
+@pytest.fixture(scope="session")
+def corrupt_step():
+    return shifted_step

@@ -102,15 +102,15 @@ def test_edges_with_few_precise_matches_are_kept(studio_like):
     """An edge whose correspondences are all keypoint matches stands on fewer than
     min_correspondences of them (they are s-independent; the reprojection fallback is biased)."""
     from fuseflow.calib import calibrate
-    from fuseflow.calib.api import _all_matches
+    from fuseflow.calib.correspondences import match_only
     from fuseflow.calib.scale import Correspondences
 
     def corr(m, is_match):
         return Correspondences(0, 1, np.zeros((m, 3)), np.zeros((m, 3)), np.ones(3), np.ones(m), np.full(m, is_match))
 
-    assert _all_matches([corr(6, True), corr(7, True)])
-    assert not _all_matches([corr(6, True), corr(7, False)])
-    assert not _all_matches([corr(6, True), corr(0, True)])
+    assert match_only([corr(6, True), corr(7, True)])
+    assert not match_only([corr(6, True), corr(7, False)])
+    assert not match_only([corr(6, True), corr(0, True)])
     frame, rig, T = studio_like
     cal = calibrate(frame, rig, CalibConfig(min_correspondences=10_000))
     counts = cal.report["correspondence_counts"]

@@ -79,18 +79,18 @@ def test_fixed_point_converges_to_true_scale(scene5, backbone_builder):
     assert set(r["timings_s"]) >= {"backbone", "scale", "total"}
 
 
-def test_pruning_removes_injected_bad_edge(scene5, backbone_builder):
+def test_pruning_removes_injected_bad_edge(scene5, backbone_builder, corrupt_step):
     frame, rig, T = scene5
     cfg = CalibConfig()
     bb = backbone_builder(T, 3.7)
     cams = prepare_cameras(frame.depth.numpy(), rig.K().double().numpy(), rig.depth_range().double().numpy(), 3000)
-    sr = metric_scale(bb, cams, cfg, corrupt={(0, 1): 0.4})
+    sr = metric_scale(bb, cams, cfg, step=corrupt_step({(0, 1): 0.4}))
     assert (0, 1) in sr.pruned
     assert sr.cycle_mode == "cycles"
     assert abs(sr.s - 3.7) / 3.7 < 0.01
     assert max(sr.cycle_residuals_before.values()) > cfg.delta_cycle
     # without CC the bad edge stays and biases the scale more
-    sr_off = metric_scale(bb, cams, CalibConfig(cycle_consistency=False), corrupt={(0, 1): 0.4})
+    sr_off = metric_scale(bb, cams, CalibConfig(cycle_consistency=False), step=corrupt_step({(0, 1): 0.4}))
     assert sr_off.pruned == () and sr_off.cycle_mode == "off"
     assert abs(sr_off.s - 3.7) > abs(sr.s - 3.7)
 

@@ -2,7 +2,8 @@
 
 ``calibrate(frame, rig, config=CalibConfig()) -> Calibration``. See design.md in this folder for
 the stages and where they depart from the paper (DESIGN.md section 3). Never imports
-``fuseflow.fuse`` or ``fuseflow.eval``; pycolmap and Open3D are imported inside the stages that
+``fuseflow.fuse``, ``fuseflow.pipeline`` or ``fuseflow.eval`` (shared geometry comes from
+``fuseflow.geometry``); pycolmap and Open3D are imported inside the stages that
 use them.
 """
 
@@ -10,5 +11,15 @@ from fuseflow.calib.api import calibrate, metric_scale
 from fuseflow.calib.backbones import BackboneResult, get_backbone
 from fuseflow.calib.config import PRESETS, CalibConfig
 from fuseflow.calib.errors import CalibrationError
+from fuseflow.calib.report import CalibReport
 
-__all__ = ["BackboneResult", "CalibConfig", "CalibrationError", "PRESETS", "calibrate", "get_backbone", "metric_scale"]
+__all__ = [
+    "BackboneResult",
+    "CalibConfig",
+    "CalibReport",
+    "CalibrationError",
+    "PRESETS",
+    "calibrate",
+    "get_backbone",
+    "metric_scale",
+]

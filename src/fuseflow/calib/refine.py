@@ -102,89 +102,106 @@ def refine_poses(
         k: _cloud(o3d, depth[k], K[k], depth_range[k], config.icp_voxel, None if color is None else color[k])
         for k in nodes
     }
-    ranked = sorted(edges, key=lambda e: -(counts or {}).get(e, 0))
-    chosen: list[tuple[int, int]] = []
-    for k in nodes:
-        chosen += [e for e in ranked if k in e][: config.refine_neighbors]
-    edges = sorted(set(chosen))
+    edges = _best_edges(nodes, edges, counts, config.refine_neighbors)
     index = {k: n for n, k in enumerate(nodes)}
     graph = reg.PoseGraph()
     for k in nodes:
         graph.nodes.append(reg.PoseGraphNode(invert_rigid(T_cam_world[k])))
     fitness, rmse = {}, {}
     used = 0
-    crit = reg.ICPConvergenceCriteria(relative_fitness=1e-6, relative_rmse=1e-6, max_iteration=50)
     for i, j in edges:
         if i not in index or j not in index:
             continue
-        # source = camera i's cloud, target = camera j's: T_j<-i = T_j T_i^-1
-        init = T_cam_world[j] @ invert_rigid(T_cam_world[i])
-        # one level: a coarse-to-fine schedule (20 cm -> 5 cm) was tried on the synthetic room
-        # and locked onto wrong planes (rotation 1.1 -> 14 deg); the single 5 cm level gave 0.73
-        try:
-            if color is not None:
-                res = reg.registration_colored_icp(
-                    clouds[i],
-                    clouds[j],
-                    config.icp_max_distance,
-                    init,
-                    reg.TransformationEstimationForColoredICP(),
-                    crit,
-                )
-            else:
-                res = reg.registration_icp(
-                    clouds[i],
-                    clouds[j],
-                    config.icp_max_distance,
-                    init,
-                    reg.TransformationEstimationPointToPlane(),
-                    crit,
-                )
-        except RuntimeError:  # Open3D: "No correspondences found" = no overlap within reach; skip the pair
-            fitness[f"{i}-{j}"], rmse[f"{i}-{j}"] = 0.0, float("nan")
-            continue
-        fitness[f"{i}-{j}"] = float(res.fitness)
-        rmse[f"{i}-{j}"] = float(res.inlier_rmse * 1000.0)
-        D = np.asarray(res.transformation) @ invert_rigid(init)
-        angle = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
-        if res.fitness < MIN_FITNESS or angle > 5.0 or np.linalg.norm(D[:3, 3]) > 0.3:
-            continue
-        info = reg.get_information_matrix_from_point_clouds(
-            clouds[i], clouds[j], config.icp_max_distance, res.transformation
-        )
-        # Open3D: PoseGraphEdge(source, target, T) with world-from-camera node poses P means
-        # T = P_target^-1 P_source, i.e. T_j<-i as registered above.
-        graph.edges.append(reg.PoseGraphEdge(index[i], index[j], res.transformation, info, uncertain=False))
-        used += 1
+        edge = _register_pair(reg, clouds, i, j, T_cam_world, config.icp_max_distance, color is not None)
+        fitness[f"{i}-{j}"], rmse[f"{i}-{j}"] = edge.fitness, edge.rmse_mm
+        if edge.transformation is not None:
+            graph.edges.append(reg.PoseGraphEdge(index[i], index[j], edge.transformation, edge.info, uncertain=False))
+            used += 1
     if used:
-        option = reg.GlobalOptimizationOption(
-            max_correspondence_distance=config.icp_max_distance, edge_prune_threshold=0.25, reference_node=0
-        )
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            reg.global_optimization(
-                graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option
-            )
-    out, moved = {}, {}
-    for k in nodes:
-        out[k] = invert_rigid(np.asarray(graph.nodes[index[k]].pose))
+        _optimise(o3d, graph, config.icp_max_distance)
+    out = {k: invert_rigid(np.asarray(graph.nodes[index[k]].pose)) for k in nodes}
     accepted, check = False, None
     if used:
-        check = _fit_check(reg, clouds, edges, T_cam_world, out, config.icp_max_distance)
-        m0 = _match_misfit(matches, T_cam_world, depth, K, depth_range)
-        if m0 is not None:
-            check["match_misfit_before_mm"] = m0
-            check["match_misfit_after_mm"] = _match_misfit(matches, out, depth, K, depth_range)
-            accepted = check["match_misfit_after_mm"] < m0
-        else:
-            accepted = (
-                check["rmse_after_mm"] < check["rmse_before_mm"] and check["fitness_after"] >= check["fitness_before"]
-            )
+        accepted, check = _accept(reg, clouds, edges, T_cam_world, out, config, matches, depth, K, depth_range)
     if not accepted:
         out = {k: np.array(T_cam_world[k], dtype=np.float64) for k in nodes}
+    moved = {}
     for k in nodes:
         c_old = invert_rigid(T_cam_world[k])[:3, 3]
         moved[str(k)] = float(np.linalg.norm(invert_rigid(out[k])[:3, 3] - c_old) * 1000.0)
     return RefineResult(out, fitness, rmse, moved, used, accepted, check)
+
+
+def _best_edges(nodes, edges, counts, per_camera: int) -> list[tuple[int, int]]:
+    """Each camera's ``per_camera`` edges with the most correspondences, sorted, no repeats."""
+    ranked = sorted(edges, key=lambda e: -(counts or {}).get(e, 0))
+    chosen: list[tuple[int, int]] = []
+    for k in nodes:
+        chosen += [e for e in ranked if k in e][:per_camera]
+    return sorted(set(chosen))
+
+
+@dataclass(frozen=True)
+class _PairRegistration:
+    fitness: float
+    rmse_mm: float
+    transformation: np.ndarray | None = None
+    """T_j<-i for the pose graph, None when the pair is not used (no overlap or divergence)."""
+    info: np.ndarray | None = None
+
+
+def _register_pair(reg, clouds, i: int, j: int, T_cam_world, max_dist: float, coloured: bool) -> _PairRegistration:
+    """ICP of camera i's cloud (source) onto camera j's (target) from the GMAC poses."""
+    crit = reg.ICPConvergenceCriteria(relative_fitness=1e-6, relative_rmse=1e-6, max_iteration=50)
+    # source = camera i's cloud, target = camera j's: T_j<-i = T_j T_i^-1
+    init = T_cam_world[j] @ invert_rigid(T_cam_world[i])
+    # one level: a coarse-to-fine schedule (20 cm -> 5 cm) was tried on the synthetic room
+    # and locked onto wrong planes (rotation 1.1 -> 14 deg); the single 5 cm level gave 0.73
+    try:
+        if coloured:
+            res = reg.registration_colored_icp(
+                clouds[i], clouds[j], max_dist, init, reg.TransformationEstimationForColoredICP(), crit
+            )
+        else:
+            res = reg.registration_icp(
+                clouds[i], clouds[j], max_dist, init, reg.TransformationEstimationPointToPlane(), crit
+            )
+    except RuntimeError:  # Open3D: "No correspondences found" = no overlap within reach; skip the pair
+        return _PairRegistration(0.0, float("nan"))
+    fit, rm = float(res.fitness), float(res.inlier_rmse * 1000.0)
+    D = np.asarray(res.transformation) @ invert_rigid(init)
+    angle = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+    if res.fitness < MIN_FITNESS or angle > 5.0 or np.linalg.norm(D[:3, 3]) > 0.3:
+        return _PairRegistration(fit, rm)
+    info = reg.get_information_matrix_from_point_clouds(clouds[i], clouds[j], max_dist, res.transformation)
+    # Open3D: PoseGraphEdge(source, target, T) with world-from-camera node poses P means
+    # T = P_target^-1 P_source, i.e. T_j<-i as registered above.
+    return _PairRegistration(fit, rm, res.transformation, info)
+
+
+def _optimise(o3d, graph, max_dist: float) -> None:
+    """Open3D's global pose-graph optimisation (Levenberg-Marquardt), first node fixed."""
+    reg = o3d.pipelines.registration
+    option = reg.GlobalOptimizationOption(
+        max_correspondence_distance=max_dist, edge_prune_threshold=0.25, reference_node=0
+    )
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        reg.global_optimization(
+            graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option
+        )
+
+
+def _accept(reg, clouds, edges, T_before, T_after, config, matches, depth, K, depth_range):
+    """(keep the refined poses?, the numbers behind it): the held-out keypoint matches must fit
+    better; without matches, the clouds' mean RMSE must drop and mean fitness not drop."""
+    check = _fit_check(reg, clouds, edges, T_before, T_after, config.icp_max_distance)
+    m0 = _match_misfit(matches, T_before, depth, K, depth_range)
+    if m0 is not None:
+        check["match_misfit_before_mm"] = m0
+        check["match_misfit_after_mm"] = _match_misfit(matches, T_after, depth, K, depth_range)
+        return check["match_misfit_after_mm"] < m0, check
+    accepted = check["rmse_after_mm"] < check["rmse_before_mm"] and check["fitness_after"] >= check["fitness_before"]
+    return accepted, check
 
 
 def _fit_check(reg, clouds, edges, T_before, T_after, max_dist: float) -> dict[str, float]:

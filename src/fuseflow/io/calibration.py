@@ -4,7 +4,8 @@ Schema::
 
     {"format": "fuseflow-calib/1",
      "cameras": {"<camera id>": {"T_cam_world": [[4x4 row-major]]}, ...},
-     "report": {...}}          # free-form JSON: how the extrinsics were obtained
+     "report": {...}}          # free-form JSON: how the extrinsics were obtained (GMAC writes
+                               # fuseflow.calib.CalibReport.to_json() here)
 
 T_cam_world is camera-from-world in metres (the same as rig.json). Cameras that a calibration
 could not place are simply absent from "cameras" (and named in the report).
@@ -27,6 +28,8 @@ CALIB_FORMAT = "fuseflow-calib/1"
 
 
 def _jsonable(obj: Any) -> Any:
+    if hasattr(obj, "to_json"):  # a typed report (fuseflow.calib.CalibReport); io does not import calib
+        return _jsonable(obj.to_json())
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -41,10 +44,11 @@ def _jsonable(obj: Any) -> Any:
 
 
 def calibration_to_json(calib: Calibration) -> dict[str, Any]:
+    """calib.json's document for ``calib``; a typed report is written as its ``to_json()``."""
     return {
         "format": CALIB_FORMAT,
         "cameras": {cid: {"T_cam_world": T.tolist()} for cid, T in calib.T_cam_world.items()},
-        "report": _jsonable(dict(calib.report)),
+        "report": _jsonable(calib.report),
     }
 
 

@@ -52,158 +52,38 @@ def _import_pycolmap():
 def colmap_backbone(frame, rig, config) -> BackboneResult:
     """Run pycolmap on the frame's colour images with the rig's intrinsics fixed.
 
+    Steps: write the images -> SIFT features (``_extract_features``) -> textureless check ->
+    exhaustive matching and two-view verification (``_match_pairs``) -> incremental mapping,
+    merging split models (``_incremental_poses``) -> two-view fallback (``_two_view_poses``) ->
+    co-visibility overlap and features (``_covisibility``).
+
     Raises CalibrationError naming textureless cameras (< MIN_KEYPOINTS keypoints), or when
     fewer than two cameras can be registered.
     """
-    import cv2
-
     pycolmap = _import_pycolmap()
     pycolmap.logging.minloglevel = 2  # errors only: the library does not print
     t0 = time.perf_counter()
-    color = frame.color.cpu().numpy()
-    n = color.shape[0]
+    n = frame.color.shape[0]
     K = np.stack([rig[cid].K for cid in frame.camera_ids])
     present = frame.present.cpu().numpy()
     with tempfile.TemporaryDirectory(prefix="fuseflow-colmap-") as tmp:
         tmp = Path(tmp)
-        img_dir = tmp / "images"
-        img_dir.mkdir()
-        names = [f"{i:04d}.png" for i in range(n)]
-        for i in range(n):
-            if present[i]:
-                cv2.imwrite(str(img_dir / names[i]), cv2.cvtColor(color[i], cv2.COLOR_RGB2BGR))
-        used = [names[i] for i in range(n) if present[i]]
+        names, used = _write_images(frame.color.cpu().numpy(), present, tmp / "images")
         db_path = tmp / "db.db"
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = "PINHOLE"
-        fx, fy, cx, cy = K[0, 0, 0], K[0, 1, 1], K[0, 0, 2] + PIXEL_ORIGIN, K[0, 1, 2] + PIXEL_ORIGIN
-        reader.camera_params = f"{fx},{fy},{cx},{cy}"
-        ext = pycolmap.FeatureExtractionOptions()
-        ext.sift.peak_threshold = PEAK_THRESHOLD
-        ext.num_threads = 2
-        pycolmap.extract_features(
-            db_path,
-            img_dir,
-            image_names=used,
-            camera_mode=pycolmap.CameraMode.PER_IMAGE,
-            reader_options=reader,
-            extraction_options=ext,
-            device=pycolmap.Device.cpu,
-        )
-        db = pycolmap.Database.open(db_path)
         name_to_idx = {nm: k for k, nm in enumerate(names)}
-        id_to_idx, kps = {}, {}
-        for im in db.read_all_images():
-            k = name_to_idx[im.name]
-            id_to_idx[im.image_id] = k
-            cam = db.read_camera(im.camera_id)
-            cam.params = np.array([K[k, 0, 0], K[k, 1, 1], K[k, 0, 2] + PIXEL_ORIGIN, K[k, 1, 2] + PIXEL_ORIGIN])
-            db.update_camera(cam)
-            kps[k] = np.asarray(db.read_keypoints(im.image_id))[:, :2] - PIXEL_ORIGIN
-        db.close()
-        textureless = [frame.camera_ids[k] for k in range(n) if present[k] and len(kps.get(k, [])) < MIN_KEYPOINTS]
-        if textureless:
-            raise CalibrationError(
-                f"cameras {textureless} have fewer than {MIN_KEYPOINTS} SIFT keypoints: the images look "
-                "textureless (or are blank); the image-based backbone cannot place them"
-            )
+        id_to_idx, kps = _extract_features(pycolmap, db_path, tmp / "images", used, K, name_to_idx)
+        _check_texture(frame, kps, present)
         t_extract = time.perf_counter() - t0
-        match_opts = pycolmap.FeatureMatchingOptions()
-        match_opts.guided_matching = False
-        match_opts.num_threads = 2
-        verify = pycolmap.TwoViewGeometryOptions()
-        verify.compute_relative_pose = True
-        pycolmap.match_exhaustive(
-            db_path, matching_options=match_opts, verification_options=verify, device=pycolmap.Device.cpu
-        )
-        db = pycolmap.Database.open(db_path)
-        pair_ids, geoms = db.read_two_view_geometries()
-        db.close()
+        matches, two_view = _match_pairs(pycolmap, db_path, id_to_idx, kps)
         t_match = time.perf_counter() - t0 - t_extract
-        matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-        two_view: dict[tuple[int, int], np.ndarray] = {}
-        for pid, g in zip(pair_ids, geoms):
-            a, b = pycolmap.pair_id_to_image_pair(pid)
-            ia, ib = id_to_idx[a], id_to_idx[b]
-            m = np.asarray(g.inlier_matches)
-            if len(m) == 0:
-                continue
-            uva, uvb = kps[ia][m[:, 0]], kps[ib][m[:, 1]]
-            if ia > ib:
-                ia, ib, uva, uvb = ib, ia, uvb, uva
-                flip = True
-            else:
-                flip = False
-            matches[(ia, ib)] = (uva.astype(np.float64), uvb.astype(np.float64))
-            try:
-                T = np.eye(4)
-                T[:3, :] = np.asarray(g.cam2_from_cam1.matrix())
-                two_view[(ia, ib)] = np.linalg.inv(T) if flip else T
-            except Exception:  # noqa: BLE001 - pairs without a relative pose simply lack one
-                pass
-        T0 = np.tile(np.eye(4), (n, 1, 1))
-        registered = np.zeros(n, bool)
-        points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        mode = "incremental"
-        recs = {}
-        if len(used) >= 3:
-            opts = pycolmap.IncrementalPipelineOptions()
-            opts.min_model_size = 2
-            opts.ba_refine_focal_length = False
-            opts.ba_refine_principal_point = False
-            opts.ba_refine_extra_params = False
-            opts.num_threads = MAPPER_THREADS
-            opts.random_seed = int(config.seed)
-            # A rig frame is N images with wide baselines and few (50-400) matches per pair, not a
-            # video: COLMAP's defaults (30 inliers and a 25 % inlier ratio to register an image,
-            # 100 inliers and 16 deg to initialise) split an 8-camera simulated studio into three
-            # 3-image models. These thresholds register all 8 (rotation error 0.12 deg there).
-            opts.mapper.abs_pose_min_num_inliers = 15
-            opts.mapper.abs_pose_min_inlier_ratio = 0.1
-            opts.mapper.init_min_num_inliers = 50
-            opts.mapper.init_min_tri_angle = 4.0
-            # Most tracks of a wide-baseline rig are seen by two cameras only; COLMAP's default
-            # ignores them when triangulating, which left ~300 3D points from ~4700 verified
-            # matches on the simulated studio and mean rotation errors of 0.5-1.3 deg that varied
-            # from run to run. Keeping them: ~3500-4200 points and 0.02-0.03 deg.
-            opts.triangulation.ignore_two_view_tracks = False
-            out = tmp / "sparse"
-            out.mkdir()
-            try:
-                recs = pycolmap.incremental_mapping(db_path, img_dir, out, options=opts)
-            except Exception:  # noqa: BLE001 - a failed mapper falls back to two-view poses
-                recs = {}
-        if recs:
-            models = [_model_poses(r, name_to_idx) for r in recs.values()]
-            merged, n_models = merge_models(models)
-            for k, (T, uv, z) in merged.items():
-                T0[k] = T
-                registered[k] = True
-                if len(uv):
-                    points[k] = (uv, z)
-            if n_models > 1:
-                mode = f"incremental ({n_models} models merged)"
+        T0, registered, points, mode = _incremental_poses(
+            pycolmap, db_path, tmp / "images", tmp / "sparse", used, name_to_idx, n, config
+        )
         if registered.sum() < 2:
             mode = "two-view"
-            if not two_view:
-                raise CalibrationError(
-                    "the colmap backbone found no verified image pair: the cameras share too little "
-                    f"texture (keypoints per camera: { {frame.camera_ids[k]: len(v) for k, v in kps.items()} })"
-                )
-            (ia, ib), T = max(two_view.items(), key=lambda kv: len(matches[kv[0]][0]))
-            T0[:] = np.eye(4)
-            registered[:] = False
-            T0[ib] = T
-            registered[[ia, ib]] = True
-            points = _triangulate_pair(K[ia], K[ib], T, *matches[(ia, ib)], ia, ib)
+            T0, registered, points = _two_view_poses(frame, K, kps, matches, two_view, n)
     t_total = time.perf_counter() - t0
-    cov = np.zeros((n, n))
-    for (a, b), (uva, _) in matches.items():
-        cov[a, b] = cov[b, a] = len(uva)
-    nk = np.array([max(len(kps.get(k, [])), 1) for k in range(n)], dtype=np.float64)
-    overlap = np.clip(cov / np.minimum(nk[:, None], nk[None, :]) * 4.0, 0.0, 1.0)
-    np.fill_diagonal(overlap, 1.0)
-    feats = cov + np.diag(np.maximum(cov.max(axis=1), 1.0))
+    overlap, feats = _covisibility(matches, kps, n)
     return BackboneResult(
         T_cam_world=T0,
         registered=registered,
@@ -219,6 +99,187 @@ def colmap_backbone(frame, rig, config) -> BackboneResult:
             "seconds": {"extract": t_extract, "match": t_match, "total": t_total},
         },
     )
+
+
+def _write_images(color: np.ndarray, present: np.ndarray, img_dir: Path) -> tuple[list[str], list[str]]:
+    """Write the present views (colour (N, H, W, 3) uint8 RGB) as PNGs; returns (name of every
+    view, names of the written ones)."""
+    import cv2
+
+    img_dir.mkdir()
+    names = [f"{i:04d}.png" for i in range(len(color))]
+    for i in range(len(color)):
+        if present[i]:
+            cv2.imwrite(str(img_dir / names[i]), cv2.cvtColor(color[i], cv2.COLOR_RGB2BGR))
+    return names, [names[i] for i in range(len(color)) if present[i]]
+
+
+def _extract_features(pycolmap, db_path: Path, img_dir: Path, used: list[str], K: np.ndarray, name_to_idx):
+    """SIFT into a new database with each image's PINHOLE intrinsics fixed to the rig's.
+
+    Returns (COLMAP image id -> camera index, camera index -> keypoints (M, 2) in DESIGN.md pixels).
+    """
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    fx, fy, cx, cy = K[0, 0, 0], K[0, 1, 1], K[0, 0, 2] + PIXEL_ORIGIN, K[0, 1, 2] + PIXEL_ORIGIN
+    reader.camera_params = f"{fx},{fy},{cx},{cy}"
+    ext = pycolmap.FeatureExtractionOptions()
+    ext.sift.peak_threshold = PEAK_THRESHOLD
+    ext.num_threads = 2
+    pycolmap.extract_features(
+        db_path,
+        img_dir,
+        image_names=used,
+        camera_mode=pycolmap.CameraMode.PER_IMAGE,
+        reader_options=reader,
+        extraction_options=ext,
+        device=pycolmap.Device.cpu,
+    )
+    db = pycolmap.Database.open(db_path)
+    id_to_idx, kps = {}, {}
+    for im in db.read_all_images():
+        k = name_to_idx[im.name]
+        id_to_idx[im.image_id] = k
+        cam = db.read_camera(im.camera_id)
+        cam.params = np.array([K[k, 0, 0], K[k, 1, 1], K[k, 0, 2] + PIXEL_ORIGIN, K[k, 1, 2] + PIXEL_ORIGIN])
+        db.update_camera(cam)
+        kps[k] = np.asarray(db.read_keypoints(im.image_id))[:, :2] - PIXEL_ORIGIN
+    db.close()
+    return id_to_idx, kps
+
+
+def _check_texture(frame, kps: dict[int, np.ndarray], present: np.ndarray) -> None:
+    n = len(present)
+    textureless = [frame.camera_ids[k] for k in range(n) if present[k] and len(kps.get(k, [])) < MIN_KEYPOINTS]
+    if textureless:
+        raise CalibrationError(
+            f"cameras {textureless} have fewer than {MIN_KEYPOINTS} SIFT keypoints: the images look "
+            "textureless (or are blank); the image-based backbone cannot place them"
+        )
+
+
+def _match_pairs(pycolmap, db_path: Path, id_to_idx, kps):
+    """Exhaustive matching with two-view verification.
+
+    Returns ({(i, j), i < j: (uv_i (K, 2), uv_j (K, 2))} verified inlier matches,
+    {(i, j): (4, 4) T_j_i} two-view relative poses where COLMAP computed one).
+    """
+    match_opts = pycolmap.FeatureMatchingOptions()
+    match_opts.guided_matching = False
+    match_opts.num_threads = 2
+    verify = pycolmap.TwoViewGeometryOptions()
+    verify.compute_relative_pose = True
+    pycolmap.match_exhaustive(
+        db_path, matching_options=match_opts, verification_options=verify, device=pycolmap.Device.cpu
+    )
+    db = pycolmap.Database.open(db_path)
+    pair_ids, geoms = db.read_two_view_geometries()
+    db.close()
+    matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    two_view: dict[tuple[int, int], np.ndarray] = {}
+    for pid, g in zip(pair_ids, geoms):
+        a, b = pycolmap.pair_id_to_image_pair(pid)
+        ia, ib = id_to_idx[a], id_to_idx[b]
+        m = np.asarray(g.inlier_matches)
+        if len(m) == 0:
+            continue
+        uva, uvb = kps[ia][m[:, 0]], kps[ib][m[:, 1]]
+        if ia > ib:
+            ia, ib, uva, uvb = ib, ia, uvb, uva
+            flip = True
+        else:
+            flip = False
+        matches[(ia, ib)] = (uva.astype(np.float64), uvb.astype(np.float64))
+        try:
+            T = np.eye(4)
+            T[:3, :] = np.asarray(g.cam2_from_cam1.matrix())
+            two_view[(ia, ib)] = np.linalg.inv(T) if flip else T
+        except Exception:  # noqa: BLE001 - pairs without a relative pose simply lack one
+            pass
+    return matches, two_view
+
+
+def _mapper_options(pycolmap, config):
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.min_model_size = 2
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.num_threads = MAPPER_THREADS
+    opts.random_seed = int(config.seed)
+    # A rig frame is N images with wide baselines and few (50-400) matches per pair, not a
+    # video: COLMAP's defaults (30 inliers and a 25 % inlier ratio to register an image,
+    # 100 inliers and 16 deg to initialise) split an 8-camera simulated studio into three
+    # 3-image models. These thresholds register all 8 (rotation error 0.12 deg there).
+    opts.mapper.abs_pose_min_num_inliers = 15
+    opts.mapper.abs_pose_min_inlier_ratio = 0.1
+    opts.mapper.init_min_num_inliers = 50
+    opts.mapper.init_min_tri_angle = 4.0
+    # Most tracks of a wide-baseline rig are seen by two cameras only; COLMAP's default
+    # ignores them when triangulating, which left ~300 3D points from ~4700 verified
+    # matches on the simulated studio and mean rotation errors of 0.5-1.3 deg that varied
+    # from run to run. Keeping them: ~3500-4200 points and 0.02-0.03 deg.
+    opts.triangulation.ignore_two_view_tracks = False
+    return opts
+
+
+def _incremental_poses(pycolmap, db_path: Path, img_dir: Path, out: Path, used: list[str], name_to_idx, n: int, config):
+    """COLMAP's incremental mapper (>= 3 images), split models merged (``merge_models``).
+
+    Returns (T0 (n, 4, 4) backbone-unit camera-from-world, identity where unregistered,
+    registered (n,) bool, {camera index: (uv, z)} triangulated keypoint depths, mode text).
+    """
+    T0 = np.tile(np.eye(4), (n, 1, 1))
+    registered = np.zeros(n, bool)
+    points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    mode = "incremental"
+    recs = {}
+    if len(used) >= 3:
+        out.mkdir()
+        try:
+            recs = pycolmap.incremental_mapping(db_path, img_dir, out, options=_mapper_options(pycolmap, config))
+        except Exception:  # noqa: BLE001 - a failed mapper falls back to two-view poses
+            recs = {}
+    if recs:
+        models = [_model_poses(r, name_to_idx) for r in recs.values()]
+        merged, n_models = merge_models(models)
+        for k, (T, uv, z) in merged.items():
+            T0[k] = T
+            registered[k] = True
+            if len(uv):
+                points[k] = (uv, z)
+        if n_models > 1:
+            mode = f"incremental ({n_models} models merged)"
+    return T0, registered, points, mode
+
+
+def _two_view_poses(frame, K: np.ndarray, kps, matches, two_view, n: int):
+    """Fallback for N = 2 or a failed mapper: the verified pair with the most matches, placed by
+    its two-view relative pose. Returns (T0, registered, points) as ``_incremental_poses``."""
+    if not two_view:
+        raise CalibrationError(
+            "the colmap backbone found no verified image pair: the cameras share too little "
+            f"texture (keypoints per camera: { {frame.camera_ids[k]: len(v) for k, v in kps.items()} })"
+        )
+    (ia, ib), T = max(two_view.items(), key=lambda kv: len(matches[kv[0]][0]))
+    T0 = np.tile(np.eye(4), (n, 1, 1))
+    registered = np.zeros(n, bool)
+    T0[ib] = T
+    registered[[ia, ib]] = True
+    return T0, registered, _triangulate_pair(K[ia], K[ib], T, *matches[(ia, ib)], ia, ib)
+
+
+def _covisibility(matches, kps, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(overlap (n, n) in [0, 1]: 4 x shared inlier matches / the smaller keypoint count,
+    features (n, n): each camera's co-visibility profile, its F_i for eq. 8)."""
+    cov = np.zeros((n, n))
+    for (a, b), (uva, _) in matches.items():
+        cov[a, b] = cov[b, a] = len(uva)
+    nk = np.array([max(len(kps.get(k, [])), 1) for k in range(n)], dtype=np.float64)
+    overlap = np.clip(cov / np.minimum(nk[:, None], nk[None, :]) * 4.0, 0.0, 1.0)
+    np.fill_diagonal(overlap, 1.0)
+    feats = cov + np.diag(np.maximum(cov.max(axis=1), 1.0))
+    return overlap, feats
 
 
 def _model_poses(rec, name_to_idx) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:

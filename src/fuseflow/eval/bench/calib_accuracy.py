@@ -265,6 +265,26 @@ def perturbed_truth(ref, ids, seed, rot_deg, center_m):
     return BackboneResult(np.stack(T0), np.ones(len(ids), bool), name="perturbed-truth", info={"scale": scale})
 
 
+def shifted_step(edge: tuple[int, int], offset: float):
+    """GMAC's fixed-point step (``calib.scale_search.rc_step``) with ``edge``'s points in camera j
+    shifted by ``offset`` metres along the baseline (Y' = Y + offset t / |t|): the edge then
+    implies a baseline that much too long, as wrong matches would (the robustness injection)."""
+    from fuseflow.calib.scale import Correspondences, closed_form_scale
+    from fuseflow.calib.scale_search import rc_step
+
+    def step(geoms, cams_, s, config):
+        _, corrs = rc_step(geoms, cams_, s, config)
+        out = [
+            c
+            if (min(c.i, c.j), max(c.i, c.j)) != edge
+            else Correspondences(c.i, c.j, c.RX, c.Y + offset * c.t / np.linalg.norm(c.t), c.t, c.w, c.is_match, c.n)
+            for c in corrs
+        ]
+        return closed_form_scale(out, config.closed_form), out
+
+    return step
+
+
 def run_seed(frame, rig, ref, seed, rows, robust, backbone="colmap", noise=(0.3, 0.01), peer=True):
     """Every row of one seed: appends a result dict per row name to ``rows`` and counts the
     injected wrong-match edge in ``robust``; returns the backbone's seconds."""
@@ -315,7 +335,7 @@ def run_seed(frame, rig, ref, seed, rows, robust, backbone="colmap", noise=(0.3,
     if len(reg) >= 3:
         e = (int(reg[0]), int(reg[1]))
         try:
-            sr = metric_scale(bb, cams, CalibConfig(), corrupt={e: 0.3})
+            sr = metric_scale(bb, cams, CalibConfig(), step=shifted_step(e, 0.3))
             robust["injected"] += 1
             robust["pruned"] += int(e in sr.pruned)
         except fuseflow.FuseFlowError:

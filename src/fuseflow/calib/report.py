@@ -1,0 +1,138 @@
+"""``CalibReport``: what one GMAC run did and measured (the ``report`` of its ``Calibration``).
+
+Cameras and edges are named by camera id ("cam00", edge "cam00-cam03", triangle
+"cam00-cam03-cam05"), scales are metres per backbone unit, and every value is plain JSON data,
+so ``to_json()`` is exactly the ``"report"`` object of calib.json and ``from_json`` reads it back.
+
+Read access by key (``report["scale"]``, ``report.get("warnings", [])``, ``"scale" in report``)
+is kept for code written against the dict report of earlier releases; it is deprecated in favour
+of the attributes (``report.scale``) and will be removed after one release.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+from fuseflow.errors import ValidationError
+
+__all__ = ["CalibReport"]
+
+
+@dataclass(eq=False)
+class CalibReport(Mapping[str, Any]):
+    """The GMAC report. One attribute per key of calib.json's ``"report"`` object, in its order."""
+
+    method: str
+    """Always "GMAC"."""
+    backbone: str
+    """Name of the backbone that gave the scale-ambiguous poses ("colmap", "precomputed:vggt", ...)."""
+    backbone_info: dict[str, Any]
+    """The backbone's own notes: mode, keypoints per camera, timings (JSON data, backbone-specific)."""
+    config: dict[str, Any]
+    """The :class:`~fuseflow.calib.config.CalibConfig` used, as a dict of its fields."""
+    scale: float
+    """s*: the global metric scale, metres per backbone unit (eq. 14: T_i = [R_i | s* t_i])."""
+    scale_before_pruning: float
+    """The fixed point over all usable edges, before CC pruned any (= ``scale`` when none was)."""
+    scale_coarse: float
+    """The coarse 1-D search's scale, where the fixed point started."""
+    scale_naive_median_depth_ratio: float | None
+    """Baseline: median sensor depth / backbone depth at the backbone's points; None without them."""
+    scale_std_error: float
+    """Standard error of s* from the closed form's residuals, same unit as ``scale``."""
+    closed_form: str
+    """The closed form used: "plane", "full3d" or "zonly"."""
+    fixed_point: dict[str, Any]
+    """The global fixed point: {"iterations": int, "converged": bool}."""
+    coarse_peak_spread: float
+    """Relative width of the coarse search's peak (>= 95 % of its max count); wide = ill-conditioned."""
+    edge_scales: dict[str, float]
+    """Edge "a-b" -> that edge's own scale (what CC compares)."""
+    correspondence_counts: dict[str, int]
+    """Edge "a-b" -> correspondences behind its scale."""
+    edges: list[str]
+    """Edges with enough measured overlap at the coarse scale (candidates for CC)."""
+    kept_edges: list[str]
+    """Edges CC kept (all usable edges when CC is off); they decide which cameras are placed."""
+    scale_edges: list[str]
+    """The kept edges whose correspondences gave s* (match-only edges with ``global_from_matches``)."""
+    pruned_edges: list[str]
+    """Edges CC removed, in pruning order."""
+    cycle_mode: str
+    """"cycles", "median" (no triangle), "single" (one edge) or "off"."""
+    cycle_residuals_relative: dict[str, float]
+    """Triangle "a-b-c" -> |cycle translation| / mean edge length, after pruning."""
+    cycle_residuals_relative_before_pruning: dict[str, float]
+    """The same before pruning."""
+    cycle_residuals_mm: dict[str, float]
+    """Triangle "a-b-c" -> cycle residual in mm at s*, after pruning."""
+    unconnected_cameras: list[str]
+    """Cameras on no kept edge: not placed."""
+    unregistered_cameras: list[str]
+    """Cameras the backbone could not place: not placed."""
+    depth_agreement: dict[str, float | None]
+    """Camera -> mean share of its depth its neighbours confirm under the calibrated extrinsics
+    (``fuseflow.geometry.depth_agreement``); None without a neighbour. Empty when the check is off."""
+    suspect_cameras: list[str]
+    """Cameras whose depth agreement is below ``min_depth_agreement`` (pose probably wrong)."""
+    warnings: list[str]
+    """Human-readable warnings, cameras and edges named by id."""
+    ill_conditioned: bool
+    """True when a warning says the scale is ill-conditioned."""
+    refinement: dict[str, Any] | None
+    """The refinement stage's diagnostics (``RefineResult`` without the poses), None when off."""
+    timings_s: dict[str, float]
+    """Wall-clock seconds per stage: "backbone", "scale", "refine" (when on), "total"."""
+
+    # -- JSON -----------------------------------------------------------------------------------
+
+    def to_json(self) -> dict[str, Any]:
+        """The report as calib.json stores it: a dict with one key per attribute, in order.
+
+        The values are this report's own objects (not copies); serialise, do not mutate.
+        """
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> CalibReport:
+        """The report from calib.json's ``"report"`` object (a dict as ``to_json`` gives).
+
+        Raises:
+            ValidationError: ``d`` is not a mapping, or lacks keys / has keys a GMAC report does not.
+        """
+        if not isinstance(d, Mapping):
+            raise ValidationError(f"a GMAC report must be a JSON object, got {type(d).__name__}")
+        names = [f.name for f in fields(cls)]
+        missing = [k for k in names if k not in d]
+        unknown = sorted(set(d) - set(names))
+        if missing or unknown:
+            raise ValidationError(f"not a GMAC report: missing keys {missing}, unknown keys {unknown}")
+        return cls(**{k: d[k] for k in names})
+
+    # -- deprecated read access by key (the dict report of earlier releases) ---------------------
+
+    def __getitem__(self, key: str) -> Any:
+        if not isinstance(key, str) or key not in self._keys():
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys())
+
+    def __len__(self) -> int:
+        return len(fields(self))
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, CalibReport):
+            return self.to_json() == other.to_json()
+        if isinstance(other, Mapping):
+            return self.to_json() == dict(other)
+        return NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]  # mutable, like the dict it replaces
+
+    @classmethod
+    def _keys(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))

@@ -1,0 +1,373 @@
+"""GMAC's scale stage: one metric scale s* for the backbone's translations (paper eq. 5-13).
+
+``metric_scale(bb, cams, config) -> ScaleResult`` in named steps:
+
+1. ``scale_search_centre``: s0 = median sensor depth / median backbone baseline.
+2. ``candidate_edges``: every registered pair, both directions, with eq. (8)'s edge weight.
+3. coarse search (:func:`fuseflow.calib.scale_search.coarse_scale_search`) over all of them.
+4. ``gate_edges``: keep pairs whose measured overlap at the coarse scale reaches ``min_overlap``.
+5. ``per_edge_scales``: each kept edge's own fixed point (for the cycle check).
+6. ``prune_edges``: triangle cycle residuals and pruning (eq. 13, :mod:`cycles`).
+7. ``global_scale``: the fixed point over the edges CC kept (match-only ones when enough).
+8. warnings on conditioning, and the naive median depth-ratio baseline for the report.
+
+Every fixed point uses the same step function (:data:`~fuseflow.calib.scale_search.StepFunction`,
+default :func:`~fuseflow.calib.scale_search.rc_step`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.correspondences import (
+    CameraData,
+    EdgeGeometry,
+    consistent_count,
+    edge_geometry,
+    edge_weight,
+    match_lookup,
+    match_only,
+)
+from fuseflow.calib.cycles import prune_by_cycles
+from fuseflow.calib.errors import CalibrationError
+from fuseflow.calib.scale import naive_median_scale
+from fuseflow.calib.scale_search import (
+    CoarseSearch,
+    StepFunction,
+    coarse_scale_search,
+    fixed_point_scale,
+    one_step_scale,
+    rc_step,
+)
+from fuseflow.types import invert_rigid
+
+__all__ = [
+    "ScaleResult",
+    "metric_scale",
+    "scale_search_centre",
+    "candidate_edges",
+    "gate_edges",
+    "per_edge_scales",
+    "naive_scale",
+]
+
+Edge = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class ScaleResult:
+    """The scale stage's result (everything the report needs).
+
+    Attributes:
+        s: the global metric scale s*. s_initial: fixed point before pruning. s_coarse: coarse search.
+        s_naive: the naive median depth-ratio scale (None when the backbone gives no depths).
+        edge_scales: (i, j) -> per-edge scale. edge_counts: (i, j) -> correspondences.
+        edges: candidate edges (i, j) with enough overlap. kept, pruned: after CC.
+        cycle_mode: "cycles", "median", "single" or "off". cycle_residuals: "i-j-k" -> relative.
+        std_error: relative standard error of s. iterations, converged: fixed point.
+        peak_spread: relative width of the coarse-search peak. warnings: text.
+    """
+
+    s: float
+    s_initial: float
+    s_coarse: float
+    s_naive: float | None
+    edge_scales: dict[tuple[int, int], float]
+    edge_counts: dict[tuple[int, int], int]
+    edges: tuple[tuple[int, int], ...]
+    kept: tuple[tuple[int, int], ...]
+    pruned: tuple[tuple[int, int], ...]
+    cycle_mode: str
+    cycle_residuals: dict[str, float]
+    cycle_residuals_before: dict[str, float]
+    cycle_residuals_mm: dict[str, float]
+    std_error: float
+    iterations: int
+    converged: bool
+    peak_spread: float
+    warnings: tuple[str, ...]
+    scale_edges: tuple[tuple[int, int], ...] = ()
+    """The kept edges whose correspondences gave s* (the match-only ones with
+    ``global_from_matches``, else all kept edges)."""
+
+
+@dataclass(frozen=True)
+class _EdgeScales:
+    scales: dict[Edge, float]
+    counts: dict[Edge, int]
+    match_only: set[Edge]
+
+
+@dataclass(frozen=True)
+class _Pruning:
+    kept: tuple[Edge, ...]
+    pruned: tuple[Edge, ...]
+    mode: str
+    residuals: dict[str, float]
+    residuals_before: dict[str, float]
+    residuals_mm: dict[str, float]
+
+
+def metric_scale(
+    bb: BackboneResult,
+    cams: list[CameraData],
+    config: CalibConfig,
+    step: StepFunction | None = None,
+) -> ScaleResult:
+    """Scale stage of GMAC on backbone poses ``bb`` and per-camera RC data ``cams``.
+
+    Args:
+        bb: the backbone's scale-ambiguous poses (rig order), at least two registered.
+        cams: per-camera RC data from ``correspondences.prepare_cameras`` (rig order, metres).
+        config: GMAC settings.
+        step: the fixed-point step used for every per-edge and global fixed point (default
+            :func:`~fuseflow.calib.scale_search.rc_step`). An injection point: a step that
+            transforms the correspondences (e.g. shifts one edge's points to mimic wrong
+            matches) measures how the stage, and CC in particular, copes with them.
+
+    Raises:
+        CalibrationError: all registered cameras at one position, no overlapping pair, no edge
+            with enough depth-consistent correspondences, or a fixed point leaving s > 0.
+    """
+    step = step or rc_step
+    warnings: list[str] = []
+    s0 = scale_search_centre(bb, cams)
+    pairs = _registered_pairs(bb)
+    geoms = candidate_edges(bb, pairs, config)
+    coarse = coarse_scale_search(_directed(geoms, pairs), cams, s0, config)
+    edges, overlap_meas = gate_edges(geoms, pairs, cams, coarse.s, config)
+    if bb.overlap is None and not config.random_correspondences:
+        geoms = _weighted_by_measured_overlap(geoms, overlap_meas, len(cams))
+    if not edges:
+        raise CalibrationError(
+            f"no camera pair overlaps by at least {config.min_overlap:.0%} at the best scale "
+            f"(measured: { {f'{i}-{j}': round(v, 3) for (i, j), v in overlap_meas.items()} })"
+        )
+    es = per_edge_scales(geoms, edges, cams, coarse.s, config, step)
+    usable = [e for e in edges if e in es.scales]
+    dropped = [e for e in edges if e not in es.scales]
+    if dropped:
+        warnings.append(f"edges {dropped} have fewer than {config.min_correspondences} correspondences")
+    if not usable:
+        raise CalibrationError(f"no edge has {config.min_correspondences} depth-consistent correspondences")
+    pr = _prune_edges(bb, cams, es, usable, config, warnings)
+    global_edges = _global_edges(pr.kept, es.match_only, config)
+    fp = fixed_point_scale(_directed(geoms, global_edges), cams, coarse.s, config, step=step)
+    if not fp.converged:
+        warnings.append(f"the scale fixed point did not converge in {fp.iterations} steps (history {fp.history[-3:]})")
+    s_init = fp.s
+    if pr.pruned:  # for the report: what the global estimate would have been without pruning
+        s_init = fixed_point_scale(_directed(geoms, usable), cams, coarse.s, config, step=step).s
+    warnings += _conditioning_warnings(coarse, fp.estimate.relative_std_error, bb, config)
+    return ScaleResult(
+        s=float(fp.s),
+        s_initial=float(s_init),
+        s_coarse=float(coarse.s),
+        s_naive=naive_scale(bb, cams),
+        edge_scales=es.scales,
+        edge_counts=es.counts,
+        edges=tuple(edges),
+        kept=tuple(pr.kept),
+        pruned=tuple(pr.pruned),
+        cycle_mode=pr.mode,
+        cycle_residuals=pr.residuals,
+        cycle_residuals_before=pr.residuals_before,
+        cycle_residuals_mm=pr.residuals_mm,
+        std_error=float(fp.estimate.relative_std_error * fp.s),
+        iterations=fp.iterations,
+        converged=fp.converged,
+        peak_spread=coarse.peak_spread,
+        warnings=tuple(warnings),
+        scale_edges=tuple(global_edges),
+    )
+
+
+def scale_search_centre(bb: BackboneResult, cams: list[CameraData]) -> float:
+    """s0, the centre of the coarse search: median sensor depth (m) of the registered cameras'
+    samples over the median distance between registered backbone camera centres (backbone units).
+
+    Raises CalibrationError when the backbone put all registered cameras at one position.
+    """
+    reg = np.flatnonzero(bb.registered)
+    depths = np.concatenate([c.X[:, 2] for k, c in enumerate(cams) if k in set(reg) and len(c.X)])
+    centers = np.stack([invert_rigid(bb.T_cam_world[k])[:3, 3] for k in reg])
+    base = np.median(np.linalg.norm(centers[:, None] - centers[None], axis=2)[np.triu_indices(len(reg), 1)])
+    if not np.isfinite(base) or base <= 0:
+        raise CalibrationError("the backbone placed all registered cameras at the same position")
+    return float(np.median(depths)) / float(base)
+
+
+def _registered_pairs(bb: BackboneResult) -> list[Edge]:
+    reg = np.flatnonzero(bb.registered)
+    return [(int(a), int(b)) for ai, a in enumerate(reg) for b in reg[ai + 1 :]]
+
+
+def candidate_edges(bb: BackboneResult, pairs: list[Edge], config: CalibConfig) -> dict[Edge, list[EdgeGeometry]]:
+    """Both directions (i -> j, j -> i) of each pair (i < j), with the backbone's relative pose,
+    eq. (8)'s edge weight (1 for ``random_correspondences``) and the keypoint matches."""
+
+    def both_directions(e: Edge) -> list[EdgeGeometry]:
+        i, j = e
+        w = (
+            edge_weight(i, j, bb.overlap, bb.features, config.feature_weight)
+            if not config.random_correspondences
+            else 1.0
+        )
+        return [
+            edge_geometry(bb.T_cam_world, i, j, w, match_lookup(bb.matches, i, j)),
+            edge_geometry(bb.T_cam_world, j, i, w, match_lookup(bb.matches, j, i)),
+        ]
+
+    return {e: both_directions(e) for e in pairs}
+
+
+def _directed(geoms_by_edge: dict[Edge, list[EdgeGeometry]], edges) -> list[EdgeGeometry]:
+    return [g for e in edges for g in geoms_by_edge[e]]
+
+
+def gate_edges(
+    geoms: dict[Edge, list[EdgeGeometry]], pairs: list[Edge], cams: list[CameraData], s: float, config: CalibConfig
+) -> tuple[list[Edge], dict[Edge, float]]:
+    """Edge gating by measured overlap at scale s (eq. 8: overlap_ij gates edges).
+
+    Returns (pairs whose mean directed share of depth-consistent samples at gate ``depth_tau``
+    reaches ``min_overlap``, pair -> that measured share).
+    """
+    edges, overlap_meas = [], {}
+    for e in pairs:
+        o = []
+        for g in geoms[e]:
+            n_i = max(len(cams[g.i].X), 1)
+            o.append(consistent_count(g, cams[g.i], cams[g.j], s, config.depth_tau) / n_i)
+        overlap_meas[e] = float(np.mean(o))
+        if overlap_meas[e] >= config.min_overlap:
+            edges.append(e)
+    return edges, overlap_meas
+
+
+def _weighted_by_measured_overlap(
+    geoms: dict[Edge, list[EdgeGeometry]], overlap_meas: dict[Edge, float], n: int
+) -> dict[Edge, list[EdgeGeometry]]:
+    """A backbone without an overlap matrix: eq. (8)'s overlap_ij is the measured one."""
+    ov = np.eye(n)
+    for (i, j), v in overlap_meas.items():
+        ov[i, j] = ov[j, i] = v
+    return {
+        e: [EdgeGeometry(g.i, g.j, g.R, g.t, g.weight * ov[g.i, g.j], g.matches) for g in gs] for e, gs in geoms.items()
+    }
+
+
+def per_edge_scales(
+    geoms: dict[Edge, list[EdgeGeometry]],
+    edges: list[Edge],
+    cams: list[CameraData],
+    s_coarse: float,
+    config: CalibConfig,
+    step: StepFunction,
+) -> _EdgeScales:
+    """Each edge's own scale, for CC: its fixed point from the robust coarse scale.
+
+    The global estimate only ever sees the edges CC keeps, so one wrong edge cannot drag it. An
+    edge whose own fixed point walks to a scale where its correspondences fail the depth gate
+    (what a wrong edge does) gets the one-step closed form at the coarse scale instead (the
+    paper's fixed-correspondence approximation), so it shows up in the cycle residuals instead
+    of vanishing. Edges with neither are left out.
+    """
+    scales: dict[Edge, float] = {}
+    counts: dict[Edge, int] = {}
+    matched_edges: set[Edge] = set()
+    for e in edges:
+        try:
+            fe = fixed_point_scale(geoms[e], cams, s_coarse, config, step=step)
+            matched = match_only(fe.correspondences)
+            if fe.s > 0 and (fe.estimate.count >= config.min_correspondences or matched):
+                scales[e], counts[e] = fe.s, fe.estimate.count
+                if matched:
+                    matched_edges.add(e)
+                continue
+        except CalibrationError:
+            pass
+        try:
+            est_e, _ = one_step_scale(geoms[e], cams, s_coarse, config, step)
+        except CalibrationError:
+            continue
+        if est_e.count >= config.min_correspondences and est_e.s > 0:
+            scales[e], counts[e] = est_e.s, est_e.count
+    return _EdgeScales(scales, counts, matched_edges)
+
+
+def _prune_edges(
+    bb: BackboneResult,
+    cams: list[CameraData],
+    es: _EdgeScales,
+    usable: list[Edge],
+    config: CalibConfig,
+    warnings: list[str],
+) -> _Pruning:
+    """CC (eq. 13) on the usable edges' own scales; appends the no-triangle warning."""
+    if not config.cycle_consistency:
+        return _Pruning(tuple(usable), (), "off", {}, {}, {})
+    pts = {k: c.X[:: max(1, len(c.X) // 64)] for k, c in enumerate(cams)}
+    cyc = prune_by_cycles(
+        bb.T_cam_world,
+        {e: es.scales[e] for e in usable},
+        config.delta_cycle,
+        config.max_pruned_fraction,
+        pts,
+        {e: float(es.counts[e]) for e in usable},
+    )
+    if cyc.mode == "median":
+        warnings.append("the edge graph has no triangle: cycle check replaced by the median of per-edge scales")
+
+    def fmt(d):
+        return {f"{a}-{b}-{c}": float(v) for (a, b, c), v in d.items()}
+
+    return _Pruning(
+        cyc.kept, cyc.pruned, cyc.mode, fmt(cyc.residuals), fmt(cyc.residuals_before), fmt(cyc.residuals_mm)
+    )
+
+
+def _global_edges(kept, match_only_edges: set[Edge], config: CalibConfig) -> list[Edge]:
+    """The kept edges s* is estimated from: with ``global_from_matches`` the match-only ones
+    when there are at least two, else all kept edges."""
+    if config.use_matches and config.global_from_matches:
+        kept_matches = [e for e in kept if e in match_only_edges]
+        if len(kept_matches) >= 2:
+            return kept_matches
+    return list(kept)
+
+
+def _conditioning_warnings(
+    coarse: CoarseSearch, relative_std_error: float, bb: BackboneResult, config: CalibConfig
+) -> list[str]:
+    out = []
+    if coarse.peak_spread > config.ill_conditioned_spread and not (config.use_matches and bb.matches):
+        out.append(
+            f"ill-conditioned: scales within {coarse.peak_spread:.0%} of each other explain the depth equally "
+            "well (baselines parallel to the dominant surfaces)"
+        )
+    if relative_std_error > 0.01:
+        out.append(f"ill-conditioned: relative standard error of s* is {relative_std_error:.1%}")
+    return out
+
+
+def naive_scale(bb: BackboneResult, cams: list[CameraData]) -> float | None:
+    """The naive baseline: median sensor depth / backbone depth at the backbone's own points
+    (``bb.points``); None when the backbone has none or too few have sensor depth."""
+    if not bb.points:
+        return None
+    sd, bd = [], []
+    for k, (uv, z) in bb.points.items():
+        H, W = cams[k].shape
+        ui = np.clip(np.round(uv[:, 0]).astype(int), 0, W - 1)
+        vi = np.clip(np.round(uv[:, 1]).astype(int), 0, H - 1)
+        sd.append(cams[k].depth[vi, ui])
+        bd.append(z)
+    try:
+        return naive_median_scale(np.concatenate(sd), np.concatenate(bd))
+    except CalibrationError:
+        return None
