@@ -45,6 +45,7 @@ REPORT_KEYS = [
     "ill_conditioned",
     "refinement",
     "timings_s",
+    "world_anchor",  # issue 16: the camera whose frame is the world
 ]
 
 

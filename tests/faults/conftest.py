@@ -13,9 +13,10 @@ from fuseflow.synth import SimConfig, simulate_recording
 RES = (160, 120)
 
 
-def make_recording(out: Path, cameras: int = 3, frames: int = 2, seed: int = 4, **kw) -> Path:
+def make_recording(out: Path, cameras: int = 3, frames: int = 2, seed: int = 4, resolution=RES, **kw) -> Path:
     """A small simulated studio recording with ground-truth extrinsics in rig.json."""
-    simulate_recording(out, SimConfig(cameras=cameras, frames=frames, scene="studio", resolution=RES, seed=seed, **kw))
+    cfg = SimConfig(cameras=cameras, frames=frames, scene="studio", resolution=resolution, seed=seed, **kw)
+    simulate_recording(out, cfg)
     return out
 
 
@@ -52,6 +53,6 @@ def _expect_fixture():
     return expect
 
 
-@pytest.fixture(name="make_recording")
+@pytest.fixture(name="make_recording", scope="session")
 def _make_recording_fixture():
     return make_recording

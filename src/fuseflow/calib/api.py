@@ -24,7 +24,7 @@ from fuseflow.calib.report import CalibReport
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import depth_agreement
-from fuseflow.types import Calibration, Frame, Rig
+from fuseflow.types import Calibration, Frame, Rig, invert_rigid
 
 # ScaleResult and metric_scale live in scale_stage; re-exported here, where they used to be.
 __all__ = ["calibrate", "metric_scale", "ScaleResult", "check_inputs", "MIN_VALID_DEPTH"]
@@ -100,10 +100,28 @@ def calibrate(
         t = time.perf_counter()
         refinement = _refine(T, connected, frame, depth, K, drange, sr, bb, config)
         timings["refine"] = time.perf_counter() - t
+    T, anchor = anchor_world(T, rig.ids)
     agreement = depth_agreement(frame, rig, T) if config.min_depth_agreement > 0 and T else {}
     timings["total"] = time.perf_counter() - t_start
     report = build_report(frame.camera_ids, bb, sr, config, connected, agreement, refinement, timings)
+    report.world_anchor = anchor
     return Calibration(T, report)
+
+
+def anchor_world(
+    T_cam_world: dict[str, np.ndarray], order: tuple[str, ...]
+) -> tuple[dict[str, np.ndarray], str | None]:
+    """Re-express the extrinsics in the frame of the first placed camera in ``order`` (rig order),
+    whose extrinsic becomes the identity: the backbone's own world frame depends on which image
+    it happened to start from, so two calibrations of one rig would otherwise differ by a rigid
+    motion. Returns (camera id -> camera-from-world, the anchor's id or None when none is placed)."""
+    anchor = next((c for c in order if c in T_cam_world), None)
+    if anchor is None:
+        return T_cam_world, None
+    world_from_anchor = invert_rigid(T_cam_world[anchor])
+    out = {c: T @ world_from_anchor for c, T in T_cam_world.items()}
+    out[anchor] = np.eye(4)
+    return out, anchor
 
 
 def check_depth_coverage(frame: Frame, depth: np.ndarray, drange: np.ndarray) -> None:

@@ -12,7 +12,7 @@ of the attributes (``report.scale``) and will be removed after one release.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from typing import Any
 
 from fuseflow.errors import ValidationError
@@ -85,6 +85,9 @@ class CalibReport(Mapping[str, Any]):
     """The refinement stage's diagnostics (``RefineResult`` without the poses), None when off."""
     timings_s: dict[str, float]
     """Wall-clock seconds per stage: "backbone", "scale", "refine" (when on), "total"."""
+    world_anchor: str | None = None
+    """The camera whose frame is the world (its extrinsic is the identity): the first placed
+    camera in rig order (``api.anchor_world``). None in reports written before it existed."""
 
     # -- JSON -----------------------------------------------------------------------------------
 
@@ -105,11 +108,12 @@ class CalibReport(Mapping[str, Any]):
         if not isinstance(d, Mapping):
             raise ValidationError(f"a GMAC report must be a JSON object, got {type(d).__name__}")
         names = [f.name for f in fields(cls)]
-        missing = [k for k in names if k not in d]
+        optional = {f.name for f in fields(cls) if f.default is not MISSING}
+        missing = [k for k in names if k not in d and k not in optional]
         unknown = sorted(set(d) - set(names))
         if missing or unknown:
             raise ValidationError(f"not a GMAC report: missing keys {missing}, unknown keys {unknown}")
-        return cls(**{k: d[k] for k in names})
+        return cls(**{k: d[k] for k in names if k in d})
 
     # -- deprecated read access by key (the dict report of earlier releases) ---------------------
 

@@ -35,6 +35,9 @@ PEAK_THRESHOLD = 0.002
 #: Threads of the incremental mapper (with two-view tracks triangulated, repeated runs on the
 #: simulated studio agreed within 0.003 deg; SIFT extraction and matching use 2 as well).
 MAPPER_THREADS = 2
+#: Seed of the two-view verification RANSAC: COLMAP's default (-1) draws a new seed every run, and
+#: two calibrations of one frame then differed by 0.12 m (issue 16); fixed, they are identical.
+RANSAC_SEED = 0
 #: COLMAP puts the centre of the top-left pixel at (0.5, 0.5); DESIGN.md 2.3 puts it at (0, 0).
 #: Principal points go to COLMAP shifted by this and keypoints come back shifted by it (measured:
 #: without it, ground-truth reprojections of verified matches are off by (-0.14, -0.04) px on average).
@@ -169,6 +172,7 @@ def _match_pairs(pycolmap, db_path: Path, id_to_idx, kps):
     match_opts.num_threads = 2
     verify = pycolmap.TwoViewGeometryOptions()
     verify.compute_relative_pose = True
+    verify.ransac.random_seed = RANSAC_SEED  # -1 (COLMAP's default) seeds from the clock
     pycolmap.match_exhaustive(
         db_path, matching_options=match_opts, verification_options=verify, device=pycolmap.Device.cpu
     )
@@ -207,6 +211,7 @@ def _mapper_options(pycolmap, config):
     opts.ba_refine_extra_params = False
     opts.num_threads = MAPPER_THREADS
     opts.random_seed = int(config.seed)
+    opts.mapper.random_seed = int(config.seed)
     # A rig frame is N images with wide baselines and few (50-400) matches per pair, not a
     # video: COLMAP's defaults (30 inliers and a 25 % inlier ratio to register an image,
     # 100 inliers and 16 deg to initialise) split an 8-camera simulated studio into three
