@@ -7,7 +7,10 @@ calls ``sys.exit``; the CLI turns these into one-line messages and a non-zero ex
 
 from __future__ import annotations
 
-__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError"]
+import importlib
+from types import ModuleType
+
+__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError", "require"]
 
 
 class FuseFlowError(Exception):
@@ -24,3 +27,21 @@ class RecordingError(FuseFlowError, OSError):
 
 class FormatError(FuseFlowError, ValueError):
     """A file exists but its content does not follow the format it claims (JSON schema, PLY)."""
+
+
+def require(module: str, extra: str, purpose: str, package: str | None = None) -> ModuleType:
+    """Import an optional dependency, or raise FuseFlowError with the install hint.
+
+    Args:
+        module: the import name (``"rerun"``).
+        extra: the fuseflow extra that installs it (``"viz"`` -> ``pip install 'fuseflow[viz]'``).
+        purpose: what needs it, starting the message (``"the rerun viewer"``).
+        package: the name users know it by, when not ``module`` (``"rerun-sdk"``).
+
+    Example: ``require("rerun", "viz", "the rerun viewer", "rerun-sdk")`` raises
+    "the rerun viewer needs rerun-sdk: pip install 'fuseflow[viz]'" when rerun is missing.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise FuseFlowError(f"{purpose} needs {package or module}: pip install 'fuseflow[{extra}]'") from None

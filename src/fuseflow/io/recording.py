@@ -13,7 +13,6 @@ present (zeros in its slot). A file that exists but cannot be decoded is an erro
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from collections.abc import Iterator, Sequence
@@ -25,6 +24,7 @@ import numpy as np
 import torch
 
 from fuseflow.errors import FormatError, RecordingError, ValidationError
+from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.images import clean_depth, read_color, read_depth, write_color, write_depth
 from fuseflow.types import Camera, Frame, Rig
 
@@ -124,17 +124,8 @@ def rig_from_json(doc: Any, source: str = "rig.json") -> Rig:
         raise FormatError(f"{source}: {exc}") from None
 
 
-def _load_json(path: Path) -> Any:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read ({exc})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FormatError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+# the name io/calibration.py imports (io.files.load_json is the public one)
+_load_json = load_json
 
 
 def read_rig(path: str | Path) -> Rig:
@@ -142,15 +133,7 @@ def read_rig(path: str | Path) -> Rig:
     path = Path(path)
     if path.is_dir():
         path = path / "rig.json"
-    return rig_from_json(_load_json(path), str(path))
-
-
-def write_json_atomic(path: Path, doc: Any) -> None:
-    """Write JSON through a temporary file and rename, so a crash never leaves half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    os.replace(tmp, path)
+    return rig_from_json(load_json(path), str(path))
 
 
 def write_rig(path: str | Path, rig: Rig) -> Path:

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from fuseflow.errors import FormatError, RecordingError, ValidationError
+from fuseflow.io.files import load_json, read_bytes, write_bytes_atomic, write_json_atomic
 from fuseflow.synth.config import SimConfig
 from fuseflow.synth.simulator import Simulator
 from fuseflow.types import Rig
@@ -51,21 +52,13 @@ def write_surface_ply(path: str | Path, points: np.ndarray, normals: np.ndarray)
         + "".join(f"property float {k}\n" for k in ("x", "y", "z", "nx", "ny", "nz"))
         + "end_header\n"
     )
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(arr.tobytes())
-    tmp.replace(path)
-    return path
+    return write_bytes_atomic(path, header.encode("ascii"), arr.tobytes())
 
 
 def read_surface_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(points (S, 3), normals (S, 3)) float32 from a file written by ``write_surface_ply``."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
+    data = read_bytes(path)
     end = data.find(b"end_header\n")
     if not data.startswith(b"ply\n") or end < 0:
         raise FormatError(f"{path}: not a PLY file")
@@ -118,7 +111,6 @@ def simulate_recording(
     """
     from fuseflow.io import write_frame, write_rig
     from fuseflow.io.images import write_depth
-    from fuseflow.io.recording import write_json_atomic
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -224,11 +216,11 @@ class GroundTruth:
 
 def read_ground_truth(rec_dir: str | Path) -> GroundTruth:
     """Read OUT/gt.json of a simulated recording; errors name the file and the field."""
-    from fuseflow.io.recording import _load_json, rig_from_json
+    from fuseflow.io.recording import rig_from_json
 
     rec = Path(rec_dir)
     path = rec / "gt.json"
-    doc = _load_json(path)
+    doc = load_json(path)
     if not isinstance(doc, dict) or doc.get("format") != GT_FORMAT:
         raise FormatError(f"{path}: field 'format' must be {GT_FORMAT!r}")
     try:
