@@ -42,7 +42,7 @@ def sigma_z(m: AxialNoise, fb: float, z, theta):
 
 def sigma_terms(a, b, z0, c, stereo_rms, fb, z, theta):
     """The one definition of the ``AxialNoise`` formula (its fields spelled out): ``axial_sigma``
-    evaluates it on numpy arrays and ``synth._kernels`` compiles this same function for the
+    evaluates it on numpy arrays and ``synth.numba_kernels`` compiles this same function for the
     per-pixel kernel, so it uses only operations that numba and numpy share."""
     tc = np.minimum(theta, THETA_CLIP)
     return (
@@ -173,7 +173,7 @@ def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rn
         rng: the frame's generator.
     Returns: (N, H, W) float32 metres, 0 = no measurement.
     """
-    from fuseflow.synth._kernels import depth_noise_nb, lateral_nb
+    from fuseflow.synth.numba_kernels import depth_noise_nb, lateral_nb
 
     sensor = cfg.sensor
     z = np.where(np.isfinite(z_clean), z_clean, 0.0).astype(np.float32)

@@ -97,6 +97,29 @@ def perturb_extrinsics(rig: Rig, deg: float, mm: float, rng: np.random.Generator
     return rig.with_extrinsics(out)
 
 
+def _rig_to_write(rig: Rig, cfg: SimConfig, uncalibrated: bool) -> Rig:
+    """The rig of rig.json: null extrinsics, perturbed ones (cfg.calib_error_*), or ``rig`` itself."""
+    if uncalibrated:
+        return Rig(tuple(c.with_extrinsics(None) for c in rig.cameras))
+    if cfg.calib_error_deg > 0 or cfg.calib_error_mm > 0:
+        return perturb_extrinsics(rig, cfg.calib_error_deg, cfg.calib_error_mm,
+                                  np.random.default_rng([cfg.seed, 0xCA1]))  # fmt: skip
+    return rig
+
+
+def _gt_doc(rig: Rig, cfg: SimConfig, extrinsics: str) -> dict:
+    """gt.json: the true cameras, the config, and what rig.json holds ('true', 'perturbed', 'none')."""
+    return {
+        "format": GT_FORMAT,
+        "cameras": {c.id: {"T_cam_world": c.T_cam_world.tolist(), "K": c.K.tolist()} for c in rig.cameras},
+        "config": cfg.to_json(),
+        "frames": cfg.frames,
+        "depth": "png-uint16",
+        "depth_scale": cfg.depth_scale,
+        "rig_json_extrinsics": extrinsics,
+    }
+
+
 def simulate_recording(
     out_dir: str | Path,
     cfg: SimConfig,
@@ -119,27 +142,11 @@ def simulate_recording(
         raise RecordingError(f"{out}: already holds a recording (rig.json); choose an empty directory")
     sim = Simulator(cfg)
     rig = sim.rig
-    if uncalibrated:
-        written = Rig(tuple(c.with_extrinsics(None) for c in rig.cameras))
-    elif cfg.calib_error_deg > 0 or cfg.calib_error_mm > 0:
-        written = perturb_extrinsics(rig, cfg.calib_error_deg, cfg.calib_error_mm,
-                                     np.random.default_rng([cfg.seed, 0xCA1]))  # fmt: skip
-    else:
-        written = rig
+    written = _rig_to_write(rig, cfg, uncalibrated)
     out.mkdir(parents=True, exist_ok=True)
     write_rig(out, written)
-    write_json_atomic(
-        out / "gt.json",
-        {
-            "format": GT_FORMAT,
-            "cameras": {c.id: {"T_cam_world": c.T_cam_world.tolist(), "K": c.K.tolist()} for c in rig.cameras},
-            "config": cfg.to_json(),
-            "frames": cfg.frames,
-            "depth": "png-uint16",
-            "depth_scale": cfg.depth_scale,
-            "rig_json_extrinsics": "none" if uncalibrated else ("perturbed" if written is not rig else "true"),
-        },
-    )
+    extrinsics = "none" if uncalibrated else ("perturbed" if written is not rig else "true")
+    write_json_atomic(out / "gt.json", _gt_doc(rig, cfg, extrinsics))
 
     def write(t: int, sf) -> None:
         write_frame(out, written, t, sf.frame.color, sf.frame.depth)

@@ -225,7 +225,7 @@ class Simulator:
 
 
 class ShadeParams(NamedTuple):
-    """Scalars of the shading kernel (``_kernels.shade_nb``), built by ``shade_params``."""
+    """Scalars of the shading kernel (``numba_kernels.shade_nb``), built by ``shade_params``."""
 
     texels_per_m: float
     """Texture resolution: a texture of S texels spans texture.TEXTURE_METRES."""
@@ -261,7 +261,7 @@ def _shade(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, l
            color_noise, noise_std):  # fmt: skip
     """Per-pixel depth_gt, incidence angle, part id and colour (numba kernel ``shade_nb``;
     ``_shade_ref`` is its numpy twin). See ``shade_nb`` for the arguments."""
-    from fuseflow.synth._kernels import shade_nb
+    from fuseflow.synth.numba_kernels import shade_nb
 
     c = np.ascontiguousarray
     return shade_nb(c(t_hit, np.float32), c(prim, np.uint32), c(bary, np.float32), c(normals, np.float32),
@@ -305,7 +305,7 @@ def visible_mask(points: np.ndarray, normals: np.ndarray, depth_gt: np.ndarray, 
                  tol_m: float = 0.01, tol_rel: float = 0.01) -> np.ndarray:  # fmt: skip
     """(S,) bool: the world point (S, 3) with normal (S, 3) is seen by at least one camera of
     ``rig`` whose noise-free depth (N, H, W) agrees with it within tol_m + tol_rel * z."""
-    from fuseflow.synth._kernels import visible_nb
+    from fuseflow.synth.numba_kernels import visible_nb
 
     return visible_nb(
         np.ascontiguousarray(points, np.float64), np.ascontiguousarray(normals, np.float64),
