@@ -15,8 +15,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from _fuse_scenes import PLANE_Z, Rect, look_at, make_rig, render
 from scipy.spatial import cKDTree
+from tests.fuse.scenes import PLANE_Z, Rect, look_at, make_rig, render
 
 from fuseflow import Frame
 from fuseflow.fuse import PRESETS, FuseConfig, fuse_with_report
