@@ -112,6 +112,8 @@ class SelectParams(NamedTuple):
 
 
 class KernelParams(NamedTuple):
+    """The three parameter structs of one FuseConfig (``kernel_params``)."""
+
     pixel: PixelParams
     cell: CellParams
     select: SelectParams
@@ -124,13 +126,14 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     qlim = (COARSE_OFFSET if adaptive else FIXED_OFFSET) - 1
     a, b, z0 = cfg.noise_sigma
     pixel = PixelParams(
-        _F(cfg.alpha), _F(cfg.beta), _F(cfg.eps), _F(cfg.r_c), _F(cfg.tau), _F(cfg.min_weight), _F(s_c),
-        bool(cfg.use_mcm), bool(cfg.use_cvgc), bool(cfg.visibility_aware), _F(qlim),
-        bool(cfg.range_priority), _F(a), _F(b), _F(z0),
+        alpha=_F(cfg.alpha), beta=_F(cfg.beta), eps=_F(cfg.eps), r_c=_F(cfg.r_c), tau=_F(cfg.tau),
+        min_weight=_F(cfg.min_weight), cell=_F(s_c), use_mcm=bool(cfg.use_mcm), use_cvgc=bool(cfg.use_cvgc),
+        visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
+        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0),
     )  # fmt: skip
     cell = CellParams(
-        _F(s_c), _F(cfg.s0), _F(cfg.s_min), _F(cfg.s_max), _F(cfg.eps), bool(adaptive), _F(cfg.fixed_size),
-        _F(s_c**3),
+        s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
+        adaptive=bool(adaptive), fixed_size=_F(cfg.fixed_size), s_c3=_F(s_c**3),
     )  # fmt: skip
     if cfg.use_rps and adaptive:
         fixed_k, k_const = False, 0
@@ -139,8 +142,9 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     else:  # w/o RPS
         fixed_k, k_const = True, int(cfg.k_fixed)
     select = SelectParams(
-        _F(cfg.k0), _F(cfg.ratio), int(cfg.k_max), _F(1.0), fixed_k, k_const, float(cfg.lone_cell_mean)
-    )
+        k0=_F(cfg.k0), ratio=_F(cfg.ratio), k_max=int(cfg.k_max), rho_bar=_F(1.0), fixed_k=fixed_k,
+        k_const=k_const, lone_cell_mean=float(cfg.lone_cell_mean),
+    )  # fmt: skip
     return KernelParams(pixel, cell, select)
 
 
