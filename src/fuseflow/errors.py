@@ -7,7 +7,10 @@ calls ``sys.exit``; the CLI turns these into one-line messages and a non-zero ex
 
 from __future__ import annotations
 
-__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError", "OutputError"]
+import importlib
+from types import ModuleType
+
+__all__ = ["FuseFlowError", "ValidationError", "RecordingError", "FormatError", "OutputError", "require"]
 
 
 class FuseFlowError(Exception):
@@ -29,3 +32,21 @@ class FormatError(FuseFlowError, ValueError):
 class OutputError(FuseFlowError, OSError):
     """An output location cannot be used: a file where a directory is needed (or the reverse),
     no permission, a read-only filesystem, or a used output directory that does not match."""
+
+
+def require(module: str, extra: str, purpose: str, package: str | None = None) -> ModuleType:
+    """Import an optional dependency, or raise FuseFlowError with the install hint.
+
+    Args:
+        module: the import name (``"rerun"``).
+        extra: the fuseflow extra that installs it (``"viz"`` -> ``pip install 'fuseflow[viz]'``).
+        purpose: what needs it, starting the message (``"the rerun viewer"``).
+        package: the name users know it by, when not ``module`` (``"rerun-sdk"``).
+
+    Example: ``require("rerun", "viz", "the rerun viewer", "rerun-sdk")`` raises
+    "the rerun viewer needs rerun-sdk: pip install 'fuseflow[viz]'" when rerun is missing.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise FuseFlowError(f"{purpose} needs {package or module}: pip install 'fuseflow[{extra}]'") from None

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from _fuse_scenes import PLANE_Z, Rect, look_at, make_rig, render
+from tests.fuse.scenes import PLANE_Z, Rect, look_at, make_rig, render
 
 from fuseflow.errors import ValidationError
 from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, neighbour_graph, preset

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from _fuse_scenes import PLANE_Z, Rect, look_at, make_rig, render
+from tests.fuse.scenes import PLANE_Z, Rect, look_at, make_rig, render
 
 from fuseflow import Frame
 from fuseflow.errors import ValidationError

@@ -15,8 +15,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from _fuse_scenes import PLANE_Z, Rect, look_at, make_rig, render
 from scipy.spatial import cKDTree
+from tests.fuse.scenes import PLANE_Z, Rect, look_at, make_rig, render
 
 from fuseflow import Frame
 from fuseflow.fuse import PRESETS, FuseConfig, fuse_with_report
@@ -98,14 +98,15 @@ def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone):
 def test_numba_select_prefers_the_near_point_like_torch():
     """The compiled _select with the ranking value of rps.selection_priority picks the near
     point of a cell whose two points have equal omega, in either input order."""
-    from fuseflow.fuse.numba_kernels import _select
+    from fuseflow.fuse.numba_kernels import _select, kernel_params
     from fuseflow.fuse.rps import selection_priority
 
     P = np.array([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0]], dtype=np.float32)
     omega = torch.tensor([0.9, 0.9])
     for z in ([3.5, 2.0], [2.0, 3.5]):
         pr = selection_priority(omega, torch.tensor(z), FuseConfig().noise_sigma).numpy()
-        prm = np.array([1.0, 1.0, 1, 1.0, 1, 1, 0.0])  # k = 1 (mode 1), lone_cell_mean off
+        # k = 1 in every cell (fixed_k), lone_cell_mean off
+        prm = kernel_params(FuseConfig(lone_cell_mean=0.0)).select._replace(fixed_k=True, k_const=1)
         sel = np.zeros(2, dtype=np.bool_)
         _select(
             P,

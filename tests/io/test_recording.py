@@ -151,3 +151,23 @@ def test_write_depth_never_wraps(tmp_path):
 
     write_depth(tmp_path / "d.png", np.array([[70.0, 1.0]], np.float32), 1000.0)
     assert read_depth(tmp_path / "d.png", 1000.0).tolist() == [[0.0, 1.0]]
+
+
+def test_shared_file_helpers_write_atomically_and_name_the_file(tmp_path):
+    from fuseflow.io.files import load_json, read_bytes, write_bytes_atomic, write_json_atomic
+
+    out = write_bytes_atomic(tmp_path / "a" / "b.bin", b"ab", b"cd")
+    assert out.read_bytes() == b"abcd" and sorted(p.name for p in out.parent.iterdir()) == ["b.bin"]
+    write_json_atomic(tmp_path / "d.json", {"x": [1, 2]})
+    assert load_json(tmp_path / "d.json") == {"x": [1, 2]}
+    assert (tmp_path / "d.json").read_text() == json.dumps({"x": [1, 2]}, indent=2) + "\n"
+    with pytest.raises(RecordingError, match="missing.json: file not found"):
+        load_json(tmp_path / "missing.json")
+    with pytest.raises(RecordingError, match="cannot read"):
+        read_bytes(tmp_path)  # a directory
+    (tmp_path / "bad.json").write_bytes(b'{"x": 1,\n}')
+    with pytest.raises(FormatError, match="bad.json: invalid JSON at line 2 column 1"):
+        load_json(tmp_path / "bad.json")
+    (tmp_path / "latin.json").write_bytes(b'{"x": "\xe9"}')
+    with pytest.raises(FormatError, match="latin.json: not UTF-8"):
+        load_json(tmp_path / "latin.json")

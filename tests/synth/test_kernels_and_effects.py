@@ -106,3 +106,32 @@ def test_rig_from_a_file(tmp_path, studio):
     assert again.render(0).depth_gt.shape == (3, SMALL[1], SMALL[0])
     with pytest.raises(ValidationError, match="3 cameras but 4"):
         Simulator(SimConfig(cameras=4, rig=str(tmp_path / "rig.json")))
+
+
+def test_a_new_noise_model_is_one_definition(monkeypatch):
+    """A sensor preset with new AxialNoise coefficients (every term on) is all a new model needs:
+    the kernel and the numpy reference both evaluate it, and the depth spread follows sigma_z."""
+    from fuseflow.synth import config as C
+    from fuseflow.synth.noise import axial_sigma
+
+    model = C.AxialNoise(a=0.002, b=0.001, z0=1.0, c=0.0002, stereo_rms=0.05)
+    sensor = C.SensorModel(name="tof", kind="time-of-flight", depth_range=(0.2, 8.0), baseline_m=0.05,
+                           disparity_subpixel=0.0, axial=model)  # fmt: skip
+    monkeypatch.setitem(C.SENSORS, "tof", sensor)
+    cfg = SimConfig(resolution=(64, 48), noise="tof", **{**ALL_OFF, "axial_noise": True})
+    z = np.full((4, 48, 64), 3.0, np.float32)
+    th = np.full_like(z, 0.5)
+    a = apply_depth_noise(cfg, z, th, np.random.default_rng(1))
+    b = apply_depth_noise_ref(cfg, z, th, np.random.default_rng(1))
+    assert np.mean(a != b) < 1e-3 and np.abs(a - b).max() <= 1e-3 + 1e-6
+    want = float(axial_sigma(sensor, np.array([3.0]), np.array([0.5]))[0])
+    assert want == pytest.approx(0.002 + 0.001 * 4 + 0.0002 / 3**0.5 * 0.25 / (np.pi / 2 - 0.5) ** 2 + 9 * 0.05 / 29)
+    assert np.std(a - 3.0) == pytest.approx(want, rel=0.05)
+
+
+def test_stereo_term_needs_a_baseline():
+    from fuseflow.synth.config import AxialNoise, SensorModel
+
+    with pytest.raises(ValidationError, match="baseline"):
+        SensorModel(name="x", kind="stereo", depth_range=(0.1, 5.0), baseline_m=0.0, disparity_subpixel=0.0,
+                    axial=AxialNoise(stereo_rms=0.1))  # fmt: skip

@@ -215,6 +215,43 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     return cloud, valid_pixels, candidates, out_of_range
 
 
+def _report(
+    p: _Prepared, index: int, backend: str, points: int, valid: int, cand: int, oor: int, ms: float
+) -> FuseReport:
+    """The FuseReport of one fused frame: degraded views from the prepared inputs, counts, time."""
+    pres = p.present.tolist()
+    missing = tuple(cid for cid, ok in zip(p.ids, pres) if not ok)
+    per_view = p.valid_per_view
+    empty = tuple(cid for cid, ok, nv in zip(p.ids, pres, per_view) if ok and nv == 0)
+    idx = p.graph.index.tolist()
+    isolated = tuple(
+        cid for i, (cid, ok) in enumerate(zip(p.ids, pres)) if ok and not any(j >= 0 and pres[j] for j in idx[i])
+    )
+    notes = []
+    if missing:
+        notes.append(f"views missing from frame {index}: {list(missing)} (fused without them)")
+    if empty:
+        notes.append(f"views with no valid depth in frame {index}: {list(empty)}")
+    if isolated and len(p.ids) > 1:
+        notes.append(f"cameras with no overlapping neighbour: {list(isolated)} (omega_geo = c, eq. 21)")
+    if oor:
+        notes.append(f"{oor} points beyond the spatial hash's range were dropped")
+    return FuseReport(
+        backend=backend,
+        device=str(p.depth.device),
+        views=len(p.ids),
+        missing=missing,
+        empty=empty,
+        isolated=isolated,
+        valid_pixels=valid,
+        candidates=cand,
+        out_of_range=oor,
+        points=points,
+        ms=ms,
+        warnings=tuple(notes),
+    )
+
+
 def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FuseResult:
     """FUSE one frame and report what happened (missing / empty / isolated cameras, counts).
 
@@ -245,37 +282,7 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
     if p.depth.device.type == "cuda":
         torch.cuda.synchronize(p.depth.device)
     ms = (time.perf_counter() - t0) * 1000.0
-    pres = p.present.tolist()
-    missing = tuple(cid for cid, ok in zip(p.ids, pres) if not ok)
-    per_view = p.valid_per_view
-    empty = tuple(cid for cid, ok, nv in zip(p.ids, pres, per_view) if ok and nv == 0)
-    idx = p.graph.index.tolist()
-    isolated = tuple(
-        cid for i, (cid, ok) in enumerate(zip(p.ids, pres)) if ok and not any(j >= 0 and pres[j] for j in idx[i])
-    )
-    notes = []
-    if missing:
-        notes.append(f"views missing from frame {frame.index}: {list(missing)} (fused without them)")
-    if empty:
-        notes.append(f"views with no valid depth in frame {frame.index}: {list(empty)}")
-    if isolated and len(p.ids) > 1:
-        notes.append(f"cameras with no overlapping neighbour: {list(isolated)} (omega_geo = c, eq. 21)")
-    if oor:
-        notes.append(f"{oor} points beyond the spatial hash's range were dropped")
-    report = FuseReport(
-        backend=backend,
-        device=str(p.depth.device),
-        views=len(p.ids),
-        missing=missing,
-        empty=empty,
-        isolated=isolated,
-        valid_pixels=valid,
-        candidates=cand,
-        out_of_range=oor,
-        points=len(cloud),
-        ms=ms,
-        warnings=tuple(notes),
-    )
+    report = _report(p, frame.index, backend, len(cloud), valid, cand, oor, ms)
     return FuseResult(cloud, report)
 
 

@@ -23,6 +23,8 @@ numba is imported here only; ``import fuseflow`` does not load it.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 from numba import njit, prange
@@ -32,9 +34,118 @@ from fuseflow.fuse.config import FuseConfig
 from fuseflow.geometry.camera import relative_transforms
 from fuseflow.types import FusedCloud
 
-__all__ = ["fuse_numba", "gate_depth"]
+__all__ = ["fuse_numba", "gate_depth", "PixelParams", "CellParams", "SelectParams", "kernel_params"]
 
 _F = np.float32
+
+
+# --- named kernel parameters --------------------------------------------------------------
+# numba takes a NamedTuple of scalars as one argument and types each field by its Python value
+# (np.float32 -> float32, float -> float64, bool -> boolean, int -> int64). The field types
+# below are the ones the kernels compute with; ``kernel_params`` is the one place that builds
+# them from a FuseConfig.
+
+
+class PixelParams(NamedTuple):
+    """Scalars of stage 1 (``_pixels``, ``_compact``): MCM, eq. (27), CVGC, eq. (22), the hash."""
+
+    alpha: np.float32
+    """alpha of eq. (18)."""
+    beta: np.float32
+    """beta of eq. (18)."""
+    eps: np.float32
+    """epsilon of eq. (16), (17), (20), (22)."""
+    r_c: np.float32
+    """r_c of eq. (27): candidates need c(x) > r_c."""
+    tau: np.float32
+    """tau of eq. (21)."""
+    min_weight: np.float32
+    """FuseConfig.min_weight: candidates also need omega(x) >= this."""
+    cell: np.float32
+    """Cell size (m) of the first hash level: s_c with ASH, fixed_size without."""
+    use_mcm: bool
+    use_cvgc: bool
+    visibility_aware: bool
+    qlim: np.float32
+    """Largest |cell index| the hash addresses (offset - 1); beyond it a point is out of range."""
+    range_priority: bool
+    """Also write the ranking value omega / sigma(z) (rps.selection_priority)."""
+    noise_a: np.float32
+    """a, b, z0 of sigma(z) = a + b (z - z0)^2 (FuseConfig.noise_sigma)."""
+    noise_b: np.float32
+    noise_z0: np.float32
+
+
+class CellParams(NamedTuple):
+    """Scalars of ``_fine_pass``: eq. (23)-(25)."""
+
+    s_c: np.float32
+    """Coarse cell size (m), or fixed_size without ASH."""
+    s0: np.float32
+    """s_0 of eq. (24)."""
+    s_min: np.float32
+    s_max: np.float32
+    eps: np.float32
+    adaptive: bool
+    """ASH on: fine cells of eq. (24)-(25); off: one fine cell per (fixed) coarse cell."""
+    fixed_size: np.float32
+    s_c3: np.float32
+    """s_c^3 (the coarse cell volume of eq. 23), rounded once to float32."""
+
+
+class SelectParams(NamedTuple):
+    """Scalars of ``_select``: eq. (26) and the FPS of eq. (28)."""
+
+    k0: np.float32
+    """k_0 of eq. (26)."""
+    ratio: np.float32
+    """r of eq. (26)."""
+    k_max: int
+    """Most representatives per fine cell."""
+    rho_bar: np.float32
+    """Mean fine-cell density of eq. (26) (set after ``_fine_pass``; 1 when unused)."""
+    fixed_k: bool
+    """True: k = k_const in every cell (w/o ASH or w/o RPS); False: eq. (26)."""
+    k_const: int
+    lone_cell_mean: float
+    """FuseConfig.lone_cell_mean (0 = off)."""
+
+
+class KernelParams(NamedTuple):
+    """The three parameter structs of one FuseConfig (``kernel_params``)."""
+
+    pixel: PixelParams
+    cell: CellParams
+    select: SelectParams
+
+
+def kernel_params(cfg: FuseConfig) -> KernelParams:
+    """The kernels' parameters from ``cfg`` (``select.rho_bar`` is 1 until ``_fine_pass`` ran)."""
+    adaptive = cfg.use_ash
+    s_c = cfg.coarse_size if adaptive else cfg.fixed_size
+    qlim = (COARSE_OFFSET if adaptive else FIXED_OFFSET) - 1
+    a, b, z0 = cfg.noise_sigma
+    pixel = PixelParams(
+        alpha=_F(cfg.alpha), beta=_F(cfg.beta), eps=_F(cfg.eps), r_c=_F(cfg.r_c), tau=_F(cfg.tau),
+        min_weight=_F(cfg.min_weight), cell=_F(s_c), use_mcm=bool(cfg.use_mcm), use_cvgc=bool(cfg.use_cvgc),
+        visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
+        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0),
+    )  # fmt: skip
+    cell = CellParams(
+        s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
+        adaptive=bool(adaptive), fixed_size=_F(cfg.fixed_size), s_c3=_F(s_c**3),
+    )  # fmt: skip
+    if cfg.use_rps and adaptive:
+        fixed_k, k_const = False, 0
+    elif cfg.use_rps:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
+        fixed_k, k_const = True, int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
+    else:  # w/o RPS
+        fixed_k, k_const = True, int(cfg.k_fixed)
+    select = SelectParams(
+        k0=_F(cfg.k0), ratio=_F(cfg.ratio), k_max=int(cfg.k_max), rho_bar=_F(1.0), fixed_k=fixed_k,
+        k_const=k_const, lone_cell_mean=float(cfg.lone_cell_mean),
+    )  # fmt: skip
+    return KernelParams(pixel, cell, select)
 
 
 @njit(cache=True, parallel=True)
@@ -70,14 +181,14 @@ def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present:
 
 @njit(cache=True, parallel=True, fastmath=False)
 def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, row_count):
-    """Stage 1, one pass per pixel. prm: float32 parameters (see fuse_numba). out_pr: the
-    range-aware ranking value omega / sigma(z) (rps.selection_priority) when prm[11] > 0,
-    else unused (may have length 1)."""
+    """Stage 1, one pass per pixel. prm: PixelParams. out_pr: the range-aware ranking value
+    omega / sigma(z) (rps.selection_priority) when prm.range_priority, else unused (may have
+    length 1)."""
     n, h, w = depth.shape
-    alpha, beta, eps, r_c, tau, min_w, s_c = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6]
-    use_mcm, use_cvgc, vis = prm[7] > 0, prm[8] > 0, prm[9] > 0
-    qlim = prm[10]
-    rp, na, nb, nz0 = prm[11] > 0, prm[12], prm[13], prm[14]
+    alpha, beta, eps, r_c, tau, min_w, s_c = prm.alpha, prm.beta, prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
+    use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
+    qlim = prm.qlim
+    rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
     half = _F(0.5)
     two = _F(2.0)
     nine = _F(9.0)
@@ -182,7 +293,9 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
 
 
 @njit(cache=True, parallel=True)
-def _compact(flags, out_P, out_w, out_pr, rp, s_c, row_start, h, w, P, om, pr, q, pix, cam, oor):
+def _compact(flags, out_P, out_w, out_pr, prm, row_start, h, w, P, om, pr, q, pix, cam, oor):
+    """Kept pixels of ``_pixels`` (flags 1 / 2) into input-order arrays; prm: PixelParams."""
+    rp, s_c = prm.range_priority, prm.cell
     nrows = row_start.shape[0] - 1
     for row in prange(nrows):
         k = row_start[row]
@@ -273,9 +386,17 @@ def _bucket(ids, n_cells):
 @njit(cache=True, parallel=True)
 def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n):
     """Eq. (23)-(25) per coarse cell: fine keys, stable local sort (members reordered in place),
-    and the per-cell sum of fine-cell densities (for rho_bar) and fine-cell count."""
-    s_c, s0, s_min, s_max, eps, adaptive, fixed = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5] > 0, prm[6]
-    s_c3 = prm[7]
+    and the per-cell sum of fine-cell densities (for rho_bar) and fine-cell count. prm: CellParams."""
+    s_c, s0, s_min, s_max, eps, adaptive, fixed = (
+        prm.s_c,
+        prm.s0,
+        prm.s_min,
+        prm.s_max,
+        prm.eps,
+        prm.adaptive,
+        prm.fixed_size,
+    )
+    s_c3 = prm.s_c3
     n_cells = start.shape[0] - 1
     for c in prange(n_cells):
         a = start[c]
@@ -362,9 +483,9 @@ def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n
 def _select(P, om, start, members, fkey, csize, fine_n, prm, selected):
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell. om: the
     ranking value (omega, or omega / sigma(z) with range_priority); only compared. fine_n:
-    occupied fine cells per coarse cell (for lone_cell_mean, prm[6], 0 = off)."""
-    k0, ratio, k_max, rho_bar = _F(prm[0]), _F(prm[1]), int(prm[2]), _F(prm[3])
-    mode, k_const, lone_mean = int(prm[4]), int(prm[5]), prm[6]
+    occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm: SelectParams."""
+    k0, ratio, k_max, rho_bar = prm.k0, prm.ratio, prm.k_max, prm.rho_bar
+    fixed_k, k_const, lone_mean = prm.fixed_k, prm.k_const, prm.lone_cell_mean
     n_cells = start.shape[0] - 1
     for c in prange(n_cells):
         a = start[c]
@@ -378,10 +499,10 @@ def _select(P, om, start, members, fkey, csize, fine_n, prm, selected):
             while t1 < b and fkey[t1] == fkey[t0]:
                 t1 += 1
             n = t1 - t0
-            if mode == 0 and lone_mean > 0 and n == 1 and float(b - a) >= lone_mean * float(fine_n[c]):
+            if not fixed_k and lone_mean > 0 and n == 1 and float(b - a) >= lone_mean * float(fine_n[c]):
                 t0 = t1  # a lone point in a densely sampled coarse cell: k = 0 (lone_cell_mean)
                 continue
-            if mode == 0:
+            if not fixed_k:
                 rho = _F(n) / sf3
                 kf = np.ceil(_F(k0) * (rho / rho_bar) * _F(ratio))  # eq. (26)
                 k = int(kf)
@@ -457,8 +578,20 @@ def _gather(members, pos, P, om, cam, pix, color, rig_index, hw, xyz, rgb, wgt, 
         src[k] = rig_index[c]
 
 
-def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
-    """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
+class _Candidates(NamedTuple):
+    """Stage-1 output, in input order (camera, row, column) of the M candidates."""
+
+    P: np.ndarray  # (M, 3) float32 world points
+    om: np.ndarray  # (M,) float32 joint weight, eq. (22)
+    rank: np.ndarray  # (M,) float32 ranking value of eq. (28) (om itself without range_priority)
+    q: np.ndarray  # (M, 3) int64 first-level cell index (valid where not out of range)
+    pix: np.ndarray  # (M,) int64 pixel index v * W + u in the source view
+    cam: np.ndarray  # (M,) int64 source view (frame order)
+    oor: np.ndarray  # (M,) bool beyond the hash's addressable range
+
+
+def _candidates(p, prm: PixelParams) -> _Candidates:
+    """Stage 1 and 2: ``_pixels`` over every view, then ``_compact`` into input order."""
     depth = p.depth.contiguous().numpy()
     n, h, w = depth.shape
     Kf = p.K.numpy().astype(np.float32)
@@ -466,20 +599,11 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     T_wc = p.T_world_cam.numpy().astype(np.float32)
     nbr = p.graph.index.numpy().astype(np.int64)
     present = p.present.numpy().astype(np.bool_)
-    adaptive = cfg.use_ash
-    s_c = cfg.coarse_size if adaptive else cfg.fixed_size
-    qlim = (COARSE_OFFSET if adaptive else FIXED_OFFSET) - 1
-    prm = np.array(
-        [cfg.alpha, cfg.beta, cfg.eps, cfg.r_c, cfg.tau, cfg.min_weight, s_c]
-        + [float(cfg.use_mcm), float(cfg.use_cvgc), float(cfg.visibility_aware), qlim]
-        + [float(cfg.range_priority), *cfg.noise_sigma],
-        dtype=np.float32,
-    )
     npx = n * h * w
     flags = np.empty(npx, dtype=np.int8)
     out_P = np.empty((npx, 3), dtype=np.float32)
     out_w = np.empty(npx, dtype=np.float32)
-    rp = bool(cfg.range_priority)
+    rp = prm.range_priority
     out_pr = np.empty(npx if rp else 1, dtype=np.float32)
     row_count = np.zeros(n * h, dtype=np.int64)
     _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, row_count)
@@ -488,48 +612,53 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     m = int(row_start[-1])
     P = np.empty((m, 3), dtype=np.float32)
     om = np.empty(m, dtype=np.float32)
-    pr = np.empty(m, dtype=np.float32) if rp else om  # the ranking value of eq. (28)
+    rank = np.empty(m, dtype=np.float32) if rp else om
     q = np.empty((m, 3), dtype=np.int64)
     pix = np.empty(m, dtype=np.int64)
     cam = np.empty(m, dtype=np.int64)
     oor = np.empty(m, dtype=np.bool_)
-    _compact(flags, out_P, out_w, out_pr, rp, np.float32(s_c), row_start, h, w, P, om, pr, q, pix, cam, oor)
-    del out_P, out_w, out_pr, flags
-    out_of_range = int(oor.sum())
+    _compact(flags, out_P, out_w, out_pr, prm, row_start, h, w, P, om, rank, q, pix, cam, oor)
+    return _Candidates(P, om, rank, q, pix, cam, oor)
+
+
+def _select_points(c: _Candidates, prm: KernelParams) -> tuple[np.ndarray, np.ndarray, int]:
+    """Stages 3 and 4: coarse cells, fine cells and representatives. Returns (members: point
+    indices grouped by fine cell, pos: output slot of each member or -1) and the point count."""
+    adaptive = prm.cell.adaptive
     bits = 14 if adaptive else 21
     offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
-    ids, n_cells = _coarse_ids(q, ~oor, offset, bits)
+    ids, n_cells = _coarse_ids(c.q, ~c.oor, offset, bits)
     start, members = _bucket(ids, n_cells)
     fkey = np.empty(members.shape[0], dtype=np.int64)
     csize = np.empty(n_cells, dtype=np.float32)
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
-    prm2 = np.array(
-        [s_c, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps, float(adaptive), cfg.fixed_size, np.float32(s_c**3)],
-        dtype=np.float32,
-    )
-    _fine_pass(P, q, start, members, prm2, fkey, csize, rho_sum, fine_n)
-    if cfg.use_rps and adaptive:
-        mode, k_const = 0, 0
+    _fine_pass(c.P, c.q, start, members, prm.cell, fkey, csize, rho_sum, fine_n)
+    sel_prm = prm.select
+    if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
-        rho_bar = float(np.float32(rho_sum.sum() / max(total, 1)))
-    else:
-        mode = 1
-        k_const = cfg.k_fixed if not cfg.use_rps else int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
-        rho_bar = 1.0
-    prm3 = np.array([cfg.k0, cfg.ratio, cfg.k_max, rho_bar, mode, k_const, cfg.lone_cell_mean], dtype=np.float64)
-    selected = np.zeros(m, dtype=np.bool_)
-    _select(P, pr, start, members, fkey, csize, fine_n, prm3, selected)
+        sel_prm = sel_prm._replace(rho_bar=_F(rho_sum.sum() / max(total, 1)))
+    selected = np.zeros(c.P.shape[0], dtype=np.bool_)
+    _select(c.P, c.rank, start, members, fkey, csize, fine_n, sel_prm, selected)
     # output in the fine-cell order of the members array
     pos = np.empty(members.shape[0], dtype=np.int64)
     k = _out_positions(members, selected, pos)
+    return members, pos, k
+
+
+def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
+    """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
+    prm = kernel_params(cfg)
+    c = _candidates(p, prm.pixel)
+    members, pos, k = _select_points(c, prm)
+    n, h, w = p.depth.shape
     xyz = np.empty((k, 3), dtype=np.float32)
     rgb = np.empty((k, 3), dtype=np.uint8)
     wgt = np.empty(k, dtype=np.float32)
     src = np.empty(k, dtype=np.int16)
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
-    _gather(members, pos, P, om, cam, pix, color, rig_index, h * w, xyz, rgb, wgt, src)
+    _gather(members, pos, c.P, c.om, c.cam, c.pix, color, rig_index, h * w, xyz, rgb, wgt, src)
     cloud = FusedCloud(torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src))
-    valid_pixels = int(sum(p.valid_per_view))
-    return cloud, valid_pixels, m - out_of_range, out_of_range
+    out_of_range = int(c.oor.sum())
+    return cloud, int(sum(p.valid_per_view)), int(c.P.shape[0]) - out_of_range, out_of_range

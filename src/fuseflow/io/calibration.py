@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
-from fuseflow.io.recording import _load_json, _matrix, write_json_atomic
+from fuseflow.io.files import load_json, write_json_atomic
+from fuseflow.io.recording import parse_matrix
 from fuseflow.types import Calibration
 
 __all__ = ["CALIB_FORMAT", "read_calibration", "write_calibration", "calibration_to_json"]
@@ -62,7 +63,7 @@ def write_calibration(path: str | Path, calib: Calibration) -> Path:
 def read_calibration(path: str | Path) -> Calibration:
     """Read and validate calib.json; errors name the field and camera."""
     path = Path(path)
-    doc = _load_json(path)
+    doc = load_json(path)
     if not isinstance(doc, dict):
         raise FormatError(f"{path}: top level must be an object")
     if doc.get("format") != CALIB_FORMAT:
@@ -74,7 +75,7 @@ def read_calibration(path: str | Path) -> Calibration:
     for cid, entry in cams.items():
         if not isinstance(entry, dict) or "T_cam_world" not in entry:
             raise FormatError(f"{path}: camera {cid!r}: missing field 'T_cam_world'")
-        T[cid] = _matrix(entry["T_cam_world"], 4, f"{path}: camera {cid!r}: field 'T_cam_world'")
+        T[cid] = parse_matrix(entry["T_cam_world"], 4, f"{path}: camera {cid!r}: field 'T_cam_world'")
     report = doc.get("report", {})
     if not isinstance(report, dict):
         raise FormatError(f"{path}: field 'report' must be an object")

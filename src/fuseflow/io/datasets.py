@@ -40,7 +40,7 @@ from fuseflow.io.images import (
     write_color,
     write_depth,
 )
-from fuseflow.io.recording import COLOR_EXTS, FuseFlowRecording, Recording, _list_frames, frame_path, write_rig
+from fuseflow.io.recording import COLOR_EXTS, FuseFlowRecording, Recording, frame_path, list_frames, write_rig
 from fuseflow.types import Camera, Rig, check_rigid, invert_rigid
 
 __all__ = [
@@ -228,8 +228,8 @@ class SequenceRecording(Recording):
     def open3d(cls, path: str | Path, camera_id: str = "cam0") -> SequenceRecording:
         """Open3D / Redwood / ICL-NUIM layout; frames paired by number, .log poses by order."""
         path = Path(path)
-        colors = _list_frames(path / "color", COLOR_EXTS)
-        depths = _list_frames(path / "depth", (".png",))
+        colors = list_frames(path / "color", COLOR_EXTS)
+        depths = list_frames(path / "depth", (".png",))
         numbers = sorted(set(colors) & set(depths))
         if not numbers:
             raise RecordingError(f"{path}: no colour/depth pairs in color/ and depth/")

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fuseflow.errors import FormatError, RecordingError
+from fuseflow.io.files import read_bytes
 
 __all__ = [
     "read_color",
@@ -45,12 +46,7 @@ def _cv2():
 
 
 def _read_bytes(path: Path) -> bytes:
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    data = read_bytes(path)
     if not data:
         raise RecordingError(f"{path}: file is empty")
     return data

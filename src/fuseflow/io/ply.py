@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fuseflow.errors import FormatError, RecordingError
+from fuseflow.errors import FormatError
+from fuseflow.io.files import read_bytes, write_bytes_atomic
 from fuseflow.types import FusedCloud
 
 __all__ = ["write_ply", "read_ply"]
@@ -49,13 +50,7 @@ def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
         "property uchar red\nproperty uchar green\nproperty uchar blue\n"
         "property float weight\nproperty short camera\nend_header\n"
     )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(arr.tobytes())
-    tmp.replace(path)
-    return path
+    return write_bytes_atomic(path, header.encode("ascii"), arr.tobytes())
 
 
 def _parse_header(path: Path, data: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], int]:
@@ -92,12 +87,7 @@ def _parse_header(path: Path, data: bytes) -> tuple[str, list[tuple[str, int, li
 def read_ply(path: str | Path) -> FusedCloud:
     """Read a vertex PLY into a FusedCloud (see module docstring for defaults of missing fields)."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read ({exc})") from None
+    data = read_bytes(path)
     fmt, elements, start = _parse_header(path, data)
     if not elements or elements[0][0] != "vertex":
         raise FormatError(f"{path}: expected 'vertex' as the first element")

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fuseflow.errors import FuseFlowError, RecordingError, ValidationError
+from fuseflow.errors import RecordingError, ValidationError, require
 from fuseflow.io.images import clean_depth
 from fuseflow.types import Camera, Frame, Rig
 
@@ -32,11 +32,7 @@ __all__ = ["RealSenseConfig", "RealSenseSource"]
 
 
 def _import_rs() -> Any:
-    try:
-        import pyrealsense2 as rs
-    except ImportError:
-        raise FuseFlowError("live RealSense capture needs pyrealsense2: pip install 'fuseflow[realsense]'") from None
-    return rs
+    return require("pyrealsense2", "realsense", "live RealSense capture")
 
 
 @dataclass(frozen=True)

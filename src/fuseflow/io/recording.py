@@ -13,7 +13,6 @@ present (zeros in its slot). A file that exists but cannot be decoded is an erro
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from collections.abc import Iterator, Sequence
@@ -25,6 +24,7 @@ import numpy as np
 import torch
 
 from fuseflow.errors import FormatError, RecordingError, ValidationError
+from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.images import clean_depth, read_color, read_depth, write_color, write_depth
 from fuseflow.types import Camera, Frame, Rig
 
@@ -67,7 +67,7 @@ def rig_to_json(rig: Rig) -> dict[str, Any]:
     }
 
 
-def _matrix(value: Any, n: int, where: str) -> np.ndarray:
+def parse_matrix(value: Any, n: int, where: str) -> np.ndarray:
     """Accept an n x n nested list or a flat row-major list of n*n numbers."""
     try:
         arr = np.array(value, dtype=np.float64)
@@ -108,10 +108,10 @@ def rig_from_json(doc: Any, source: str = "rig.json") -> Rig:
                     id=cid,
                     width=c["width"],
                     height=c["height"],
-                    K=_matrix(c["K"], 3, f"{where}: field 'K'"),
+                    K=parse_matrix(c["K"], 3, f"{where}: field 'K'"),
                     depth_scale=c.get("depth_scale", 1000.0),
                     depth_range=tuple(c.get("depth_range", (0.1, 10.0))),
-                    T_cam_world=None if T is None else _matrix(T, 4, f"{where}: field 'T_cam_world'"),
+                    T_cam_world=None if T is None else parse_matrix(T, 4, f"{where}: field 'T_cam_world'"),
                 )
             )
         except ValidationError as exc:
@@ -124,33 +124,12 @@ def rig_from_json(doc: Any, source: str = "rig.json") -> Rig:
         raise FormatError(f"{source}: {exc}") from None
 
 
-def _load_json(path: Path) -> Any:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read ({exc})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FormatError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
-
-
 def read_rig(path: str | Path) -> Rig:
     """Read rig.json (a file, or a recording directory containing one)."""
     path = Path(path)
     if path.is_dir():
         path = path / "rig.json"
-    return rig_from_json(_load_json(path), str(path))
-
-
-def write_json_atomic(path: Path, doc: Any) -> None:
-    """Write JSON through a temporary file and rename, so a crash never leaves half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    os.replace(tmp, path)
+    return rig_from_json(load_json(path), str(path))
 
 
 def write_rig(path: str | Path, rig: Rig) -> Path:
@@ -273,7 +252,7 @@ class Recording:
             )
 
 
-def _list_frames(directory: Path, exts: tuple[str, ...]) -> dict[int, Path]:
+def list_frames(directory: Path, exts: tuple[str, ...]) -> dict[int, Path]:
     out: dict[int, Path] = {}
     if not directory.is_dir():
         return out
@@ -298,8 +277,8 @@ class FuseFlowRecording(Recording):
         for cam in self.rig.cameras:
             if not (self.path / cam.id).is_dir():
                 raise RecordingError(f"{self.path}: rig.json lists camera {cam.id!r} but there is no folder {cam.id}/")
-            self._color.append(_list_frames(self.path / cam.id / "color", COLOR_EXTS))
-            self._depth.append(_list_frames(self.path / cam.id / "depth", (".png",)))
+            self._color.append(list_frames(self.path / cam.id / "color", COLOR_EXTS))
+            self._depth.append(list_frames(self.path / cam.id / "depth", (".png",)))
         numbers: set[int] = set()
         for c, d in zip(self._color, self._depth):
             numbers |= set(c) | set(d)

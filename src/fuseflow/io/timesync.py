@@ -273,12 +273,12 @@ def write_timestamps(
 
 def read_timestamps(root: str | Path) -> Timestamps | None:
     """Read ``root/timestamps.json``; None when the recording has none. Errors name the field."""
-    from fuseflow.io.recording import _load_json
+    from fuseflow.io.files import load_json
 
     path = Path(root) / "timestamps.json"
     if not path.exists():
         return None
-    doc = _load_json(path)
+    doc = load_json(path)
     if not isinstance(doc, dict) or doc.get("format") != TIMESTAMPS_FORMAT:
         raise FormatError(f"{path}: field 'format' must be {TIMESTAMPS_FORMAT!r}")
     try:

@@ -22,22 +22,14 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from fuseflow.errors import FuseFlowError
+from fuseflow.errors import FuseFlowError, require
 
 if TYPE_CHECKING:
     from fuseflow.pipeline.config import PipelineConfig
     from fuseflow.pipeline.records import FrameRecord
     from fuseflow.types import FusedCloud, Rig
 
-__all__ = ["RayOptions", "ray_frame_results", "import_ray"]
-
-
-def import_ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise FuseFlowError("--ray needs Ray: pip install 'fuseflow[ray]'") from None
-    return ray
+__all__ = ["RayOptions", "ray_frame_results"]
 
 
 @dataclass(frozen=True)
@@ -113,7 +105,7 @@ def ray_frame_results(
 
     ``fail_once`` (tests): position -> marker file; that frame's first attempt kills its worker.
     """
-    ray = import_ray()
+    ray = require("ray", "ray", "--ray (fusing frames on Ray)")
     from fuseflow.types import FusedCloud
 
     started_here = False

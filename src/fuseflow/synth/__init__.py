@@ -8,11 +8,12 @@ the code it tests). Open3D and numba are imported when a Simulator renders, not 
     sf = sim.render(0)        # SimFrame: .frame, .depth_gt, .surface_points, .surface_normals
 """
 
-from fuseflow.synth.config import KINECT_V1, REALSENSE_D435, SensorModel, SimConfig
+from fuseflow.synth.config import KINECT_V1, REALSENSE_D435, AxialNoise, SensorModel, SimConfig
 from fuseflow.synth.recording import GroundTruth, read_ground_truth, read_surface_ply, simulate_recording
 from fuseflow.synth.simulator import SimFrame, Simulator, observable_mask, overlap_matrix, visible_mask
 
 __all__ = [
+    "AxialNoise",
     "GroundTruth",
     "KINECT_V1",
     "REALSENSE_D435",

@@ -2,19 +2,57 @@
 
 Every number has its source next to it. Effects are switched on and off one by one with the
 ``SimConfig`` booleans; the sensor preset (``noise``) says which numbers they use.
+
+A new depth-noise model is one edit here: its axial-noise coefficients (an ``AxialNoise``) and
+a ``SensorModel`` preset in ``SENSORS``. ``synth.noise.sigma_z`` is the one formula that the
+numpy reference and the compiled kernel both evaluate with those coefficients.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 from fuseflow.errors import ValidationError
 
-__all__ = ["SimConfig", "SensorModel", "KINECT_V1", "REALSENSE_D435", "SENSORS", "SCENES", "RIG_LAYOUTS"]
+__all__ = [
+    "SimConfig", "SensorModel", "AxialNoise", "NGUYEN_2012", "D400_STEREO", "KINECT_V1", "REALSENSE_D435",
+    "SENSORS", "SCENES", "RIG_LAYOUTS",
+]  # fmt: skip
 
 SCENES = ("studio", "room", "wall")
 RIG_LAYOUTS = ("auto", "ring", "dome")
+
+
+class AxialNoise(NamedTuple):
+    """Coefficients of the axial (along-ray) depth noise std, ``synth.noise.sigma_z``:
+
+        sigma_z(z, theta) = a + b (z - z0)^2 + c / sqrt(z) * theta^2 / (pi/2 - theta)^2 + z^2 s / (f B)
+
+    metres, z in metres, theta the incidence angle in radians (clipped at 89 deg), f B the
+    sensor's focal_px * baseline_m. Each published model sets its terms and leaves the others 0.
+    A NamedTuple of floats, so the compiled kernel takes it as one argument.
+    """
+
+    a: float = 0.0
+    """Constant term (m)."""
+    b: float = 0.0
+    """Quadratic range term (1/m), about z0."""
+    z0: float = 0.0
+    """Centre of the quadratic term (m)."""
+    c: float = 0.0
+    """Incidence-angle term (m^1.5): c / sqrt(z) * theta^2 / (pi/2 - theta)^2."""
+    stereo_rms: float = 0.0
+    """s, the stereo matching RMS subpixel error (px) of the disparity term z^2 s / (f B)."""
+
+
+#: Structured light, Kinect v1 class: Nguyen, Izadi, Lovell 2012, sigma_z = 0.0012 + 0.0019 (z - 0.4)^2
+#: + 0.0001 / sqrt(z) theta^2 / (pi/2 - theta)^2 m.
+NGUYEN_2012 = AxialNoise(a=0.0012, b=0.0019, z0=0.4, c=0.0001)
+#: Active stereo, RealSense D400 class: RMS = z^2 s / (f B) with s = 0.08 px (Intel 'Tuning depth
+#: cameras for best performance', Grunnet-Jepsen et al. 2018: 0.08 px typical on a well-textured target).
+D400_STEREO = AxialNoise(stereo_rms=0.08)
 
 
 @dataclass(frozen=True)
@@ -24,7 +62,7 @@ class SensorModel:
     name: str
     """Preset name ('kinect', 'realsense', 'none')."""
     kind: str
-    """'structured-light' (axial sigma from Nguyen et al. 2012) or 'stereo' (sigma = z^2 s / (f b))."""
+    """'structured-light', 'stereo' (descriptive), or 'none' (no sensor effects at all)."""
     depth_range: tuple[float, float]
     """(min, max) metres of the sensor; depth outside is missing. Kinect v1: 0.4-4.5 m, an
     assumption between the 0.5-5 m of raw data Khoshelham & Elberink 2012 measured and the
@@ -41,9 +79,8 @@ class SensorModel:
     quantization formulas whatever the simulated resolution: Kinect v1 IR camera ~580 px at
     640x480 (Khoshelham & Elberink 2012); D435 ~385 px at 640x480 (librealsense intrinsics of
     a D435 at 640x480, typical)."""
-    stereo_subpixel_rms: float = 0.08
-    """Stereo matching RMS subpixel error (Intel 'Tuning depth cameras for best performance',
-    Grunnet-Jepsen et al. 2018: 0.08 px typical on a well-textured target). Stereo model only."""
+    axial: AxialNoise = AxialNoise()
+    """Coefficients of the axial noise std sigma_z(z, theta) (``AxialNoise``; all 0 = none)."""
     lateral_sigma_px: float = 0.8
     """Lateral (in-image) noise in pixels at normal incidence: 0.8 px (Nguyen et al. 2012,
     sigma_L = 0.8 + 0.035 theta / (pi/2 - theta) px). For D435 the same form is used
@@ -59,6 +96,19 @@ class SensorModel:
     """Probability that a pixel on a depth discontinuity becomes a mixed pixel (depth between
     the two sides), Kinect-class behaviour (Sabov & Krueger 2008; Reynolds et al. 2011)."""
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.axial, AxialNoise):
+            raise ValidationError(f"SensorModel.axial: expected an AxialNoise, got {self.axial!r}")
+        if self.axial.stereo_rms > 0 and not self.focal_px * self.baseline_m > 0:
+            raise ValidationError(
+                f"SensorModel {self.name!r}: a stereo term (axial.stereo_rms > 0) needs focal_px * baseline_m > 0"
+            )
+
+    @property
+    def stereo_subpixel_rms(self) -> float:
+        """``axial.stereo_rms`` (the name before AxialNoise; kept for one release)."""
+        return self.axial.stereo_rms
+
 
 KINECT_V1 = SensorModel(
     name="kinect",
@@ -66,6 +116,7 @@ KINECT_V1 = SensorModel(
     depth_range=(0.4, 4.5),
     baseline_m=0.075,
     disparity_subpixel=1.0 / 8.0,
+    axial=NGUYEN_2012,
 )
 REALSENSE_D435 = SensorModel(
     name="realsense",
@@ -74,6 +125,7 @@ REALSENSE_D435 = SensorModel(
     baseline_m=0.050,
     disparity_subpixel=1.0 / 32.0,
     focal_px=385.0,
+    axial=D400_STEREO,
     grazing_max_deg=80.0,
     dropout_rate=0.01,
     flying_pixel_rate=0.3,

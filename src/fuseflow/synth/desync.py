@@ -62,14 +62,15 @@ def apply_desync(rec_dir: str | Path, offsets: Mapping[str, int] | str) -> dict[
     """Shift the listed cameras of the simulated recording ``rec_dir`` by their offsets (frames,
     + = late; a "CAM:FRAMES,..." string is parsed with ``parse_desync``, cameras by id or index).
     Returns the offsets applied; gt.json gets ``"desync"``."""
-    from fuseflow.io.recording import _load_json, read_rig, write_json_atomic
+    from fuseflow.io.files import load_json, write_json_atomic
+    from fuseflow.io.recording import read_rig
 
     rec = Path(rec_dir)
     rig = read_rig(rec)
     if isinstance(offsets, str):
         offsets = parse_desync(offsets, rig.ids)
     gt_path = rec / "gt.json"
-    gt = _load_json(gt_path)
+    gt = load_json(gt_path)
     frames = int(gt.get("frames", 0))
     for cid, k in offsets.items():
         if cid not in rig.ids:

@@ -19,24 +19,101 @@ Sources (docs/simulator.md has the full derivation):
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from fuseflow.synth.config import SensorModel, SimConfig
+from fuseflow.synth.config import AxialNoise, SensorModel, SimConfig
 
-__all__ = ["axial_sigma", "quantization_step", "apply_depth_noise", "apply_depth_noise_ref"]
+__all__ = [
+    "sigma_z", "sigma_terms", "axial_sigma", "quantization_step", "apply_depth_noise", "apply_depth_noise_ref", "DepthNoiseParams",
+    "NoiseDraws", "depth_noise_params",
+]  # fmt: skip
+
+#: Incidence angle at which the angular term of sigma_z stops growing (89 deg, float32 as the angle maps).
+THETA_CLIP = np.float32(np.radians(89.0))
+
+
+def sigma_z(m: AxialNoise, fb: float, z, theta):
+    """Axial noise std (metres) of model ``m`` at depth z (m) and incidence angle theta (rad);
+    fb = focal_px * baseline_m (px m), read by the stereo term only. numpy arrays or scalars."""
+    return sigma_terms(m.a, m.b, m.z0, m.c, m.stereo_rms, fb, z, theta)
+
+
+def sigma_terms(a, b, z0, c, stereo_rms, fb, z, theta):
+    """The one definition of the ``AxialNoise`` formula (its fields spelled out): ``axial_sigma``
+    evaluates it on numpy arrays and ``synth.numba_kernels`` compiles this same function for the
+    per-pixel kernel, so it uses only operations that numba and numpy share."""
+    tc = np.minimum(theta, THETA_CLIP)
+    return (
+        a
+        + b * (z - z0) ** 2
+        + c / np.sqrt(np.maximum(z, 1e-3)) * tc**2 / (np.pi / 2 - tc) ** 2
+        + z * z * stereo_rms / fb
+    )
 
 
 def axial_sigma(sensor: SensorModel, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Published total axial std (metres) at depth z (m) and incidence angle theta (rad)."""
-    if sensor.kind == "structured-light":
-        th = np.minimum(theta, math.radians(89.0))
-        return (
-            0.0012 + 0.0019 * (z - 0.4) ** 2 + 0.0001 / np.sqrt(np.maximum(z, 1e-3)) * th**2 / (math.pi / 2 - th) ** 2
-        )
-    if sensor.kind == "stereo":
-        return z**2 * sensor.stereo_subpixel_rms / (sensor.focal_px * sensor.baseline_m)
-    return np.zeros_like(z)
+    if sensor.kind == "none":  # no sensor model at all (no baseline either)
+        return np.zeros_like(z)
+    return sigma_z(sensor.axial, sensor.focal_px * sensor.baseline_m, z, theta)
+
+
+class DepthNoiseParams(NamedTuple):
+    """Scalars of the per-pixel depth-noise kernel, built by ``depth_noise_params``."""
+
+    axial_model: AxialNoise
+    """Coefficients of sigma_z."""
+    flying: bool
+    """SimConfig.flying_pixels."""
+    fly_rate: float
+    """SensorModel.flying_pixel_rate."""
+    axial: bool
+    """SimConfig.axial_noise."""
+    quantize: bool
+    """SimConfig.quantization."""
+    fb: float
+    """focal_px * baseline_m (px m): z = f B / disparity."""
+    q_step: float
+    """Disparity quantum (px), SensorModel.disparity_subpixel."""
+    graze: bool
+    """SimConfig.grazing_dropout."""
+    graze_lo: float
+    """Incidence angle (rad) where grazing dropout starts (grazing_max_deg - 10)."""
+    range_drop: bool
+    """SimConfig.range_dropout."""
+    z_min: float
+    z_max: float
+    """SensorModel.depth_range (m)."""
+    rand_drop: bool
+    """SimConfig.random_dropout."""
+    drop_rate: float
+    """SensorModel.dropout_rate."""
+    depth_scale: np.float32
+    """Output units per metre (SimConfig.depth_scale)."""
+
+
+def depth_noise_params(cfg: SimConfig) -> DepthNoiseParams:
+    """The kernel's parameters from ``cfg`` and its sensor preset (the one place they are read)."""
+    sensor = cfg.sensor
+    return DepthNoiseParams(
+        axial_model=AxialNoise(*(float(v) for v in sensor.axial)),
+        flying=bool(cfg.flying_pixels),
+        fly_rate=float(sensor.flying_pixel_rate),
+        axial=bool(cfg.axial_noise),
+        quantize=bool(cfg.quantization),
+        fb=float(sensor.focal_px * sensor.baseline_m),
+        q_step=float(sensor.disparity_subpixel),
+        graze=bool(cfg.grazing_dropout),
+        graze_lo=math.radians(sensor.grazing_max_deg - 10.0),
+        range_drop=bool(cfg.range_dropout),
+        z_min=float(sensor.depth_range[0]),
+        z_max=float(sensor.depth_range[1]),
+        rand_drop=bool(cfg.random_dropout),
+        drop_rate=float(sensor.dropout_rate),
+        depth_scale=np.float32(cfg.depth_scale),
+    )
 
 
 def quantization_step(sensor: SensorModel, z: np.ndarray) -> np.ndarray:
@@ -55,18 +132,36 @@ def _quantize(sensor: SensorModel, z: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def _draws(shape: tuple[int, ...], rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Every random array of one frame's depth noise, drawn in a fixed order whatever the switches
-    (turning one effect off does not change the draws of the others)."""
-    return {
-        "g_u": rng.standard_normal(shape, dtype=np.float32),
-        "g_v": rng.standard_normal(shape, dtype=np.float32),
-        "u_fly": rng.random(shape, dtype=np.float32),
-        "u_mix": rng.random(shape, dtype=np.float32),
-        "g_axial": rng.standard_normal(shape, dtype=np.float32),
-        "u_graze": rng.random(shape, dtype=np.float32),
-        "u_drop": rng.random(shape, dtype=np.float32),
-    }
+class NoiseDraws(NamedTuple):
+    """Every random array of one frame's depth noise, (N, H, W) float32 each."""
+
+    g_u: np.ndarray
+    """Standard normals: lateral displacement in u."""
+    g_v: np.ndarray
+    """Standard normals: lateral displacement in v."""
+    u_fly: np.ndarray
+    """Uniforms: does an edge pixel fly."""
+    u_mix: np.ndarray
+    """Uniforms: where between the two sides a flying pixel lands."""
+    g_axial: np.ndarray
+    """Standard normals: axial noise."""
+    u_graze: np.ndarray
+    """Uniforms: grazing-angle dropout."""
+    u_drop: np.ndarray
+    """Uniforms: random dropout."""
+
+
+def _draws(shape: tuple[int, ...], rng: np.random.Generator) -> NoiseDraws:
+    """Drawn in a fixed order whatever the switches (turning one effect off does not change the
+    draws of the others)."""
+    g_u = rng.standard_normal(shape, dtype=np.float32)
+    g_v = rng.standard_normal(shape, dtype=np.float32)
+    u_fly = rng.random(shape, dtype=np.float32)
+    u_mix = rng.random(shape, dtype=np.float32)
+    g_axial = rng.standard_normal(shape, dtype=np.float32)
+    u_graze = rng.random(shape, dtype=np.float32)
+    u_drop = rng.random(shape, dtype=np.float32)
+    return NoiseDraws(g_u, g_v, u_fly, u_mix, g_axial, u_graze, u_drop)
 
 
 def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -78,7 +173,7 @@ def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rn
         rng: the frame's generator.
     Returns: (N, H, W) float32 metres, 0 = no measurement.
     """
-    from fuseflow.synth._kernels import depth_noise_nb, lateral_nb
+    from fuseflow.synth.numba_kernels import depth_noise_nb, lateral_nb
 
     sensor = cfg.sensor
     z = np.where(np.isfinite(z_clean), z_clean, 0.0).astype(np.float32)
@@ -87,15 +182,8 @@ def apply_depth_noise(cfg: SimConfig, z_clean: np.ndarray, theta: np.ndarray, rn
     th = np.where(z > 0, theta, 0.0).astype(np.float32)
     r = _draws(z.shape, rng)
     if cfg.lateral_noise:
-        z, th = lateral_nb(z, th, r["g_u"], r["g_v"], float(sensor.lateral_sigma_px))
-    return depth_noise_nb(
-        z, th, r["u_fly"], r["u_mix"], r["g_axial"], r["u_graze"], r["u_drop"],
-        {"structured-light": 1, "stereo": 2}.get(sensor.kind, 0), cfg.flying_pixels, float(sensor.flying_pixel_rate),
-        cfg.axial_noise, cfg.quantization, float(sensor.focal_px * sensor.baseline_m), float(sensor.disparity_subpixel),
-        float(sensor.stereo_subpixel_rms), cfg.grazing_dropout, math.radians(sensor.grazing_max_deg - 10.0),
-        cfg.range_dropout, float(sensor.depth_range[0]), float(sensor.depth_range[1]), cfg.random_dropout,
-        float(sensor.dropout_rate), np.float32(cfg.depth_scale),
-    )  # fmt: skip
+        z, th = lateral_nb(z, th, r.g_u, r.g_v, float(sensor.lateral_sigma_px))
+    return depth_noise_nb(z, th, r, depth_noise_params(cfg))
 
 
 def apply_depth_noise_ref(
@@ -112,8 +200,8 @@ def apply_depth_noise_ref(
     if cfg.lateral_noise:
         # each pixel reads the surface at a pixel displaced by N(0, sigma_L) (rounded)
         sl = sensor.lateral_sigma_px + 0.035 * np.minimum(th, 1.5) / (math.pi / 2 - np.minimum(th, 1.5))
-        du = np.rint(r["g_u"] * sl).astype(np.int64)
-        dv = np.rint(r["g_v"] * sl).astype(np.int64)
+        du = np.rint(r.g_u * sl).astype(np.int64)
+        dv = np.rint(r.g_v * sl).astype(np.int64)
         uu = np.clip(np.arange(W)[None, None, :] + du, 0, W - 1)
         vv = np.clip(np.arange(H)[None, :, None] + dv, 0, H - 1)
         nn = np.arange(N)[:, None, None]
@@ -127,24 +215,24 @@ def apply_depth_noise_ref(
         zmax = np.where(valid, win, 0).max(0)
         zmin = np.where(valid, win, np.inf).min(0)
         edge = (z > 0) & (zmax - zmin > 0.05 * z) & np.all(valid, axis=0)
-        fly = edge & (r["u_fly"] < sensor.flying_pixel_rate)
-        z = np.where(fly, zmin + r["u_mix"] * (zmax - zmin), z).astype(np.float32)
+        fly = edge & (r.u_fly < sensor.flying_pixel_rate)
+        z = np.where(fly, zmin + r.u_mix * (zmax - zmin), z).astype(np.float32)
     if cfg.axial_noise:
         sigma = axial_sigma(sensor, z, th)
         if cfg.quantization:
             sigma = np.sqrt(np.maximum(sigma**2 - quantization_step(sensor, z) ** 2 / 12.0, 0.0))
-        z = np.where(z > 0, z + sigma * r["g_axial"], 0.0).astype(np.float32)
+        z = np.where(z > 0, z + sigma * r.g_axial, 0.0).astype(np.float32)
     if cfg.quantization:
         z = _quantize(sensor, z)
     drop = z <= 0
     if cfg.grazing_dropout:
         lo = math.radians(sensor.grazing_max_deg - 10.0)
         p = np.clip((th - lo) / math.radians(10.0), 0.0, 1.0)
-        drop |= r["u_graze"] < p
+        drop |= r.u_graze < p
     if cfg.range_dropout:
         drop |= (z < sensor.depth_range[0]) | (z > sensor.depth_range[1])
     if cfg.random_dropout:
-        drop |= r["u_drop"] < sensor.dropout_rate
+        drop |= r.u_drop < sensor.dropout_rate
     z = np.where(drop, 0.0, z).astype(np.float32)
     # the sensor reports whole depth units (1 mm at depth_scale 1000)
     return np.rint(z * np.float32(cfg.depth_scale)) / np.float32(cfg.depth_scale)

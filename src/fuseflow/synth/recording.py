@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from fuseflow.errors import FormatError, RecordingError, ValidationError
+from fuseflow.io.files import load_json, read_bytes, write_bytes_atomic, write_json_atomic
 from fuseflow.synth.config import SimConfig
 from fuseflow.synth.simulator import Simulator
 from fuseflow.types import Rig
@@ -51,21 +52,13 @@ def write_surface_ply(path: str | Path, points: np.ndarray, normals: np.ndarray)
         + "".join(f"property float {k}\n" for k in ("x", "y", "z", "nx", "ny", "nz"))
         + "end_header\n"
     )
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(arr.tobytes())
-    tmp.replace(path)
-    return path
+    return write_bytes_atomic(path, header.encode("ascii"), arr.tobytes())
 
 
 def read_surface_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(points (S, 3), normals (S, 3)) float32 from a file written by ``write_surface_ply``."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
+    data = read_bytes(path)
     end = data.find(b"end_header\n")
     if not data.startswith(b"ply\n") or end < 0:
         raise FormatError(f"{path}: not a PLY file")
@@ -104,6 +97,29 @@ def perturb_extrinsics(rig: Rig, deg: float, mm: float, rng: np.random.Generator
     return rig.with_extrinsics(out)
 
 
+def _rig_to_write(rig: Rig, cfg: SimConfig, uncalibrated: bool) -> Rig:
+    """The rig of rig.json: null extrinsics, perturbed ones (cfg.calib_error_*), or ``rig`` itself."""
+    if uncalibrated:
+        return Rig(tuple(c.with_extrinsics(None) for c in rig.cameras))
+    if cfg.calib_error_deg > 0 or cfg.calib_error_mm > 0:
+        return perturb_extrinsics(rig, cfg.calib_error_deg, cfg.calib_error_mm,
+                                  np.random.default_rng([cfg.seed, 0xCA1]))  # fmt: skip
+    return rig
+
+
+def _gt_doc(rig: Rig, cfg: SimConfig, extrinsics: str) -> dict:
+    """gt.json: the true cameras, the config, and what rig.json holds ('true', 'perturbed', 'none')."""
+    return {
+        "format": GT_FORMAT,
+        "cameras": {c.id: {"T_cam_world": c.T_cam_world.tolist(), "K": c.K.tolist()} for c in rig.cameras},
+        "config": cfg.to_json(),
+        "frames": cfg.frames,
+        "depth": "png-uint16",
+        "depth_scale": cfg.depth_scale,
+        "rig_json_extrinsics": extrinsics,
+    }
+
+
 def simulate_recording(
     out_dir: str | Path,
     cfg: SimConfig,
@@ -118,7 +134,6 @@ def simulate_recording(
     """
     from fuseflow.io import write_frame, write_rig
     from fuseflow.io.images import write_depth
-    from fuseflow.io.recording import write_json_atomic
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -127,27 +142,11 @@ def simulate_recording(
         raise RecordingError(f"{out}: already holds a recording (rig.json); choose an empty directory")
     sim = Simulator(cfg)
     rig = sim.rig
-    if uncalibrated:
-        written = Rig(tuple(c.with_extrinsics(None) for c in rig.cameras))
-    elif cfg.calib_error_deg > 0 or cfg.calib_error_mm > 0:
-        written = perturb_extrinsics(rig, cfg.calib_error_deg, cfg.calib_error_mm,
-                                     np.random.default_rng([cfg.seed, 0xCA1]))  # fmt: skip
-    else:
-        written = rig
+    written = _rig_to_write(rig, cfg, uncalibrated)
     out.mkdir(parents=True, exist_ok=True)
     write_rig(out, written)
-    write_json_atomic(
-        out / "gt.json",
-        {
-            "format": GT_FORMAT,
-            "cameras": {c.id: {"T_cam_world": c.T_cam_world.tolist(), "K": c.K.tolist()} for c in rig.cameras},
-            "config": cfg.to_json(),
-            "frames": cfg.frames,
-            "depth": "png-uint16",
-            "depth_scale": cfg.depth_scale,
-            "rig_json_extrinsics": "none" if uncalibrated else ("perturbed" if written is not rig else "true"),
-        },
-    )
+    extrinsics = "none" if uncalibrated else ("perturbed" if written is not rig else "true")
+    write_json_atomic(out / "gt.json", _gt_doc(rig, cfg, extrinsics))
 
     def write(t: int, sf) -> None:
         write_frame(out, written, t, sf.frame.color, sf.frame.depth)
@@ -224,11 +223,11 @@ class GroundTruth:
 
 def read_ground_truth(rec_dir: str | Path) -> GroundTruth:
     """Read OUT/gt.json of a simulated recording; errors name the file and the field."""
-    from fuseflow.io.recording import _load_json, rig_from_json
+    from fuseflow.io.recording import rig_from_json
 
     rec = Path(rec_dir)
     path = rec / "gt.json"
-    doc = _load_json(path)
+    doc = load_json(path)
     if not isinstance(doc, dict) or doc.get("format") != GT_FORMAT:
         raise FormatError(f"{path}: field 'format' must be {GT_FORMAT!r}")
     try:

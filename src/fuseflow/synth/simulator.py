@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -223,23 +224,50 @@ class Simulator:
         return overlap_matrix(sf.depth_gt.numpy(), self.rig)
 
 
+class ShadeParams(NamedTuple):
+    """Scalars of the shading kernel (``numba_kernels.shade_nb``), built by ``shade_params``."""
+
+    texels_per_m: float
+    """Texture resolution: a texture of S texels spans texture.TEXTURE_METRES."""
+    l2_cos: float
+    """cos, sin of the second texture layer's rotation (texture.LAYER2_ROT_DEG)."""
+    l2_sin: float
+    l2_inv_scale: float
+    """1 / texture.LAYER2_SCALE."""
+    l2_shift_u: float
+    """texture.LAYER2_SHIFT (m)."""
+    l2_shift_v: float
+    contrast: float
+    """texture.CONTRAST of the two-layer blend."""
+    ambient: float
+    """Ambient term of the Lambert shading (SimConfig.ambient)."""
+    noise_std: float
+    """Colour noise std in 8-bit levels (0 = off)."""
+
+
+def shade_params(textures: np.ndarray, ambient: float, noise_std: float) -> ShadeParams:
+    """The shading kernel's parameters: texture layout constants of ``texture`` plus the two
+    per-config numbers. textures: (K, S, S, 3) uint8."""
+    from fuseflow.synth import texture as T
+
+    a = np.radians(T.LAYER2_ROT_DEG)
+    return ShadeParams(
+        float(textures.shape[1] / T.TEXTURE_METRES), float(np.cos(a)), float(np.sin(a)), float(1 / T.LAYER2_SCALE),
+        float(T.LAYER2_SHIFT[0]), float(T.LAYER2_SHIFT[1]), float(T.CONTRAST), float(ambient), float(noise_std),
+    )  # fmt: skip
+
+
 def _shade(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, lights, light_w, ambient,
            color_noise, noise_std):  # fmt: skip
     """Per-pixel depth_gt, incidence angle, part id and colour (numba kernel ``shade_nb``;
     ``_shade_ref`` is its numpy twin). See ``shade_nb`` for the arguments."""
-    from fuseflow.synth import texture as T
-    from fuseflow.synth._kernels import shade_nb
-    from fuseflow.synth.texture import TEXTURE_METRES
-
-    def _layer2() -> np.ndarray:
-        a = np.radians(T.LAYER2_ROT_DEG)
-        return np.array([np.cos(a), np.sin(a), 1 / T.LAYER2_SCALE, *T.LAYER2_SHIFT])
+    from fuseflow.synth.numba_kernels import shade_nb
 
     c = np.ascontiguousarray
     return shade_nb(c(t_hit, np.float32), c(prim, np.uint32), c(bary, np.float32), c(normals, np.float32),
                     c(rays, np.float32), c(tri_uv, np.float32), c(tex, np.int64), c(tint, np.float32),
-                    c(pid, np.int32), textures, textures.shape[1] / TEXTURE_METRES, _layer2(), T.CONTRAST, lights, light_w,
-                    float(ambient), c(color_noise, np.float32), float(noise_std))  # fmt: skip
+                    c(pid, np.int32), textures, lights, light_w, c(color_noise, np.float32),
+                    shade_params(textures, ambient, noise_std))  # fmt: skip
 
 
 def _shade_ref(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, lights, light_w, ambient,
@@ -277,7 +305,7 @@ def visible_mask(points: np.ndarray, normals: np.ndarray, depth_gt: np.ndarray, 
                  tol_m: float = 0.01, tol_rel: float = 0.01) -> np.ndarray:  # fmt: skip
     """(S,) bool: the world point (S, 3) with normal (S, 3) is seen by at least one camera of
     ``rig`` whose noise-free depth (N, H, W) agrees with it within tol_m + tol_rel * z."""
-    from fuseflow.synth._kernels import visible_nb
+    from fuseflow.synth.numba_kernels import visible_nb
 
     return visible_nb(
         np.ascontiguousarray(points, np.float64), np.ascontiguousarray(normals, np.float64),

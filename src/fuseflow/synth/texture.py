@@ -122,7 +122,7 @@ def sample_texture(textures: np.ndarray, tex_id: np.ndarray, uv_m: np.ndarray) -
         uv_m: (M, 2) float32 surface coordinates in metres.
     Returns: (M, 3) float32 RGB in [0, 1].
     """
-    from fuseflow.synth._kernels import sample_texture_nb
+    from fuseflow.synth.numba_kernels import sample_texture_nb
 
     S = textures.shape[1]
     uv_px = np.ascontiguousarray(uv_m * (S / TEXTURE_METRES), dtype=np.float32)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from fuseflow.errors import FuseFlowError
+from fuseflow.errors import require
 from fuseflow.types import FusedCloud, Rig
 from fuseflow.viz.render import weight_colors
 
@@ -19,11 +19,8 @@ __all__ = ["RerunLogger", "import_rerun"]
 
 
 def import_rerun() -> Any:
-    try:
-        import rerun as rr
-    except ImportError:
-        raise FuseFlowError("the rerun viewer needs rerun-sdk: pip install 'fuseflow[viz]'") from None
-    return rr
+    """The rerun module, or FuseFlowError with the install hint."""
+    return require("rerun", "viz", "the rerun viewer", "rerun-sdk")
 
 
 class RerunLogger:

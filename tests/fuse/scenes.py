@@ -1,32 +1,20 @@
-"""Analytic scenes for the FUSE tests: cameras looking at axis-aligned rectangles (ray cast)."""
+"""Analytic scenes for the FUSE tests: cameras looking at axis-aligned rectangles (ray cast).
+
+A plain module: tests import it as ``from tests.fuse.scenes import ...`` (pytest puts the
+repository root on sys.path, ``pythonpath`` in pyproject.toml).
+"""
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+from tests.conftest import look_at  # the one camera look-at helper of the suite
 
 from fuseflow import Camera, Frame, Rig
 
-
-def _shared_conftest():
-    """tests/conftest.py as pytest loaded it (importlib mode names it tests.conftest), else by path."""
-    mod = sys.modules.get("tests.conftest")
-    if mod is None:
-        import importlib.util
-        from pathlib import Path
-
-        spec = importlib.util.spec_from_file_location(
-            "_fuseflow_tests_conftest", Path(__file__).parents[1] / "conftest.py"
-        )
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    return mod
-
-
-look_at = _shared_conftest().look_at
+__all__ = ["PLANE_Z", "Rect", "look_at", "make_rig", "render", "W", "H", "K"]
 
 W, H = 80, 60
 K = np.array([[70.0, 0.0, 39.5], [0.0, 70.0, 29.5], [0.0, 0.0, 1.0]])
@@ -91,8 +79,3 @@ def render(rig: Rig, rects, noise: float = 0.0, seed: int = 0, only: dict | None
         depth=torch.from_numpy(np.stack(depths)),
         present=torch.ones(len(rig), dtype=torch.bool),
     )
-
-
-# test modules import these helpers as ``from _fuse_scenes import ...`` (importlib import mode
-# gives conftest no importable name of its own)
-sys.modules.setdefault("_fuse_scenes", sys.modules[__name__])

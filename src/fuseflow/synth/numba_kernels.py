@@ -9,6 +9,8 @@ import warnings
 import numba
 import numpy as np
 
+from fuseflow.synth.noise import sigma_terms
+
 # numba warns once per process that the installed TBB is too old and falls back to another
 # threading layer; that is not the user's concern.
 warnings.filterwarnings("ignore", message="The TBB threading layer requires", category=numba.NumbaWarning)
@@ -81,20 +83,23 @@ def _bilinear3(textures, ti, px, py):  # pragma: no cover - compiled
 
 
 @numba.njit(parallel=True, cache=True)
-def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, texels_per_m, l2, contrast,
-             lights, light_w, ambient, color_noise, noise_std):  # pragma: no cover - compiled  # fmt: skip
+def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures, lights, light_w, color_noise,
+             prm):  # pragma: no cover - compiled  # fmt: skip
     """Per pixel: noise-free depth, incidence angle, part id and Lambert-shaded texture colour.
 
     t_hit (N, H, W) float32 (inf = miss); prim (N, H, W) uint32; bary (N, H, W, 2); normals
     (N, H, W, 3) geometric normals; rays (N, H, W, 6); tri_uv (T, 3, 2) metres; tex (T,) int;
-    tint (T, 3); pid (T,) int; textures (K, S, S, 3) uint8 spanning S / texels_per_m metres; l2 = (cos, sin, 1 / scale,
-    shift_u, shift_v) of the second texture layer, contrast of the blend; lights (L, 3) unit; light_w (L,);
-    color_noise (N, H, W, 3) float32 standard normals, used when noise_std > 0.
+    tint (T, 3); pid (T,) int; textures (K, S, S, 3) uint8 spanning S / prm.texels_per_m metres;
+    lights (L, 3) unit; light_w (L,); color_noise (N, H, W, 3) float32 standard normals, used
+    when prm.noise_std > 0; prm: ``simulator.ShadeParams`` (second texture layer, blend
+    contrast, ambient term, colour noise std).
     Returns depth_gt (0 = miss), theta (rad), part (-1 = miss), colour uint8 (N, H, W, 3).
     The numpy twin is ``fuseflow.synth.simulator._shade_ref``.
     """
     N, H, W = t_hit.shape
-    scale = texels_per_m
+    scale = prm.texels_per_m
+    l2c, l2s, l2k, l2u, l2v = prm.l2_cos, prm.l2_sin, prm.l2_inv_scale, prm.l2_shift_u, prm.l2_shift_v
+    contrast, ambient, noise_std = prm.contrast, prm.ambient, prm.noise_std
     depth = np.zeros((N, H, W), np.float32)
     theta = np.zeros((N, H, W), np.float32)
     part = np.full((N, H, W), -1, np.int32)
@@ -127,8 +132,8 @@ def shade_nb(t_hit, prim, bary, normals, rays, tri_uv, tex, tint, pid, textures,
                     shade = ambient + (1 - ambient) * lam
                     ti = tex[k]
                     ti2 = (ti + 1) % textures.shape[0]
-                    u2 = (l2[0] * um - l2[1] * vm) * l2[2] + l2[3]
-                    v2 = (l2[1] * um + l2[0] * vm) * l2[2] + l2[4]
+                    u2 = (l2c * um - l2s * vm) * l2k + l2u
+                    v2 = (l2s * um + l2c * vm) * l2k + l2v
                     a0, a1, a2 = _bilinear3(textures, ti, um * scale - 0.5, vm * scale - 0.5)
                     c0, c1, c2 = _bilinear3(textures, ti2, u2 * scale - 0.5, v2 * scale - 0.5)
                     r0, r1, r2 = a0 + c0, a1 + c1, a2 + c2
@@ -163,15 +168,25 @@ def lateral_nb(z, th, g_u, g_v, sigma0_px):  # pragma: no cover - compiled
     return zo, tho
 
 
+_sigma_nb = numba.njit(inline="always", cache=True)(sigma_terms)
+
+
 @numba.njit(parallel=True, cache=True)
-def depth_noise_nb(z, th, u_fly, u_mix, g_axial, u_graze, u_drop, kind, flying, fly_rate, axial, quantize,
-                   fb, q_step, subpix_rms, graze, graze_lo, range_drop, z_min, z_max, rand_drop, drop_rate,
-                   depth_scale):  # pragma: no cover - compiled  # fmt: skip
+def depth_noise_nb(z, th, r, prm):  # pragma: no cover - compiled
     """Flying pixels, axial noise, disparity quantization, dropouts and output units, per pixel.
 
-    kind: 1 structured light (Nguyen 2012 sigma), 2 stereo (z^2 s / (f b)); fb = focal_px *
-    baseline_m; q_step = disparity quantum in px. Mirrors ``fuseflow.synth.noise.apply_depth_noise_ref``.
+    z, th (N, H, W) float32 depth (m) and incidence angle (rad); r: ``noise.NoiseDraws``;
+    prm: ``noise.DepthNoiseParams`` (axial sigma: ``noise.sigma_terms`` of prm.axial_model,
+    fb = focal_px * baseline_m, q_step = disparity quantum in px). Mirrors
+    ``fuseflow.synth.noise.apply_depth_noise_ref``.
     """
+    u_fly, u_mix, g_axial, u_graze, u_drop = r.u_fly, r.u_mix, r.g_axial, r.u_graze, r.u_drop
+    # scalars only inside the parallel loop (numba's parfor lowering fails on a tuple live in it)
+    a, b, z0, c, s = prm.axial_model
+    fb, q_step, depth_scale = prm.fb, prm.q_step, prm.depth_scale
+    flying, fly_rate, axial, quantize = prm.flying, prm.fly_rate, prm.axial, prm.quantize
+    graze, graze_lo, range_drop, z_min, z_max = prm.graze, prm.graze_lo, prm.range_drop, prm.z_min, prm.z_max
+    rand_drop, drop_rate = prm.rand_drop, prm.drop_rate
     N, H, W = z.shape
     out = np.zeros_like(z)
     for n in numba.prange(N):
@@ -196,17 +211,7 @@ def depth_noise_nb(z, th, u_fly, u_mix, g_axial, u_graze, u_drop, kind, flying, 
                         zz = np.float32(zmin + u_mix[n, y, x] * (zmax - zmin))
                 t = th[n, y, x]
                 if axial:
-                    if kind == 1:
-                        tc = min(t, np.float32(np.radians(89.0)))
-                        sig = (
-                            0.0012
-                            + 0.0019 * (zz - 0.4) ** 2
-                            + 0.0001 / np.sqrt(max(zz, 1e-3)) * tc**2 / (np.pi / 2 - tc) ** 2
-                        )
-                    elif kind == 2:
-                        sig = zz * zz * subpix_rms / fb
-                    else:
-                        sig = 0.0
+                    sig = _sigma_nb(a, b, z0, c, s, fb, zz, t)  # noise.sigma_terms
                     if quantize and q_step > 0:
                         dz = zz * zz * q_step / fb
                         sig = np.sqrt(max(sig * sig - dz * dz / 12.0, 0.0))
