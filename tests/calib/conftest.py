@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from tests.conftest import look_at
 
 from fuseflow import Camera, Frame, Rig
 from fuseflow.calib.backbones import BackboneResult
@@ -22,20 +23,6 @@ OBJECTS = [
     (np.array([0.5, -0.3, 0.2]), np.array([1.1, 1.0, 0.9])),
     (np.array([-1.2, 0.5, 0.8]), np.array([-0.7, 1.0, 1.4])),
 ]
-
-
-def _look_at(eye, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(-up, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = -R @ eye
-    return T
 
 
 def _texture(P: np.ndarray) -> np.ndarray:
@@ -77,7 +64,7 @@ def make_scene(n: int = 5, size=(160, 120), radius: float = 1.9, seed: int = 0, 
         a = 2 * np.pi * k / n + rng.uniform(-0.1, 0.1)
         h = -0.4 if heights is None else heights[k]
         eye = np.array([radius * np.cos(a), h + rng.uniform(-0.2, 0.2), radius * np.sin(a)])
-        T = _look_at(eye, [rng.uniform(-0.3, 0.3), 0.4, rng.uniform(-0.3, 0.3)])
+        T = look_at(eye, [rng.uniform(-0.3, 0.3), 0.4, rng.uniform(-0.3, 0.3)])
         d, c = render(T, K, size)
         Ts.append(T)
         depths.append(d)

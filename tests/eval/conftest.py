@@ -2,31 +2,12 @@
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 import pytest
 import torch
+from tests.conftest import look_at
 
 from fuseflow import Camera, Frame, Rig
-
-
-def _shared_conftest():
-    """tests/conftest.py as pytest loaded it (importlib mode names it tests.conftest), else by path."""
-    mod = sys.modules.get("tests.conftest")
-    if mod is None:
-        import importlib.util
-        from pathlib import Path
-
-        spec = importlib.util.spec_from_file_location(
-            "_fuseflow_tests_conftest", Path(__file__).parents[1] / "conftest.py"
-        )
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    return mod
-
-
-look_at = _shared_conftest().look_at  # the shared helper of tests/conftest.py
 
 W, H = 160, 120
 K = np.array([[140.0, 0.0, 79.5], [0.0, 140.0, 59.5], [0.0, 0.0, 1.0]])
