@@ -166,8 +166,22 @@ def refine_poses(
             res.append(((a - b) / e.sigma[:, None]).ravel())
         return np.concatenate(res)
 
+    # each residual depends on two cameras: a sparse Jacobian keeps the finite differences and
+    # the trust-region steps cheap (no dense SVD of the Jacobian)
+    from scipy.sparse import lil_matrix
+
+    rows = sum(3 * len(e.X_i) for e in use)
+    S = lil_matrix((rows, 6 * len(free)), dtype=np.int8)
+    r0 = 0
+    for e in use:
+        for k in (e.i, e.j):
+            if k in slot:
+                S[r0 : r0 + 3 * len(e.X_i), 6 * slot[k] : 6 * slot[k] + 6] = 1
+        r0 += 3 * len(e.X_i)
     p0 = np.zeros(6 * len(free))
-    sol = least_squares(residuals, p0, loss="soft_l1", f_scale=loss_scale, max_nfev=max_nfev, method="trf")
+    sol = least_squares(
+        residuals, p0, jac_sparsity=S, loss="soft_l1", f_scale=loss_scale, max_nfev=max_nfev, method="trf"
+    )
     W = poses(sol.x)
     T = T_init.copy()
     for k in free:
