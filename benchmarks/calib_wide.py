@@ -182,14 +182,17 @@ def bench_hocap(args) -> None:
 def bench_icl(args) -> None:
     from fuseflow.io import open_recording
 
+    src = SHARED / "icl-livingroom1"
+    n_frames = len(list((src / "depth").iterdir()))
     for every in args.every:
-        path = args.data / f"icl8_every{every}"
+        n = min(8, (n_frames - 1) // every + 1)  # 8 cameras 40 apart need 281 frames; ICL has fewer
+        path = args.data / f"icl{n}_every{every}"
         if not (path / "rig.json").exists():
-            _cli("convert", str(SHARED / "icl-livingroom1"), str(path), "--cameras", "8", "--every", str(every))
+            _cli("convert", str(src), str(path), "--cameras", str(n), "--every", str(every))
         rec = open_recording(path)
         T_ref = np.stack([c.T_cam_world for c in rec.rig])
         bare = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
-        meta = {"data": "icl-livingroom1", "n": 8, "every": every, "frames": 1}
+        meta = {"data": "icl-livingroom1", "n": n, "every": every, "frames": 1}
         run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig())
 
 
