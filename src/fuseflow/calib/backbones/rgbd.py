@@ -593,7 +593,10 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple
                 ok = chk.passes(cfg)
                 rows.append({"route": c["route"], "inliers": c["inliers"], "ok": ok, **_round(chk),
                              "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
-                if ok and (best is None or chk.agreement > best[1].agreement):
+                # rank by how much depth confirms the pose, not by the share alone: a wrong pose
+                # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
+                # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98)
+                if ok and (best is None or chk.agree > best[1].agree):
                     best = (c, chk)
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
             if best is not None:
@@ -601,7 +604,7 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple
                 c, chk = _refit(a, b, c, chk, cands, cfg)
                 X_i, X_j = _support(c["T_ba"], cands, cfg)
                 sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
-                edges[(i, j)] = Edge(i, j, c["T_ba"], chk.agreement, X_i, X_j, sigma)
+                edges[(i, j)] = Edge(i, j, c["T_ba"], float(chk.agree), X_i, X_j, sigma)
                 entry["edge"] = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
                                  "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
             info.append(entry)
@@ -622,8 +625,8 @@ def _refit(a: CameraEvidence, b: CameraEvidence, c: dict, chk: PairCheck, cands:
     """Refit the accepted pose on the correspondences of every route that it explains (6-DoF
     Kabsch, three times, re-collecting): the verified candidates of a pair are all roughly right
     (depth agreement at tau = 5 % cannot tell 0.1 deg from 1 deg), their pooled evidence is more
-    precise than any one of them (the 4-DoF floor poses are). Kept when it still passes and
-    agrees within 0.02 of the candidate."""
+    precise than any one of them (the 4-DoF floor poses are). Kept when it still passes, agrees
+    within 0.02 of the candidate and keeps at least 90 % of its agreeing samples."""
     T = c["T_ba"]
     for _ in range(3):
         Xa, Xb = _support(T, cands, cfg)
@@ -631,7 +634,7 @@ def _refit(a: CameraEvidence, b: CameraEvidence, c: dict, chk: PairCheck, cands:
             return c, chk
         T = _kabsch(Xa[None], Xb[None])[0]
     new = verify_pose(a, b, T, cfg.tau)
-    if new.passes(cfg) and new.agreement >= chk.agreement - 0.02:
+    if new.passes(cfg) and new.agreement >= chk.agreement - 0.02 and new.agree >= 0.9 * chk.agree:
         return {**c, "T_ba": T, "route": c["route"] + "+refit"}, new
     return c, chk
 
