@@ -8,8 +8,11 @@ A backbone is a callable ``backbone(frame, rig, config) -> BackboneResult``. Imp
 * ``precomputed``: an ``.npz`` exported by VGGT / MapAnything / VGGSfM run elsewhere
   (layout in :mod:`fuseflow.calib.backbones.precomputed`, exporter ``scripts/export_backbone.py``).
 * ``vggt``, ``mapanything``: run those packages from a local checkpoint when installed.
+* ``rgbd``: metric poses from sensor depth for sparse wide-baseline rigs (floor-rectified and
+  depth-lifted SIFT, every pair verified by depth agreement, pose graph);
+  :mod:`fuseflow.calib.backbones.rgbd`.
 
-Whatever the backbone, its translation scale is treated as unknown.
+Unless the result says ``metric=True``, its translation scale is treated as unknown.
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ class BackboneResult:
         points: {i: (uv (M, 2) pixels, z (M,) backbone-unit depth in camera i)} the backbone's
             own depth at some pixels (for the naive median-depth-ratio baseline), or None.
         name: backbone name. info: timings, counts, notes (JSON-serialisable).
+        metric: True when the translations are already in metres (scale 1 by construction,
+            e.g. the ``rgbd`` backbone); GMAC's scale s* is then a check, not an estimate.
     """
 
     T_cam_world: np.ndarray
@@ -50,6 +55,7 @@ class BackboneResult:
     points: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
     name: str = ""
     info: dict[str, Any] = field(default_factory=dict)
+    metric: bool = False
 
     def __post_init__(self) -> None:
         T = np.asarray(self.T_cam_world, dtype=np.float64)
@@ -101,11 +107,18 @@ def _mapanything(frame, rig, config):
     return mapanything_backbone(frame, rig, config)
 
 
+def _rgbd(frame, rig, config):
+    from fuseflow.calib.backbones.rgbd import rgbd_backbone
+
+    return rgbd_backbone(frame, rig, config)
+
+
 BACKBONES: dict[str, Callable] = {
     "colmap": _colmap,
     "precomputed": _precomputed,
     "vggt": _vggt,
     "mapanything": _mapanything,
+    "rgbd": _rgbd,
 }
 
 

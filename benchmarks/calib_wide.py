@@ -1,0 +1,250 @@
+#!/usr/bin/env python
+"""Metric RGB-D backbone on sparse wide-baseline rigs, against ground truth (issue 15).
+
+Data:
+* ``sim``: ``fuseflow simulate`` rings of N cameras (room / studio, static, Kinect noise,
+  640x480), reference = the recording's true extrinsics (rig.json). Each recording has F frames;
+  the backbone runs on frame 0 alone and on all F frames.
+* ``hocap``: ``shared/data/hocap-8rs`` (8 RealSense, one frame; reference = target-based
+  camera->master extrinsics, about 1 cm good). Loaded by a small reader here.
+* ``icl``: ``fuseflow convert shared/data/icl-livingroom1 OUT --cameras 8 --every 26`` (virtual
+  rig of 8 frames of a static scene; reference = the dataset trajectory, about 1 cm good).
+
+Per run: cameras placed, rotation / translation error (fuseflow.eval.metrics.pose_errors over
+the placed cameras: means over pairs, deg / mm, no alignment), the worst placed camera's error,
+wrong edges accepted (an accepted pairwise pose more than 1 deg or 50 mm from the reference),
+wrong cameras not flagged (placed camera > 1 deg or 50 mm off whose edges close no cycle
+check... counted whatever the flag, and separately those not flagged), and wall time. Rows are
+appended as JSON lines to --out; ``summary`` prints the markdown table of a results file.
+
+    flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py sim --cameras 3 4 --scenes room --seeds 1 2 3
+    flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py hocap
+    flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py icl
+    python benchmarks/calib_wide.py summary
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+import fuseflow
+from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
+from fuseflow.eval.metrics import pose_errors
+from fuseflow.types import Camera, Frame, Rig, invert_rigid
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+if not SHARED.exists():
+    SHARED = Path("/work/shared/data")
+WRONG_DEG, WRONG_M = 1.0, 0.05
+
+
+def _env() -> dict:
+    return {
+        "fuseflow": getattr(fuseflow, "__version__", "?"),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "cpu_threads": torch.get_num_threads(),
+        "machine": platform.machine(),
+        "device": "cpu",
+    }
+
+
+# ------------------------------------------------------------------ evaluation
+def evaluate(result, T_ref: np.ndarray, ids: list[str]) -> dict:
+    """Errors of a BackboneResult against reference camera-from-world extrinsics (N, 4, 4)."""
+    reg = result.registered
+    row: dict = {"placed": int(reg.sum()), "cameras": len(reg)}
+    if reg.sum() >= 2:
+        e = pose_errors(result.T_cam_world[reg], T_ref[reg])
+        row["rot_deg"] = float(e.rotation_deg)
+        row["trans_mm"] = float(e.translation_mm)
+        per = list(e.per_camera.values())
+        row["worst_cam_deg"] = float(max(p[0] for p in per))
+        row["worst_cam_mm"] = float(max(p[1] for p in per))
+        placed_ids = [ids[k] for k in np.flatnonzero(reg)]
+        wrong = [c for c, p in zip(placed_ids, per) if p[0] > WRONG_DEG or p[1] > WRONG_M * 1000]
+        flagged = [c for c in wrong if not result.info["cameras"][c]["cycle_checked"]]
+        row["wrong_cameras"] = len(wrong)
+        row["wrong_unflagged"] = len(wrong) - len(flagged)
+    wrong_edges = accepted = 0
+    for p in result.info["pairs"]:
+        if p["edge"] is None:
+            continue
+        accepted += 1
+        a, b = (ids.index(c) for c in p["cameras"])
+        re, te = relative_error(np.array(p["edge"]["T_ji"]), T_ref[b] @ invert_rigid(T_ref[a]))
+        wrong_edges += int(re > WRONG_DEG or te > WRONG_M)
+    row["edges"] = accepted
+    row["wrong_edges"] = wrong_edges
+    row["cycle_dropped"] = len(result.info["cycle_dropped"])
+    row["routes"] = sorted({p["edge"]["route"] for p in result.info["pairs"] if p["edge"]})
+    return row
+
+
+def run_one(frames, rig, T_ref, meta: dict, out: Path, cfg: RGBDConfig) -> dict:
+    t0 = time.perf_counter()
+    try:
+        res = rgbd_backbone(frames, rig, cfg)
+        row = evaluate(res, T_ref, list(rig.ids))
+    except Exception as exc:  # a failure is a row too
+        row = {"placed": 0, "cameras": len(rig), "error": f"{type(exc).__name__}: {exc}"}
+    row["time_s"] = time.perf_counter() - t0
+    row.update(meta)
+    row["env"] = _env()
+    with out.open("a") as f:
+        f.write(json.dumps(row) + "\n")
+    print(json.dumps({k: v for k, v in row.items() if k != "env"}), flush=True)
+    return row
+
+
+# ------------------------------------------------------------------ data sets
+def _cli(*args: str) -> None:
+    env = dict(os.environ)
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    subprocess.run([sys.executable, "-m", "fuseflow", *args], check=True, env=env, stdout=subprocess.DEVNULL)
+
+
+def sim_recording(data: Path, n: int, scene: str, seed: int, frames: int, res: str) -> Path:
+    rec = data / f"{scene}{n}_s{seed}_f{frames}_{res}"
+    if not (rec / "gt.json").exists():
+        _cli("simulate", str(rec), "--cameras", str(n), "--scene", scene, "--seed", str(seed),
+             "--frames", str(frames), "--resolution", res)  # fmt: skip
+    return rec
+
+
+def bench_sim(args) -> None:
+    from fuseflow.io import open_recording
+
+    for seed in args.seeds:  # seed outermost: a cut-short run still covers every configuration
+        for scene in args.scenes:
+            for n in args.cameras:
+                path = sim_recording(args.data, n, scene, seed, args.frames, args.resolution)
+                rec = open_recording(path)
+                T_ref = np.stack([c.T_cam_world for c in rec.rig])  # rig.json: true extrinsics
+                bare = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
+                all_frames = [rec[t] for t in range(len(rec))]
+                for nf in sorted({1, len(all_frames)}):
+                    meta = {"data": "sim", "scene": scene, "n": n, "seed": seed, "frames": nf, "res": args.resolution}
+                    run_one(all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig())
+
+
+def load_hocap(root: Path) -> tuple[Frame, Rig, np.ndarray]:
+    """One frame of hocap-8rs: colour intrinsics (depth is registered to colour), depth in mm,
+    reference camera-from-master extrinsics (the file stores camera -> master)."""
+    import cv2
+
+    from fuseflow.io.images import read_depth
+
+    ext = json.loads((root / "calibration" / "extrinsics" / "extrinsics_20231014.json").read_text())
+    serials = sorted(p.name for p in (root / "frames").iterdir() if p.is_dir())
+    cams, colors, depths, T_ref = [], [], [], []
+    for s in serials:
+        intr = json.loads((root / "calibration" / "intrinsics" / f"{s}_640x480.json").read_text())["color"]
+        K = [[intr["fx"], 0, intr["ppx"]], [0, intr["fy"], intr["ppy"]], [0, 0, 1]]
+        cams.append(Camera(s, intr["width"], intr["height"], K, depth_scale=1000.0, depth_range=(0.2, 1.6)))
+        bgr = cv2.imread(str(root / "frames" / s / "color_000000.jpg"), cv2.IMREAD_COLOR)
+        colors.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        depths.append(read_depth(root / "frames" / s / "depth_000000.png", 1000.0))
+        T_c2m = np.vstack([np.array(ext["extrinsics"][s], dtype=np.float64).reshape(3, 4), [0, 0, 0, 1]])
+        T_ref.append(invert_rigid(T_c2m))
+    frame = Frame(
+        index=0,
+        camera_ids=tuple(serials),
+        color=torch.from_numpy(np.stack(colors)),
+        depth=torch.from_numpy(np.stack(depths).astype(np.float32)),
+        present=torch.ones(len(serials), dtype=torch.bool),
+    )
+    return frame, Rig(tuple(cams)), np.stack(T_ref)
+
+
+def bench_hocap(args) -> None:
+    from fuseflow.geometry import depth_agreement
+
+    frame, rig, T_ref = load_hocap(SHARED / "hocap-8rs")
+    row = run_one([frame], rig, T_ref, {"data": "hocap-8rs", "n": 8, "frames": 1}, args.out, RGBDConfig())
+    ref = depth_agreement(frame, rig, dict(zip(rig.ids, T_ref)))
+    vals = [v for v in ref.values() if v is not None]
+    print(json.dumps({"hocap_reference_depth_agreement_mean": float(np.mean(vals))}))
+    del row
+
+
+def bench_icl(args) -> None:
+    from fuseflow.io import open_recording
+
+    src = SHARED / "icl-livingroom1"
+    n_frames = len(list((src / "depth").iterdir()))
+    for every in args.every:
+        n = min(8, (n_frames - 1) // every + 1)  # 8 cameras 40 apart need 281 frames; ICL has fewer
+        path = args.data / f"icl{n}_every{every}"
+        if not (path / "rig.json").exists():
+            _cli("convert", str(src), str(path), "--cameras", str(n), "--every", str(every))
+        rec = open_recording(path)
+        T_ref = np.stack([c.T_cam_world for c in rec.rig])
+        bare = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
+        meta = {"data": "icl-livingroom1", "n": n, "every": every, "frames": 1}
+        run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig())
+
+
+# ------------------------------------------------------------------ summary
+def summary(args) -> None:
+    rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
+    groups: dict = {}
+    for r in rows:
+        key = (r["data"], r.get("scene", ""), r["n"], r.get("frames", 1), r.get("every", ""))
+        groups.setdefault(key, []).append(r)
+    print("| data | scene | N | frames | runs | all placed | placed (mean) | rot deg (mean / max) "
+          "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) |")  # fmt: skip
+    print("|" + "---|" * 13)
+    for key in sorted(groups, key=str):
+        g = groups[key]
+        data, scene, n, nf, every = key
+        full = sum(r["placed"] == r["cameras"] for r in g)
+        placed = np.mean([r["placed"] for r in g])
+        rot = [r["rot_deg"] for r in g if "rot_deg" in r]
+        tr = [r["trans_mm"] for r in g if "trans_mm" in r]
+        wc = [r["worst_cam_deg"] for r in g if "worst_cam_deg" in r]
+        wm = [r["worst_cam_mm"] for r in g if "worst_cam_mm" in r]
+        we = sum(r.get("wrong_edges", 0) for r in g)
+        wcam = sum(r.get("wrong_cameras", 0) for r in g)
+        wun = sum(r.get("wrong_unflagged", 0) for r in g)
+        t = np.median([r["time_s"] for r in g])
+
+        def mm(v, f):
+            return f"{f(np.mean(v))} / {f(np.max(v))}" if v else "-"
+
+        label = scene if scene else (f"every {every}" if every else "")
+        print(f"| {data} | {label} | {n} | {nf} | {len(g)} | {full}/{len(g)} | {placed:.1f} | "
+              f"{mm(rot, lambda x: f'{x:.3f}')} | {mm(tr, lambda x: f'{x:.1f}')} | "
+              f"{(f'{max(wc):.2f} / {max(wm):.0f}') if wc else '-'} | {we} | {wcam} ({wun}) | {t:.1f} |")  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("what", choices=["sim", "hocap", "icl", "summary"])
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/calib_wide.jsonl"))
+    ap.add_argument("--data", type=Path, default=Path("/tmp/fuseflow-calib-wide"))
+    ap.add_argument("--cameras", type=int, nargs="+", default=[3, 4, 6, 8])
+    ap.add_argument("--scenes", nargs="+", default=["room", "studio"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--resolution", default="640x480")
+    ap.add_argument("--every", type=int, nargs="+", default=[26])
+    args = ap.parse_args()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.data.mkdir(parents=True, exist_ok=True)
+    {"sim": bench_sim, "hocap": bench_hocap, "icl": bench_icl, "summary": summary}[args.what](args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,706 @@
+"""Metric RGB-D backbone: camera poses in metres from sensor depth, for sparse wide-baseline rigs.
+
+COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. Outline
+(``rgbd_backbone``), one or several frames of a static rig:
+
+1. Per camera (``prepare_camera``): median colour / depth over the frames, the floor plane
+   (:mod:`fuseflow.calib.floor`) and its metric top-down image with SIFT on it, SIFT on every
+   frame's image lifted to 3-D by that frame's depth, and a subsampled point set for checks.
+2. Per camera pair, candidate relative poses from three routes (several hypotheses each,
+   sequential RANSAC with a fixed seed):
+   ``floor``: top-down SIFT matches, 4-DoF RANSAC (yaw + shift on the floor; both floor planes
+   fix roll, pitch and height); ``sift3d``: image SIFT matches pooled over frames, lifted by
+   depth, 6-DoF 3-D RANSAC (Kabsch); ``sift4``: the same 3-D matches, 4-DoF on the floor (two
+   correct matches suffice).
+3. Verification (``verify_pose``): every candidate is scored by depth agreement between the two
+   views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
+   and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
+   free-space check (share of points that camera j sees through). Never by inlier count: wrong
+   flips had many inliers. The best candidate above the thresholds becomes an edge.
+4. Global (:mod:`fuseflow.calib.posegraph`): cycle test on the metric relative poses, maximum-
+   score spanning tree, joint robust least squares on the edges' 3-D correspondences.
+
+Deterministic and order-independent: cameras are processed in the order of their ids, every
+RANSAC has a fixed seed, and the world frame is re-anchored at the first placed camera in rig
+order at the end. The poses are metric (``BackboneResult.metric``): GMAC's scale is then a check.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.errors import CalibrationError
+from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
+from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
+from fuseflow.errors import ValidationError
+from fuseflow.geometry import project_votes
+from fuseflow.types import Frame, Rig, invert_rigid
+
+__all__ = ["RGBDConfig", "rgbd_backbone", "prepare_camera", "verify_pose", "PairCheck", "CameraEvidence"]
+
+
+@dataclass(frozen=True)
+class RGBDConfig:
+    """Settings of the metric RGB-D backbone. Every field: meaning, default's source, range."""
+
+    seed: int = 0
+    """Seed of every RANSAC (deterministic results). Any int."""
+
+    sift_features: int = 3000
+    """SIFT keypoints per image (OpenCV). >= 100. Default: ~0.1 s per 640x480 image on one core."""
+
+    ratio: float = 0.8
+    """Lowe ratio test for SIFT matches. (0, 1). Default: Lowe's 0.8; verification, not the
+    ratio, guards against wrong matches."""
+
+    floor_res: float = 0.005
+    """Top-down floor image resolution, metres per pixel. Default 5 mm: about one camera pixel
+    at 3 m for a 530 px focal length (notes/wide-baseline-calibration.md)."""
+
+    floor_band: float = 0.02
+    """Plane-fit inlier band, metres. Default: ~3 sigma of Kinect-class depth noise at 2.5 m."""
+
+    floor_max_range: float = 6.0
+    """Floor farther than this from a camera is not rendered, metres. Default: beyond the
+    Kinect/RealSense working range (4.5 m) with margin."""
+
+    floor_inlier_m: float = 0.03
+    """4-DoF RANSAC inlier distance on the floor, metres (6 top-down pixels at 5 mm)."""
+
+    inlier_m: float = 0.03
+    """6-DoF 3-D RANSAC inlier distance at 0 m; grows by ``inlier_rel`` * depth. Default: ~3
+    sigma of a SIFT keypoint lifted by Kinect-class depth at 2 m."""
+
+    inlier_rel: float = 0.01
+    """Depth-proportional part of the 3-D inlier distance (per metre of depth)."""
+
+    ransac_iterations: int = 2000
+    """Hypotheses per RANSAC run. Default: >99 % success at 20 % inliers for the 3-point model."""
+
+    hypotheses: int = 3
+    """Candidate poses per route and pair (sequential RANSAC: the best, then the best of the
+    remaining matches, ...). Default 3: a correct pose hidden behind a wrong, larger consensus
+    (the ring's symmetry) still reaches the verification."""
+
+    min_inliers: int = 4
+    """Fewest RANSAC inliers for a candidate. Default 4 (floor pairs with 3-12 correct inliers
+    were seen); the verification decides, not this count."""
+
+    samples: int = 5000
+    """Depth pixels per camera used for verification (regular grid). Default: as
+    ``fuseflow.geometry.pair_agreement``."""
+
+    tau: float = 0.05
+    """Relative depth residual under which two views agree (the paper's tau, eq. 21)."""
+
+    min_agreement: float = 0.8
+    """Fewest share of agreeing votes (both directions, all points) for an edge. (0, 1).
+    Default: measured separation (benchmarks/calib_wide.py, -v dumps): right candidates
+    0.92-0.99 on simulated rings and on hocap-8rs (its reference extrinsics: 0.94), wrong ones
+    0.11-0.86."""
+
+    min_structure_agreement: float = 0.7
+    """Same, on points off the floor (walls, furniture, people). Floor-aligned flips agree on
+    the floor but not here: measured right 0.77-0.99, wrong 0.06-0.57 (one 4-deg-off pose 0.94,
+    caught by the free-space test)."""
+
+    max_free_space: float = 0.08
+    """Largest share of projected points that the other camera sees through (free-space
+    violations over points with depth there). Measured right 0.006-0.056, wrong 0.12-0.79."""
+
+    min_agree_points: int = 150
+    """Fewest agreeing samples (both directions): a pose verified by a sliver of overlap is no
+    evidence."""
+
+    min_structure_votes: int = 100
+    """Fewest votes on off-floor points; fewer: the pair cannot be told from a flip, no edge."""
+
+    cycle_rot_deg: float = 2.0
+    """Cycle test: largest rotation of a triangle's composed transform, degrees."""
+
+    cycle_trans_m: float = 0.08
+    """Cycle test: largest translation of a triangle's composed transform, metres."""
+
+    sigma0: float = 0.005
+    """Noise of a 3-D correspondence at 0 m, metres (keypoint localisation)."""
+
+    sigma2: float = 0.0015
+    """Depth-squared part of the correspondence noise, metres per m^2 (Kinect-class axial noise
+    grows with z^2)."""
+
+    refine: bool = True
+    """Joint robust refinement of all cameras on the edges' correspondences (posegraph)."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or f.name == "seed":
+                continue
+            if not isinstance(v, (int, float)) or v <= 0:
+                raise ValidationError(f"RGBDConfig.{f.name} must be a positive number, got {v!r}")
+        for name in ("ratio", "tau", "min_agreement", "min_structure_agreement", "max_free_space"):
+            if not 0 < getattr(self, name) < 1:
+                raise ValidationError(f"RGBDConfig.{name} must be in (0, 1), got {getattr(self, name)!r}")
+
+
+@dataclass
+class CameraEvidence:
+    """What a camera contributes, computed once by ``prepare_camera`` (arrays in its own camera
+    frame, metres)."""
+
+    K: np.ndarray
+    depth: np.ndarray  # (H, W) float32 median depth, gated
+    plane: FloorPlane | None
+    topdown: TopDown | None
+    td_xy: np.ndarray  # (P, 2) floor coordinates of top-down keypoints
+    td_desc: np.ndarray  # (P, 128) float32
+    kp: list[tuple[np.ndarray, np.ndarray]]  # per frame: X (Q, 3), descriptors (Q, 128)
+    samples_X: torch.Tensor  # (M, 3) float32 verification points
+    samples_floor: torch.Tensor  # (M,) bool
+    depth_sub: torch.Tensor  # (h, w) float32 subsampled depth for lookups
+    K_sub: torch.Tensor  # (3, 3) float32 intrinsics of depth_sub
+
+
+@dataclass(frozen=True)
+class PairCheck:
+    """Verification of one candidate pose between cameras i and j (both directions pooled).
+
+    Attributes:
+        agreement: agreeing / voting samples (visibility-aware votes), all points.
+        structure_agreement: the same on points off the floor (NaN without votes there).
+        free_space: share of samples with depth in the other view that it sees through.
+        agree: agreeing samples. structure_votes: votes on off-floor points.
+    """
+
+    agreement: float
+    structure_agreement: float
+    free_space: float
+    agree: int
+    structure_votes: int
+
+    def passes(self, cfg: RGBDConfig) -> bool:
+        return (
+            self.agreement >= cfg.min_agreement
+            and self.structure_votes >= cfg.min_structure_votes
+            and self.structure_agreement >= cfg.min_structure_agreement
+            and self.free_space <= cfg.max_free_space
+            and self.agree >= cfg.min_agree_points
+        )
+
+
+# ----------------------------------------------------------------------------- entry point
+
+
+def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig | None = None) -> BackboneResult:
+    """Metric camera-from-world poses of a static rig from one or several RGB-D frames.
+
+    Args:
+        frames: one Frame or several of the same static rig, cameras in ``rig`` order
+            (color (N, H, W, 3) uint8, depth (N, H, W) float32 metres). Matches are pooled over
+            frames; the floor is taken from the per-pixel median over frames.
+        rig: the rig (intrinsics K and depth ranges are used; extrinsics are ignored).
+        config: an RGBDConfig (or any object; only an RGBDConfig is used, else the defaults).
+
+    Returns:
+        BackboneResult with metric=True: T_cam_world (N, 4, 4) float64 metres, world frame =
+        the first placed camera in rig order; registered (N,); info["pairs"] lists every pair
+        with its candidates (route, inliers, checks) and the accepted edge's route and score;
+        info["cameras"] the per-camera floor fit and the edges that placed it.
+
+    Raises:
+        ValidationError: frames empty or not matching the rig.
+    """
+    cfg = config if isinstance(config, RGBDConfig) else RGBDConfig()
+    frames = _check_frames(frames, rig)
+    t0 = time.perf_counter()
+    n = len(rig)
+    order = sorted(range(n), key=lambda k: rig.cameras[k].id)  # canonical: by id
+    cams = [prepare_camera(frames, rig, k, cfg) for k in order]
+    t_prep = time.perf_counter() - t0
+    with _torch_threads(1):
+        edges, pairs_info = _pair_edges(cams, cfg)
+    t_pairs = time.perf_counter() - t0 - t_prep
+    kept, dropped, untested = prune_cycles(edges, cfg.cycle_rot_deg, cfg.cycle_trans_m)
+    T_int, placed_int, refine_info = _global_poses(n, kept, cfg)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    registered = np.zeros(n, dtype=bool)
+    for a, k in enumerate(order):
+        T[k], registered[k] = T_int[a], placed_int[a]
+    if registered.any():
+        anchor = int(np.flatnonzero(registered)[0])
+        T = np.where(registered[:, None, None], T @ invert_rigid(T[anchor]), T)
+    ids = [rig.cameras[k].id for k in order]
+    info = {
+        "metric": True,
+        "frames": len(frames),
+        "pairs": [{**p, "cameras": [ids[p["pair"][0]], ids[p["pair"][1]]]} for p in pairs_info],
+        "cycle_dropped": [[ids[d["edge"][0]], ids[d["edge"][1]]] for d in dropped],
+        "untested_edges": [[ids[a], ids[b]] for a, b in untested],
+        "cameras": _camera_info(cams, ids, kept, untested, placed_int),
+        "refine": refine_info,
+        "time_s": {"prepare": t_prep, "pairs": t_pairs, "total": time.perf_counter() - t0},
+    }
+    return BackboneResult(T_cam_world=T, registered=registered, name="rgbd", info=info, metric=True)
+
+
+@contextmanager
+def _torch_threads(n: int):
+    """Run the verification's small tensor ops (~5000 points) on ``n`` intra-op threads: on a
+    loaded 2-core machine two threads made each project_votes call 20-30x slower (measured
+    1.4 ms vs 29-44 ms). Restores the previous setting."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _check_frames(frames, rig: Rig) -> list[Frame]:
+    if isinstance(frames, Frame):
+        frames = [frames]
+    frames = list(frames)
+    if not frames:
+        raise ValidationError("rgbd backbone: no frames given")
+    for f in frames:
+        if not isinstance(f, Frame):
+            raise ValidationError(f"rgbd backbone: expected Frame objects, got {type(f).__name__}")
+        if tuple(f.camera_ids) != rig.ids:
+            raise ValidationError(
+                f"rgbd backbone: frame {f.index} cameras {f.camera_ids} differ from the rig's {rig.ids}"
+            )
+        if f.resolution != rig.resolution:
+            raise ValidationError(f"rgbd backbone: frame {f.index} is {f.resolution}, the rig {rig.resolution}")
+    return [f.to("cpu") for f in frames]
+
+
+# ----------------------------------------------------------------------------- per camera
+
+
+def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> CameraEvidence:
+    """Everything camera ``k`` of ``rig`` contributes (step 1 of the module docstring), from
+    ``frames`` (a list of Frames in rig order, checked by ``rgbd_backbone``)."""
+    import cv2
+
+    cam = rig.cameras[k]
+    lo, hi = cam.depth_range
+    greys, depths = [], []
+    for f in frames:
+        if not bool(f.present[k]):
+            continue
+        d = f.depth[k].numpy().astype(np.float32)
+        depths.append(np.where((d >= lo) & (d <= hi), d, 0.0).astype(np.float32))
+        greys.append(cv2.cvtColor(f.color[k].numpy(), cv2.COLOR_RGB2GRAY))
+    K = cam.K.copy()
+    if not depths:
+        raise CalibrationError(f"rgbd backbone: camera {cam.id!r} has no view in any frame")
+    grey_med, depth_med = _median_images(greys, depths)
+    sift = cv2.SIFT_create(nfeatures=cfg.sift_features)
+    kp = [_lift_keypoints(sift, g, d, K) for g, d in zip(greys, depths)]
+    X = _backproject(depth_med, K)
+    plane = fit_floor_plane(X, band=cfg.floor_band, seed=cfg.seed)
+    topdown, td_xy, td_desc = None, np.zeros((0, 2)), np.zeros((0, 128), np.float32)
+    if plane is not None:
+        topdown = render_topdown(grey_med, depth_med, K, plane, cfg.floor_res, cfg.floor_max_range)
+        if topdown is not None:
+            mask = cv2.erode(topdown.mask.astype(np.uint8), np.ones((7, 7), np.uint8))
+            kps, desc = sift.detectAndCompute(topdown.image, mask)
+            if desc is not None and len(kps):
+                td_xy = topdown.to_floor(np.array([p.pt for p in kps]))
+                td_desc = desc.astype(np.float32)
+    return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *_samples(depth_med, K, plane, cfg))
+
+
+def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel median grey and depth (ignoring missing depth) over frames: people and other
+    moving things leave the floor image of a static rig."""
+    if len(greys) == 1:
+        return greys[0], depths[0]
+    g = np.median(np.stack(greys), axis=0).astype(np.uint8)
+    D = np.stack(depths)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.nanmedian(np.where(D > 0, D, np.nan), axis=0)
+    return g, np.nan_to_num(d, nan=0.0).astype(np.float32)
+
+
+def _backproject(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> np.ndarray:
+    """(M, 3) float64 camera-frame points of the pixels with depth (every ``stride``-th)."""
+    v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride]
+    z = depth[::stride, ::stride].astype(np.float64)
+    m = z > 0
+    z, u, v = z[m], u[m], v[m]
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+
+
+def _lift_keypoints(sift, grey: np.ndarray, depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT keypoints of one image with valid depth, as camera-frame points (Q, 3) and
+    descriptors (Q, 128). Depth: the median of the 3x3 neighbourhood's valid values, and only
+    where they agree within 2 % (keypoints sit on edges; a depth edge gives no point)."""
+    kps, desc = sift.detectAndCompute(grey, None)
+    if desc is None or not kps:
+        return np.zeros((0, 3)), np.zeros((0, 128), np.float32)
+    uv = np.array([p.pt for p in kps])
+    h, w = depth.shape
+    ui = np.clip(np.rint(uv[:, 0]).astype(int), 1, w - 2)
+    vi = np.clip(np.rint(uv[:, 1]).astype(int), 1, h - 2)
+    win = np.stack([depth[vi + dv, ui + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
+    valid = win > 0
+    z = np.where(valid.all(axis=1), np.median(win, axis=1), 0.0)
+    flat = (win.max(axis=1) - win.min(axis=1)) < 0.02 * np.maximum(z, 1e-6)
+    ok = (z > 0) & flat
+    uv, z = uv[ok], z[ok]
+    X = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * z, (uv[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    return X, desc[ok].astype(np.float32)
+
+
+def _samples(depth: np.ndarray, K: np.ndarray, plane: FloorPlane | None, cfg: RGBDConfig):
+    """Verification points on a regular grid (about cfg.samples), their floor flags, and the
+    subsampled depth with its intrinsics (pixel centres at integer coordinates)."""
+    from fuseflow.geometry import subsample_stride
+
+    h, w = depth.shape
+    s = subsample_stride(h, w, cfg.samples)
+    d = depth[::s, ::s]
+    Ks = K.copy()
+    Ks[:2, :] /= s
+    X = _backproject(d, Ks)
+    fm = np.zeros(d.shape, dtype=bool) if plane is None else floor_mask(d, Ks, plane, cfg.floor_band)
+    on_floor = fm[d > 0]
+    return (
+        torch.from_numpy(X.astype(np.float32)),
+        torch.from_numpy(on_floor),
+        torch.from_numpy(np.ascontiguousarray(d, dtype=np.float32)),
+        torch.from_numpy(Ks.astype(np.float32)),
+    )
+
+
+# ----------------------------------------------------------------------------- verification
+
+
+def verify_pose(a: CameraEvidence, b: CameraEvidence, T_ba: np.ndarray, tau: float) -> PairCheck:
+    """Depth agreement and free-space check of the candidate ``T_ba`` (camera a's coordinates
+    to camera b's, (4, 4) metres) in both directions (see PairCheck)."""
+    agree = vote = s_agree = s_vote = viol = has = 0
+    for src, dst, T in ((a, b, T_ba), (b, a, invert_rigid(T_ba))):
+        M = torch.from_numpy(T[:3, :].astype(np.float32))
+        ag, vo = project_votes(src.samples_X, M, dst.K_sub, dst.depth_sub, tau, True)
+        _, present = project_votes(src.samples_X, M, dst.K_sub, dst.depth_sub, tau, False)
+        off = ~src.samples_floor
+        agree += int(ag.sum())
+        vote += int(vo.sum())
+        s_agree += int((ag & off).sum())
+        s_vote += int((vo & off).sum())
+        viol += int((vo & ~ag).sum())
+        has += int(present.sum())
+    return PairCheck(
+        agreement=agree / vote if vote else 0.0,
+        structure_agreement=s_agree / s_vote if s_vote else float("nan"),
+        free_space=viol / has if has else 1.0,
+        agree=agree,
+        structure_votes=s_vote,
+    )
+
+
+# ----------------------------------------------------------------------------- pairs
+
+
+def _match(da: np.ndarray, db: np.ndarray, ratio: float) -> np.ndarray:
+    """(K, 2) index pairs of ratio-test SIFT matches from descriptors a to b."""
+    import cv2
+
+    if len(da) < 2 or len(db) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
+    out = [(m[0].queryIdx, m[0].trainIdx) for m in knn if len(m) == 2 and m[0].distance < ratio * m[1].distance]
+    return np.array(out, dtype=np.int64).reshape(-1, 2)
+
+
+def _kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Batched rigid fit B ~ R A + t of (..., K, 3) point sets; (..., 4, 4)."""
+    ca, cb = A.mean(axis=-2, keepdims=True), B.mean(axis=-2, keepdims=True)
+    H = np.swapaxes(A - ca, -1, -2) @ (B - cb)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = 1
+    D[..., 1, 1] = 1
+    D[..., 2, 2] = d
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    T = np.zeros(H.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = cb[..., 0, :] - (R @ np.swapaxes(ca, -1, -2))[..., 0]
+    T[..., 3, 3] = 1
+    return T
+
+
+def _ransac_sequential(fit_batch, fit_refine, residual, thr, m: int, k_min: int, cfg: RGBDConfig, seed: int):
+    """Sequential RANSAC: up to cfg.hypotheses models, each the largest consensus of the matches
+    the previous ones did not explain. fit_batch(idx (H, k_min)) -> models (H, 4, 4);
+    residual(models (H, 4, 4), idx) -> (H, |idx|); thr (m,) per-match threshold.
+    Returns [(model (4, 4), inlier indices)]."""
+    rng = np.random.default_rng(seed)
+    left = np.arange(m)
+    out = []
+    for _ in range(cfg.hypotheses):
+        if len(left) < max(cfg.min_inliers, k_min):
+            break
+        iters = cfg.ransac_iterations if k_min > 2 else cfg.ransac_iterations // 2
+        idx = rng.integers(0, len(left), size=(iters, k_min))
+        distinct = np.all(np.sort(idx, axis=1)[:, 1:] != np.sort(idx, axis=1)[:, :-1], axis=1)
+        idx = idx[distinct]
+        models = fit_batch(left[idx])
+        ok = np.all(np.isfinite(models), axis=(1, 2))
+        models = models[ok]
+        if not len(models):
+            break
+        inl = residual(models, left) < thr[left][None, :]
+        best = int(np.argmax(inl.sum(axis=1)))
+        sel = left[inl[best]]
+        if len(sel) < cfg.min_inliers:
+            break
+        model = models[best]
+        for _ in range(3):  # refit on the consensus, re-collect
+            model = fit_refine(sel)
+            new = left[residual(model[None], left)[0] < thr[left]]
+            if len(new) < cfg.min_inliers:
+                break
+            sel = new
+        out.append((model, sel))
+        left = np.setdiff1d(left, sel)
+    return out
+
+
+def _planar_models(pa: np.ndarray, pb: np.ndarray) -> callable:
+    """Batched 2-point rigid 2-D fits pb ~ R(theta) pa + t, as 4x4 floor-frame transforms."""
+
+    def fit(idx: np.ndarray) -> np.ndarray:
+        A, B = pa[idx], pb[idx]  # (H, k, 2)
+        ca, cb = A.mean(axis=1), B.mean(axis=1)
+        a, b = A - ca[:, None], B - cb[:, None]
+        s = np.sum(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], axis=1)
+        c = np.sum(a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1], axis=1)
+        th = np.arctan2(s, c)
+        T = np.tile(np.eye(4), (len(idx), 1, 1))
+        T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = np.cos(th), -np.sin(th), np.sin(th), np.cos(th)
+        T[:, :2, 3] = cb - np.einsum("hij,hj->hi", T[:, :2, :2], ca)
+        if idx.shape[1] == 2:  # minimal sample: the two distances must agree
+            la = np.linalg.norm(A[:, 0] - A[:, 1], axis=1)
+            lb = np.linalg.norm(B[:, 0] - B[:, 1], axis=1)
+            T[np.abs(la - lb) > 0.05 + 0.02 * la] = np.nan
+        return T
+
+    return fit
+
+
+def _floor_candidates(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig, frame_pairs) -> list[dict]:
+    """Candidates of the two 4-DoF routes: ``floor`` (top-down SIFT) and ``sift4`` (image SIFT
+    matches expressed on the floor). frame_pairs: (X_a (K, 3), X_b (K, 3)) pooled 3-D matches."""
+    if a.plane is None or b.plane is None:
+        return []
+    Fa, Fb = a.plane.T_cam_floor(), b.plane.T_cam_floor()
+    out = []
+    routes = []
+    if len(a.td_desc) and len(b.td_desc):
+        mm = _match(a.td_desc, b.td_desc, cfg.ratio)
+        if len(mm):
+            pa, pb = a.td_xy[mm[:, 0]], b.td_xy[mm[:, 1]]
+            za = np.zeros(len(pa))
+            routes.append(("floor", pa, pb, za, za, None, None))
+    Xa, Xb = frame_pairs
+    if len(Xa):
+        Pa = (Xa - Fa[:3, 3]) @ Fa[:3, :3]  # floor coordinates
+        Pb = (Xb - Fb[:3, 3]) @ Fb[:3, :3]
+        routes.append(("sift4", Pa[:, :2], Pb[:, :2], Pa[:, 2], Pb[:, 2], Xa, Xb))
+    for route, pa, pb, ha, hb, Xa_, Xb_ in routes:
+        fit = _planar_models(pa, pb)
+        thr_h = cfg.floor_inlier_m if route == "floor" else cfg.inlier_m + cfg.inlier_rel * Xb_[:, 2]
+        thr = np.broadcast_to(
+            np.asarray(cfg.floor_inlier_m if route == "floor" else thr_h, dtype=np.float64), (len(pa),)
+        )
+
+        def residual(models, idx, pa=pa, pb=pb, ha=ha, hb=hb):
+            q = np.einsum("hij,kj->hki", models[:, :2, :2], pa[idx]) + models[:, None, :2, 3]
+            r = np.linalg.norm(q - pb[idx][None], axis=2)
+            return np.maximum(r, np.abs(ha[idx] - hb[idx])[None])  # heights must agree too
+
+        models = _ransac_sequential(fit, lambda s, fit=fit: fit(s[None])[0], residual, thr, len(pa), 2, cfg, cfg.seed)
+        for model, sel in models:
+            T_ba = Fb @ model @ invert_rigid(Fa)
+            if route == "floor":
+                Xa_s = np.c_[pa[sel], np.zeros(len(sel))] @ Fa[:3, :3].T + Fa[:3, 3]
+                Xb_s = np.c_[pb[sel], np.zeros(len(sel))] @ Fb[:3, :3].T + Fb[:3, 3]
+            else:
+                Xa_s, Xb_s = Xa_[sel], Xb_[sel]
+            out.append({"route": route, "T_ba": T_ba, "inliers": int(len(sel)), "X_a": Xa_s, "X_b": Xb_s})
+    return out
+
+
+def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[dict]:
+    """6-DoF 3-D RANSAC (Kabsch) on depth-lifted image matches."""
+    if len(Xa) < max(cfg.min_inliers, 3):
+        return []
+    thr = cfg.inlier_m + cfg.inlier_rel * Xb[:, 2]
+
+    def fit(idx):
+        T = _kabsch(Xa[idx], Xb[idx])
+        if idx.shape[1] == 3:  # minimal sample: reject near-degenerate (collinear, tiny) triples
+            A = Xa[idx]
+            area = np.linalg.norm(np.cross(A[:, 1] - A[:, 0], A[:, 2] - A[:, 0]), axis=1)
+            T[area < 0.01] = np.nan
+        return T
+
+    def residual(models, idx):
+        q = np.einsum("hij,kj->hki", models[:, :3, :3], Xa[idx]) + models[:, None, :3, 3]
+        return np.linalg.norm(q - Xb[idx][None], axis=2)
+
+    models = _ransac_sequential(fit, lambda s: fit(s[None])[0], residual, thr, len(Xa), 3, cfg, cfg.seed + 1)
+    return [{"route": "sift3d", "T_ba": T, "inliers": int(len(s)), "X_a": Xa[s], "X_b": Xb[s]} for T, s in models]
+
+
+def _pooled_matches(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig) -> tuple[np.ndarray, np.ndarray]:
+    """3-D matches of the image SIFT route, pooled over frames (same instant in both cameras)."""
+    XA, XB = [], []
+    for (xa, da), (xb, db) in zip(a.kp, b.kp):
+        mm = _match(da, db, cfg.ratio)
+        XA.append(xa[mm[:, 0]])
+        XB.append(xb[mm[:, 1]])
+    return (np.concatenate(XA), np.concatenate(XB)) if XA else (np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
+    """Candidates, verification and the accepted edge of every camera pair (canonical order)."""
+    edges: dict[tuple[int, int], Edge] = {}
+    info = []
+    for i in range(len(cams)):
+        for j in range(i + 1, len(cams)):
+            a, b = cams[i], cams[j]
+            Xa, Xb = _pooled_matches(a, b, cfg)
+            cands = _floor_candidates(a, b, cfg, (Xa, Xb)) + _sift3d_candidates(Xa, Xb, cfg)
+            rows, best = [], None
+            for c in cands:
+                chk = verify_pose(a, b, c["T_ba"], cfg.tau)
+                ok = chk.passes(cfg)
+                rows.append({"route": c["route"], "inliers": c["inliers"], "ok": ok, **_round(chk),
+                             "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
+                # rank by how much depth confirms the pose, not by the share alone: a wrong pose
+                # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
+                # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98)
+                if ok and (best is None or chk.agree > best[1].agree):
+                    best = (c, chk)
+            entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
+            if best is not None:
+                c, chk = best
+                c, chk = _refit(a, b, c, chk, cands, cfg)
+                X_i, X_j = _support(c["T_ba"], cands, cfg)
+                sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
+                edges[(i, j)] = Edge(i, j, c["T_ba"], float(chk.agree), X_i, X_j, sigma)
+                entry["edge"] = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
+                                 "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
+            info.append(entry)
+    return edges, info
+
+
+def _round(chk: PairCheck) -> dict:
+    return {
+        "agreement": round(chk.agreement, 4),
+        "structure_agreement": None if np.isnan(chk.structure_agreement) else round(chk.structure_agreement, 4),
+        "free_space": round(chk.free_space, 4),
+        "agree": chk.agree,
+        "structure_votes": chk.structure_votes,
+    }
+
+
+def _refit(a: CameraEvidence, b: CameraEvidence, c: dict, chk: PairCheck, cands: list[dict], cfg: RGBDConfig):
+    """Refit the accepted pose on the correspondences of every route that it explains (6-DoF
+    Kabsch, three times, re-collecting): the verified candidates of a pair are all roughly right
+    (depth agreement at tau = 5 % cannot tell 0.1 deg from 1 deg), their pooled evidence is more
+    precise than any one of them (the 4-DoF floor poses are). Kept when it still passes, agrees
+    within 0.02 of the candidate and keeps at least 90 % of its agreeing samples."""
+    T = c["T_ba"]
+    for _ in range(3):
+        Xa, Xb = _support(T, cands, cfg)
+        if len(Xa) < 6:
+            return c, chk
+        T = _kabsch(Xa[None], Xb[None])[0]
+    new = verify_pose(a, b, T, cfg.tau)
+    if new.passes(cfg) and new.agreement >= chk.agreement - 0.02 and new.agree >= 0.9 * chk.agree:
+        return {**c, "T_ba": T, "route": c["route"] + "+refit"}, new
+    return c, chk
+
+
+def _support(T_ba: np.ndarray, cands: list[dict], cfg: RGBDConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Every candidate's correspondences (all routes) that the accepted pose explains: the
+    edge's evidence for the joint solve."""
+    XA = np.concatenate([c["X_a"] for c in cands])
+    XB = np.concatenate([c["X_b"] for c in cands])
+    r = np.linalg.norm(XA @ T_ba[:3, :3].T + T_ba[:3, 3] - XB, axis=1)
+    ok = r < cfg.inlier_m + cfg.inlier_rel * XB[:, 2]
+    XA, XB = XA[ok], XB[ok]
+    _, first = np.unique(np.round(np.c_[XA, XB], 6), axis=0, return_index=True)  # a match seen twice counts once
+    first.sort()
+    return XA[first], XB[first]
+
+
+# ----------------------------------------------------------------------------- global
+
+
+def _global_poses(n: int, edges: dict[tuple[int, int], Edge], cfg: RGBDConfig):
+    """Poses (canonical order) of the largest connected component of the kept edges (ties: the
+    one with the lowest index), anchored at its lowest index."""
+    comps, seen = [], set()
+    for s in range(n):
+        if s in seen:
+            continue
+        comp, stack = set(), [s]
+        while stack:
+            k = stack.pop()
+            if k in comp:
+                continue
+            comp.add(k)
+            stack += [b if a == k else a for (a, b) in edges if k in (a, b)]
+        seen |= comp
+        comps.append(sorted(comp))
+    comp = max(comps, key=lambda c: (len(c), -c[0]))
+    if len(comp) < 2:
+        return np.tile(np.eye(4), (n, 1, 1)), np.zeros(n, dtype=bool), {"note": "no verified pair"}
+    anchor = comp[0]
+    T, placed = spanning_tree(n, edges, anchor)
+    info: dict = {"anchor": anchor}
+    if cfg.refine:
+        T, info = refine_poses(T, placed, edges, anchor)
+        info["anchor"] = anchor
+    return T, placed, info
+
+
+def _camera_info(cams, ids, kept, untested, placed) -> dict:
+    out = {}
+    for k, c in enumerate(cams):
+        mine = [e for e in kept if k in e]
+        out[ids[k]] = {
+            "placed": bool(placed[k]),
+            "floor": None
+            if c.plane is None
+            else {"height_m": round(c.plane.height, 4), "inliers": c.plane.inliers, "rms_m": round(c.plane.rms, 4)},
+            "topdown_keypoints": int(len(c.td_xy)),
+            "edges": [ids[b] if a == k else ids[a] for a, b in mine],
+            # a camera held by edges none of which closes a cycle has had no independent check
+            "cycle_checked": any(e not in untested for e in mine),
+        }
+    return out
+
+
+def relative_error(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """(rotation deg, translation m) between two relative transforms (4, 4)."""
+    D = T_a @ invert_rigid(T_b)
+    return rotation_angle_deg(D[:3, :3]), float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
