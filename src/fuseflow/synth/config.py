@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
+import numpy as np
+
 from fuseflow.errors import ValidationError
 
 __all__ = [
@@ -257,3 +259,20 @@ class SimConfig:
         if "resolution" in kw:
             kw["resolution"] = tuple(kw["resolution"])
         return SimConfig(**kw)
+
+
+#: Incidence angle at which the angular term of sigma_z stops growing (89 deg, float32 as the angle maps).
+THETA_CLIP = np.float32(np.radians(89.0))
+
+
+def sigma_terms(a, b, z0, c, stereo_rms, fb, z, theta):
+    """The one definition of the ``AxialNoise`` formula (its fields spelled out): ``axial_sigma``
+    evaluates it on numpy arrays and ``synth.numba_kernels`` compiles this same function for the
+    per-pixel kernel, so it uses only operations that numba and numpy share."""
+    tc = np.minimum(theta, THETA_CLIP)
+    return (
+        a
+        + b * (z - z0) ** 2
+        + c / np.sqrt(np.maximum(z, 1e-3)) * tc**2 / (np.pi / 2 - tc) ** 2
+        + z * z * stereo_rms / fb
+    )

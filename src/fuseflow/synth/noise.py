@@ -23,34 +23,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fuseflow.synth.config import AxialNoise, SensorModel, SimConfig
+from fuseflow.synth.config import AxialNoise, SensorModel, SimConfig, sigma_terms
 
 __all__ = [
     "sigma_z", "sigma_terms", "axial_sigma", "quantization_step", "apply_depth_noise", "apply_depth_noise_ref", "DepthNoiseParams",
     "NoiseDraws", "depth_noise_params",
 ]  # fmt: skip
 
-#: Incidence angle at which the angular term of sigma_z stops growing (89 deg, float32 as the angle maps).
-THETA_CLIP = np.float32(np.radians(89.0))
-
 
 def sigma_z(m: AxialNoise, fb: float, z, theta):
     """Axial noise std (metres) of model ``m`` at depth z (m) and incidence angle theta (rad);
     fb = focal_px * baseline_m (px m), read by the stereo term only. numpy arrays or scalars."""
     return sigma_terms(m.a, m.b, m.z0, m.c, m.stereo_rms, fb, z, theta)
-
-
-def sigma_terms(a, b, z0, c, stereo_rms, fb, z, theta):
-    """The one definition of the ``AxialNoise`` formula (its fields spelled out): ``axial_sigma``
-    evaluates it on numpy arrays and ``synth.numba_kernels`` compiles this same function for the
-    per-pixel kernel, so it uses only operations that numba and numpy share."""
-    tc = np.minimum(theta, THETA_CLIP)
-    return (
-        a
-        + b * (z - z0) ** 2
-        + c / np.sqrt(np.maximum(z, 1e-3)) * tc**2 / (np.pi / 2 - tc) ** 2
-        + z * z * stereo_rms / fb
-    )
 
 
 def axial_sigma(sensor: SensorModel, z: np.ndarray, theta: np.ndarray) -> np.ndarray:

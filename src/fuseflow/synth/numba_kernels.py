@@ -9,7 +9,7 @@ import warnings
 import numba
 import numpy as np
 
-from fuseflow.synth.noise import sigma_terms
+from fuseflow.synth.config import sigma_terms
 
 # numba warns once per process that the installed TBB is too old and falls back to another
 # threading layer; that is not the user's concern.
