@@ -10,7 +10,7 @@ import torch
 from tests.fuse.scenes import PLANE_Z, Rect, look_at, make_rig, render
 
 from fuseflow.errors import ValidationError
-from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, neighbour_graph, preset
+from fuseflow.fuse import ABLATIONS, NOISE_SIGMA, PRESETS, FuseConfig, neighbour_graph, preset
 from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
 from fuseflow.fuse.mcm import confidence, gradient_and_variance
@@ -72,6 +72,48 @@ def test_mcm_defaults_meet_the_design_targets():
     assert float(c[0, 2:-2, 2:5].min()) > 0.99
     off = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.alpha, cfg.beta, use_mcm=False)
     assert bool((off == 1).all())
+
+
+@pytest.mark.parametrize("z0", [0.5, 1.0, 2.0, 3.0, 4.0, 4.45])
+def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
+    """mcm_noise: a smooth 45-degree surface with Kinect noise sigma(z) keeps c > 0.8 and a 5 % depth
+    edge gets c < 0.05 at every range of the Kinect's 0.4-4.5 m (config.py, above MCM_ALPHA)."""
+    cfg = FuseConfig()
+    assert cfg.mcm_noise and cfg.noise_sigma == NOISE_SIGMA["kinect"]
+    a, b, zc = cfg.noise_sigma
+    sigma = a + b * (z0 - zc) ** 2
+    rng = np.random.default_rng(1)
+    f = 525.0
+    plane = z0 * (1 + np.arange(64) / f)[None, :].repeat(64, 0) + sigma * rng.standard_normal((64, 64))
+    edge = np.full((64, 16), z0)
+    edge[:, 8:] *= 1.05
+    edge = edge + sigma * rng.standard_normal(edge.shape)
+
+    def conf(d, noise):
+        t = torch.tensor(d[None], dtype=torch.float32)
+        return confidence(t, cfg.alpha, cfg.beta, noise_sigma=cfg.noise_sigma if noise else None)[0]
+
+    smooth = conf(plane, True)[1:-1, 1:-1]
+    assert float(smooth.median()) > 0.9 and float(smooth.quantile(0.1)) > 0.75
+    assert float(conf(edge, True)[2:-2, 7:9].median()) < 0.05
+    if z0 >= 4.0:  # the paper's measures lose smooth far surfaces to their noise
+        assert float(conf(plane, False)[1:-1, 1:-1].median()) < 0.8
+    # sigma = 0 changes nothing: the noise-free edge of the design test
+    clean = np.full((16, 16), z0)
+    clean[:, 8:] *= 1.05
+    c = confidence(torch.tensor(clean[None], dtype=torch.float32), cfg.alpha, cfg.beta, noise_sigma=(0.0, 0.0, 0.0))
+    c0 = confidence(torch.tensor(clean[None], dtype=torch.float32), cfg.alpha, cfg.beta)
+    assert torch.equal(c, c0)
+
+
+def test_noise_sigma_presets_mirror_the_simulator():
+    from fuseflow.synth.config import KINECT_V1, REALSENSE_D435
+
+    k = KINECT_V1.axial
+    assert NOISE_SIGMA["kinect"] == (k.a, k.b, k.z0)
+    r = REALSENSE_D435
+    assert NOISE_SIGMA["realsense"][1] == pytest.approx(r.axial.stereo_rms / (r.focal_px * r.baseline_m))
+    assert PRESETS["paper"].mcm_noise is False
 
 
 def test_cvgc_residual_and_votes_hand_computed():

@@ -7,11 +7,12 @@ only when that path runs). See design.md and docs/fuse.md.
 """
 
 from fuseflow.fuse.api import FuseReport, FuseResult, fuse, fuse_with_report, resolve_backend
-from fuseflow.fuse.config import ABLATIONS, PRESETS, FuseConfig, preset
+from fuseflow.fuse.config import ABLATIONS, NOISE_SIGMA, PRESETS, FuseConfig, preset
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
 
 __all__ = [
     "ABLATIONS",
+    "NOISE_SIGMA",
     "PRESETS",
     "FuseConfig",
     "FuseReport",

@@ -19,7 +19,7 @@ from typing import Literal
 
 from fuseflow.errors import ValidationError
 
-__all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "preset"]
+__all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "NOISE_SIGMA", "preset"]
 
 Backend = Literal["auto", "torch", "numba"]
 
@@ -42,8 +42,36 @@ Backend = Literal["auto", "torch", "numba"]
 # alpha = 20 adds 0.5 on the edge and 0.1 on the smooth surface. Check: smooth c = exp(-0.17)
 # = 0.84 > 0.8, edge c = exp(-3.86) = 0.021 < 0.05. tests/fuse/test_components.py::test_mcm_defaults_meet_the_design_targets checks both numbers
 # on synthetic depth maps.
+#
+# Noise-aware MCM (FuseConfig.mcm_noise, beyond the paper). The numbers above hold at 1.5-2.5 m
+# only: Kinect noise is 0.47 % of depth at 3 m and 0.65 % at 4 m, so a smooth surface there gets
+# v ~ (0.0065)^2 = 4.2e-5 and g ~ 0.006 from noise alone -> c = exp(-0.25 - 0.12) = 0.69 < 0.8
+# (measured: median c 0.74 at 4 m, 0.70 at 4.45 m on the 45-degree test plane). With mcm_noise
+# the expected noise is removed before dividing by z (mcm.py): gx^2 + gy^2 - sigma(z)^2
+# (central differences: E = 2 (sigma^2 / 2)) and Var - sigma(z)^2 (3x3: E = (8/9) sigma^2, the
+# 1/9 extra is margin). What is left of a smooth 45-degree surface is its geometry, g = 1 / f =
+# 0.0019 and v = (2/3) / f^2 = 2.4e-6 at every range -> alpha g + beta v = 0.05, c ~ 0.95; a
+# 5 % edge loses at most sigma^2 at the far end of the Kinect range (4.5 m: sigma / z = 0.73 %):
+# v = 5.6e-4 - 5.3e-5 = 5.1e-4 and g = sqrt(0.025^2 - 0.0073^2) = 0.024 -> 3.04 + 0.48 = 3.5,
+# c = 0.03 < 0.05. So alpha and beta stay. Measured on noisy synthetic maps at 0.5-4.45 m with
+# the Kinect sigma(z): smooth median c 0.97-1.00 (10th percentile >= 0.80), 5 % edge median
+# c <= 0.03 (tests/fuse/test_components.py::test_noise_aware_mcm_meets_the_targets_at_every_range);
+# without it the smooth median falls to 0.74 at 4 m. A grid over alpha in {20, 30, 40} and beta
+# in {6000, 8000, 10000} traded the smooth 10th percentile (0.82 -> 0.73) for the edge tail,
+# so the paper-range values were kept.
 MCM_ALPHA = 20.0
 MCM_BETA = 6000.0
+
+#: Axial noise sigma(z) = a + b (z - z0)^2 (metres) of the simulator's sensor presets
+#: (synth/config.py, mirrored here because fuse does not import synth):
+#: Kinect v1 class, Nguyen et al. 2012 (synth NGUYEN_2012 without the incidence-angle term);
+#: RealSense D435 class, active stereo z^2 s / (f B) with s = 0.08 px, f = 385 px, B = 0.05 m
+#: (synth D400_STEREO / REALSENSE_D435) -> b = 0.08 / (385 * 0.05) = 0.00416, plus a 0.1 mm
+#: floor (a > 0 keeps sigma positive near z = 0).
+NOISE_SIGMA: dict[str, tuple[float, float, float]] = {
+    "kinect": (0.0012, 0.0019, 0.4),
+    "realsense": (0.0001, 0.08 / (385.0 * 0.05), 0.0),
+}
 
 
 @dataclass(frozen=True)
@@ -65,6 +93,12 @@ class FuseConfig:
     """r of the r x r variance window of eq. (17) (DESIGN.md 2.1: r = 3). Odd, 3..7."""
     use_mcm: bool = True
     """False = the "w/o MCM" ablation of Table VII: c(x) = 1 for every valid pixel."""
+    mcm_noise: bool = True
+    """Beyond the paper: noise-aware MCM. g(x) and v(x) of eq. (16)-(17) are measured after
+    removing the sensor's expected axial noise sigma(z) (``noise_sigma``) at that depth
+    (mcm.py; derivation above MCM_ALPHA), so smooth surfaces keep c > 0.8 at every range of
+    the sensor and not only at 1.5-2.5 m. False = eq. (16)-(17) as written (``paper``).
+    Measured in docs/fuse.md (Quality)."""
 
     # ---- neighbour graph (paper III-C-2, DESIGN.md 2.2)
     k_neighbours: int = 4
@@ -153,7 +187,8 @@ class FuseConfig:
     points (docs/fuse.md, Quality); 1.5 measured the same, 3 and 4 kept more of the tail."""
     noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
     """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by
-    ``range_priority``; only the ratio between depths matters. Default: Kinect-class
+    ``mcm_noise`` (absolute values matter) and ``range_priority`` (only the ratio between
+    depths matters); ``NOISE_SIGMA`` holds the presets ("kinect", "realsense"). Default: Kinect-class
     structured light (Nguyen et al. 2012, the model above MCM_ALPHA; 6 mm at 2 m, 14 mm at
     3 m, 26 mm at 4 m). A stereo sensor (sigma ~ z^2) is (small a, b, 0). a > 0, b >= 0."""
 
@@ -217,8 +252,9 @@ class FuseConfig:
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
         if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
             bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        if not isinstance(self.range_priority, bool):
-            bad("range_priority", "a bool")
+        for name in ("range_priority", "mcm_noise"):
+            if not isinstance(getattr(self, name), bool):
+                bad(name, "a bool")
         if self.backend not in ("auto", "torch", "numba"):
             bad("backend", "'auto', 'torch' or 'numba'")
 
@@ -239,7 +275,9 @@ ABLATIONS: dict[str, FuseConfig] = {
 
 PRESETS: dict[str, FuseConfig] = {
     "default": _DEFAULT,
-    "paper": replace(_DEFAULT, visibility_aware=False, min_weight=0.0, range_priority=False, lone_cell_mean=0.0),
+    "paper": replace(
+        _DEFAULT, visibility_aware=False, min_weight=0.0, range_priority=False, lone_cell_mean=0.0, mcm_noise=False
+    ),
     **ABLATIONS,
 }
 

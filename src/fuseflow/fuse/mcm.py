@@ -7,6 +7,16 @@ v(x) = Var_{r x r window} D / (z^2 + eps)                                      (
 A pixel whose gradient stencil or variance window touches a pixel with no depth (0, outside
 the valid range, or outside the image) is an edge pixel: c = 0 (DESIGN.md 2.1: it must not
 look smooth). The parameter derivation is next to the defaults in config.py.
+
+Noise-aware MCM (``FuseConfig.mcm_noise``, beyond the paper): the sensor's expected axial
+noise sigma(z) = a + b (z - z0)^2 (``FuseConfig.noise_sigma``) is taken out of both measures
+before they are divided by z, so that range noise alone does not read as roughness:
+
+g_n(x) = sqrt(max(gx^2 + gy^2 - sigma^2, 0)) / (z + eps)     (E[gx^2 + gy^2] = sigma^2 for noise)
+v_n(x) = max(Var - sigma^2, 0) / (z^2 + eps)                  (E[Var] = (8/9) sigma^2 for 3x3)
+
+A slope or an edge keeps its geometric part (it is many sigma), a smooth surface far away
+(Kinect sigma / z = 0.6 % at 4 m) no longer loses c to its noise. Derivation in config.py.
 """
 
 from __future__ import annotations
@@ -14,7 +24,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["valid_depth", "confidence", "gradient_and_variance"]
+__all__ = ["valid_depth", "confidence", "gradient_and_variance", "noise_sigma_of"]
 
 
 def valid_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
@@ -27,12 +37,25 @@ def valid_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torc
     return torch.where(ok, depth, torch.zeros_like(depth))
 
 
+def noise_sigma_of(z: torch.Tensor, noise_sigma: tuple[float, float, float]) -> torch.Tensor:
+    """sigma(z) = a + b (z - z0)^2 (metres) for depth z (metres, any shape, float32); the same
+    float32 operations as the compiled kernel."""
+    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
+    dz = z - z0
+    return a + b * (dz * dz)
+
+
 def gradient_and_variance(
-    depth: torch.Tensor, window: int = 3, eps: float = 1e-6
+    depth: torch.Tensor,
+    window: int = 3,
+    eps: float = 1e-6,
+    noise_sigma: tuple[float, float, float] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """g (eq. 16), v (eq. 17) and the "whole neighbourhood has depth" mask.
 
-    depth: (N, H, W) float32 metres, 0 = no depth. Returns g, v (N, H, W) float32 and
+    depth: (N, H, W) float32 metres, 0 = no depth. noise_sigma: (a, b, z0) of the sensor's
+    axial noise (FuseConfig.noise_sigma) for the noise-aware measures g_n, v_n (module
+    docstring); None = eq. (16)-(17) as written. Returns g, v (N, H, W) float32 and
     full (N, H, W) bool: True where the pixel and every pixel of its window has depth.
     """
     n, h, w = depth.shape
@@ -44,12 +67,18 @@ def gradient_and_variance(
     gx = (patches[:, centre + 1] - patches[:, centre - 1]) * 0.5
     gy = (patches[:, centre + window] - patches[:, centre - window]) * 0.5
     z = depth
-    g = torch.sqrt(gx * gx + gy * gy) / (z + eps)
+    gsq = gx * gx + gy * gy
     full = (patches > 0).all(dim=1)
     # two-pass variance (mean first), float32: exact enough for beta ~ 1e4 and matched by the
     # compiled kernel, unlike E[x^2] - E[x]^2
     mean = patches.mean(dim=1, keepdim=True)
     var = ((patches - mean) ** 2).mean(dim=1)
+    if noise_sigma is not None:
+        s = noise_sigma_of(z, noise_sigma)
+        s2 = s * s
+        gsq = torch.clamp(gsq - s2, min=0.0)
+        var = torch.clamp(var - s2, min=0.0)
+    g = torch.sqrt(gsq) / (z + eps)
     v = var / (z * z + eps)
     return g, v, full
 
@@ -61,6 +90,7 @@ def confidence(
     window: int = 3,
     eps: float = 1e-6,
     use_mcm: bool = True,
+    noise_sigma: tuple[float, float, float] | None = None,
 ) -> torch.Tensor:
     """c(x) of eq. (18) for every pixel.
 
@@ -69,6 +99,7 @@ def confidence(
             0 = no depth (the 1[z > delta] 1[z < z_max] factors of eq. 18).
         alpha, beta: eq. (18) weights. window: r of eq. (17). eps: eq. (16)-(17).
         use_mcm: False = "w/o MCM" (Table VII): c = 1 wherever there is depth.
+        noise_sigma: (a, b, z0) for the noise-aware g_n, v_n (FuseConfig.mcm_noise); None = off.
 
     Returns:
         (N, H, W) float32 in [0, 1]; 0 where there is no depth or the window is incomplete.
@@ -76,6 +107,6 @@ def confidence(
     valid = depth > 0
     if not use_mcm:
         return valid.to(torch.float32)
-    g, v, full = gradient_and_variance(depth, window, eps)
+    g, v, full = gradient_and_variance(depth, window, eps, noise_sigma)
     c = torch.exp(-alpha * g - beta * v)
     return torch.where(valid & full, c, torch.zeros_like(c))

@@ -74,6 +74,8 @@ class PixelParams(NamedTuple):
     """a, b, z0 of sigma(z) = a + b (z - z0)^2 (FuseConfig.noise_sigma)."""
     noise_b: np.float32
     noise_z0: np.float32
+    mcm_noise: bool
+    """Noise-aware MCM (FuseConfig.mcm_noise): sigma(z)^2 taken out of g and v (mcm.py)."""
 
 
 class CellParams(NamedTuple):
@@ -129,7 +131,7 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
         alpha=_F(cfg.alpha), beta=_F(cfg.beta), eps=_F(cfg.eps), r_c=_F(cfg.r_c), tau=_F(cfg.tau),
         min_weight=_F(cfg.min_weight), cell=_F(s_c), use_mcm=bool(cfg.use_mcm), use_cvgc=bool(cfg.use_cvgc),
         visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
-        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0),
+        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise),
     )  # fmt: skip
     cell = CellParams(
         s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
@@ -189,6 +191,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
     qlim = prm.qlim
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
+    mn = prm.mcm_noise
+    zero = _F(0.0)
     half = _F(0.5)
     two = _F(2.0)
     nine = _F(9.0)
@@ -228,7 +232,18 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 var = var / nine
                 gx = (depth[i, v, u + 1] - depth[i, v, u - 1]) * half
                 gy = (depth[i, v + 1, u] - depth[i, v - 1, u]) * half
-                g = np.sqrt(gx * gx + gy * gy) / (z + eps)
+                gsq = gx * gx + gy * gy
+                if mn:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
+                    dzn = z - nz0
+                    sg = na + nb * (dzn * dzn)
+                    s2 = sg * sg
+                    gsq = gsq - s2
+                    if gsq < zero:
+                        gsq = zero
+                    var = var - s2
+                    if var < zero:
+                        var = zero
+                g = np.sqrt(gsq) / (z + eps)
                 vv = var / (z * z + eps)
                 c = np.exp(-alpha * g - beta * vv)  # eq. (18)
             else:
