@@ -48,7 +48,7 @@ def _methods():
     rows.update({f"FUSE {k}": f(v) for k, v in ABLATIONS.items()})
     rows["FUSE visibility_aware=False"] = f(replace(FuseConfig(), visibility_aware=False))
     rows["FUSE min_weight=0"] = f(replace(FuseConfig(), min_weight=0.0))
-    for switch in ("range_priority", "mcm_noise"):  # each switch flipped from the default
+    for switch in ("range_priority", "mcm_noise", "consensus"):  # each switch flipped from the default
         flip = not getattr(FuseConfig(), switch)
         rows[f"FUSE {switch}={flip}"] = f(replace(FuseConfig(), **{switch: flip}))
     for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells

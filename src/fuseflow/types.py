@@ -397,12 +397,15 @@ class FusedCloud:
         rgb: (M, 3) uint8.
         weight: (M,) float32 in [0, 1], the joint fusion weight of eq. (22).
         camera: (M,) int16 index (rig order) of the camera each point came from.
+        support: optional (M,) int16, how many cameras measured the point's surface (FUSE's
+            multi-view consensus, ``FuseConfig.consensus``); None when not computed.
     """
 
     xyz: torch.Tensor
     rgb: torch.Tensor
     weight: torch.Tensor
     camera: torch.Tensor
+    support: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         _check_tensor(self.xyz, "cloud xyz", torch.float32, (None, 3))
@@ -410,6 +413,8 @@ class FusedCloud:
         _check_tensor(self.rgb, "cloud rgb", torch.uint8, (m, 3))
         _check_tensor(self.weight, "cloud weight", torch.float32, (m,))
         _check_tensor(self.camera, "cloud camera", torch.int16, (m,))
+        if self.support is not None:
+            _check_tensor(self.support, "cloud support", torch.int16, (m,))
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
@@ -419,7 +424,8 @@ class FusedCloud:
         return self.xyz.device
 
     def to(self, device: torch.device | str) -> FusedCloud:
-        return FusedCloud(self.xyz.to(device), self.rgb.to(device), self.weight.to(device), self.camera.to(device))
+        sup = None if self.support is None else self.support.to(device)
+        return FusedCloud(self.xyz.to(device), self.rgb.to(device), self.weight.to(device), self.camera.to(device), sup)
 
     @staticmethod
     def empty(device: torch.device | str = "cpu") -> FusedCloud:
@@ -431,12 +437,16 @@ class FusedCloud:
         )
 
     @staticmethod
-    def from_numpy(xyz: np.ndarray, rgb: np.ndarray, weight: np.ndarray, camera: np.ndarray) -> FusedCloud:
+    def from_numpy(
+        xyz: np.ndarray, rgb: np.ndarray, weight: np.ndarray, camera: np.ndarray, support: np.ndarray | None = None
+    ) -> FusedCloud:
+        sup = None if support is None else torch.from_numpy(np.array(support, dtype=np.int16, order="C", copy=True))
         return FusedCloud(
             torch.from_numpy(np.array(xyz, dtype=np.float32, order="C", copy=True)),
             torch.from_numpy(np.array(rgb, dtype=np.uint8, order="C", copy=True)),
             torch.from_numpy(np.array(weight, dtype=np.float32, order="C", copy=True)),
             torch.from_numpy(np.array(camera, dtype=np.int16, order="C", copy=True)),
+            sup,
         )
 
 

@@ -15,7 +15,7 @@ from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
 from fuseflow.fuse.mcm import confidence, gradient_and_variance
 from fuseflow.fuse.neighbours import NeighbourGraph
-from fuseflow.fuse.rps import cell_counts, select_representatives, selection_priority
+from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
 from fuseflow.fuse.weights import joint_weight
 from fuseflow.geometry import project_votes, relative_transforms
 
@@ -114,6 +114,27 @@ def test_noise_sigma_presets_mirror_the_simulator():
     r = REALSENSE_D435
     assert NOISE_SIGMA["realsense"][1] == pytest.approx(r.axial.stereo_rms / (r.focal_px * r.baseline_m))
     assert PRESETS["paper"].mcm_noise is False
+
+
+def test_consensus_hand_computed():
+    """Two cameras on the z axis (origin, looking +z): a representative at depth 2.00, two agreeing
+    candidates of the same cell (2.01 from camera 1, 1.995 from camera 0) and one far one (2.2,
+    another surface): the point moves to their omega-weighted mean depth, support 2."""
+    T_wc = torch.zeros(2, 3, 4)
+    T_wc[:, :, :3] = torch.eye(3)
+    T_cw = torch.eye(4).repeat(2, 1, 1)
+    P = torch.tensor([[0.0, 0, 2.0], [0.0, 0, 2.01], [0.0, 0, 1.995], [0.0, 0, 2.2], [1.0, 0, 2.0]])
+    omega = torch.tensor([1.0, 0.5, 1.0, 1.0, 1.0])
+    cam = torch.tensor([0, 1, 0, 1, 0])
+    inv = torch.tensor([0, 0, 0, 0, 1])
+    sel = torch.tensor([0, 4])
+    ns = (0.0012, 0.0019, 0.4)  # sigma(2 m) = 6.1 mm: gate 3 sigma = 18 mm keeps 2.01, drops 2.2
+    xyz, sup = consensus(P, omega, cam, T_wc, T_cw, inv, sel, 3.0, ns)
+    want = (1.0 * 2.0 + 0.5 * 2.01 + 1.0 * 1.995) / 2.5
+    assert xyz[0, 2].item() == pytest.approx(want, abs=1e-6) and xyz[0, :2].abs().max().item() < 1e-7
+    assert sup.tolist() == [2, 1] and torch.equal(xyz[1], P[4])  # alone in its cell: unchanged
+    xyz, sup = consensus(P, omega, cam, T_wc, T_cw, inv, sel, 0.5, ns)  # 3 mm gate: only itself
+    assert xyz[0, 2].item() == pytest.approx(2.0, abs=1e-6) and sup.tolist() == [1, 1]
 
 
 def test_cvgc_residual_and_votes_hand_computed():

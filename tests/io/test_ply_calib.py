@@ -28,6 +28,20 @@ def test_ply_roundtrip_identical(tmp_path):
     assert len(fuseflow.read_ply(tmp_path / "e.ply")) == 0
 
 
+def test_ply_support_roundtrip_and_old_files(tmp_path):
+    c = cloud()
+    assert c.support is None and fuseflow.read_ply(fuseflow.write_ply(tmp_path / "old.ply", c)).support is None
+    sup = torch.arange(1, 101, dtype=torch.int16) % 5
+    s = FusedCloud(c.xyz, c.rgb, c.weight, c.camera, sup)
+    path = fuseflow.write_ply(tmp_path / "s.ply", s)
+    assert b"property short support" in path.read_bytes()[:400]
+    r = fuseflow.read_ply(path)
+    assert torch.equal(r.support, sup) and torch.equal(r.xyz, c.xyz) and torch.equal(r.camera, c.camera)
+    assert torch.equal(r.to("cpu").support, sup)
+    with pytest.raises(fuseflow.ValidationError, match="support"):
+        FusedCloud(c.xyz, c.rgb, c.weight, c.camera, sup[:5])
+
+
 def test_ply_readable_by_open3d_and_trimesh(tmp_path):
     import open3d as o3d
     import trimesh

@@ -22,7 +22,7 @@ from fuseflow.fuse.config import FuseConfig
 from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
 from fuseflow.fuse.mcm import confidence, valid_depth
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
-from fuseflow.fuse.rps import cell_counts, select_representatives, selection_priority
+from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
 from fuseflow.fuse.weights import joint_weight
 from fuseflow.geometry.camera import pixel_rays
 from fuseflow.types import Frame, FusedCloud, Rig
@@ -209,9 +209,13 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     sel = select_representatives(P, rank, inv, k, cfg.k_max)  # eq. (28)
     cam_s = cam[sel]
     rgb = p.color.reshape(n, h * w, 3)[cam_s, pix[sel]]
-    cloud = FusedCloud(
-        P[sel].contiguous(), rgb.contiguous(), omega[sel].contiguous(), p.rig_index[cam_s].to(torch.int16)
-    )
+    if cfg.consensus:
+        xyz, support = consensus(
+            P, omega, cam, p.T_world_cam, p.T_cam_world, inv, sel, cfg.consensus_gate, cfg.noise_sigma
+        )
+    else:
+        xyz, support = P[sel].contiguous(), None
+    cloud = FusedCloud(xyz, rgb.contiguous(), omega[sel].contiguous(), p.rig_index[cam_s].to(torch.int16), support)
     del dev
     return cloud, valid_pixels, candidates, out_of_range
 

@@ -185,6 +185,18 @@ class FuseConfig:
     it took the share of points beyond 2 cm from 6.80 / 6.44 % to 2.61 / 2.42 % and accuracy
     from 10.0 / 9.8 mm to 8.8 / 8.6 mm, F @ 1 cm 0.538 -> 0.554, Chamfer unchanged, 20 % fewer
     points (docs/fuse.md, Quality); 1.5 measured the same, 3 and 4 kept more of the tail."""
+    consensus: bool = True
+    """Beyond the paper: multi-view consensus (rps.consensus). After selection each
+    representative moves along its viewing ray to the omega-weighted mean of the candidates of
+    its fine cell that agree with it within ``consensus_gate`` sigma(z) (``noise_sigma``), so
+    a surface seen by several cameras is averaged like a TSDF averages it, with no state and
+    no smoothing across depth edges (disagreeing candidates are ignored). The cloud then
+    carries ``support``: the number of cameras among the agreeing candidates. False = points
+    are selected, never moved (``paper``). Measured in docs/fuse.md (Quality)."""
+    consensus_gate: float = 3.0
+    """Agreement gate of ``consensus`` in units of the sensor's sigma(z) at the
+    representative's depth: 3 sigma keeps 99.7 % of the same surface's Gaussian noise and
+    rejects a second surface more than 3 sigma away (Kinect: 18 mm at 2 m, 42 mm at 3 m). > 0."""
     noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
     """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by
     ``mcm_noise`` (absolute values matter) and ``range_priority`` (only the ratio between
@@ -218,6 +230,7 @@ class FuseConfig:
             "fixed_size",
             "k0",
             "ratio",
+            "consensus_gate",
             "eps",
         ):
             v = getattr(self, name)
@@ -252,7 +265,7 @@ class FuseConfig:
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
         if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
             bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        for name in ("range_priority", "mcm_noise"):
+        for name in ("range_priority", "mcm_noise", "consensus"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "a bool")
         if self.backend not in ("auto", "torch", "numba"):
@@ -276,7 +289,13 @@ ABLATIONS: dict[str, FuseConfig] = {
 PRESETS: dict[str, FuseConfig] = {
     "default": _DEFAULT,
     "paper": replace(
-        _DEFAULT, visibility_aware=False, min_weight=0.0, range_priority=False, lone_cell_mean=0.0, mcm_noise=False
+        _DEFAULT,
+        visibility_aware=False,
+        min_weight=0.0,
+        range_priority=False,
+        lone_cell_mean=0.0,
+        mcm_noise=False,
+        consensus=False,
     ),
     **ABLATIONS,
 }

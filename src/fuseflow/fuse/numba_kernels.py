@@ -560,6 +560,68 @@ def _select(P, om, start, members, fkey, csize, fine_n, prm, selected):
             t0 = t1
 
 
+@njit(cache=True, parallel=True)
+def _consensus(P, om, cam, T_wc, T_cw, start, members, fkey, selected, gate, na, nb, nz0, outP, support):
+    """rps.consensus for every selected point, fine cell by fine cell (parallel over coarse
+    cells): outP / support of each selected point (indexed like P). Same arithmetic as the
+    reference: float32 geometry, float64 sums, members in fine-cell order."""
+    n_cells = start.shape[0] - 1
+    for c in prange(n_cells):
+        a = start[c]
+        b = start[c + 1]
+        seen = np.empty(b - a, dtype=np.int64)
+        t0 = a
+        while t0 < b:
+            t1 = t0 + 1
+            while t1 < b and fkey[t1] == fkey[t0]:
+                t1 += 1
+            for ts in range(t0, t1):
+                s = members[ts]
+                if not selected[s]:
+                    continue
+                i = cam[s]
+                cx, cy, cz = T_wc[i, 0, 3], T_wc[i, 1, 3], T_wc[i, 2, 3]
+                dx = P[s, 0] - cx
+                dy = P[s, 1] - cy
+                dz = P[s, 2] - cz
+                t_s = np.sqrt(dx * dx + dy * dy + dz * dz)
+                ux = dx / t_s
+                uy = dy / t_s
+                uz = dz / t_s
+                zs = T_cw[i, 2, 0] * P[s, 0] + T_cw[i, 2, 1] * P[s, 1] + T_cw[i, 2, 2] * P[s, 2] + T_cw[i, 2, 3]
+                dn = zs - nz0
+                lim = gate * (na + nb * (dn * dn))
+                num = 0.0
+                den = 0.0
+                ns = 0
+                for t in range(t0, t1):
+                    q = members[t]
+                    tq = (P[q, 0] - cx) * ux + (P[q, 1] - cy) * uy + (P[q, 2] - cz) * uz
+                    if not abs(tq - t_s) < lim:
+                        continue
+                    wq = np.float64(om[q])
+                    num += wq * np.float64(tq)
+                    den += wq
+                    cq = cam[q]
+                    new = True
+                    for e in range(ns):
+                        if seen[e] == cq:
+                            new = False
+                            break
+                    if new:
+                        seen[ns] = cq
+                        ns += 1
+                if den > 0:
+                    tn = _F(num / den)
+                else:
+                    tn = t_s
+                outP[s, 0] = cx + tn * ux
+                outP[s, 1] = cy + tn * uy
+                outP[s, 2] = cz + tn * uz
+                support[s] = ns
+            t0 = t1
+
+
 @njit(cache=True)
 def _out_positions(members, selected, pos):
     """pos[t] = output slot of members[t] when it is selected (fine-cell order), else -1."""
@@ -591,6 +653,15 @@ def _gather(members, pos, P, om, cam, pix, color, rig_index, hw, xyz, rgb, wgt, 
         rgb[k, 1] = color[q, 1]
         rgb[k, 2] = color[q, 2]
         src[k] = rig_index[c]
+
+
+@njit(cache=True, parallel=True)
+def _gather_i16(members, pos, val, out):
+    """out[pos[t]] = val[members[t]] for the selected members (the support column)."""
+    for t in prange(members.shape[0]):
+        k = pos[t]
+        if k >= 0:
+            out[k] = val[members[t]]
 
 
 class _Candidates(NamedTuple):
@@ -636,9 +707,11 @@ def _candidates(p, prm: PixelParams) -> _Candidates:
     return _Candidates(P, om, rank, q, pix, cam, oor)
 
 
-def _select_points(c: _Candidates, prm: KernelParams) -> tuple[np.ndarray, np.ndarray, int]:
+def _select_points(c: _Candidates, prm: KernelParams, cons=None):
     """Stages 3 and 4: coarse cells, fine cells and representatives. Returns (members: point
-    indices grouped by fine cell, pos: output slot of each member or -1) and the point count."""
+    indices grouped by fine cell, pos: output slot of each member or -1), the point count and,
+    when ``cons`` = (cam, T_wc, T_cw, gate, noise_sigma) is given, the consensus positions
+    (M, 3) and support (M,) of the selected points (``_consensus``), else (None, None)."""
     adaptive = prm.cell.adaptive
     bits = 14 if adaptive else 21
     offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
@@ -658,14 +731,27 @@ def _select_points(c: _Candidates, prm: KernelParams) -> tuple[np.ndarray, np.nd
     # output in the fine-cell order of the members array
     pos = np.empty(members.shape[0], dtype=np.int64)
     k = _out_positions(members, selected, pos)
-    return members, pos, k
+    if cons is None:
+        return members, pos, k, None, None
+    cam, T_wc, T_cw, gate, (na, nb, nz0) = cons
+    outP = c.P.copy()
+    support = np.zeros(c.P.shape[0], dtype=np.int16)
+    _consensus(
+        c.P, c.om, cam, T_wc, T_cw, start, members, fkey, selected, _F(gate), _F(na), _F(nb), _F(nz0), outP, support
+    )
+    return members, pos, k, outP, support
 
 
 def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
     prm = kernel_params(cfg)
     c = _candidates(p, prm.pixel)
-    members, pos, k = _select_points(c, prm)
+    cons = None
+    if cfg.consensus:
+        T_wc = p.T_world_cam.numpy().astype(np.float32)
+        T_cw = p.T_cam_world.numpy().astype(np.float32)
+        cons = (c.cam, T_wc, T_cw, cfg.consensus_gate, cfg.noise_sigma)
+    members, pos, k, outP, sup_all = _select_points(c, prm, cons)
     n, h, w = p.depth.shape
     xyz = np.empty((k, 3), dtype=np.float32)
     rgb = np.empty((k, 3), dtype=np.uint8)
@@ -673,7 +759,16 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     src = np.empty(k, dtype=np.int16)
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
-    _gather(members, pos, c.P, c.om, c.cam, c.pix, color, rig_index, h * w, xyz, rgb, wgt, src)
-    cloud = FusedCloud(torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src))
+    _gather(
+        members, pos, c.P if outP is None else outP, c.om, c.cam, c.pix, color, rig_index, h * w, xyz, rgb, wgt, src
+    )
+    support = None
+    if sup_all is not None:
+        support = np.empty(k, dtype=np.int16)
+        _gather_i16(members, pos, sup_all, support)
+        support = torch.from_numpy(support)
+    cloud = FusedCloud(
+        torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
+    )
     out_of_range = int(c.oor.sum())
     return cloud, int(sum(p.valid_per_view)), int(c.P.shape[0]) - out_of_range, out_of_range

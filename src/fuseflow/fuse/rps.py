@@ -24,7 +24,7 @@ import torch
 
 from fuseflow.fuse.ash import FINE_BITS
 
-__all__ = ["cell_counts", "select_representatives", "selection_priority"]
+__all__ = ["cell_counts", "select_representatives", "selection_priority", "consensus"]
 
 
 def cell_counts(
@@ -145,3 +145,73 @@ def select_representatives(
     rank = torch.cat([torch.full_like(p, r) for r, p in enumerate(pick)])
     o = torch.argsort(all_cell * (k_max + 1) + rank, stable=True)
     return all_pick[o]
+
+
+def consensus(
+    P: torch.Tensor,
+    omega: torch.Tensor,
+    cam: torch.Tensor,
+    T_world_cam: torch.Tensor,
+    T_cam_world: torch.Tensor,
+    inv: torch.Tensor,
+    sel: torch.Tensor,
+    gate: float,
+    noise_sigma: tuple[float, float, float],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Multi-view consensus (beyond the paper, ``FuseConfig.consensus``) for the selected points.
+
+    Each representative s (source camera i, centre C_i, unit ray u = (P_s - C_i) / t_s with
+    t_s = |P_s - C_i|) is moved along its ray to the omega-weighted mean of t_q = (P_q - C_i) . u
+    over the candidates q of its fine cell with |t_q - t_s| < gate * sigma(z_s), z_s its depth
+    in camera i (itself included, so the mean exists). Candidates that disagree (another
+    surface, a noise tail, the other side of a depth edge) are ignored: no smoothing across
+    edges, nothing kept between frames.
+
+    Args:
+        P: (M, 3) float32 candidates (world m). omega: (M,) float32 eq. (22) weights.
+        cam: (M,) int64 source view (frame order). T_world_cam: (N, 3, 4), T_cam_world:
+            (N, 4, 4) float32. inv: (M,) int64 fine cell of each candidate. sel: (S,) int64
+            selected candidates. gate: agreement gate in sigma units. noise_sigma: (a, b, z0).
+
+    Returns:
+        xyz (S, 3) float32 moved points, support (S,) int16 number of distinct cameras among
+        the agreeing candidates (>= 1). Same float32 / float64 arithmetic as the compiled kernel.
+    """
+    dev = P.device
+    ns = int(sel.shape[0])
+    if ns == 0:
+        return P[sel], torch.zeros(0, dtype=torch.int16, device=dev)
+    n_cells = int(inv.max()) + 1
+    order = torch.argsort(inv, stable=True)
+    counts = torch.bincount(inv, minlength=n_cells)
+    cstart = torch.cumsum(counts, 0) - counts
+    cell_s = inv[sel]
+    per = counts[cell_s]
+    rep = torch.repeat_interleave(torch.arange(ns, device=dev), per)
+    first = torch.cumsum(per, 0) - per
+    off = torch.arange(int(rep.shape[0]), device=dev) - first[rep]
+    q = order[cstart[cell_s][rep] + off]
+    cs = cam[sel]
+    C = T_world_cam[cs][:, :, 3]  # (S, 3) camera centres
+    Ps = P[sel]
+    d = Ps - C
+    t_s = torch.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+    u = d / t_s[:, None]
+    r2 = T_cam_world[cs][:, 2]  # (S, 4) depth row
+    z_s = r2[:, 0] * Ps[:, 0] + r2[:, 1] * Ps[:, 1] + r2[:, 2] * Ps[:, 2] + r2[:, 3]
+    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=dev) for v in noise_sigma)
+    dz = z_s - z0
+    lim = torch.tensor(gate, dtype=torch.float32, device=dev) * (a + b * (dz * dz))
+    dq = P[q] - C[rep]
+    ur = u[rep]
+    t_q = dq[:, 0] * ur[:, 0] + dq[:, 1] * ur[:, 1] + dq[:, 2] * ur[:, 2]
+    ok = torch.abs(t_q - t_s[rep]) < lim[rep]
+    w = omega[q].to(torch.float64)
+    num = torch.zeros(ns, dtype=torch.float64, device=dev).index_add_(0, rep[ok], (w * t_q.to(torch.float64))[ok])
+    den = torch.zeros(ns, dtype=torch.float64, device=dev).index_add_(0, rep[ok], w[ok])
+    t_new = torch.where(den > 0, num / torch.clamp(den, min=1e-300), t_s.to(torch.float64)).to(torch.float32)
+    xyz = C + t_new[:, None] * u
+    n_views = int(T_world_cam.shape[0])
+    pair = torch.unique(rep[ok] * n_views + cam[q[ok]])
+    support = torch.bincount(pair // n_views, minlength=ns).to(torch.int16)
+    return xyz.contiguous(), support

@@ -6,7 +6,8 @@ fusion weight of eq. 22) and ``camera`` (int16, source camera index in rig order
 trimesh, CloudCompare and MeshLab read it (unknown properties are ignored by viewers).
 
 ``read_ply`` reads that format back exactly, and also any vertex PLY (ascii or binary) with at
-least x, y, z: missing colours become 0, a missing weight 1.0, a missing camera -1.
+least x, y, z (an optional ``support`` short, cameras agreeing on the point, is written when the
+cloud has one and read when present): missing colours become 0, a missing weight 1.0, a missing camera -1.
 """
 
 from __future__ import annotations
@@ -36,19 +37,24 @@ def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
     """Write ``cloud`` as binary little-endian PLY (written to a temp file, then renamed)."""
     path = Path(path)
     c = cloud.to("cpu")
-    arr = np.empty(len(c), dtype=_FIELDS)
+    fields = _FIELDS + ([("support", "<i2")] if c.support is not None else [])
+    arr = np.empty(len(c), dtype=fields)
     xyz = c.xyz.numpy()
     rgb = c.rgb.numpy()
     arr["x"], arr["y"], arr["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     arr["red"], arr["green"], arr["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     arr["weight"] = c.weight.numpy()
     arr["camera"] = c.camera.numpy()
+    extra = ""
+    if c.support is not None:
+        arr["support"] = c.support.numpy()
+        extra = "property short support\n"
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment fuseflow fused cloud, metres, world frame\n"
         f"element vertex {len(c)}\n"
         "property float x\nproperty float y\nproperty float z\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        "property float weight\nproperty short camera\nend_header\n"
+        "property float weight\nproperty short camera\n" + extra + "end_header\n"
     )
     return write_bytes_atomic(path, header.encode("ascii"), arr.tobytes())
 
@@ -120,4 +126,4 @@ def read_ply(path: str | Path) -> FusedCloud:
         rgb = np.zeros((count, 3))
     weight = cols.get("weight", np.ones(count))
     camera = cols.get("camera", np.full(count, -1))
-    return FusedCloud.from_numpy(xyz, rgb, weight, camera)
+    return FusedCloud.from_numpy(xyz, rgb, weight, camera, cols.get("support"))
