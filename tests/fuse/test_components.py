@@ -78,8 +78,8 @@ def test_mcm_defaults_meet_the_design_targets():
 def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
     """mcm_noise: a smooth 45-degree surface with Kinect noise sigma(z) keeps c > 0.8 and a 5 % depth
     edge gets c < 0.05 at every range of the Kinect's 0.4-4.5 m (config.py, above MCM_ALPHA)."""
-    cfg = FuseConfig()
-    assert cfg.mcm_noise and cfg.noise_sigma == NOISE_SIGMA["kinect"]
+    cfg = FuseConfig(mcm_noise=True)
+    assert cfg.noise_sigma == NOISE_SIGMA["kinect"]
     a, b, zc = cfg.noise_sigma
     sigma = a + b * (z0 - zc) ** 2
     rng = np.random.default_rng(1)
