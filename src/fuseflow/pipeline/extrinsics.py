@@ -3,6 +3,7 @@ into the old world frame, and camera indices mapped back to the recording's rig.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 
 import numpy as np
@@ -74,4 +75,4 @@ def merge_recalibration(old: Rig, new: Calibration, moved: Iterable[str]) -> Rig
 def reindex_cameras(cloud: FusedCloud, sel: list[int]) -> FusedCloud:
     """``cloud.camera`` indexes the fused subset of cameras; map it to the source rig's indices."""
     lut = torch.tensor(sel, dtype=torch.int16, device=cloud.camera.device)
-    return FusedCloud(cloud.xyz, cloud.rgb, cloud.weight, lut[cloud.camera.long()])
+    return dataclasses.replace(cloud, camera=lut[cloud.camera.long()])

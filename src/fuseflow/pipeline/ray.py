@@ -87,7 +87,8 @@ def _fuse_task(
     load_ms = (time.perf_counter() - t0) * 1000.0
     cloud, record = process_frame(frame, sel, rig, pipeline_config)
     c = cloud.to("cpu")
-    arrays = (c.xyz.numpy(), c.rgb.numpy(), c.weight.numpy(), c.camera.numpy())
+    support = None if c.support is None else c.support.numpy()
+    arrays = (c.xyz.numpy(), c.rgb.numpy(), c.weight.numpy(), c.camera.numpy(), support)
     return position, arrays, record, load_ms
 
 
