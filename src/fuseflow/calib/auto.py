@@ -11,8 +11,8 @@ placed by the source whose pose its neighbours' depth confirms best (issue 15 it
    with 1-2 the first one's pose), using only cameras neither source flags as suspect.
 4. ``choose_sources``: per camera the source with the higher depth agreement (each source's own
    agreement, measured in its own placement); ties go to rgbd (metric by construction).
-5. ``drop_unconfirmed``: the merged extrinsics' depth agreement; a camera below
-   ``min_depth_agreement`` is not placed (``unplaced_reasons`` says the agreement it had under
+5. ``drop_unconfirmed``: the merged extrinsics' depth agreement; the lowest camera below
+   ``min_depth_agreement`` is removed and the rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the agreement it had under
    every source): never placed wrong silently.
 """
 
@@ -139,24 +139,27 @@ def _score(a: float | None) -> float:
 def drop_unconfirmed(
     T: dict[str, np.ndarray], runs: dict[str, Placement], frame: Frame, rig: Rig, min_agreement: float
 ) -> tuple[dict[str, np.ndarray], dict[str, float | None], dict[str, str]]:
-    """Remove cameras whose depth agreement under the merged extrinsics is below
-    ``min_agreement`` (one pass, then the agreement of the rest again). Returns (extrinsics,
-    agreement, camera -> reason it is not placed)."""
+    """Remove, one at a time, the camera with the lowest depth agreement under the merged
+    extrinsics while it is below ``min_agreement`` (a wrong camera also lowers its neighbours'
+    agreement, so they are measured again without it). Returns (extrinsics, agreement of the
+    kept cameras, camera -> reason it is not placed)."""
     if min_agreement <= 0 or not T:
         return T, {}, {}
-    agreement = depth_agreement(frame, rig, T)
-    low = [c for c, a in agreement.items() if a is not None and a < min_agreement]
+    T = dict(T)
     reasons = {}
-    for c in low:
+    agreement = depth_agreement(frame, rig, T)
+    while True:
+        low = {c: a for c, a in agreement.items() if a is not None and a < min_agreement}
+        if not low:
+            return T, agreement, reasons
+        c = min(low, key=lambda k: (low[k], k))
         under = ", ".join(f"{n} {runs[n].agreement[c]:.2f}" for n in runs if runs[n].agreement.get(c) is not None)
         reasons[c] = (
-            f"depth agreement {agreement[c]:.2f} with its neighbours under the merged extrinsics "
-            f"(under each source: {under or 'not placed'}), below {min_agreement:.2f}: no source's pose is confirmed"
+            f"depth agreement {low[c]:.2f} with its neighbours under the merged extrinsics "
+            f"(under each source: {under or 'none'}), below {min_agreement:.2f}: no source's pose is confirmed"
         )
-    if low:
-        T = {c: v for c, v in T.items() if c not in low}
+        del T[c]
         agreement = depth_agreement(frame, rig, T) if T else {}
-    return T, agreement, reasons
 
 
 def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, ids, t0) -> Placement:
