@@ -41,22 +41,23 @@ def test_rigid_align_recovers_a_known_motion():
 
 
 def test_sources_aligned_and_chosen_by_agreement(scene5):
-    _, rig, T = scene5
+    frame, rig, T = scene5
     ids = rig.ids
-    ref = {c: T[k] for k, c in enumerate(ids) if c != "c4"}  # rgbd: c0-c3
+    ref = {c: T[k] for k, c in enumerate(ids) if c != "c4"}  # rgbd: c0-c3, c2 40 deg off
+    ref["c2"] = _rotated(ref["c2"], 40.0)
     M = np.eye(4)  # colmap's world: another rigid frame
     M[:3, :3] = Rotation.from_euler("z", 35, degrees=True).as_matrix()
     M[:3, 3] = [1.0, 2.0, -0.5]
-    other = {c: T[k] @ invert_rigid(M) for k, c in enumerate(ids) if c != "c0"}  # colmap: c1-c4
+    other = {c: T[k] @ invert_rigid(M) for k, c in enumerate(ids) if c != "c0"}  # colmap: c1-c4, right
     runs = {
         "rgbd": _placement(ref, {"c0": 0.9, "c1": 0.9, "c2": 0.5, "c3": 0.9}),
         "colmap": _placement(other, {"c1": 0.85, "c2": 0.9, "c3": 0.9, "c4": 0.88}),
     }
-    poses = align_sources(runs, ids, 0.8)
+    poses = align_sources(runs, ids, 0.8)  # aligned on c1, c3 (c2 is suspect in rgbd)
     for c in ("c1", "c2", "c3", "c4"):
         np.testing.assert_allclose(poses["colmap"][c], T[ids.index(c)], atol=1e-9)
-    chosen = choose_sources(runs, poses, ids)
-    # c0 only rgbd, c4 only colmap, c2 colmap (0.9 > 0.5), c1 rgbd (0.9 > 0.85), c3 tie -> rgbd
+    chosen = choose_sources(runs, poses, ids, frame, rig)
+    # c0 only rgbd, c4 only colmap, c2 colmap (rgbd's is 40 deg off), c1 and c3 identical: rgbd
     assert chosen == {"c0": "rgbd", "c1": "rgbd", "c2": "colmap", "c3": "rgbd", "c4": "colmap"}
 
 

@@ -9,8 +9,9 @@ placed by the source whose pose its neighbours' depth confirms best (issue 15 it
 3. ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both placed
    (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such cameras;
    with 1-2 the first one's pose), using only cameras neither source flags as suspect.
-4. ``choose_sources``: per camera the source with the higher depth agreement (each source's own
-   agreement, measured in its own placement); ties go to rgbd (metric by construction).
+4. ``choose_sources``: a camera several sources place gets the pose with the higher depth
+   agreement, each candidate measured against the same neighbours; ties go to rgbd (metric by
+   construction).
 5. ``drop_unconfirmed``: the merged extrinsics' depth agreement; the lowest camera below
    ``min_depth_agreement`` is removed and the rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the agreement it had under
    every source): never placed wrong silently.
@@ -60,7 +61,7 @@ def auto_place(
             "auto backbone: no source placed two cameras: " + "; ".join(f"{k}: {v}" for k, v in failures.items())
         )
     poses = align_sources(runs, rig.ids, config.min_depth_agreement)
-    placed_by = choose_sources(runs, poses, ids)
+    placed_by = choose_sources(runs, poses, ids, frames[0], rig)
     T = {c: poses[src][c] for c, src in placed_by.items()}
     T, agreement, reasons = drop_unconfirmed(T, runs, frames[0], rig, config.min_depth_agreement)
     placed_by = {c: s for c, s in placed_by.items() if c in T}
@@ -114,21 +115,36 @@ def _trusted(pl: Placement, c: str, min_agreement: float) -> bool:
 
 
 def choose_sources(
-    runs: dict[str, Placement], poses: dict[str, dict[str, np.ndarray]], ids: tuple[str, ...]
+    runs: dict[str, Placement],
+    poses: dict[str, dict[str, np.ndarray]],
+    ids: tuple[str, ...],
+    frame: Frame,
+    rig: Rig,
 ) -> dict[str, str]:
-    """Camera id -> the source that places it: the one with the highest depth agreement (None
-    counts as lowest; ties go to the earlier source). Sources whose world could not be aligned
-    with the first (no common camera) compete as a whole: the one placing more cameras wins."""
+    """Camera id -> the source that places it. A camera one source places comes from it; one
+    several sources place is measured with each candidate pose against the same neighbours (the
+    first source's cameras, then the others', all in one world) and taken from the source with
+    the highest depth agreement (None lowest; ties to the earlier source: with one or two common
+    cameras the alignment makes the anchor's poses identical). Each source's own agreement is no
+    fair comparison: it is measured against that source's own, different neighbours. Sources
+    whose world could not be aligned with the first (no common camera) compete as a whole: the
+    one placing more cameras wins."""
     names = list(runs)
     aligned = [n for n in names if n == names[0] or any(c in runs[names[0]].T for c in runs[n].T)]
     if len(aligned) < len(names):
         best = max(names, key=lambda n: (len(runs[n].T), -names.index(n)))
         return dict.fromkeys((c for c in ids if c in runs[best].T), best)
-    out = {}
-    for c in ids:
+    out = {c: next(n for n in names if c in poses[n]) for c in ids if any(c in poses[n] for n in names)}
+    base = {c: poses[out[c]][c] for c in out}
+    for c in out:
         cands = [n for n in names if c in poses[n]]
-        if cands:
-            out[c] = max(cands, key=lambda n: (_score(runs[n].agreement.get(c)), -names.index(n)))
+        if len(cands) < 2:
+            continue
+        score = {}
+        for n in cands:
+            a = depth_agreement(frame, rig, {**base, c: poses[n][c]}).get(c)
+            score[n] = _score(a)
+        out[c] = max(cands, key=lambda n: (score[n], -names.index(n)))
     return out
 
 
