@@ -17,6 +17,11 @@ wrong cameras not flagged (placed camera > 1 deg or 50 mm off whose edges close 
 check... counted whatever the flag, and separately those not flagged), and wall time. Rows are
 appended as JSON lines to --out; ``summary`` prints the markdown table of a results file.
 
+``--backbone raw`` (default) runs ``rgbd_backbone`` alone, as the table in docs/gmac-rgbd.md;
+``--backbone colmap|rgbd|auto`` runs GMAC's ``calibrate`` with that backbone (rows say which;
+there "wrong cams (unflagged)" counts wrong cameras not in ``suspect_cameras`` and "wrong edges"
+is not measured).
+
     flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py sim --cameras 3 4 --scenes room --seeds 1 2 3
     flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py hocap
     flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py icl
@@ -91,14 +96,39 @@ def evaluate(result, T_ref: np.ndarray, ids: list[str]) -> dict:
     return row
 
 
-def run_one(frames, rig, T_ref, meta: dict, out: Path, cfg: RGBDConfig) -> dict:
+def evaluate_calibration(cal, T_ref: np.ndarray, ids: list[str]) -> dict:
+    """Errors of a GMAC Calibration against reference camera-from-world extrinsics (N, 4, 4)."""
+    placed = [c for c in ids if c in cal.T_cam_world]
+    r = cal.report
+    row: dict = {"placed": len(placed), "cameras": len(ids), "placed_by": dict(r.placed_by)}
+    row["scale_check"] = r.scale_check
+    if len(placed) >= 2:
+        ref = {c: T_ref[ids.index(c)] for c in placed}
+        e = pose_errors({c: cal.T_cam_world[c] for c in placed}, ref)
+        row["rot_deg"] = float(e.rotation_deg)
+        row["trans_mm"] = float(e.translation_mm)
+        row["worst_cam_deg"] = float(max(p[0] for p in e.per_camera.values()))
+        row["worst_cam_mm"] = float(max(p[1] for p in e.per_camera.values()))
+        wrong = [c for c, p in e.per_camera.items() if p[0] > WRONG_DEG or p[1] > WRONG_M * 1000]
+        row["wrong_cameras"] = len(wrong)
+        row["wrong_unflagged"] = len([c for c in wrong if c not in r.suspect_cameras])
+    return row
+
+
+def run_one(frames, rig, T_ref, meta: dict, out: Path, cfg: RGBDConfig, backbone: str = "raw") -> dict:
     t0 = time.perf_counter()
     try:
-        res = rgbd_backbone(frames, rig, cfg)
-        row = evaluate(res, T_ref, list(rig.ids))
+        if backbone == "raw":
+            row = evaluate(rgbd_backbone(frames, rig, cfg), T_ref, list(rig.ids))
+        else:
+            from fuseflow.calib import CalibConfig, calibrate
+
+            cal = calibrate(frames, rig, CalibConfig(backbone=backbone))
+            row = evaluate_calibration(cal, T_ref, list(rig.ids))
     except Exception as exc:  # a failure is a row too
         row = {"placed": 0, "cameras": len(rig), "error": f"{type(exc).__name__}: {exc}"}
     row["time_s"] = time.perf_counter() - t0
+    row["backbone"] = backbone
     row.update(meta)
     row["env"] = _env()
     with out.open("a") as f:
@@ -136,7 +166,7 @@ def bench_sim(args) -> None:
                 all_frames = [rec[t] for t in range(len(rec))]
                 for nf in sorted({1, len(all_frames)}):
                     meta = {"data": "sim", "scene": scene, "n": n, "seed": seed, "frames": nf, "res": args.resolution}
-                    run_one(all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig())
+                    run_one(all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig(), args.backbone)
 
 
 def load_hocap(root: Path) -> tuple[Frame, Rig, np.ndarray]:
@@ -172,7 +202,8 @@ def bench_hocap(args) -> None:
     from fuseflow.geometry import depth_agreement
 
     frame, rig, T_ref = load_hocap(SHARED / "hocap-8rs")
-    row = run_one([frame], rig, T_ref, {"data": "hocap-8rs", "n": 8, "frames": 1}, args.out, RGBDConfig())
+    meta = {"data": "hocap-8rs", "n": 8, "frames": 1}
+    row = run_one([frame], rig, T_ref, meta, args.out, RGBDConfig(), args.backbone)
     ref = depth_agreement(frame, rig, dict(zip(rig.ids, T_ref)))
     vals = [v for v in ref.values() if v is not None]
     print(json.dumps({"hocap_reference_depth_agreement_mean": float(np.mean(vals))}))
@@ -193,7 +224,7 @@ def bench_icl(args) -> None:
         T_ref = np.stack([c.T_cam_world for c in rec.rig])
         bare = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
         meta = {"data": "icl-livingroom1", "n": n, "every": every, "frames": 1}
-        run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig())
+        run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig(), args.backbone)
 
 
 # ------------------------------------------------------------------ summary
@@ -201,7 +232,8 @@ def summary(args) -> None:
     rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
     groups: dict = {}
     for r in rows:
-        key = (r["data"], r.get("scene", ""), r["n"], r.get("frames", 1), r.get("every", ""))
+        data = r["data"] if r.get("backbone", "raw") == "raw" else f"{r['data']} [{r['backbone']}]"
+        key = (data, r.get("scene", ""), r["n"], r.get("frames", 1), r.get("every", ""))
         groups.setdefault(key, []).append(r)
     print("| data | scene | N | frames | runs | all placed | placed (mean) | rot deg (mean / max) "
           "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) |")  # fmt: skip
@@ -240,6 +272,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--resolution", default="640x480")
     ap.add_argument("--every", type=int, nargs="+", default=[26])
+    ap.add_argument("--backbone", default="raw", choices=["raw", "colmap", "rgbd", "auto"])
     args = ap.parse_args()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.data.mkdir(parents=True, exist_ok=True)

@@ -46,6 +46,9 @@ REPORT_KEYS = [
     "refinement",
     "timings_s",
     "world_anchor",  # issue 16: the camera whose frame is the world
+    "scale_check",  # issue 15: GMAC's s* on a metric backbone's poses
+    "placed_by",  # issue 15: which source placed each camera
+    "unplaced_reasons",  # issue 15: auto, why a camera is not placed
 ]
 
 

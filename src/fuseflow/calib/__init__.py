@@ -1,6 +1,6 @@
 """GMAC: target-free metric extrinsic calibration from one multi-view RGB-D frame (paper III-B).
 
-``calibrate(frame, rig, config=CalibConfig()) -> Calibration``. See design.md in this folder for
+``calibrate(frame_or_frames, rig, config=CalibConfig()) -> Calibration``. See design.md in this folder for
 the stages and where they depart from the paper (DESIGN.md section 3). Never imports
 ``fuseflow.fuse``, ``fuseflow.pipeline`` or ``fuseflow.eval`` (shared geometry comes from
 ``fuseflow.geometry``); pycolmap and Open3D are imported inside the stages that

@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import asdict
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from fuseflow.calib.backbones import BackboneResult, get_backbone
+from fuseflow.calib.backbones import MULTI_FRAME_BACKBONES, BackboneResult, get_backbone
 from fuseflow.calib.config import CalibConfig
-from fuseflow.calib.correspondences import prepare_cameras
+from fuseflow.calib.correspondences import CameraData, prepare_cameras
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.report import CalibReport
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
@@ -27,14 +28,49 @@ from fuseflow.geometry import depth_agreement
 from fuseflow.types import Calibration, Frame, Rig, invert_rigid
 
 # ScaleResult and metric_scale live in scale_stage; re-exported here, where they used to be.
-__all__ = ["calibrate", "metric_scale", "ScaleResult", "check_inputs", "MIN_VALID_DEPTH"]
+__all__ = [
+    "calibrate",
+    "metric_scale",
+    "ScaleResult",
+    "check_inputs",
+    "as_frames",
+    "place_with_backbone",
+    "Placement",
+    "MIN_VALID_DEPTH",
+    "METRIC_SCALE_TOLERANCE",
+]
 
 #: A camera needs at least this share of pixels with in-range depth.
 MIN_VALID_DEPTH = 0.01
 
 
+def as_frames(frames: Frame | Sequence[Frame]) -> list[Frame]:
+    """``frames`` as a non-empty list: one Frame, or several Frames of a static rig with the same
+    cameras in the same order and resolution (ValidationError otherwise)."""
+    seq = [frames] if isinstance(frames, Frame) else list(frames) if isinstance(frames, Sequence) else None
+    if not seq:
+        raise ValidationError(
+            f"calibrate: frame must be a fuseflow.Frame or a non-empty sequence of Frames, got {type(frames).__name__}"
+        )
+    for f in seq:
+        if not isinstance(f, Frame):
+            raise ValidationError(f"calibrate: frame must be a fuseflow.Frame, got {type(f).__name__}")
+        if f.camera_ids != seq[0].camera_ids or f.resolution != seq[0].resolution:
+            raise ValidationError(
+                f"calibrate: frame {f.index} has cameras {f.camera_ids} at {f.resolution}, the first frame "
+                f"{seq[0].camera_ids} at {seq[0].resolution}: the frames must come from one static rig"
+            )
+    return seq
+
+
 def check_inputs(frame: Frame, rig: Rig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate and return (depth (N, H, W) float32, K (N, 3, 3), depth_range (N, 2)) in frame order."""
+    """Validate and return (depth (N, H, W) float32, K (N, 3, 3), depth_range (N, 2)) in frame order.
+
+    Raises:
+        ValidationError: not a Frame / Rig, fewer than two cameras, cameras not in the rig,
+            mismatched resolution.
+        CalibrationError: fewer than two views present (dropped views, ``frame.present``).
+    """
     if not isinstance(frame, Frame):
         raise ValidationError(f"calibrate: frame must be a fuseflow.Frame, got {type(frame).__name__}")
     if not isinstance(rig, Rig):
@@ -51,6 +87,14 @@ def check_inputs(frame: Frame, rig: Rig) -> tuple[np.ndarray, np.ndarray, np.nda
     bad = [c.id for c in cams if (c.width, c.height) != (W, H)]
     if bad:
         raise ValidationError(f"cameras {bad} have a resolution other than the frame's {W}x{H}")
+    missing = list(frame.missing)
+    if frame.num_views - len(missing) < 2:
+        # before any image check: a dropped view is all zeros and would read as "textureless"
+        raise CalibrationError(
+            f"frame {frame.index}: the views of cameras {missing} are missing (dropped, present=False); "
+            f"GMAC needs at least two present views, {frame.num_views - len(missing)} present: "
+            "calibrate on another frame (--frame / --frames)"
+        )
     depth = frame.depth.detach().cpu().numpy().astype(np.float32)
     K = np.stack([c.K for c in cams])
     rng = np.array([c.depth_range for c in cams])
@@ -58,15 +102,18 @@ def check_inputs(frame: Frame, rig: Rig) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def calibrate(
-    frame: Frame,
+    frame: Frame | Sequence[Frame],
     rig: Rig,
     config: CalibConfig | None = None,
     backbone_result: BackboneResult | None = None,
 ) -> Calibration:
-    """Metric extrinsics of every camera from one multi-view RGB-D frame, with no target.
+    """Metric extrinsics of every camera from one (or several) multi-view RGB-D frames, no target.
 
     Args:
-        frame: the N views of one instant (depth (N, H, W) float32 metres, colour uint8).
+        frame: the N views of one instant (depth (N, H, W) float32 metres, colour uint8), or a
+            sequence of such frames of a static rig (same cameras, same order). Multi-frame
+            backbones (``MULTI_FRAME_BACKBONES``: rgbd) pool all of them; the others, the scale
+            stage and the depth-agreement check use the first.
         rig: the cameras (intrinsics, depth ranges; extrinsics ignored).
         config: :class:`CalibConfig` (default preset: colmap backbone, point-to-plane, CC, no refinement).
         backbone_result: skip the backbone and use these poses (e.g. to rerun GMAC variants on
@@ -74,27 +121,98 @@ def calibrate(
 
     Returns:
         :class:`fuseflow.Calibration`: camera-from-world 4x4 in metres for every placed camera
-        (world = the backbone's frame with metric scale); its ``report`` is a :class:`CalibReport`
+        (world = the first placed camera in rig order); its ``report`` is a :class:`CalibReport`
         (s*, per-edge scales, correspondence counts, cycle residuals, pruned edges, unconnected
-        cameras, warnings, timings).
+        cameras, warnings, timings). With a metric backbone (``BackboneResult.metric``) the
+        poses are used as they are (s* = 1) and GMAC's closed-form scale is reported as a check
+        (``scale_check``, a warning when it is more than ``METRIC_SCALE_TOLERANCE`` from 1).
 
     Raises:
-        ValidationError: fewer than two cameras, cameras not in the rig, mismatched resolution.
-        CalibrationError: a camera without depth, textureless images, no overlapping pair.
+        ValidationError: fewer than two cameras, cameras not in the rig, mismatched resolution,
+            frames of different rigs.
+        CalibrationError: fewer than two present views, a camera without depth, textureless
+            images, no overlapping pair.
     """
     config = config or CalibConfig()
-    timings: dict[str, float] = {}
     t_start = time.perf_counter()
-    depth, K, drange = check_inputs(frame, rig)
-    check_depth_coverage(frame, depth, drange)
+    frames = as_frames(frame)
+    for f in frames:
+        depth, K, drange = check_inputs(f, rig)
+        check_depth_coverage(f, depth, drange)
+    depth, K, drange = check_inputs(frames[0], rig)
+    pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
+    pl.timings["total"] = time.perf_counter() - t_start
+    return Calibration(pl.T, finish_report(pl, frames[0].camera_ids, config))
+
+
+#: A metric backbone's poses are trusted at s* = 1; GMAC's own s* further than this from 1 warns.
+METRIC_SCALE_TOLERANCE = 0.02
+
+
+@dataclass
+class Placement:
+    """One backbone's cameras placed in metres (the steps of ``calibrate`` up to the report).
+
+    Attributes:
+        bb: the backbone's result. sr: the scale stage (for a metric backbone: the check, s = 1).
+        T: camera id -> (4, 4) float64 camera-from-world, metres, world = ``anchor``.
+        connected: sorted frame indices of the placed cameras. anchor: the world camera's id.
+        agreement: camera id -> depth agreement under ``T`` (``geometry.depth_agreement``).
+        scale_check: GMAC's s* on a metric backbone's poses (None for scale-free ones).
+        refinement: the refinement's diagnostics or None. warnings: extra warnings.
+        timings: seconds per stage. placed_by: camera id -> the source that placed it (None:
+        ``bb.name`` for all). unplaced_reasons: camera id -> why it is not placed (``auto``).
+    """
+
+    bb: BackboneResult
+    sr: ScaleResult
+    T: dict[str, np.ndarray]
+    connected: list[int]
+    anchor: str | None
+    agreement: dict[str, float | None]
+    scale_check: float | None
+    refinement: dict[str, Any] | None
+    warnings: list[str]
+    timings: dict[str, float]
+    placed_by: dict[str, str] | None = None
+    unplaced_reasons: dict[str, str] | None = None
+
+
+def place_with_backbone(
+    name: str,
+    frames: list[Frame],
+    rig: Rig,
+    depth: np.ndarray,
+    K: np.ndarray,
+    drange: np.ndarray,
+    config: CalibConfig,
+    backbone_result: BackboneResult | None = None,
+) -> Placement:
+    """Backbone ``name`` (or ``backbone_result``) -> scale (or its check) -> placement ->
+    optional refinement -> world anchor -> depth agreement, on ``frames`` (checked; the first
+    frame's ``depth`` (N, H, W) float32 m, ``K`` (N, 3, 3), ``drange`` (N, 2) m). ``name`` "auto"
+    runs :func:`fuseflow.calib.auto.auto_place`."""
+    if name == "auto" and backbone_result is None:
+        from fuseflow.calib.auto import auto_place
+
+        return auto_place(frames, rig, depth, K, drange, config)
+    timings: dict[str, float] = {}
+    frame = frames[0]
     t = time.perf_counter()
-    bb = run_backbone(frame, rig, config, backbone_result)
+    bb = run_backbone(frames, rig, config, backbone_result, name)
     timings["backbone"] = time.perf_counter() - t
     t = time.perf_counter()
     cams = prepare_cameras(depth, K, drange, config.samples_per_camera, config.seed)
-    sr = metric_scale(bb, cams, config)
+    warnings: list[str] = []
+    scale_check = None
+    if bb.metric:
+        sr, scale_check, warnings = metric_scale_check(bb, cams, config)
+        connected = [int(k) for k in np.flatnonzero(bb.registered)]
+    else:
+        sr = metric_scale(bb, cams, config)
+        connected = sorted({n for e in sr.kept for n in e})
     timings["scale"] = time.perf_counter() - t
-    T, connected = place_cameras(bb, sr, frame.camera_ids)
+    T = place_cameras(bb, sr.s, connected, frame.camera_ids)
     refinement = None
     if config.refine:
         t = time.perf_counter()
@@ -102,10 +220,41 @@ def calibrate(
         timings["refine"] = time.perf_counter() - t
     T, anchor = anchor_world(T, rig.ids)
     agreement = depth_agreement(frame, rig, T) if config.min_depth_agreement > 0 and T else {}
-    timings["total"] = time.perf_counter() - t_start
-    report = build_report(frame.camera_ids, bb, sr, config, connected, agreement, refinement, timings)
-    report.world_anchor = anchor
-    return Calibration(T, report)
+    return Placement(bb, sr, T, connected, anchor, agreement, scale_check, refinement, warnings, timings)
+
+
+def metric_scale_check(
+    bb: BackboneResult, cams: list[CameraData], config: CalibConfig
+) -> tuple[ScaleResult, float | None, list[str]]:
+    """GMAC's scale stage run on a metric backbone's poses as a check: returns (its result with
+    s = 1, the s* it found or None when it could not run, warnings). s* far from 1 means the
+    backbone's metric poses and the sensor depth disagree (wrong pose, depth scale, intrinsics)."""
+    try:
+        sr = metric_scale(bb, cams, config)
+    except CalibrationError as e:
+        empty = ScaleResult(1.0, 1.0, 1.0, None, {}, {}, (), (), (), "off", {}, {}, {}, 0.0, 0, True, 0.0, ())
+        return empty, None, [f"the scale check on the metric backbone's poses could not run: {e}"]
+    check = sr.s
+    warnings = []
+    if abs(check - 1.0) > METRIC_SCALE_TOLERANCE:
+        warnings.append(
+            f"GMAC's closed-form scale on the metric backbone's poses is {check:.4f}, more than "
+            f"{METRIC_SCALE_TOLERANCE:.0%} from 1: a wrong pose, depth units or intrinsics, or a check "
+            "without keypoint matches on few cameras (it read 0.90-0.98 on correct poses of simulated "
+            "rings, docs/gmac-rgbd.md); the poses are used at scale 1, the depth agreement decides"
+        )
+    return replace(sr, s=1.0, s_initial=1.0), check, warnings
+
+
+def finish_report(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> CalibReport:
+    """The report of a placement, cameras named by id."""
+    report = build_report(ids, pl.bb, pl.sr, config, pl.connected, pl.agreement, pl.refinement, pl.timings)
+    report.world_anchor = pl.anchor
+    report.scale_check = pl.scale_check
+    report.warnings = pl.warnings + report.warnings
+    report.placed_by = pl.placed_by if pl.placed_by is not None else dict.fromkeys(pl.T, pl.bb.name)
+    report.unplaced_reasons = pl.unplaced_reasons or {}
+    return report
 
 
 def anchor_world(
@@ -146,12 +295,25 @@ def check_depth_coverage(frame: Frame, depth: np.ndarray, drange: np.ndarray) ->
 
 
 def run_backbone(
-    frame: Frame, rig: Rig, config: CalibConfig, backbone_result: BackboneResult | None = None
+    frames: Frame | list[Frame],
+    rig: Rig,
+    config: CalibConfig,
+    backbone_result: BackboneResult | None = None,
+    name: str | None = None,
 ) -> BackboneResult:
-    """The backbone's poses for the frame (``backbone_result`` when given, else ``config.backbone``
-    run on it), checked: one pose per camera and at least two cameras registered."""
-    ids = frame.camera_ids
-    bb = backbone_result if backbone_result is not None else get_backbone(config.backbone)(frame, rig, config)
+    """The backbone's poses (``backbone_result`` when given, else backbone ``name``, default
+    ``config.backbone``, run on the frames: all of them for ``MULTI_FRAME_BACKBONES``, else the
+    first), checked: one pose per camera and at least two cameras registered."""
+    frames = as_frames(frames)
+    ids = frames[0].camera_ids
+    name = name or config.backbone
+    if backbone_result is not None:
+        bb = backbone_result
+    elif name in MULTI_FRAME_BACKBONES:
+        sub = Rig(tuple(rig[c] for c in ids))  # the frames' cameras, in their order
+        bb = get_backbone(name)(frames, sub, config)
+    else:
+        bb = get_backbone(name)(frames[0], rig, config)
     if bb.T_cam_world.shape[0] != len(ids):
         raise CalibrationError(f"backbone returned {bb.T_cam_world.shape[0]} poses for {len(ids)} cameras")
     if bb.registered.sum() < 2:
@@ -161,19 +323,18 @@ def run_backbone(
     return bb
 
 
-def place_cameras(bb: BackboneResult, sr: ScaleResult, ids: tuple[str, ...]) -> tuple[dict[str, np.ndarray], list[int]]:
-    """Eq. (14): T_i = [R_i | s* t_i] for every camera on a kept edge.
+def place_cameras(bb: BackboneResult, s: float, connected: list[int], ids: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Eq. (14): T_i = [R_i | s t_i] for the ``connected`` cameras (frame indices): for a
+    scale-free backbone those on a kept edge, for a metric one (s = 1) every registered camera.
 
-    Returns (camera id -> (4, 4) float64 camera-from-world in metres, sorted indices of the
-    placed cameras).
+    Returns camera id -> (4, 4) float64 camera-from-world in metres.
     """
-    connected = sorted({n for e in sr.kept for n in e})
     T = {}
     for k in connected:
         Tk = bb.T_cam_world[k].copy()
-        Tk[:3, 3] *= sr.s
+        Tk[:3, 3] *= s
         T[ids[k]] = Tk
-    return T, connected
+    return T
 
 
 def _refine(

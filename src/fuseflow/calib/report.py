@@ -12,7 +12,7 @@ of the attributes (``report.scale``) and will be removed after one release.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 from fuseflow.errors import ValidationError
@@ -88,6 +88,16 @@ class CalibReport(Mapping[str, Any]):
     world_anchor: str | None = None
     """The camera whose frame is the world (its extrinsic is the identity): the first placed
     camera in rig order (``api.anchor_world``). None in reports written before it existed."""
+    scale_check: float | None = None
+    """Metric backbones (``rgbd``): GMAC's closed-form s* on their poses, a check (``scale`` is
+    then 1; a warning when this is more than 2 % from 1). None for scale-free backbones, when the
+    check could not run, and in reports written before it existed."""
+    placed_by: dict[str, str] = field(default_factory=dict)
+    """Camera -> the backbone whose pose placed it ("colmap", "rgbd", ...; with ``auto`` the
+    source with the better depth agreement). Empty in reports written before it existed."""
+    unplaced_reasons: dict[str, str] = field(default_factory=dict)
+    """``auto``: camera -> why no source placed it (e.g. depth agreement below the threshold
+    under every source). Empty otherwise and in reports written before it existed."""
 
     # -- JSON -----------------------------------------------------------------------------------
 
@@ -108,7 +118,7 @@ class CalibReport(Mapping[str, Any]):
         if not isinstance(d, Mapping):
             raise ValidationError(f"a GMAC report must be a JSON object, got {type(d).__name__}")
         names = [f.name for f in fields(cls)]
-        optional = {f.name for f in fields(cls) if f.default is not MISSING}
+        optional = {f.name for f in fields(cls) if f.default is not MISSING or f.default_factory is not MISSING}
         missing = [k for k in names if k not in d and k not in optional]
         unknown = sorted(set(d) - set(names))
         if missing or unknown:

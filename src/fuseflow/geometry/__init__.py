@@ -3,6 +3,7 @@
 - :mod:`camera`: pixel rays, back-projection, relative transforms E_j E_i^-1.
 - :mod:`overlap`: field-of-view overlap between calibrated cameras and the bounded neighbour
   graph built from it (CVGC's N_i, paper III-C-2).
+- :mod:`align`: rigid (Kabsch) alignment of corresponding points, e.g. two calibrations' camera centres.
 - :mod:`agreement`: projection into another camera, depth lookup, the agreement vote (eq.
   19-20), and the per-pair / per-camera depth agreement built on it.
 
@@ -17,6 +18,7 @@ from fuseflow.geometry.agreement import (
     project_votes,
     subsample_stride,
 )
+from fuseflow.geometry.align import rigid_align
 from fuseflow.geometry.camera import backproject, pixel_rays, relative_transforms
 from fuseflow.geometry.overlap import NeighbourGraph, fov_overlap, neighbour_graph
 
@@ -31,5 +33,6 @@ __all__ = [
     "pixel_rays",
     "project_votes",
     "relative_transforms",
+    "rigid_align",
     "subsample_stride",
 ]

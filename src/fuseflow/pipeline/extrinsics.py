@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from fuseflow.errors import FuseFlowError, ValidationError
+from fuseflow.geometry.align import rigid_align  # moved to geometry; re-exported here
 from fuseflow.types import Calibration, FusedCloud, Rig, invert_rigid
 
 __all__ = ["placed_rig", "resolve_rig", "rigid_align", "merge_recalibration", "reindex_cameras"]
@@ -38,19 +39,6 @@ def resolve_rig(rig: Rig, calibration: Calibration | Rig | None) -> Rig:
             f"cameras without extrinsics: {missing}; calibrate first (fuseflow calibrate) or pass --calib"
         )
     return rig
-
-
-def rigid_align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """4x4 rigid A minimising |A src_k - dst_k| over camera centres (Kabsch), src, dst (M, 3)."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    H = (src - mu_s).T @ (dst - mu_d)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    A = np.eye(4)
-    A[:3, :3] = R
-    A[:3, 3] = mu_d - R @ mu_s
-    return A
 
 
 def merge_recalibration(old: Rig, new: Calibration, moved: Iterable[str]) -> Rig:

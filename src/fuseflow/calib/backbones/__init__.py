@@ -25,7 +25,7 @@ import numpy as np
 
 from fuseflow.calib.errors import CalibrationError
 
-__all__ = ["BackboneResult", "get_backbone", "BACKBONES"]
+__all__ = ["BackboneResult", "get_backbone", "BACKBONES", "MULTI_FRAME_BACKBONES"]
 
 
 @dataclass(frozen=True)
@@ -120,6 +120,11 @@ BACKBONES: dict[str, Callable] = {
     "mapanything": _mapanything,
     "rgbd": _rgbd,
 }
+
+
+#: Backbones called with every frame given to ``calibrate`` (a list of Frames of a static rig,
+#: cameras in the rig's order); the others get the first frame.
+MULTI_FRAME_BACKBONES = frozenset({"rgbd"})
 
 
 def get_backbone(name: str) -> Callable:

@@ -1,0 +1,200 @@
+"""The ``auto`` backbone: the metric RGB-D route first, COLMAP where it falls short, each camera
+placed by the source whose pose its neighbours' depth confirms best (issue 15 item 5).
+
+``auto_place`` in named steps:
+
+1. ``rgbd`` (``place_with_backbone``): metric poses from depth and the floor, pooled over frames.
+   When it places every camera and none is below ``min_depth_agreement``, that is the result.
+2. Otherwise ``colmap`` + GMAC's scale on the first frame.
+3. ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both placed
+   (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such cameras;
+   with 1-2 the first one's pose), using only cameras neither source flags as suspect.
+4. ``choose_sources``: a camera several sources place gets the pose with the higher depth
+   agreement, each candidate measured against the same neighbours; ties go to rgbd (metric by
+   construction).
+5. ``drop_unconfirmed``: the merged extrinsics' depth agreement; the lowest camera below
+   ``min_depth_agreement`` is removed and the rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the agreement it had under
+   every source): never placed wrong silently.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from fuseflow.calib.api import Placement, anchor_world, place_with_backbone
+from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.errors import CalibrationError
+from fuseflow.geometry import depth_agreement, rigid_align
+from fuseflow.types import Frame, Rig, invert_rigid
+
+__all__ = ["auto_place", "AUTO_SOURCES", "align_sources", "choose_sources"]
+
+#: Sources in order of preference (a tie in depth agreement goes to the earlier one).
+AUTO_SOURCES = ("rgbd", "colmap")
+
+
+def auto_place(
+    frames: list[Frame], rig: Rig, depth: np.ndarray, K: np.ndarray, drange: np.ndarray, config: CalibConfig
+) -> Placement:
+    """GMAC's placement with the ``auto`` backbone (module docstring). Arguments as
+    :func:`fuseflow.calib.api.place_with_backbone`.
+
+    Raises:
+        CalibrationError: no source placed two cameras (the message gives each source's reason).
+    """
+    t0 = time.perf_counter()
+    ids = frames[0].camera_ids
+    runs: dict[str, Placement] = {}
+    failures: dict[str, str] = {}
+    for name in AUTO_SOURCES:
+        if runs and _complete(runs[AUTO_SOURCES[0]], ids, config):
+            break
+        try:
+            runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, config)
+        except CalibrationError as e:
+            failures[name] = str(e)
+    if not runs:
+        raise CalibrationError(
+            "auto backbone: no source placed two cameras: " + "; ".join(f"{k}: {v}" for k, v in failures.items())
+        )
+    poses = align_sources(runs, rig.ids, config.min_depth_agreement)
+    placed_by = choose_sources(runs, poses, ids, frames[0], rig)
+    T = {c: poses[src][c] for c, src in placed_by.items()}
+    T, agreement, reasons = drop_unconfirmed(T, runs, frames[0], rig, config.min_depth_agreement)
+    placed_by = {c: s for c, s in placed_by.items() if c in T}
+    for c in ids:
+        if c not in T and c not in reasons:
+            reasons[c] = "no source placed it: " + "; ".join(
+                [f"{k} did not register it" for k, p in runs.items()]
+                + [f"{k} failed ({v})" for k, v in failures.items()]
+            )
+    T, anchor = anchor_world(T, rig.ids)
+    return _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, ids, t0)
+
+
+def _complete(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> bool:
+    """Every camera placed and none below the agreement threshold."""
+    low = [c for c, a in pl.agreement.items() if a is not None and a < config.min_depth_agreement]
+    return len(pl.T) == len(ids) and not low
+
+
+def align_sources(
+    runs: dict[str, Placement], order: tuple[str, ...], min_agreement: float
+) -> dict[str, dict[str, np.ndarray]]:
+    """Every source's extrinsics in the first source's world: source -> camera id -> (4, 4)
+    camera-from-world, metres. A source sharing no placed camera with the first keeps its own
+    world (``choose_sources`` then uses one source only)."""
+    names = list(runs)
+    ref = runs[names[0]]
+    out = {names[0]: ref.T}
+    for name in names[1:]:
+        pl = runs[name]
+        common = [c for c in order if c in ref.T and c in pl.T]
+        trusted = [c for c in common if _trusted(ref, c, min_agreement) and _trusted(pl, c, min_agreement)]
+        use = trusted or common
+        if not use:
+            out[name] = pl.T
+            continue
+        if len(use) >= 3:  # world_ref_from_world_src from the camera centres
+            src = np.stack([invert_rigid(pl.T[c])[:3, 3] for c in use])
+            dst = np.stack([invert_rigid(ref.T[c])[:3, 3] for c in use])
+            M = rigid_align(src, dst)
+        else:
+            M = invert_rigid(ref.T[use[0]]) @ pl.T[use[0]]
+        M_inv = invert_rigid(M)
+        out[name] = {c: T @ M_inv for c, T in pl.T.items()}
+    return out
+
+
+def _trusted(pl: Placement, c: str, min_agreement: float) -> bool:
+    a = pl.agreement.get(c)
+    return a is None or a >= min_agreement
+
+
+def choose_sources(
+    runs: dict[str, Placement],
+    poses: dict[str, dict[str, np.ndarray]],
+    ids: tuple[str, ...],
+    frame: Frame,
+    rig: Rig,
+) -> dict[str, str]:
+    """Camera id -> the source that places it. A camera one source places comes from it; one
+    several sources place is measured with each candidate pose against the same neighbours (the
+    first source's cameras, then the others', all in one world) and taken from the source with
+    the highest depth agreement (None lowest; ties to the earlier source: with one or two common
+    cameras the alignment makes the anchor's poses identical). Each source's own agreement is no
+    fair comparison: it is measured against that source's own, different neighbours. Sources
+    whose world could not be aligned with the first (no common camera) compete as a whole: the
+    one placing more cameras wins."""
+    names = list(runs)
+    aligned = [n for n in names if n == names[0] or any(c in runs[names[0]].T for c in runs[n].T)]
+    if len(aligned) < len(names):
+        best = max(names, key=lambda n: (len(runs[n].T), -names.index(n)))
+        return dict.fromkeys((c for c in ids if c in runs[best].T), best)
+    out = {c: next(n for n in names if c in poses[n]) for c in ids if any(c in poses[n] for n in names)}
+    base = {c: poses[out[c]][c] for c in out}
+    for c in out:
+        cands = [n for n in names if c in poses[n]]
+        if len(cands) < 2:
+            continue
+        score = {}
+        for n in cands:
+            a = depth_agreement(frame, rig, {**base, c: poses[n][c]}).get(c)
+            score[n] = _score(a)
+        out[c] = max(cands, key=lambda n: (score[n], -names.index(n)))
+    return out
+
+
+def _score(a: float | None) -> float:
+    return -1.0 if a is None else a
+
+
+def drop_unconfirmed(
+    T: dict[str, np.ndarray], runs: dict[str, Placement], frame: Frame, rig: Rig, min_agreement: float
+) -> tuple[dict[str, np.ndarray], dict[str, float | None], dict[str, str]]:
+    """Remove, one at a time, the camera with the lowest depth agreement under the merged
+    extrinsics while it is below ``min_agreement`` (a wrong camera also lowers its neighbours'
+    agreement, so they are measured again without it). Returns (extrinsics, agreement of the
+    kept cameras, camera -> reason it is not placed)."""
+    if min_agreement <= 0 or not T:
+        return T, {}, {}
+    T = dict(T)
+    reasons = {}
+    agreement = depth_agreement(frame, rig, T)
+    while True:
+        low = {c: a for c, a in agreement.items() if a is not None and a < min_agreement}
+        if not low:
+            return T, agreement, reasons
+        c = min(low, key=lambda k: (low[k], k))
+        under = ", ".join(f"{n} {runs[n].agreement[c]:.2f}" for n in runs if runs[n].agreement.get(c) is not None)
+        reasons[c] = (
+            f"depth agreement {low[c]:.2f} with its neighbours under the merged extrinsics "
+            f"(under each source: {under or 'none'}), below {min_agreement:.2f}: no source's pose is confirmed"
+        )
+        del T[c]
+        agreement = depth_agreement(frame, rig, T) if T else {}
+
+
+def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, ids, t0) -> Placement:
+    """One Placement for the report: a synthetic 'auto' backbone result (registered = placed),
+    the scale stage of the first source that ran, warnings of every source prefixed by its name."""
+    first = next(iter(runs.values()))
+    Tarr = np.tile(np.eye(4), (len(ids), 1, 1))
+    for k, c in enumerate(ids):
+        if c in T:
+            Tarr[k] = T[c]
+    info = {n: {"placed": sorted(p.T), "depth_agreement": p.agreement, **p.bb.info} for n, p in runs.items()}
+    info.update({n: {"failed": v} for n, v in failures.items()})
+    bb = BackboneResult(Tarr, np.array([c in T for c in ids]), name="auto", info={"sources": info}, metric=True)
+    warnings = [f"{n}: {w}" for n, p in runs.items() for w in p.warnings]
+    warnings += [f"{n} failed: {v}" for n, v in failures.items()]
+    timings = {f"{n}_{k}": v for n, p in runs.items() for k, v in p.timings.items()}
+    timings["auto"] = time.perf_counter() - t0
+    scale_check = runs["rgbd"].scale_check if "rgbd" in runs else None
+    connected = [k for k, c in enumerate(ids) if c in T]
+    return Placement(
+        bb, first.sr, T, connected, anchor, agreement, scale_check, None, warnings, timings, placed_by, reasons
+    )
