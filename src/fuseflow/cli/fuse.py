@@ -20,6 +20,9 @@ def command(
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
     ),
+    points: int = typer.Option(
+        None, "--points", help="Target points per frame: s0 is chosen per frame (one extra pass at most)."
+    ),
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
     from fuseflow.fuse import PRESETS
@@ -27,6 +30,8 @@ def command(
     from fuseflow.pipeline import fuse_recording
 
     check_device(device)
+    if points is not None and points < 1:
+        fail(f"--points must be a positive integer, got {points}")
     if preset not in PRESETS:
         fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
     recording = open_recording(rec)
@@ -41,7 +46,7 @@ def command(
         s = fuse_recording(
             recording, out, calibration, positions, preset, device,
             on_frame=lambda done, total: bar.update(task, completed=done),
-            calibration_source=str(calib) if calib is not None else None, force=force,
+            calibration_source=str(calib) if calib is not None else None, force=force, points=points,
         )  # fmt: skip
     ppf, ms = s.points_per_frame, s.fuse_ms_per_frame
     print_table(

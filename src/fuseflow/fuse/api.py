@@ -257,6 +257,23 @@ def _report(
     )
 
 
+def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int]:
+    """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference.
+    With ``target_points`` the numba path searches s0 on its candidates (fuse/density.py); the
+    reference, which is not split into stages, searches with whole passes (at most 4 more)."""
+    if backend == "numba":
+        from fuseflow.fuse.numba_kernels import fuse_numba
+
+        return fuse_numba(p, cfg)
+    if cfg.target_points is None:
+        return _fuse_torch(p, cfg)
+    from fuseflow.fuse.density import search_s0, with_s0
+
+    first = _fuse_torch(p, with_s0(cfg, cfg.s0))
+    s0, _ = search_s0(lambda s: len(_fuse_torch(p, with_s0(cfg, s))[0]), cfg.s0, cfg.target_points, len(first[0]))
+    return first if s0 == cfg.s0 else _fuse_torch(p, with_s0(cfg, s0))
+
+
 def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FuseResult:
     """FUSE one frame and report what happened (missing / empty / isolated cameras, counts).
 
@@ -278,12 +295,7 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
         raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
     backend = resolve_backend(cfg, frame.depth.device) if isinstance(cfg, FuseConfig) else "torch"
     p = _prepare(frame, rig, cfg, backend)
-    if backend == "numba":
-        from fuseflow.fuse.numba_kernels import fuse_numba
-
-        cloud, valid, cand, oor = fuse_numba(p, cfg)
-    else:
-        cloud, valid, cand, oor = _fuse_torch(p, cfg)
+    cloud, valid, cand, oor = _fuse_prepared(p, cfg, backend)
     if p.depth.device.type == "cuda":
         torch.cuda.synchronize(p.depth.device)
     ms = (time.perf_counter() - t0) * 1000.0

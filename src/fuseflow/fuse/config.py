@@ -207,6 +207,14 @@ class FuseConfig:
     structured light (Nguyen et al. 2012, the model above MCM_ALPHA; 6 mm at 2 m, 14 mm at
     3 m, 26 mm at 4 m). A stereo sensor (sigma ~ z^2) is (small a, b, 0). a > 0, b >= 0."""
 
+    target_points: int | None = None
+    """Density control (beyond the paper): when set, ``s0`` is chosen per frame so that the
+    output has about this many points. The frame is fused with ``s0``; if the count is more
+    than 5 % off, it is fused once more with s0' = s0 sqrt(M / N), since the number of fine
+    cells on a surface goes as 1 / s_f^2 and s_f as s_0 (eq. 24). At most one extra pass;
+    where the clips s_min / s_max bind, the count cannot follow (measured in docs/fuse.md).
+    None = s0 as given. >= 1."""
+
     # ---- execution
     backend: Backend = "auto"
     """"torch": the PyTorch reference (any device); "numba": fused compiled CPU kernels;
@@ -239,6 +247,8 @@ class FuseConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 bad(name, "a finite number > 0")
+        if self.target_points is not None and (not isinstance(self.target_points, int) or self.target_points < 1):
+            bad("target_points", "None or an integer >= 1")
         if self.z_max <= self.delta:
             bad("z_max", f"> delta ({self.delta})")
         if not isinstance(self.window, int) or self.window % 2 == 0 or not 3 <= self.window <= 7:

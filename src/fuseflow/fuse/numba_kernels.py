@@ -746,6 +746,15 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
     prm = kernel_params(cfg)
     c = _candidates(p, prm.pixel)
+    if cfg.target_points is not None:  # density control: search s0 on the hash + selection only
+        from fuseflow.fuse.density import search_s0, with_s0
+
+        def count_at(s0: float) -> int:
+            return _select_points(c, kernel_params(with_s0(cfg, s0)))[2]
+
+        s0, _ = search_s0(count_at, cfg.s0, cfg.target_points)
+        cfg = with_s0(cfg, s0)
+        prm = kernel_params(cfg)
     cons = None
     if cfg.consensus:
         T_wc = p.T_world_cam.numpy().astype(np.float32)

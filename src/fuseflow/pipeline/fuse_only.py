@@ -11,7 +11,7 @@ import statistics
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -79,13 +79,13 @@ def rig_for_fusion(rec: Recording, calibration: Calibration | None) -> Rig:
     return rig
 
 
-def _manifest(rec: Recording, rig: Rig, preset: str) -> OutputManifest:
+def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None) -> OutputManifest:
     return OutputManifest(
         command="fuse",
         recording=str(Path(rec.path).resolve()),
         recording_fingerprint=recording_fingerprint(rec),
         calibration=f"given:{calibration_digest({c.id: c.T_cam_world for c in rig})}",
-        config=config_digest({"preset": preset}),
+        config=config_digest({"preset": preset, "points": points}),
         fuseflow_version=fuseflow_version(),
     )
 
@@ -127,6 +127,7 @@ def fuse_recording(
     on_frame: Callable[[int, int], None] | None = None,
     calibration_source: str | None = None,
     force: bool = False,
+    points: int | None = None,
 ) -> FuseRunSummary:
     """FUSE the frames at positions ``frames`` (default all) of ``rec`` into OUT/clouds.
 
@@ -136,6 +137,8 @@ def fuse_recording(
         device: "cpu" (compiled numba path) or "cuda".
         on_frame: called with (done, total) after each frame, e.g. for a progress bar.
         calibration_source: where ``calibration`` came from (e.g. its file), for calib.json.
+        points: a target point count per frame (``FuseConfig.target_points``); None = the
+            preset's density.
         force: start over in a used ``out_dir`` whose manifest does not match (see
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
@@ -145,12 +148,13 @@ def fuse_recording(
     if preset not in PRESETS:
         raise ValidationError(f"no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
     rec = rec if isinstance(rec, Recording) else open_recording(rec)
+    cfg = PRESETS[preset] if points is None else replace(PRESETS[preset], target_points=points)
     rig = rig_for_fusion(rec, calibration)
     positions = list(frames if frames is not None else range(len(rec)))
     if not positions:
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
     out = prepare_output_dir(out_dir)
-    open_output(out, _manifest(rec, rig, preset), force)
+    open_output(out, _manifest(rec, rig, preset, points), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
     write_calibration(out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}))
     sel = [rec.rig.index(c) for c in rig.ids]
@@ -162,7 +166,7 @@ def fuse_recording(
             points.append(read_ply_header_count(path))
             resumed += 1
         else:
-            res = fuse_with_report(select_views(rec[t], sel, device), rig, PRESETS[preset])
+            res = fuse_with_report(select_views(rec[t], sel, device), rig, cfg)
             cloud = res.cloud.to("cpu")
             if len(sel) != len(rec.rig):
                 cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig

@@ -1,0 +1,71 @@
+"""Density control (issue 17): FuseConfig.target_points / fuseflow fuse --points N."""
+
+from __future__ import annotations
+
+import pytest
+
+from fuseflow.errors import ValidationError
+from fuseflow.fuse import FuseConfig, fuse
+from fuseflow.fuse.density import search_s0, with_s0
+from fuseflow.io import open_recording
+
+
+@pytest.fixture(scope="module")
+def frame_and_rig(static_rec):
+    rec = open_recording(static_rec)
+    return rec[0], rec.rig
+
+
+@pytest.mark.parametrize("factor", [0.4, 2.0])
+def test_target_points_within_10_percent(frame_and_rig, factor):
+    frame, rig = frame_and_rig
+    base = len(fuse(frame, rig, FuseConfig()))
+    target = int(base * factor)
+    got = len(fuse(frame, rig, FuseConfig(target_points=target)))
+    assert abs(got - target) <= 0.1 * target, (base, target, got)
+
+
+def test_reference_path_follows_the_target_too(frame_and_rig):
+    frame, rig = frame_and_rig
+    base = len(fuse(frame, rig, FuseConfig(backend="torch")))
+    target = int(base * 1.6)
+    got = len(fuse(frame, rig, FuseConfig(backend="torch", target_points=target)))
+    # whole passes, at most 4 more: on this 200x150 frame the count moves in steps (13 % off
+    # measured); the numba path searches the same s0 on the selection stage alone
+    assert abs(got - target) <= 0.15 * target, (base, target, got)
+
+
+def test_search_s0_on_a_known_power_law():
+    calls = []
+
+    def count(s):
+        calls.append(s)
+        return int(1e6 * s**-1.7)
+
+    s, m = search_s0(count, 6.3, 20000)
+    assert abs(m - 20000) <= 600 and len(calls) <= 5
+
+
+def test_with_s0_scales_the_clips_and_stays_valid():
+    cfg = FuseConfig()
+    big = with_s0(cfg, cfg.s0 * 10)
+    assert big.s_max == cfg.coarse_size and big.target_points is None
+    small = with_s0(cfg, cfg.s0 / 10)
+    assert small.s_min >= cfg.coarse_size / 127 and small.s_max == cfg.s_max
+    with pytest.raises(ValidationError, match="target_points"):
+        FuseConfig(target_points=0)
+
+
+def test_cli_points(static_rec, tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from fuseflow.cli import app
+
+    res = CliRunner().invoke(
+        app, ["fuse", str(static_rec), "--out", str(tmp_path / "o"), "--points", "6000", "--frames", "0:1"]
+    )
+    assert res.exit_code == 0, res.output
+    pts = json.loads((tmp_path / "o" / "summary.json").read_text())["points_per_frame"]["mean"]
+    assert abs(pts - 6000) <= 600
