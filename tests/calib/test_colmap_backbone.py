@@ -112,7 +112,7 @@ def test_edges_with_few_precise_matches_are_kept(studio_like):
     assert not match_only([corr(6, True), corr(7, False)])
     assert not match_only([corr(6, True), corr(0, True)])
     frame, rig, T = studio_like
-    cal = calibrate(frame, rig, CalibConfig(min_correspondences=10_000))
+    cal = calibrate(frame, rig, CalibConfig(backbone="colmap", min_correspondences=10_000))
     counts = cal.report["correspondence_counts"]
     assert counts and all(v < 10_000 for v in counts.values())  # only match-only edges survive
 

@@ -92,7 +92,7 @@ def test_colmap_two_cameras_end_to_end(icl2):
     icl2 = fuseflow.open_recording(icl2)
     rig = icl2.rig
     bare = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rig))
-    cal = calibrate(icl2[0], bare, CalibConfig())
+    cal = calibrate(icl2[0], bare, CalibConfig(backbone="colmap"))
     assert cal.report["backbone_info"]["mode"] == "two-view"
     assert set(cal.T_cam_world) == set(rig.ids)
     assert cal.report["cycle_mode"] == "single"
@@ -143,7 +143,7 @@ def test_wrong_backbone_pose_is_never_placed_silently(scene_builder, backbone_bu
 
 
 def test_scale_warnings_name_edges_by_camera_id():
-    from fuseflow.calib.api import _edge_names
+    from fuseflow.calib.placement import _edge_names
 
     ids = ("left", "mid", "right", "top", "cam4")
     assert (

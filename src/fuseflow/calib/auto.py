@@ -23,10 +23,10 @@ import time
 
 import numpy as np
 
-from fuseflow.calib.api import Placement, anchor_world, place_with_backbone
 from fuseflow.calib.backbones import BackboneResult
 from fuseflow.calib.config import CalibConfig
 from fuseflow.calib.errors import CalibrationError
+from fuseflow.calib.placement import Placement, anchor_world, place_with_backbone
 from fuseflow.geometry import depth_agreement, rigid_align
 from fuseflow.types import Frame, Rig, invert_rigid
 

@@ -26,9 +26,14 @@ __all__ = ["CalibConfig", "PRESETS"]
 class CalibConfig:
     """All GMAC settings. Every field: meaning, default's source, valid range."""
 
-    backbone: str = "colmap"
-    """Pose backbone: "colmap" (pycolmap SIFT, offline CPU), "precomputed", "vggt",
-    "mapanything". Default: the only one that runs offline here (notes/backbone-feasibility.md)."""
+    backbone: str = "auto"
+    """Pose backbone: "auto" (the metric ``rgbd`` backbone first, COLMAP for the cameras it leaves
+    unplaced or suspect, each camera from the source its neighbours' depth agrees with best),
+    "rgbd", "colmap" (pycolmap SIFT, offline CPU), "precomputed", "vggt", "mapanything".
+    Default "auto": on the 3-4 camera rings users build COLMAP placed 0-2 cameras where auto
+    placed 3-4 at 0.05-0.09 deg / 3-5 mm; on the 8-camera studio it is 0.004 deg / 1 mm behind
+    COLMAP (docs/gmac.md, "colmap, rgbd, auto"). The paper and ablation presets keep "colmap",
+    the scale-free backbone GMAC's scale stage is about."""
 
     backbone_path: str | None = None
     """Export file (precomputed) or local checkpoint (vggt/mapanything); unused by colmap."""
@@ -202,12 +207,12 @@ class CalibConfig:
 
 PRESETS: dict[str, CalibConfig] = {
     "default": CalibConfig(),
-    "paper": CalibConfig(closed_form="zonly", use_matches=False, refine=False),
+    "paper": CalibConfig(backbone="colmap", closed_form="zonly", use_matches=False, refine=False),
     "refined": CalibConfig(refine=True),
-    "wo_rc": CalibConfig(random_correspondences=True),
-    "wo_cc": CalibConfig(cycle_consistency=False),
-    "wo_feature": CalibConfig(feature_weight=False),
-    "zonly": CalibConfig(closed_form="zonly"),
-    "full3d": CalibConfig(closed_form="full3d"),
-    "robust": CalibConfig(robust=True),
+    "wo_rc": CalibConfig(backbone="colmap", random_correspondences=True),
+    "wo_cc": CalibConfig(backbone="colmap", cycle_consistency=False),
+    "wo_feature": CalibConfig(backbone="colmap", feature_weight=False),
+    "zonly": CalibConfig(backbone="colmap", closed_form="zonly"),
+    "full3d": CalibConfig(backbone="colmap", closed_form="full3d"),
+    "robust": CalibConfig(backbone="colmap", robust=True),
 }

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 
 __all__ = ["colmap_backbone", "merge_models", "MIN_KEYPOINTS"]

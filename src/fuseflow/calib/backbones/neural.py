@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 
 __all__ = [

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 
 __all__ = ["BACKBONE_FORMAT", "load_precomputed", "save_precomputed"]

@@ -35,7 +35,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
