@@ -99,7 +99,7 @@ def calibrate(
             backbones (``MULTI_FRAME_BACKBONES``: rgbd) pool all of them; the others, the scale
             stage and the depth-agreement check use the first.
         rig: the cameras (intrinsics, depth ranges; extrinsics ignored).
-        config: :class:`CalibConfig` (default preset: colmap backbone, point-to-plane, CC, no refinement).
+        config: :class:`CalibConfig` (default preset: auto backbone, point-to-plane, CC, no refinement).
         backbone_result: skip the backbone and use these poses (e.g. to rerun GMAC variants on
             one backbone run).
 

@@ -2,7 +2,9 @@
 
 A backbone is a callable ``backbone(frame, rig, config) -> BackboneResult``. Implementations:
 
-* ``colmap`` (default): pycolmap SIFT + exhaustive matching + incremental mapping with the rig's
+* ``auto`` (the default, :mod:`fuseflow.calib.auto`): ``rgbd`` first, ``colmap`` for the cameras
+  it leaves unplaced or suspect, each camera from the source with the better depth agreement.
+* ``colmap``: pycolmap SIFT + exhaustive matching + incremental mapping with the rig's
   fixed intrinsics; for N = 2 (which COLMAP's mappers refuse) the two-view relative pose stored
   in the matching database. Offline, CPU, no weights.
 * ``precomputed``: an ``.npz`` exported by VGGT / MapAnything / VGGSfM run elsewhere
