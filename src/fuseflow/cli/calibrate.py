@@ -38,8 +38,15 @@ def command(
         overrides["refine"] = refine
     config = CalibConfig.preset(preset, **overrides)
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
-    calib = run_gmac(recording[frame], rig, config)
-    fuseflow.write_calibration(out, calib)
+    views = recording[frame]
+    if views.missing and int(views.present.sum()) < 2:  # say so, rather than GMAC blaming the texture of absent views
+        have = "no view" if not bool(views.present.any()) else "one view"
+        fail(
+            f"frame {views.index} has {have} present (missing: {', '.join(views.missing)}); "
+            "GMAC needs two or more: pick another --frame"
+        )
+    calib = run_gmac(views, rig, config)
+    fuseflow.write_calibration(out, calib, rig=recording.rig)  # its fingerprint guards reuse on another rig
     r = calib.report
     say(
         f"GMAC {rec} frame {frame}: backbone {r['backbone']}, s* = {r['scale']:.6g} "

@@ -75,10 +75,12 @@ def choose_calibration(
         return CalibrationChoice(rig, f"resumed from {calib_json}", warnings=warnings)
     if calibration is not None:
         rig, warnings = _placed(rec.rig, calibration)
-        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}))
+        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}), rig=rec.rig)
         return CalibrationChoice(rig, "given", warnings=warnings)
     if use_rig_extrinsics and rec.rig.is_calibrated:
-        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}))
+        write_calibration(
+            calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}), rig=rec.rig
+        )
         return CalibrationChoice(rec.rig, "rig.json")
     from fuseflow.calib import calibrate
 
@@ -89,7 +91,7 @@ def choose_calibration(
     if unplaced:
         warnings.append(f"GMAC could not place cameras {unplaced}; they are left out of fusion")
     warnings.extend(str(w) for w in cal.report.get("warnings", []))
-    write_calibration(calib_json, cal)
+    write_calibration(calib_json, cal, rig=rec.rig)
     number = rec.frame_numbers[t]
     return CalibrationChoice(placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings)
 
