@@ -214,7 +214,11 @@ def _drop_view(rec: Path, cam: str = "cam02", frame: int = 1) -> None:
 
 DEGRADED = {
     # kind: (break, fuse's words, run's words)
-    "all-zero depth in one view": (_zero_depth, ("no valid depth", "cam01", "at frames 0"), ()),
+    "all-zero depth in one view": (
+        _zero_depth,
+        ("no valid depth", "cam01", "at frames 0"),
+        ("camera cam01 had no valid depth", "in 1 frames: 0"),
+    ),
     "all-zero depth in every view": (
         lambda r: [_zero_depth(r, c) for c in CAMS],
         ("no valid depth", "cam00", "cam02", "at frames 0"),

@@ -250,7 +250,10 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     """The RunSummary of the frames in ``state`` (dropped views, bumped cameras, timings)."""
     dropped: dict[str, int] = {}
     bumped: dict[str, int] = {}
+    empty: dict[str, list[int]] = {}
     for r in state.records:
+        for c in r.empty:
+            empty.setdefault(c, []).append(r.index)
         for c in r.missing:
             dropped[c] = dropped.get(c, 0) + 1
         for c in r.flagged:
@@ -259,6 +262,12 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     warnings += [
         f"camera {c} was missing in {n} frames; those frames were fused from the other views"
         for c, n in dropped.items()
+    ]
+    warnings += [
+        f"camera {c} had no valid depth (an all-zero depth image) in {len(n)} frames: "
+        + ", ".join(map(str, n[:10]))
+        + (f" and {len(n) - 10} more" if len(n) > 10 else "")
+        for c, n in empty.items()
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
