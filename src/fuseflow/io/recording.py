@@ -327,7 +327,7 @@ class FuseFlowRecording(Recording):
             except (FuseFlowError, OSError) as exc:
                 return str(exc)
             if img.shape[:2] != (cam.height, cam.width):
-                return f"{path}: {kind} is {img.shape[1]}x{img.shape[0]}, camera {cam.id!r} is {cam.width}x{cam.height}"
+                return f"{path}: {'colour' if kind == 'color' else kind} is {img.shape[1]}x{img.shape[0]}, camera {cam.id!r} is {cam.width}x{cam.height}"
             return None
 
         jobs = [
