@@ -181,6 +181,11 @@ def test_calibration_of_another_rig_is_refused(small_rec, tmp_path, invoke, expe
     write_calibration(tmp_path / "same.json", Calibration({c.id: c.T_cam_world for c in rig}, {}), rig=rig)
     assert read_calibration(tmp_path / "same.json").report["rig_fingerprint"]["cam01"]["width"] == 160
     expect(invoke("fuse", small_rec, "--out", tmp_path / "ok", "--calib", tmp_path / "same.json"), 0)
+    # run and fuse record the fingerprint of the recording's rig in the calib.json they write
+    expect(invoke("run", small_rec, "--out", tmp_path / "r", "--use-rig", "--frames", "0:1"), 0)
+    fp = json.loads((tmp_path / "r" / "calib.json").read_text())["rig_fingerprint"]
+    assert sorted(fp) == list(CAMS) and fp["cam00"]["K"] == rig["cam00"].K.tolist()
+    assert "rig_fingerprint" in json.loads((tmp_path / "ok" / "calib.json").read_text())
 
 
 def test_calibration_fingerprint_names_the_camera_whose_intrinsics_differ(small_rec, tmp_path):
