@@ -132,3 +132,38 @@ def test_calibration_validates_each_camera():
     c = Calibration({"c1": np.eye(4)}, {"scale": 1.5})
     rig = Rig((cam(0, T_cam_world=np.eye(4)), cam(1)))
     assert c.apply(rig).is_calibrated
+
+
+@pytest.mark.parametrize("cid", ["..", ".", ".hidden", "a/b", "a\\b", "", " cam", "cam ", "c:0", "a\nb"])
+def test_camera_id_must_be_a_plain_name(cid):
+    with pytest.raises(ValidationError, match="not a plain name"):
+        Camera(cid, 640, 480, K)
+
+
+@pytest.mark.parametrize("cid", ["cam00", "000123456789", "kinect-1", "left_ir.v2", "Kamera Ä"])
+def test_camera_id_plain_names_pass(cid):
+    assert Camera(cid, 640, 480, K).id == cid
+
+
+@pytest.mark.parametrize(
+    "k, msg",
+    [
+        ([[500.0, 0, 5000], [0, 500.0, 240], [0, 0, 1]], "principal point"),
+        ([[500.0, 0, 320], [0, 500.0, -3], [0, 0, 1]], "principal point"),
+        ([[20.0, 0, 320], [0, 20.0, 240], [0, 0, 1]], "field of view"),  # 172 degrees
+        ([[5000.0, 0, 320], [0, 5000.0, 240], [0, 0, 1]], "field of view"),  # 7.3 degrees
+        ([[500.0, 0, 320], [0, 5.0, 240], [0, 0, 1]], "field of view"),  # fy alone wrong
+    ],
+)
+def test_camera_intrinsics_checked_against_image_size(k, msg):
+    with pytest.raises(ValidationError, match=msg) as e:
+        Camera("cam7", 640, 480, k)
+    assert "cam7" in str(e.value)
+
+
+def test_camera_intrinsics_edges_pass():
+    # 10.0 and 170 degrees horizontally, principal point on the image border
+    f10 = 320 / np.tan(np.radians(5.0))
+    f170 = 320 / np.tan(np.radians(85.0))
+    for f in (f10 * 0.9999, f170 * 1.0001):
+        Camera("c", 640, 480, [[f, 0, 640], [0, f, 0], [0, 0, 1]])

@@ -84,6 +84,51 @@ def invert_rigid(T: np.ndarray) -> np.ndarray:
     return out
 
 
+# A horizontal field of view outside this range is no depth camera's: a focal length in the wrong
+# units, or a K written for another resolution, lands here (issue 16).
+HFOV_RANGE_DEG = (10.0, 170.0)
+_ID_FORBIDDEN = frozenset('/\\:*?"<>|')
+
+
+def _check_camera_id(cid: object) -> None:
+    """A camera id names a folder of the recording: a plain name, never a path (issue 16: an id
+    of '..' read the recording's parent folder)."""
+    bad = None
+    if not isinstance(cid, str) or not cid:
+        bad = "must be a non-empty string"
+    elif cid.startswith("."):
+        bad = "must not start with '.'"
+    elif cid != cid.strip():
+        bad = "must not start or end with whitespace"
+    elif any(ch in _ID_FORBIDDEN or ord(ch) < 32 for ch in cid):
+        bad = 'must not contain / \\ : * ? " < > | or control characters'
+    if bad:
+        raise ValidationError(f"camera id {cid!r} is not a plain name: it {bad} (the id names the camera's folder)")
+
+
+def _check_intrinsics(K: np.ndarray, width: int, height: int, where: str) -> None:
+    """Principal point inside the image and a plausible field of view for this image size."""
+    fx, fy, cx, cy = (float(v) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    if not (0 <= cx <= width and 0 <= cy <= height):
+        raise ValidationError(
+            f"{where}: principal point (cx, cy) = ({cx:g}, {cy:g}) lies outside the {width}x{height} image; "
+            f"expected 0 <= cx <= {width}, 0 <= cy <= {height} (K written for another resolution?)"
+        )
+    lo, hi = HFOV_RANGE_DEG
+    hfov = math.degrees(2 * math.atan(width / (2 * fx)))
+    vfov = math.degrees(2 * math.atan(height / (2 * fy)))
+    # the vertical lower bound follows the aspect ratio, so a narrow wide-screen camera still passes
+    vlo = math.degrees(2 * math.atan(height / width * math.tan(math.radians(lo) / 2)))
+    if not (lo <= hfov <= hi and vlo <= vfov <= hi):
+        f_min = width / (2 * math.tan(math.radians(hi) / 2))
+        f_max = width / (2 * math.tan(math.radians(lo) / 2))
+        raise ValidationError(
+            f"{where}: fx = {fx:g}, fy = {fy:g} give a {hfov:.1f} x {vfov:.1f} degree field of view at "
+            f"{width}x{height}; expected {lo:g}-{hi:g} degrees horizontally (fx between {f_min:.1f} and "
+            f"{f_max:.1f} pixels; focal length in pixels, for this resolution?)"
+        )
+
+
 @dataclass(frozen=True)
 class Camera:
     """One calibrated-intrinsics depth camera.
@@ -108,8 +153,7 @@ class Camera:
 
     def __post_init__(self) -> None:
         where = f"camera {self.id!r}"
-        if not isinstance(self.id, str) or not self.id or "/" in self.id or "\\" in self.id:
-            raise ValidationError(f"camera id must be a non-empty string without '/', got {self.id!r}")
+        _check_camera_id(self.id)
         for name in ("width", "height"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
@@ -120,6 +164,7 @@ class Camera:
             raise ValidationError(
                 f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}"
             )
+        _check_intrinsics(K, self.width, self.height, where)
         object.__setattr__(self, "K", K)
         ds = self.depth_scale
         if isinstance(ds, bool) or not isinstance(ds, (int, float, np.number)) or not math.isfinite(ds) or ds <= 0:

@@ -50,8 +50,18 @@ def command(
         overrides["refine"] = refine
     config = CalibConfig.preset(preset, **overrides)
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
-    calib = run_gmac([recording[t] for t in indices], rig, config)
-    fuseflow.write_calibration(out, calib)
+    views = [recording[t] for t in indices]
+    if all(v.missing and int(v.present.sum()) < 2 for v in views):  # not GMAC blaming absent views' texture
+        fail(
+            "; ".join(
+                f"frame {v.index} has {'no view' if not bool(v.present.any()) else 'one view'} present "
+                f"(missing: {', '.join(v.missing)})"
+                for v in views
+            )
+            + "; GMAC needs two or more: pick another --frame"
+        )
+    calib = run_gmac(views, rig, config)
+    fuseflow.write_calibration(out, calib, rig=recording.rig)  # its fingerprint guards reuse on another rig
     r = calib.report
     say(
         f"GMAC {rec} {_frames_text(indices)}: backbone {r['backbone']}, s* = {r['scale']:.6g} "

@@ -10,20 +10,36 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from fuseflow.cli.app import console, say
+from fuseflow.cli.app import console, error, fail, say
 
 
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (FuseFlow, Open3D/Redwood/ICL or TUM layout)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON instead of a table."),
+    check: bool = typer.Option(
+        False, "--check", help="Also decode every colour and depth file; exit 1 naming each corrupt one."
+    ),
 ) -> None:
     """Show cameras, frames, resolution, calibration state and missing views of a recording."""
-    from fuseflow.io.summary import recording_summary
+    from fuseflow.io.summary import check_recording_files, recording_summary
 
     s = recording_summary(rec)
+    problems = check_recording_files(rec) if check else None
     if as_json:
+        if problems is not None:
+            s["check"] = {"ok": not problems, "problems": problems}
         typer.echo(json.dumps(s, indent=2))
-        return
+    else:
+        _print_summary(s)
+    if problems:
+        for p in problems:
+            error(p)
+        fail(f"{len(problems)} unreadable file{'s' if len(problems) > 1 else ''} in {rec}", code=1)
+    elif problems is not None and not as_json:
+        say("every colour and depth file decodes at the size rig.json gives")
+
+
+def _print_summary(s: dict) -> None:
     w, h = s["resolution"]
     say(
         f"{s['path']} ({s['layout']}): {s['frames']} frames, {s['cameras']} cameras, {w}x{h}, "

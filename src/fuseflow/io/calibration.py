@@ -4,8 +4,14 @@ Schema::
 
     {"format": "fuseflow-calib/1",
      "cameras": {"<camera id>": {"T_cam_world": [[4x4 row-major]]}, ...},
-     "report": {...}}          # free-form JSON: how the extrinsics were obtained (GMAC writes
+     "report": {...},          # free-form JSON: how the extrinsics were obtained (GMAC writes
                                # fuseflow.calib.CalibReport.to_json() here)
+     "rig_fingerprint": {"<camera id>": {"width": W, "height": H, "K": [[3x3]]}, ...}}   # optional
+
+rig_fingerprint (optional; files without it are read as before) records the intrinsics and
+resolution of every camera of the rig the calibration was made for. Read back, it is in
+``Calibration.report["rig_fingerprint"]``; ``fuseflow.pipeline.placed_rig`` refuses to apply the
+calibration to a rig whose cameras of the same ids differ (a calibration of another rig).
 
 T_cam_world is camera-from-world in metres (the same as rig.json). Cameras that a calibration
 could not place are simply absent from "cameras" (and named in the report).
@@ -21,11 +27,19 @@ import numpy as np
 from fuseflow.errors import FormatError, ValidationError
 from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.recording import parse_matrix
-from fuseflow.types import Calibration
+from fuseflow.types import Calibration, Rig
 
-__all__ = ["CALIB_FORMAT", "read_calibration", "write_calibration", "calibration_to_json"]
+__all__ = [
+    "CALIB_FORMAT",
+    "FINGERPRINT_KEY",
+    "read_calibration",
+    "write_calibration",
+    "calibration_to_json",
+    "rig_fingerprint",
+]
 
 CALIB_FORMAT = "fuseflow-calib/1"
+FINGERPRINT_KEY = "rig_fingerprint"
 
 
 def _jsonable(obj: Any) -> Any:
@@ -44,20 +58,51 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-def calibration_to_json(calib: Calibration) -> dict[str, Any]:
-    """calib.json's document for ``calib``; a typed report is written as its ``to_json()``."""
-    return {
+def rig_fingerprint(rig: Rig) -> dict[str, Any]:
+    """Camera id -> {"width", "height", "K"} (pixels) of every camera of ``rig``: what calib.json
+    records of the rig it was made for."""
+    return {c.id: {"width": c.width, "height": c.height, "K": c.K.tolist()} for c in rig.cameras}
+
+
+def calibration_to_json(calib: Calibration, rig: Rig | None = None) -> dict[str, Any]:
+    """calib.json's document for ``calib``; a typed report is written as its ``to_json()``.
+
+    ``rig``: the rig the calibration was made for; its fingerprint is written (else the one a
+    read-back calibration carries in its report, if any)."""
+    report = _jsonable(calib.report)
+    fingerprint = report.pop(FINGERPRINT_KEY, None) if isinstance(report, dict) else None
+    if rig is not None:
+        fingerprint = rig_fingerprint(rig)
+    doc = {
         "format": CALIB_FORMAT,
         "cameras": {cid: {"T_cam_world": T.tolist()} for cid, T in calib.T_cam_world.items()},
-        "report": _jsonable(calib.report),
+        "report": report,
     }
+    if fingerprint is not None:
+        doc[FINGERPRINT_KEY] = fingerprint
+    return doc
 
 
-def write_calibration(path: str | Path, calib: Calibration) -> Path:
-    """Write calib.json (atomically)."""
+def write_calibration(path: str | Path, calib: Calibration, rig: Rig | None = None) -> Path:
+    """Write calib.json (atomically); with ``rig``, its fingerprint (intrinsics and resolution)."""
     path = Path(path)
-    write_json_atomic(path, calibration_to_json(calib))
+    write_json_atomic(path, calibration_to_json(calib, rig))
     return path
+
+
+def _read_fingerprint(value: Any, path: Path) -> dict[str, dict[str, Any]]:
+    if not isinstance(value, dict):
+        raise FormatError(f"{path}: field {FINGERPRINT_KEY!r} must be an object mapping camera id to intrinsics")
+    out = {}
+    for cid, entry in value.items():
+        where = f"{path}: {FINGERPRINT_KEY} camera {cid!r}"
+        if not isinstance(entry, dict) or not all(k in entry for k in ("width", "height", "K")):
+            raise FormatError(f"{where}: expected an object with 'width', 'height' and 'K'")
+        w, h = entry["width"], entry["height"]
+        if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in (w, h)):
+            raise FormatError(f"{where}: width and height must be positive integers, got {w!r}, {h!r}")
+        out[cid] = {"width": w, "height": h, "K": parse_matrix(entry["K"], 3, f"{where}: field 'K'").tolist()}
+    return out
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -79,6 +124,8 @@ def read_calibration(path: str | Path) -> Calibration:
     report = doc.get("report", {})
     if not isinstance(report, dict):
         raise FormatError(f"{path}: field 'report' must be an object")
+    if FINGERPRINT_KEY in doc:
+        report = {**report, FINGERPRINT_KEY: _read_fingerprint(doc[FINGERPRINT_KEY], path)}
     try:
         return Calibration(T, report)
     except ValidationError as exc:

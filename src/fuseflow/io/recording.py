@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fuseflow.errors import FormatError, RecordingError, ValidationError
+from fuseflow.errors import FormatError, FuseFlowError, RecordingError, ValidationError
 from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.images import clean_depth, read_color, read_depth, write_color, write_depth
 from fuseflow.types import Camera, Frame, Rig
@@ -240,6 +240,18 @@ class Recording:
         """Camera id -> frame numbers at which that camera has no view (from file listings)."""
         raise NotImplementedError
 
+    def check_files(self) -> list[str]:
+        """Read every view of every frame; one line per problem (file and what is wrong with it),
+        empty when all decode. Readers with per-file listings override this to name every bad
+        file; this default names the first bad view of each frame."""
+        problems = []
+        for t in range(len(self)):
+            try:
+                self[t]
+            except (FuseFlowError, OSError, ValueError) as exc:
+                problems.append(f"frame {self.frame_numbers[t]}: {exc}")
+        return problems
+
     def _check_view(self, cam: Camera, color: np.ndarray, depth: np.ndarray, cpath: Path, dpath: Path) -> None:
         want = (cam.height, cam.width)
         if color.shape[:2] != want:
@@ -256,10 +268,17 @@ def list_frames(directory: Path, exts: tuple[str, ...]) -> dict[int, Path]:
     out: dict[int, Path] = {}
     if not directory.is_dir():
         return out
-    for entry in os.scandir(directory):
+    # sorted: the error below names the same pair whatever order the directory lists
+    for entry in sorted(os.scandir(directory), key=lambda e: e.name):
         m = _FRAME_RE.match(entry.name)
         if m and ("." + m.group(2).lower()) in exts:
-            out.setdefault(int(m.group(1)), Path(entry.path))
+            number = int(m.group(1))
+            if number in out:  # 000000.png beside 000000.jpg (or 0.png beside 000000.png)
+                raise RecordingError(
+                    f"{directory}: two images for frame {number}: {out[number].name} and {entry.name}; "
+                    "keep one (which one is meant cannot be guessed)"
+                )
+            out[number] = Path(entry.path)
     return out
 
 
@@ -296,6 +315,29 @@ class FuseFlowRecording(Recording):
         depth = read_depth(dpath, cam.depth_scale)
         self._check_view(cam, color, depth, cpath, dpath)
         return color, depth, None
+
+    def check_files(self) -> list[str]:
+        """Decode every colour and depth file of every camera (``fuseflow info --check``); one line
+        per file that is corrupt, truncated, of the wrong size or bit depth, naming the file."""
+
+        def check(job):
+            cam, kind, path = job
+            try:
+                img = read_color(path) if kind == "color" else read_depth(path, cam.depth_scale)
+            except (FuseFlowError, OSError) as exc:
+                return str(exc)
+            if img.shape[:2] != (cam.height, cam.width):
+                return f"{path}: {'colour' if kind == 'color' else kind} is {img.shape[1]}x{img.shape[0]}, camera {cam.id!r} is {cam.width}x{cam.height}"
+            return None
+
+        jobs = [
+            (cam, kind, path)
+            for cam, c, d in zip(self.rig.cameras, self._color, self._depth)
+            for kind, files in (("color", c), ("depth", d))
+            for _, path in sorted(files.items())
+        ]
+        with ThreadPoolExecutor(max_workers=4) as pool:  # cv2 decoding releases the GIL
+            return [p for p in pool.map(check, jobs) if p is not None]
 
     def missing_views(self) -> dict[str, list[int]]:
         out = {}

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["recording_summary", "timing_summary"]
+__all__ = ["recording_summary", "timing_summary", "check_recording_files"]
 
 
 def timing_summary(path: str | Path) -> dict[str, Any] | None:
@@ -84,3 +84,11 @@ def recording_summary(path: str | Path) -> dict[str, Any]:
         if timing is not None:
             summary["timing"] = timing
     return summary
+
+
+def check_recording_files(path: str | Path) -> list[str]:
+    """Decode every colour and depth file of the recording at ``path`` (``fuseflow info --check``):
+    one line per unreadable, truncated or wrongly sized file, naming it; empty when all are good."""
+    from fuseflow.io.datasets import open_recording
+
+    return open_recording(path).check_files()

@@ -17,11 +17,54 @@ __all__ = ["placed_rig", "resolve_rig", "rigid_align", "merge_recalibration", "r
 
 
 def placed_rig(rig: Rig, calibration: Calibration) -> Rig:
-    """The cameras of ``rig`` that ``calibration`` places, with its extrinsics (FuseFlowError if < 1)."""
+    """The cameras of ``rig`` that ``calibration`` places, with its extrinsics (FuseFlowError if < 1).
+
+    A calibration that records the rig it was made for (calib.json's ``rig_fingerprint``) is
+    refused (FuseFlowError naming the cameras) when a placed camera's resolution or intrinsics
+    differ: extrinsics of another rig whose camera ids happen to match (issue 16)."""
     placed = [i for i, c in enumerate(rig.ids) if c in calibration.T_cam_world]
     if not placed:
         raise FuseFlowError(f"the calibration places none of the cameras {list(rig.ids)}")
+    differ = _fingerprint_mismatch(rig.subset(placed), calibration)
+    if differ:
+        raise FuseFlowError(
+            "the calibration was made for another rig: intrinsics or resolution differ for cameras "
+            + "; ".join(differ)
+            + ". Calibrate this recording (fuseflow calibrate), or remove 'rig_fingerprint' from calib.json "
+            "if the intrinsics were only refined"
+        )
     return calibration.apply(rig.subset(placed))
+
+
+# Intrinsics may be re-estimated slightly (refined in place); another camera model or resolution
+# moves fx or the principal point by far more than this share of fx.
+FINGERPRINT_RTOL = 0.005
+
+
+def _fingerprint_mismatch(rig: Rig, calibration: Calibration) -> list[str]:
+    """'<id> (what differs)' for each camera of ``rig`` whose recorded fingerprint differs."""
+    try:
+        fingerprint = calibration.report.get("rig_fingerprint")
+    except AttributeError:
+        return []
+    if not isinstance(fingerprint, dict):
+        return []
+    out = []
+    for cam in rig.cameras:
+        fp = fingerprint.get(cam.id)
+        if fp is None:
+            continue
+        if (fp["width"], fp["height"]) != (cam.width, cam.height):
+            out.append(f"{cam.id} ({fp['width']}x{fp['height']} in the calibration, {cam.width}x{cam.height} here)")
+            continue
+        K = np.asarray(fp["K"], dtype=np.float64)
+        if np.abs(K - cam.K).max() > FINGERPRINT_RTOL * cam.K[0, 0]:
+            fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+            out.append(
+                f"{cam.id} (fx, fy, cx, cy {fx:.1f}, {fy:.1f}, {cx:.1f}, {cy:.1f} in the calibration, "
+                f"{cam.K[0, 0]:.1f}, {cam.K[1, 1]:.1f}, {cam.K[0, 2]:.1f}, {cam.K[1, 2]:.1f} here)"
+            )
+    return out
 
 
 def resolve_rig(rig: Rig, calibration: Calibration | Rig | None) -> Rig:

@@ -54,10 +54,17 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
         points=len(cloud),
         fuse_ms=round(ms, 3),
         missing=list(frame.missing),
+        empty=_empty_views(frame),
         agreement=agreement,
         pairs=pairs,
     )
     return cloud, record
+
+
+def _empty_views(frame) -> list[str]:
+    """Ids of present views with no depth measurement at all (an all-zero depth image)."""
+    has_depth = (frame.depth > 0).flatten(1).any(1).tolist()
+    return [c for c, p, d in zip(frame.camera_ids, frame.present.tolist(), has_depth) if p and not d]
 
 
 def first_good_frame(rec: Recording, min_valid: float = 0.2, limit: int = 30) -> int:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -53,7 +52,8 @@ class FuseRunSummary:
     or CUDA start-up: the median leaves it out)."""
     wall_s: float
     warnings: dict[str, int] = field(default_factory=dict)
-    """Each kind of degraded input FUSE reported, with the number of frames it happened in."""
+    """Each kind of degraded input FUSE reported (cameras, then "at frames" and their numbers), with
+    the number of frames it happened in."""
     left_out: list[str] = field(default_factory=list)
     """Cameras of the recording the calibration does not place (not fused)."""
     frames_resumed: int = 0
@@ -117,6 +117,12 @@ def _warning_kinds(report) -> list[str]:
     return kinds
 
 
+def _frame_list(numbers: list[int], shown: int = 10) -> str:
+    """'0, 3, 7' (the first ``shown`` frame numbers, then how many more)."""
+    head = ", ".join(str(n) for n in numbers[:shown])
+    return head if len(numbers) <= shown else f"{head} and {len(numbers) - shown} more"
+
+
 def fuse_recording(
     rec: Recording | str | Path,
     out_dir: str | Path,
@@ -156,9 +162,11 @@ def fuse_recording(
     out = prepare_output_dir(out_dir)
     open_output(out, _manifest(rec, rig, preset, points), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
-    write_calibration(out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}))
+    write_calibration(
+        out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), rig=rec.rig
+    )
     sel = [rec.rig.index(c) for c in rig.ids]
-    points, fuse_ms, warnings, backend, resumed = [], [], Counter(), "", 0
+    points, fuse_ms, warnings, backend, resumed = [], [], {}, "", 0
     t0 = time.perf_counter()
     for done, t in enumerate(positions, start=1):
         path = cloud_path(out, rec.frame_numbers[t])
@@ -174,7 +182,8 @@ def fuse_recording(
             points.append(len(cloud))
             fuse_ms.append(res.report.ms)
             backend = res.report.backend
-            warnings.update(_warning_kinds(res.report))
+            for kind in _warning_kinds(res.report):
+                warnings.setdefault(kind, []).append(rec.frame_numbers[t])
         if on_frame:
             on_frame(done, len(positions))
     summary = FuseRunSummary(
@@ -190,7 +199,7 @@ def fuse_recording(
             "mean": statistics.fmean(fuse_ms) if fuse_ms else 0.0,
         },
         wall_s=time.perf_counter() - t0,
-        warnings=dict(warnings),
+        warnings={f"{kind} at frames {_frame_list(nums)}": len(nums) for kind, nums in warnings.items()},
         left_out=[c for c in rec.rig.ids if c not in rig.ids],
         frames_resumed=resumed,
     )

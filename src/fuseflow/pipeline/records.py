@@ -35,6 +35,8 @@ class FrameRecord:
     """Wall time of FUSE on this frame, milliseconds."""
     missing: list[str] = field(default_factory=list)
     """Ids of cameras whose view was dropped in this frame."""
+    empty: list[str] = field(default_factory=list)
+    """Ids of present cameras whose depth image has no measurement at all in this frame."""
     agreement: dict[str, float | None] = field(default_factory=dict)
     """Per camera, the mean agreement of its neighbour pairs (None: no vote)."""
     pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
@@ -48,11 +50,12 @@ class FrameRecord:
     def to_json(self) -> dict[str, Any]:
         """The frames.jsonl line: ``pairs`` as nested lists with null for NaN."""
         d = {k: v for k, v in self.__dict__.items() if k != "pairs"}
-        d["missing"], d["flagged"] = list(self.missing), list(self.flagged)
+        d["missing"], d["flagged"], d["empty"] = list(self.missing), list(self.flagged), list(self.empty)
         d["agreement"] = dict(self.agreement)
         d["pairs"] = pairs_to_json(self.pairs)
         return {
-            k: d[k] for k in ("index", "points", "fuse_ms", "missing", "agreement", "pairs", "flagged", "recalibrated")
+            k: d[k]
+            for k in ("index", "points", "fuse_ms", "missing", "empty", "agreement", "pairs", "flagged", "recalibrated")
         }
 
     @classmethod
@@ -64,6 +67,7 @@ class FrameRecord:
             points=int(d["points"]),
             fuse_ms=float(d["fuse_ms"]),
             missing=list(d.get("missing", [])),
+            empty=list(d.get("empty", [])),
             agreement=dict(d.get("agreement", {})),
             pairs=pairs_from_json(rows, len(rows)),
             flagged=list(d.get("flagged", [])),

@@ -75,10 +75,12 @@ def choose_calibration(
         return CalibrationChoice(rig, f"resumed from {calib_json}", warnings=warnings)
     if calibration is not None:
         rig, warnings = _placed(rec.rig, calibration)
-        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}))
+        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}), rig=rec.rig)
         return CalibrationChoice(rig, "given", warnings=warnings)
     if use_rig_extrinsics and rec.rig.is_calibrated:
-        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}))
+        write_calibration(
+            calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}), rig=rec.rig
+        )
         return CalibrationChoice(rec.rig, "rig.json")
     from fuseflow.calib import calibrate
 
@@ -89,7 +91,7 @@ def choose_calibration(
     if unplaced:
         warnings.append(f"GMAC could not place cameras {unplaced}; they are left out of fusion")
     warnings.extend(str(w) for w in cal.report.get("warnings", []))
-    write_calibration(calib_json, cal)
+    write_calibration(calib_json, cal, rig=rec.rig)
     number = rec.frame_numbers[t]
     return CalibrationChoice(placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings)
 
@@ -248,7 +250,10 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     """The RunSummary of the frames in ``state`` (dropped views, bumped cameras, timings)."""
     dropped: dict[str, int] = {}
     bumped: dict[str, int] = {}
+    empty: dict[str, list[int]] = {}
     for r in state.records:
+        for c in r.empty:
+            empty.setdefault(c, []).append(r.index)
         for c in r.missing:
             dropped[c] = dropped.get(c, 0) + 1
         for c in r.flagged:
@@ -257,6 +262,12 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     warnings += [
         f"camera {c} was missing in {n} frames; those frames were fused from the other views"
         for c, n in dropped.items()
+    ]
+    warnings += [
+        f"camera {c} had no valid depth (an all-zero depth image) in {len(n)} frames: "
+        + ", ".join(map(str, n[:10]))
+        + (f" and {len(n) - 10} more" if len(n) > 10 else "")
+        for c, n in empty.items()
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
