@@ -908,26 +908,34 @@ def _patch_ncc(
 # --------------------------------------------------------------------------------------------
 
 
-def _read_vm_hwm() -> int | None:
-    """Peak RSS (VmHWM) of this process in bytes from /proc, or None where unavailable."""
+def _read_status_kb(field: str) -> int | None:
+    """A ``field:`` of /proc/self/status in bytes (e.g. VmHWM, VmRSS), or None where unavailable."""
     try:
         with open("/proc/self/status") as f:
             for line in f:
-                if line.startswith("VmHWM:"):
+                if line.startswith(field + ":"):
                     return int(line.split()[1]) * 1024
     except OSError:
         return None
     return None
 
 
+def _read_vm_hwm() -> int | None:
+    """Peak RSS (VmHWM) of this process in bytes from /proc, or None where unavailable."""
+    return _read_status_kb("VmHWM")
+
+
 def _reset_vm_hwm() -> bool:
-    """Reset the kernel's peak-RSS counter (Linux >= 4.0: write 5 to clear_refs)."""
+    """Reset the kernel's peak-RSS counter (Linux >= 4.0: write 5 to clear_refs); True only when
+    the reset took (VmHWM came down to about the current VmRSS: some kernels accept the write and
+    keep the lifetime peak, which made a 40 MB allocation invisible late in a test session)."""
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")
-        return True
     except OSError:
         return False
+    hwm, rss = _read_vm_hwm(), _read_status_kb("VmRSS")
+    return hwm is not None and rss is not None and hwm <= rss + max(rss // 20, 1 << 20)
 
 
 def _ru_maxrss_bytes() -> int:

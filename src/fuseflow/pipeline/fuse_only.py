@@ -123,6 +123,44 @@ def _frame_list(numbers: list[int], shown: int = 10) -> str:
     return head if len(numbers) <= shown else f"{head} and {len(numbers) - shown} more"
 
 
+@dataclass
+class _Fused:
+    """What the frame loop of ``fuse_recording`` collected."""
+
+    counts: list[int] = field(default_factory=list)
+    fuse_ms: list[float] = field(default_factory=list)
+    warnings: dict[str, list[int]] = field(default_factory=dict)
+    backend: str = ""
+    resumed: int = 0
+
+
+def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, cfg, device: str, on_frame) -> _Fused:
+    """FUSE each position into OUT/clouds (keeping clouds an earlier matching call wrote)."""
+    from fuseflow.fuse import fuse_with_report
+
+    sel = [rec.rig.index(c) for c in rig.ids]
+    done = _Fused()
+    for k, t in enumerate(positions, start=1):
+        path = cloud_path(out, rec.frame_numbers[t])
+        if path.exists():  # written by an earlier call with the same manifest
+            done.counts.append(read_ply_header_count(path))
+            done.resumed += 1
+        else:
+            res = fuse_with_report(select_views(rec[t], sel, device), rig, cfg)
+            cloud = res.cloud.to("cpu")
+            if len(sel) != len(rec.rig):
+                cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
+            write_ply(path, cloud)
+            done.counts.append(len(cloud))
+            done.fuse_ms.append(res.report.ms)
+            done.backend = res.report.backend
+            for kind in _warning_kinds(res.report):
+                done.warnings.setdefault(kind, []).append(rec.frame_numbers[t])
+        if on_frame:
+            on_frame(k, len(positions))
+    return done
+
+
 def fuse_recording(
     rec: Recording | str | Path,
     out_dir: str | Path,
@@ -149,7 +187,7 @@ def fuse_recording(
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
     """
-    from fuseflow.fuse import PRESETS, fuse_with_report
+    from fuseflow.fuse import PRESETS
 
     if preset not in PRESETS:
         raise ValidationError(f"no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
@@ -165,43 +203,24 @@ def fuse_recording(
     write_calibration(
         out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), rig=rec.rig
     )
-    sel = [rec.rig.index(c) for c in rig.ids]
-    points, fuse_ms, warnings, backend, resumed = [], [], {}, "", 0
     t0 = time.perf_counter()
-    for done, t in enumerate(positions, start=1):
-        path = cloud_path(out, rec.frame_numbers[t])
-        if path.exists():  # written by an earlier call with the same manifest
-            points.append(read_ply_header_count(path))
-            resumed += 1
-        else:
-            res = fuse_with_report(select_views(rec[t], sel, device), rig, cfg)
-            cloud = res.cloud.to("cpu")
-            if len(sel) != len(rec.rig):
-                cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
-            write_ply(path, cloud)
-            points.append(len(cloud))
-            fuse_ms.append(res.report.ms)
-            backend = res.report.backend
-            for kind in _warning_kinds(res.report):
-                warnings.setdefault(kind, []).append(rec.frame_numbers[t])
-        if on_frame:
-            on_frame(done, len(positions))
+    done = _fuse_positions(rec, out, positions, rig, cfg, device, on_frame)
     summary = FuseRunSummary(
         recording=str(Path(rec.path).resolve()),
         frames=len(positions),
         cameras=len(rig),
         preset=preset,
-        backend=backend,
+        backend=done.backend,
         device=device,
-        points_per_frame={"mean": statistics.fmean(points), "min": min(points), "max": max(points)},
+        points_per_frame={"mean": statistics.fmean(done.counts), "min": min(done.counts), "max": max(done.counts)},
         fuse_ms_per_frame={
-            "median": statistics.median(fuse_ms) if fuse_ms else 0.0,
-            "mean": statistics.fmean(fuse_ms) if fuse_ms else 0.0,
+            "median": statistics.median(done.fuse_ms) if done.fuse_ms else 0.0,
+            "mean": statistics.fmean(done.fuse_ms) if done.fuse_ms else 0.0,
         },
         wall_s=time.perf_counter() - t0,
-        warnings={f"{kind} at frames {_frame_list(nums)}": len(nums) for kind, nums in warnings.items()},
+        warnings={f"{kind} at frames {_frame_list(nums)}": len(nums) for kind, nums in done.warnings.items()},
         left_out=[c for c in rec.rig.ids if c not in rig.ids],
-        frames_resumed=resumed,
+        frames_resumed=done.resumed,
     )
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary
