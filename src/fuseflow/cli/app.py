@@ -63,16 +63,15 @@ def warn(message: str) -> None:
 
 
 def parse_range(spec: str | None, n: int) -> range:
-    """'A:B' (python-style, either side optional) -> range within [0, n)."""
-    if spec is None:
-        return range(n)
+    """'A:B' (python-style, either side optional) -> range within [0, n); a bad spec exits with
+    the library's one-line message (``io.convert.parse_frame_range``)."""
+    from fuseflow.io.convert import parse_frame_range
+
     try:
-        a, _, b = spec.partition(":")
-        start = int(a) if a else 0
-        stop = int(b) if b else n
-    except ValueError:
-        fail(f"--frames expects A:B (e.g. 0:100), got {spec!r}")
-    return range(n)[start:stop]
+        return parse_frame_range(spec, n)
+    except FuseFlowError as exc:
+        fail(str(exc))
+        raise  # unreachable: fail exits
 
 
 def parse_int_list(spec: str, option: str) -> list[int]:

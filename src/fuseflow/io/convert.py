@@ -21,7 +21,7 @@ from typing import Any
 from fuseflow.errors import RecordingError, ValidationError
 from fuseflow.types import Rig
 
-__all__ = ["ConvertSummary", "convert", "open_camera_file", "CAMERA_FILE_SUFFIXES"]
+__all__ = ["ConvertSummary", "convert", "open_camera_file", "parse_frame_range", "CAMERA_FILE_SUFFIXES"]
 
 CAMERA_FILE_SUFFIXES = (".bag", ".mkv")
 
@@ -46,7 +46,9 @@ class ConvertSummary:
     details: dict[str, Any] = field(default_factory=dict)
 
 
-def _parse_range(spec: str | None, n: int) -> range:
+def parse_frame_range(spec: str | None, n: int) -> range:
+    """'A:B' (python-style, either side optional) -> the positions it selects in range(n);
+    None = all. ValidationError on anything else (``--frames`` of convert, fuse, run, view)."""
     if spec is None:
         return range(n)
     try:
@@ -182,7 +184,7 @@ def _convert_dataset(src, out, virtual_rig, cameras, every, frames, tum_intrinsi
         rig = make_virtual_rig(rec, idx, out)
         msg = f"wrote a {len(rig)}-camera virtual rig (frames {idx}) to {out}"
         return ConvertSummary("virtual-rig", out, rig, 1, msg, time.perf_counter() - t0, {"frames": idx})
-    rng = _parse_range(frames, len(rec))
+    rng = parse_frame_range(frames, len(rec))
     rig = convert_sequence(rec, out, list(rng))
     return ConvertSummary("sequence", out, rig, len(rng), f"wrote {len(rng)} frames of one camera to {out}",
                           time.perf_counter() - t0)  # fmt: skip
