@@ -20,7 +20,7 @@ from fuseflow.errors import FormatError
 from fuseflow.io.files import read_bytes, write_bytes_atomic
 from fuseflow.types import FusedCloud
 
-__all__ = ["write_ply", "read_ply"]
+__all__ = ["write_ply", "read_ply", "ply_point_count"]
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -88,6 +88,18 @@ def _parse_header(path: Path, data: bytes) -> tuple[str, list[tuple[str, int, li
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise FormatError(f"{path}: unsupported PLY format {fmt!r}")
     return fmt, elements, body_start
+
+
+def ply_point_count(path: str | Path) -> int:
+    """Number of points a PLY file declares (its first element), reading only the header
+    (FormatError when it is not a vertex PLY)."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)  # a FuseFlow header is a few hundred bytes
+    _, elements, _ = _parse_header(path, head)
+    if not elements or elements[0][0] != "vertex":
+        raise FormatError(f"{path}: expected 'vertex' as the first element")
+    return elements[0][1]
 
 
 def read_ply(path: str | Path) -> FusedCloud:

@@ -18,7 +18,7 @@ from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import write_calibration
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.paths import prepare_output_dir
-from fuseflow.io.ply import write_ply
+from fuseflow.io.ply import ply_point_count, write_ply
 from fuseflow.io.recording import Recording, write_json_atomic
 from fuseflow.pipeline.extrinsics import placed_rig, reindex_cameras
 from fuseflow.pipeline.frames import select_views
@@ -90,18 +90,6 @@ def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None) -> Outp
     )
 
 
-def read_ply_header_count(path: Path) -> int:
-    """Number of points a PLY file declares (``element vertex N``), read from its header only."""
-    with open(path, "rb") as f:
-        for raw in f:
-            line = raw.decode("ascii", errors="replace").strip()
-            if line.startswith("element vertex"):
-                return int(line.split()[-1])
-            if line == "end_header":
-                break
-    return 0
-
-
 def _warning_kinds(report) -> list[str]:
     """One key per kind of degraded input in a FuseReport (frame numbers left out, so that the
     same problem in many frames counts once per frame)."""
@@ -143,7 +131,7 @@ def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, c
     for k, t in enumerate(positions, start=1):
         path = cloud_path(out, rec.frame_numbers[t])
         if path.exists():  # written by an earlier call with the same manifest
-            done.counts.append(read_ply_header_count(path))
+            done.counts.append(ply_point_count(path))
             done.resumed += 1
         else:
             res = fuse_with_report(select_views(rec[t], sel, device), rig, cfg)
