@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import FormatError, RecordingError
-from fuseflow.io.multicam import align_depth_to_color
+from fuseflow.io.multicam import align_depth_to_color, wanted_messages
 
 __all__ = ["AzureKinectMkv", "mode_specific_intrinsics", "COLOR_MODES", "DEPTH_MODES"]
 
@@ -286,10 +286,7 @@ class AzureKinectMkv:
 
     def views(self, wanted: set[int]) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         av = _av()
-        want_d = {int(self._view_depth[k]): k for k in wanted}
-        want_c: dict[int, list[int]] = {}
-        for k in wanted:
-            want_c.setdefault(int(self._view_color[k]), []).append(k)
+        want_d, want_c = wanted_messages(self._view_depth, self._view_color, wanted)
         got_d: dict[int, np.ndarray] = {}
         got_c: dict[int, np.ndarray] = {}
         nd = nc = 0

@@ -59,6 +59,19 @@ class CameraStream(Protocol):
         ...
 
 
+def wanted_messages(
+    view_depth: np.ndarray, view_color: np.ndarray, wanted: set[int]
+) -> tuple[dict[int, int], dict[int, list[int]]]:
+    """For the views ``wanted`` (indices into a camera's paired views), the depth message index ->
+    view and the colour message index -> views (one colour frame can serve several views): what
+    a reader's second pass decodes (``CameraStream.views`` of rosbag.py and azure_kinect.py)."""
+    want_d = {int(view_depth[k]): k for k in wanted}
+    want_c: dict[int, list[int]] = {}
+    for k in wanted:
+        want_c.setdefault(int(view_color[k]), []).append(k)
+    return want_d, want_c
+
+
 def write_depth_raw(path: Path, raw: np.ndarray) -> None:
     """Write (H, W) uint16 depth units as a 16-bit PNG, unchanged."""
     import cv2
