@@ -14,6 +14,7 @@ call it and never each other.
 from fuseflow.geometry.agreement import (
     camera_agreement,
     depth_agreement,
+    one_torch_thread,
     pair_agreement,
     project_votes,
     subsample_stride,
@@ -29,6 +30,7 @@ __all__ = [
     "depth_agreement",
     "fov_overlap",
     "neighbour_graph",
+    "one_torch_thread",
     "pair_agreement",
     "pixel_rays",
     "project_votes",

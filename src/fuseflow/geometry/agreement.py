@@ -25,7 +25,14 @@ from fuseflow.geometry.camera import pixel_rays, relative_transforms
 from fuseflow.geometry.overlap import neighbour_graph
 from fuseflow.types import Frame, Rig
 
-__all__ = ["project_votes", "pair_agreement", "camera_agreement", "depth_agreement", "subsample_stride"]
+__all__ = [
+    "one_torch_thread",
+    "project_votes",
+    "pair_agreement",
+    "camera_agreement",
+    "depth_agreement",
+    "subsample_stride",
+]
 
 
 def project_votes(
@@ -83,7 +90,7 @@ def subsample_stride(height: int, width: int, samples: int) -> int:
 
 
 @contextlib.contextmanager
-def _one_thread():
+def one_torch_thread():
     """Run torch's CPU ops on one thread. The agreement measure works on a few thousand samples
     per view: with torch's thread pool beside numba's (the pipeline fuses with numba), each tiny
     op paid for waking and spinning threads. Measured on a 4-camera 320x240 frame, 2 cores: 7-8 ms
@@ -120,7 +127,7 @@ def pair_agreement(
     """
     if frame.depth.device.type != "cpu":
         return _pair_agreement(frame, rig, samples, tau, k_max, only)
-    with _one_thread():
+    with one_torch_thread():
         return _pair_agreement(frame, rig, samples, tau, k_max, only)
 
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -40,7 +39,7 @@ from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.errors import ValidationError
-from fuseflow.geometry import project_votes
+from fuseflow.geometry import one_torch_thread, project_votes
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = ["RGBDConfig", "rgbd_backbone", "prepare_camera", "verify_pose", "PairCheck", "CameraEvidence"]
@@ -224,7 +223,7 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
     order = sorted(range(n), key=lambda k: rig.cameras[k].id)  # canonical: by id
     cams = [prepare_camera(frames, rig, k, cfg) for k in order]
     t_prep = time.perf_counter() - t0
-    with _torch_threads(1):
+    with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
         edges, pairs_info = _pair_edges(cams, cfg)
     t_pairs = time.perf_counter() - t0 - t_prep
     kept, dropped, untested = prune_cycles(edges, cfg.cycle_rot_deg, cfg.cycle_trans_m)
@@ -248,19 +247,6 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
         "time_s": {"prepare": t_prep, "pairs": t_pairs, "total": time.perf_counter() - t0},
     }
     return BackboneResult(T_cam_world=T, registered=registered, name="rgbd", info=info, metric=True)
-
-
-@contextmanager
-def _torch_threads(n: int):
-    """Run the verification's small tensor ops (~5000 points) on ``n`` intra-op threads: on a
-    loaded 2-core machine two threads made each project_votes call 20-30x slower (measured
-    1.4 ms vs 29-44 ms). Restores the previous setting."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _check_frames(frames, rig: Rig) -> list[Frame]:
