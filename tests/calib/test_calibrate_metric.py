@@ -23,7 +23,7 @@ def _metric(T_true: np.ndarray, factor: float = 1.0) -> BackboneResult:
 
 def test_metric_backbone_is_used_at_scale_one(scene5):
     frame, rig, T = scene5
-    cal = calibrate(frame, rig, backbone_result=_metric(T))
+    cal = calibrate(frame, rig, CalibConfig(joint_refine=False), backbone_result=_metric(T))
     r = cal.report
     assert r.scale == 1.0 and r.scale_check is not None and abs(r.scale_check - 1) < 0.02, r.scale_check
     assert not any("more than 2%" in w for w in r.warnings)
@@ -35,7 +35,7 @@ def test_metric_backbone_is_used_at_scale_one(scene5):
 def test_metric_backbone_with_wrong_scale_warns_but_keeps_scale_one(scene5):
     """A 'metric' backbone 10 % too long: GMAC's check finds ~1/1.1 and warns; the poses stay as given."""
     frame, rig, T = scene5
-    cal = calibrate(frame, rig, backbone_result=_metric(T, 1.1))
+    cal = calibrate(frame, rig, CalibConfig(joint_refine=False), backbone_result=_metric(T, 1.1))
     r = cal.report
     assert r.scale == 1.0 and abs(r.scale_check - 1 / 1.1) < 0.02, r.scale_check
     assert any("more than 2% from 1" in w for w in r.warnings), r.warnings

@@ -49,6 +49,7 @@ REPORT_KEYS = [
     "scale_check",  # issue 15: GMAC's s* on a metric backbone's poses
     "placed_by",  # issue 15: which source placed each camera
     "unplaced_reasons",  # issue 15: auto, why a camera is not placed
+    "joint_refinement",  # issue 15 item 4: the depth-aware joint refinement's summary
 ]
 
 

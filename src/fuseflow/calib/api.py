@@ -4,7 +4,8 @@
 (scale-ambiguous poses, eq. 3, :mod:`backbones`) -> metric scale (RC correspondences, the scale
 fixed point and cycle pruning, eq. 5-13, :mod:`scale_stage`) -> place the cameras
 T_i = [R_i | s* t_i] (eq. 14) -> optional rigid refinement (:mod:`refine`) -> depth-agreement
-check (:func:`fuseflow.geometry.depth_agreement`) -> the report (:class:`CalibReport`).
+check (:func:`fuseflow.geometry.depth_agreement`) -> depth-aware joint refinement of all cameras
+(:mod:`joint_refine`, beyond the paper) -> the report (:class:`CalibReport`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from fuseflow.calib.placement import (
     as_frames,
     finish_report,
     place_with_backbone,
+    refine_jointly,
 )
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
 from fuseflow.errors import ValidationError
@@ -130,6 +132,8 @@ def calibrate(
         pl = auto_place(frames, rig, depth, K, drange, config)
     else:
         pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
+    if config.joint_refine and len(pl.T) >= 2:
+        refine_jointly(pl, frames, rig, config)
     pl.timings["total"] = time.perf_counter() - t_start
     return Calibration(pl.T, finish_report(pl, frames[0].camera_ids, config))
 

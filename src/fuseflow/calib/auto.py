@@ -188,7 +188,10 @@ def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, 
             Tarr[k] = T[c]
     info = {n: {"placed": sorted(p.T), "depth_agreement": p.agreement, **p.bb.info} for n, p in runs.items()}
     info.update({n: {"failed": v} for n, v in failures.items()})
-    bb = BackboneResult(Tarr, np.array([c in T for c in ids]), name="auto", info={"sources": info}, metric=True)
+    tracks = runs["rgbd"].bb.tracks if "rgbd" in runs else ()  # camera-frame points: valid in any world
+    bb = BackboneResult(
+        Tarr, np.array([c in T for c in ids]), name="auto", info={"sources": info}, metric=True, tracks=tracks
+    )
     warnings = [f"{n}: {w}" for n, p in runs.items() for w in p.warnings]
     warnings += [f"{n} failed: {v}" for n, v in failures.items()]
     timings = {f"{n}_{k}": v for n, p in runs.items() for k, v in p.timings.items()}

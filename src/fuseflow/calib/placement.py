@@ -73,6 +73,7 @@ class Placement:
         refinement: the refinement's diagnostics or None. warnings: extra warnings.
         timings: seconds per stage. placed_by: camera id -> the source that placed it (None:
         ``bb.name`` for all). unplaced_reasons: camera id -> why it is not placed (``auto``).
+        joint_refinement: the depth-aware joint refinement's summary (None when off).
     """
 
     bb: BackboneResult
@@ -87,6 +88,7 @@ class Placement:
     timings: dict[str, float]
     placed_by: dict[str, str] | None = None
     unplaced_reasons: dict[str, str] | None = None
+    joint_refinement: dict[str, Any] | None = None
 
 
 def place_with_backbone(
@@ -160,7 +162,24 @@ def finish_report(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> C
     report.warnings = pl.warnings + report.warnings
     report.placed_by = pl.placed_by if pl.placed_by is not None else dict.fromkeys(pl.T, pl.bb.name)
     report.unplaced_reasons = pl.unplaced_reasons or {}
+    report.joint_refinement = pl.joint_refinement
     return report
+
+
+def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, config: CalibConfig) -> None:
+    """The depth-aware joint refinement of every placed camera (:mod:`fuseflow.calib.joint_refine`)
+    on ``frames``, with the backbone's keypoint tracks; updates ``pl`` in place (poses and depth
+    agreement when the refinement is kept, its summary and timing always)."""
+    from fuseflow.calib.joint_refine import joint_refine
+
+    t = time.perf_counter()
+    res = joint_refine(pl.T, frames, rig, anchor=pl.anchor, tracks=pl.bb.tracks)
+    pl.joint_refinement = res.as_dict()
+    if res.accepted:
+        pl.T = res.T_cam_world
+        if config.min_depth_agreement > 0:
+            pl.agreement = depth_agreement(frames[0], rig, pl.T)
+    pl.timings["joint_refine"] = time.perf_counter() - t
 
 
 def anchor_world(

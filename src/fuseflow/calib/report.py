@@ -98,6 +98,11 @@ class CalibReport(Mapping[str, Any]):
     unplaced_reasons: dict[str, str] = field(default_factory=dict)
     """``auto``: camera -> why no source placed it (e.g. depth agreement below the threshold
     under every source). Empty otherwise and in reports written before it existed."""
+    joint_refinement: dict[str, Any] | None = None
+    """The depth-aware joint refinement (:mod:`fuseflow.calib.joint_refine`): whether it was kept
+    and why not, iterations, overlapping pairs, per camera the share of samples within 1 cm of
+    its neighbours' surfaces before / after and how far it moved (deg, mm). None when off and in
+    reports written before it existed."""
 
     # -- JSON -----------------------------------------------------------------------------------
 

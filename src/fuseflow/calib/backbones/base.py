@@ -30,6 +30,10 @@ class BackboneResult:
         name: backbone name. info: timings, counts, notes (JSON-serialisable).
         metric: True when the translations are already in metres (scale 1 by construction,
             e.g. the ``rgbd`` backbone); GMAC's scale s* is then a check, not an estimate.
+        tracks: metric keypoint correspondences behind the poses, for the depth-aware joint
+            refinement (:mod:`fuseflow.calib.joint_refine`): tuples (camera id a, camera id b,
+            X_a (m, 3), X_b (m, 3) the same points in each camera's frame in metres, sigma (m,)
+            metres). Empty for scale-free backbones. Not written to calib.json.
     """
 
     T_cam_world: np.ndarray
@@ -41,6 +45,7 @@ class BackboneResult:
     name: str = ""
     info: dict[str, Any] = field(default_factory=dict)
     metric: bool = False
+    tracks: tuple = ()
 
     def __post_init__(self) -> None:
         T = np.asarray(self.T_cam_world, dtype=np.float64)

@@ -246,7 +246,12 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
         "refine": refine_info,
         "time_s": {"prepare": t_prep, "pairs": t_pairs, "total": time.perf_counter() - t0},
     }
-    return BackboneResult(T_cam_world=T, registered=registered, name="rgbd", info=info, metric=True)
+    tracks = tuple(
+        (ids[e.i], ids[e.j], e.X_i, e.X_j, e.sigma)
+        for e in kept.values()
+        if placed_int[e.i] and placed_int[e.j] and len(e.X_i)
+    )
+    return BackboneResult(T_cam_world=T, registered=registered, name="rgbd", info=info, metric=True, tracks=tracks)
 
 
 def _check_frames(frames, rig: Rig) -> list[Frame]:
