@@ -145,11 +145,11 @@ def _cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "fuseflow", *args], check=True, env=env, stdout=subprocess.DEVNULL)
 
 
-def sim_recording(data: Path, n: int, scene: str, seed: int, frames: int, res: str) -> Path:
-    rec = data / f"{scene}{n}_s{seed}_f{frames}_{res}"
+def sim_recording(data: Path, n: int, scene: str, seed: int, frames: int, res: str, dynamic: bool = False) -> Path:
+    rec = data / f"{scene}{n}_s{seed}_f{frames}_{res}{'_dyn' if dynamic else ''}"
     if not (rec / "gt.json").exists():
         _cli("simulate", str(rec), "--cameras", str(n), "--scene", scene, "--seed", str(seed),
-             "--frames", str(frames), "--resolution", res)  # fmt: skip
+             "--frames", str(frames), "--resolution", res, *(["--dynamic"] if dynamic else []))  # fmt: skip
     return rec
 
 
@@ -159,13 +159,14 @@ def bench_sim(args) -> None:
     for seed in args.seeds:  # seed outermost: a cut-short run still covers every configuration
         for scene in args.scenes:
             for n in args.cameras:
-                path = sim_recording(args.data, n, scene, seed, args.frames, args.resolution)
+                path = sim_recording(args.data, n, scene, seed, args.frames, args.resolution, args.dynamic)
                 rec = open_recording(path)
                 T_ref = np.stack([c.T_cam_world for c in rec.rig])  # rig.json: true extrinsics
                 bare = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
                 all_frames = [rec[t] for t in range(len(rec))]
-                for nf in sorted({1, len(all_frames)}):
-                    meta = {"data": "sim", "scene": scene, "n": n, "seed": seed, "frames": nf, "res": args.resolution}
+                for nf in sorted({1, len(all_frames)} if args.only_frames is None else {args.only_frames}):
+                    meta = {"data": "sim", "scene": scene, "n": n, "seed": seed, "frames": nf, "res": args.resolution,
+                            "dynamic": args.dynamic}  # fmt: skip
                     run_one(all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig(), args.backbone)
 
 
@@ -233,7 +234,8 @@ def summary(args) -> None:
     groups: dict = {}
     for r in rows:
         data = r["data"] if r.get("backbone", "raw") == "raw" else f"{r['data']} [{r['backbone']}]"
-        key = (data, r.get("scene", ""), r["n"], r.get("frames", 1), r.get("every", ""))
+        scene = r.get("scene", "") + (" dynamic" if r.get("dynamic") else "")
+        key = (data, scene, r["n"], r.get("frames", 1), r.get("every", ""))
         groups.setdefault(key, []).append(r)
     print("| data | scene | N | frames | runs | all placed | placed (mean) | rot deg (mean / max) "
           "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) |")  # fmt: skip
@@ -269,7 +271,9 @@ def main() -> None:
     ap.add_argument("--cameras", type=int, nargs="+", default=[3, 4, 6, 8])
     ap.add_argument("--scenes", nargs="+", default=["room", "studio"])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
-    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--frames", type=int, default=5, help="frames simulated (runs use 1 and all of them)")
+    ap.add_argument("--only-frames", type=int, default=None, help="run only with this many frames")
+    ap.add_argument("--dynamic", action="store_true", help="simulate moving objects (fuseflow simulate --dynamic)")
     ap.add_argument("--resolution", default="640x480")
     ap.add_argument("--every", type=int, nargs="+", default=[26])
     ap.add_argument("--backbone", default="raw", choices=["raw", "colmap", "rgbd", "auto"])

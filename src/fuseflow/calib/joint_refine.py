@@ -48,7 +48,7 @@ __all__ = ["JointRefineResult", "joint_refine", "SIGMA_A", "SIGMA_B"]
 #: Nguyen, Izadi and Lovell 2012; used as a relative weight between near and far samples.
 SIGMA_A = 0.0012
 SIGMA_B = 0.0019
-#: Samples per camera and frame (a regular pixel grid over the valid depth).
+#: Samples per camera, split over the frames used (a regular pixel grid over the valid depth).
 SAMPLES = 12000
 #: Association gates (metres) per iteration; an iteration's gate is never below 3 sigma(z).
 GATES_M = (0.06, 0.04, 0.03, 0.02, 0.015, 0.01, 0.01, 0.01, 0.01, 0.01)
@@ -386,7 +386,7 @@ def joint_refine(
             spread over them are used (a person walking through adds overlap).
         rig: intrinsics and depth ranges of the frames' cameras.
         anchor: the camera held fixed (default: the first placed camera in rig order).
-        samples: depth samples per camera and frame.
+        samples: depth samples per camera, split over the frames used.
         tracks: keypoint correspondences (camera id a, camera id b, X_a (m, 3) and X_b (m, 3)
             the same points in each camera's frame, metres, sigma (m,) metres), e.g. the
             verified 3-D matches of the ``rgbd`` backbone's edges; pairs with an unplaced
@@ -440,7 +440,7 @@ def _frame_views(frames: Sequence[Frame], rig: Rig, ids: list[str], max_frames: 
         for c in ids:
             k = f.camera_ids.index(c)
             d = depth[k] if present[k] else np.zeros_like(depth[k])
-            row.append(_view(d, rig[c].K, rig[c].depth_range, samples))
+            row.append(_view(d, rig[c].K, rig[c].depth_range, max(1, samples // len(picks))))
         views.append(row)
     return views
 
