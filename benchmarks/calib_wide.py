@@ -228,6 +228,47 @@ def bench_icl(args) -> None:
         run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig(), args.backbone)
 
 
+def depth_overlap(frame: Frame, rig: Rig, T: np.ndarray, a: int, b: int) -> float:
+    """Share of camera a's valid depth that camera b sees at the same depth (5 %) under the
+    true extrinsics T (N, 4, 4), averaged over both directions."""
+    shares = []
+    for i, j in ((a, b), (b, a)):
+        K, Kj = rig.cameras[i].K, rig.cameras[j].K
+        z = frame.depth[i].numpy()
+        v, u = np.nonzero(z > 0)
+        zz = z[v, u].astype(np.float64)
+        P = np.stack([(u - K[0, 2]) / K[0, 0] * zz, (v - K[1, 2]) / K[1, 1] * zz, zz], 1)
+        M = T[j] @ invert_rigid(T[i])
+        X = P @ M[:3, :3].T + M[:3, 3]
+        dj = frame.depth[j].numpy()
+        h, w = dj.shape
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uu = np.rint(Kj[0, 0] * X[:, 0] / X[:, 2] + Kj[0, 2])
+            vv = np.rint(Kj[1, 1] * X[:, 1] / X[:, 2] + Kj[1, 2])
+        ok = (X[:, 2] > 0) & (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+        d = dj[vv[ok].astype(int), uu[ok].astype(int)]
+        shares.append(float(np.sum((d > 0) & (np.abs(d - X[ok, 2]) < 0.05 * X[ok, 2]))) / max(len(zz), 1))
+    return float(np.mean(shares))
+
+
+def bench_pairs(args) -> None:
+    """Two-camera rigs: cameras 0 and 1 of each simulated ring and ICL rig, with their measured
+    overlap (issue 15: a 2-camera rig with >= 30 % overlap must be placed)."""
+    from fuseflow.io import open_recording
+
+    paths = [sim_recording(args.data, n, sc, seed, args.frames, args.resolution)
+             for seed in args.seeds for sc in args.scenes for n in args.cameras]  # fmt: skip
+    paths += [args.data / f"icl8_every{e}" for e in args.every if (args.data / f"icl8_every{e}" / "rig.json").exists()]
+    for path in paths:
+        rec = open_recording(path)
+        T_ref = np.stack([c.T_cam_world for c in rec.rig])
+        frame = rec[0].subset([0, 1])
+        rig = Rig(tuple(c.with_extrinsics(None) for c in rec.rig.subset([0, 1])))
+        meta = {"data": "pair", "scene": path.name, "n": 2, "frames": 1,
+                "overlap": depth_overlap(rec[0], rec.rig, T_ref, 0, 1)}  # fmt: skip
+        run_one([frame], rig, T_ref[:2], meta, args.out, RGBDConfig(), args.backbone)
+
+
 # ------------------------------------------------------------------ summary
 def summary(args) -> None:
     rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
@@ -265,7 +306,7 @@ def summary(args) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=["sim", "hocap", "icl", "summary"])
+    ap.add_argument("what", choices=["sim", "hocap", "icl", "pairs", "summary"])
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/calib_wide.jsonl"))
     ap.add_argument("--data", type=Path, default=Path("/tmp/fuseflow-calib-wide"))
     ap.add_argument("--cameras", type=int, nargs="+", default=[3, 4, 6, 8])
@@ -280,7 +321,9 @@ def main() -> None:
     args = ap.parse_args()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.data.mkdir(parents=True, exist_ok=True)
-    {"sim": bench_sim, "hocap": bench_hocap, "icl": bench_icl, "summary": summary}[args.what](args)
+    {"sim": bench_sim, "hocap": bench_hocap, "icl": bench_icl, "pairs": bench_pairs, "summary": summary}[args.what](
+        args
+    )
 
 
 if __name__ == "__main__":
