@@ -304,6 +304,13 @@ class FuseFlowRecording(Recording):
         if not numbers:
             raise RecordingError(f"{self.path}: no frames found (expected <camera>/color/000000.png and depth/)")
         self.frame_numbers = tuple(sorted(numbers))
+        from fuseflow.io.timesync import read_timestamps  # lazy: timesync imports this module
+
+        ts = read_timestamps(self.path)
+        # device timestamps of converted recordings (timestamps.json): camera id -> number -> s
+        self._stamps: dict[str, dict[int, float]] = {} if ts is None else {
+            c: {int(n): float(x) for n, x in zip(ts.frames, v) if np.isfinite(x)} for c, v in ts.view.items()
+        }  # fmt: skip
 
     def _load_view(self, cam_index: int, number: int):
         cpath = self._color[cam_index].get(number)
@@ -314,7 +321,7 @@ class FuseFlowRecording(Recording):
         color = read_color(cpath)
         depth = read_depth(dpath, cam.depth_scale)
         self._check_view(cam, color, depth, cpath, dpath)
-        return color, depth, None
+        return color, depth, self._stamps.get(cam.id, {}).get(number)
 
     def check_files(self) -> list[str]:
         """Decode every colour and depth file of every camera (``fuseflow info --check``); one line
