@@ -282,6 +282,21 @@ def list_frames(directory: Path, exts: tuple[str, ...]) -> dict[int, Path]:
     return out
 
 
+def _view_stamps(root: Path) -> dict[str, dict[int, float]]:
+    """Device timestamps of a converted recording (``timestamps.json``, docs/formats.md):
+    camera id -> frame number -> seconds; {} without the file. Read here rather than through
+    ``io.timesync.read_timestamps`` (which validates it) because timesync imports this module."""
+    path = root / "timestamps.json"
+    if not path.is_file():
+        return {}
+    doc = load_json(path)
+    frames = [int(n) for n in doc.get("frames", [])]
+    return {
+        c: {n: float(x) for n, x in zip(frames, v.get("timestamp", [])) if x is not None}
+        for c, v in doc.get("cameras", {}).items()
+    }
+
+
 class FuseFlowRecording(Recording):
     """A recording in FuseFlow's own format (rig.json + per-camera colour/depth folders)."""
 
@@ -304,13 +319,7 @@ class FuseFlowRecording(Recording):
         if not numbers:
             raise RecordingError(f"{self.path}: no frames found (expected <camera>/color/000000.png and depth/)")
         self.frame_numbers = tuple(sorted(numbers))
-        from fuseflow.io.timesync import read_timestamps  # lazy: timesync imports this module
-
-        ts = read_timestamps(self.path)
-        # device timestamps of converted recordings (timestamps.json): camera id -> number -> s
-        self._stamps: dict[str, dict[int, float]] = {} if ts is None else {
-            c: {int(n): float(x) for n, x in zip(ts.frames, v) if np.isfinite(x)} for c, v in ts.view.items()
-        }  # fmt: skip
+        self._stamps = _view_stamps(self.path)
 
     def _load_view(self, cam_index: int, number: int):
         cpath = self._color[cam_index].get(number)
