@@ -148,3 +148,14 @@ def test_simulate_cli_desync(tmp_path):
     assert open_recording(out).missing_views() == {"cam01": [3]}
     bad = runner.invoke(app, ["simulate", str(tmp_path / "b"), "--desync", "x"])
     assert bad.exit_code == 2 and "CAM:FRAMES" in bad.output
+
+
+def test_converted_frames_carry_the_device_timestamps(converted):
+    """Frame.timestamp of a converted recording is a device timestamp from timestamps.json (the
+    first present view's, in rig order); a frame where cam00 is dropped takes the next camera's."""
+    _, out, stamps, _ = converted
+    rec = open_recording(out)
+    for t in (0, 5, FRAMES - 1):
+        assert rec[t].timestamp == pytest.approx(stamps["cam00"][t] / 1e9, abs=1e-9)
+    last = rec[FRAMES + LATE - 1]  # only cam03 has a view here
+    assert last.timestamp == pytest.approx(stamps["cam03"][-1] / 1e9, abs=1e-9)

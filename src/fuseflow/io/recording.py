@@ -282,6 +282,21 @@ def list_frames(directory: Path, exts: tuple[str, ...]) -> dict[int, Path]:
     return out
 
 
+def _view_stamps(root: Path) -> dict[str, dict[int, float]]:
+    """Device timestamps of a converted recording (``timestamps.json``, docs/formats.md):
+    camera id -> frame number -> seconds; {} without the file. Read here rather than through
+    ``io.timesync.read_timestamps`` (which validates it) because timesync imports this module."""
+    path = root / "timestamps.json"
+    if not path.is_file():
+        return {}
+    doc = load_json(path)
+    frames = [int(n) for n in doc.get("frames", [])]
+    return {
+        c: {n: float(x) for n, x in zip(frames, v.get("timestamp", [])) if x is not None}
+        for c, v in doc.get("cameras", {}).items()
+    }
+
+
 class FuseFlowRecording(Recording):
     """A recording in FuseFlow's own format (rig.json + per-camera colour/depth folders)."""
 
@@ -304,6 +319,7 @@ class FuseFlowRecording(Recording):
         if not numbers:
             raise RecordingError(f"{self.path}: no frames found (expected <camera>/color/000000.png and depth/)")
         self.frame_numbers = tuple(sorted(numbers))
+        self._stamps = _view_stamps(self.path)
 
     def _load_view(self, cam_index: int, number: int):
         cpath = self._color[cam_index].get(number)
@@ -314,7 +330,7 @@ class FuseFlowRecording(Recording):
         color = read_color(cpath)
         depth = read_depth(dpath, cam.depth_scale)
         self._check_view(cam, color, depth, cpath, dpath)
-        return color, depth, None
+        return color, depth, self._stamps.get(cam.id, {}).get(number)
 
     def check_files(self) -> list[str]:
         """Decode every colour and depth file of every camera (``fuseflow info --check``); one line
