@@ -58,7 +58,7 @@ def _errors(T: dict, T_ref: dict) -> dict:
     }
 
 
-def run(name: str) -> dict:
+def run(name: str, use_tracks: bool = True) -> dict:
     frame, rig, T_ref = _load(name)
     t0 = time.perf_counter()
     bb = rgbd_backbone([frame], rig, RGBDConfig())
@@ -68,7 +68,8 @@ def run(name: str) -> dict:
     if len(T) < 2:
         return {**row, "error": "rgbd placed fewer than two cameras"}
     t0 = time.perf_counter()
-    res = joint_refine(T, [frame], rig, tracks=bb.tracks)
+    res = joint_refine(T, [frame], rig, tracks=bb.tracks if use_tracks else ())
+    row["tracks_used"] = use_tracks
     row["refine_s"] = time.perf_counter() - t0
     row["before"] = _errors(T, T_ref)
     row["after"] = _errors({**T, **res.T_refined}, T_ref)
@@ -113,12 +114,13 @@ def main() -> None:
     ap.add_argument("data", nargs="*", help="'hocap' or recording folders with true extrinsics in rig.json")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/calib_joint_refine.jsonl"))
     ap.add_argument("--summary", action="store_true")
+    ap.add_argument("--no-tracks", action="store_true", help="dense term only (what the tracks add)")
     args = ap.parse_args()
     if args.summary:
         summary(args.out)
         return
     for name in args.data:
-        row = run(name)
+        row = run(name, not args.no_tracks)
         with args.out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         print(json.dumps(row), flush=True)
