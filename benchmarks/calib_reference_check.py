@@ -65,6 +65,14 @@ def depth_fit(frame, rig, T: dict) -> tuple[float, float]:
     return float(np.mean(shares)), float(np.median(np.concatenate(res)) * 1000)
 
 
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """img sampled at float pixel coordinates (u, v), bilinear (all inside the image)."""
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    a, b = u - u0, v - v0
+    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
+            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])  # fmt: skip
+
+
 def colour_fit(frame, rig, T: dict) -> float:
     ids = [c for c in frame.camera_ids if c in T]
     depth, col = frame.depth.numpy(), frame.color.numpy()
@@ -101,12 +109,7 @@ def colour_fit(frame, rig, T: dict) -> float:
             if agree.sum() < 200:
                 continue
             src = grey[ci][v[ok][agree], u[ok][agree]]
-            dst = cv2.remap(
-                grey[cj],
-                uu[ok][agree].astype(np.float32)[:, None],
-                vv[ok][agree].astype(np.float32)[:, None],
-                cv2.INTER_LINEAR,
-            ).ravel()
+            dst = _bilinear(grey[cj], uu[ok][agree], vv[ok][agree])
             out.append(float(np.median(np.abs(dst - src))))
     return float(np.median(out))
 
