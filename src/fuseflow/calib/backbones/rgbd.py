@@ -309,9 +309,16 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
     return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *_samples(depth_med, K, plane, cfg))
 
 
+#: A pixel whose depth in some frame differs from its median by more than this (metres, or this
+#: share of the depth) saw something move: it has no static depth (``_median_images``).
+DYNAMIC_MIN_M = 0.1
+DYNAMIC_REL = 0.05
+
+
 def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel median grey and depth (ignoring missing depth) over frames: people and other
-    moving things leave the floor image of a static rig."""
+    moving things leave the floor image of a static rig. Pixels where something moved get no
+    depth (0): only the static scene is verified."""
     if len(greys) == 1:
         return greys[0], depths[0]
     g = np.median(np.stack(greys), axis=0).astype(np.uint8)
@@ -322,6 +329,13 @@ def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[n
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             d = np.nanmedian(np.where(D > 0, D, np.nan), axis=0)
+            # a pixel something moved through has no single depth: the median of frames that saw
+            # the person and frames that saw the floor is a surface that never existed, and the
+            # verification (which compares median depths) would count it against a right pose
+            moved = np.nanmax(np.where(D > 0, np.abs(D - d), np.nan), axis=0) > np.maximum(
+                DYNAMIC_MIN_M, DYNAMIC_REL * d
+            )
+    d = np.where(moved, np.nan, d)
     return g, np.nan_to_num(d, nan=0.0).astype(np.float32)
 
 
