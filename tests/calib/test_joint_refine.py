@@ -22,6 +22,20 @@ def _perturbed(T_true: np.ndarray, ids, deg: float, m: float, seed: int = 0) -> 
     return out
 
 
+def _tracks(T_true: np.ndarray, ids, n: int = 40, noise_m: float = 0.0, seed: int = 0):
+    """Keypoint tracks (as the rgbd backbone gives) between neighbouring cameras from the true
+    poses: random points 2-4 m in front of camera a, seen by a and b, with optional noise."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(len(ids)):
+        a, b = k, (k + 1) % len(ids)
+        Xa = rng.uniform(-1, 1, (n, 3)) + [0, 0, 3]
+        M = T_true[b] @ np.linalg.inv(T_true[a])
+        Xb = Xa @ M[:3, :3].T + M[:3, 3] + rng.normal(0, noise_m, (n, 3)) if noise_m else Xa @ M[:3, :3].T + M[:3, 3]
+        out.append((ids[a], ids[b], Xa, Xb, np.full(n, 0.005)))
+    return tuple(out)
+
+
 @pytest.fixture(scope="module")
 def scene(scene_builder):
     return scene_builder(6, size=(240, 180))
@@ -33,7 +47,7 @@ def test_recovers_perturbed_poses_from_exact_depth(scene):
     T0 = _perturbed(T_true, ids, 0.5, 0.01)
     truth = dict(zip(ids, T_true))
     before = pose_errors(T0, truth)
-    res = joint_refine(T0, [frame], rig)
+    res = joint_refine(T0, [frame], rig, tracks=_tracks(T_true, ids, noise_m=0.005))
     after = pose_errors(res.T_cam_world, truth)
     assert res.accepted, res.reason
     assert before.rotation_deg > 0.4 and after.rotation_deg < 0.05, (before, after)
@@ -47,8 +61,9 @@ def test_recovers_perturbed_poses_from_exact_depth(scene):
 def test_deterministic(scene):
     frame, rig, T_true = scene
     T0 = _perturbed(T_true, list(rig.ids), 0.5, 0.01, seed=1)
-    a = joint_refine(T0, [frame], rig)
-    b = joint_refine(T0, [frame], rig)
+    tracks = _tracks(T_true, list(rig.ids), noise_m=0.005)
+    a = joint_refine(T0, [frame], rig, tracks=tracks)
+    b = joint_refine(T0, [frame], rig, tracks=tracks)
     assert all(np.array_equal(a.T_cam_world[c], b.T_cam_world[c]) for c in rig.ids)
 
 
@@ -96,10 +111,21 @@ def test_no_overlap_returns_input(scene):
     assert np.array_equal(res.T_cam_world[ids[1]], far[ids[1]])
 
 
+def test_without_tracks_nothing_moves(scene):
+    """No keypoint tracks (a scale-free backbone, cameras COLMAP placed): dense depth alone slid
+    the simulated rings away from the truth, so the poses come back unchanged, with the reason."""
+    frame, rig, T_true = scene
+    T0 = _perturbed(T_true, list(rig.ids), 0.5, 0.01, seed=4)
+    res = joint_refine(T0, [frame], rig)
+    assert not res.accepted and "keypoint" in res.reason
+    assert all(np.array_equal(res.T_cam_world[c], T0[c]) for c in rig.ids)
+
+
 def test_calibrate_reports_it_and_paper_preset_has_it_off(scene, backbone_builder):
     frame, rig, T_true = scene
     bb = backbone_builder(T_true, 1.0, rot_noise_deg=0.3, seed=3)
-    bb = type(bb)(bb.T_cam_world, bb.registered, name="truth", metric=True)
+    tracks = _tracks(T_true, list(rig.ids), noise_m=0.005)
+    bb = type(bb)(bb.T_cam_world, bb.registered, name="truth", metric=True, tracks=tracks)
     cal = calibrate(frame, rig, CalibConfig(backbone="colmap"), backbone_result=bb)
     jr = cal.report.joint_refinement
     assert jr is not None and jr["accepted"] and jr["pairs"] >= len(rig)
@@ -116,6 +142,6 @@ def test_truth_is_a_fixed_point_on_exact_depth(scene):
     smoothed across edges and corners: those samples are dropped)."""
     frame, rig, T_true = scene
     ids = list(rig.ids)
-    res = joint_refine(dict(zip(ids, T_true)), [frame], rig)
+    res = joint_refine(dict(zip(ids, T_true)), [frame], rig, tracks=_tracks(T_true, ids))
     e = pose_errors(res.T_refined, dict(zip(ids, T_true)))
     assert e.rotation_deg < 0.005 and e.translation_mm < 0.5, e
