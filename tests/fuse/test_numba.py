@@ -151,7 +151,6 @@ def test_numba_select_prefers_the_near_point_like_torch():
             np.zeros((1, 4, 4), dtype=np.float32),
             2,
             src,
-            np.zeros((2, 3), dtype=np.float32),
             np.zeros(2, dtype=np.int16),
             nsel,
         )

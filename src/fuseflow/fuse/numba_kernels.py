@@ -546,14 +546,15 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, members, fk
 
 @njit(cache=True, parallel=True)
 def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
-            stage_src, stage_P, stage_sup, cell_nsel):  # fmt: skip
+            stage_src, stage_sup, cell_nsel):  # fmt: skip
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
     cons.on) rps.consensus for the representatives of that fine cell while it is in cache.
     rank: the ranking value (omega, or omega / sigma(z) with range_priority); only compared.
     fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm:
     SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
-    go to stage_src[start[c] + j] (point index) and, with consensus, stage_P / stage_sup
-    (moved position, supporting cameras); cell_nsel[c] = how many."""
+    go to stage_src[start[c] + j] (point index) and, with consensus, stage_sup (supporting
+    cameras) while P of each representative is replaced by its moved position once its fine
+    cell is done (nothing reads it later); cell_nsel[c] = how many."""
     k0, ratio, k_max, rho_bar = prm.k0, prm.ratio, prm.k_max, prm.rho_bar
     fixed_k, k_const, lone_mean = prm.fixed_k, prm.k_const, prm.lone_cell_mean
     on, gate, na, nb, nz0 = cons.on, cons.gate, cons.noise_a, cons.noise_b, cons.noise_z0
@@ -562,6 +563,7 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
     for ch in prange(chunks.shape[0] - 1):
         d2 = np.empty(largest, dtype=np.float32)
         sel = np.zeros(largest, dtype=np.bool_)
+        moved = np.empty((largest if on else 0, 3), dtype=np.float32)
         stamp = np.zeros(n_cam, dtype=np.int64)
         tick = 0
         for c in range(chunks[ch], chunks[ch + 1]):
@@ -620,6 +622,7 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
                         break
                     last = members[bt]
                     sel[bt - t0] = True
+                n0 = ns_c
                 for ts in range(t0, t1):
                     if not sel[ts - t0]:
                         continue
@@ -629,8 +632,14 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
                         i = _cam_of(s, hw, inv_hw)
                         tick += 1
                         _consensus_point(P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0,
-                                         stamp, tick, stage_P, stage_sup, a + ns_c)  # fmt: skip
+                                         stamp, tick, moved, stage_sup, ns_c - n0, a + ns_c)  # fmt: skip
                     ns_c += 1
+                if on:  # the cell's representatives move only after all of them were computed
+                    for e in range(ns_c - n0):
+                        s = stage_src[a + n0 + e]
+                        P[s, 0] = moved[e, 0]
+                        P[s, 1] = moved[e, 1]
+                        P[s, 2] = moved[e, 2]
                 t0 = t1
             cell_nsel[c] = ns_c
 
@@ -649,11 +658,11 @@ def _cam_of(p, hw, inv_hw):
 
 @njit(cache=True, inline="always")
 def _consensus_point(
-    P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k
+    P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
 ):
     """rps.consensus for representative s of camera i in the fine cell members[t0:t1]: out_P[k]
     = s moved along its ray to the omega-weighted mean of the cell's candidates within ``gate``
-    sigma(z) of it, out_sup[k] = their distinct cameras. Same arithmetic as the reference:
+    sigma(z) of it, out_sup[ks] = their distinct cameras. Same arithmetic as the reference:
     float32 geometry, float64 sums, members in fine-cell order."""
     cx, cy, cz = T_wc[i, 0, 3], T_wc[i, 1, 3], T_wc[i, 2, 3]
     dx = P[s, 0] - cx
@@ -688,11 +697,11 @@ def _consensus_point(
     out_P[k, 0] = cx + tn * ux
     out_P[k, 1] = cy + tn * uy
     out_P[k, 2] = cz + tn * uz
-    out_sup[k] = ns
+    out_sup[ks] = ns
 
 
 @njit(cache=True, parallel=True)
-def _emit(start, cell_nsel, cell_out, stage_src, stage_P, stage_sup, use_stage, P, om, color, rig_index, hw,
+def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, P, om, color, rig_index, hw,
           xyz, rgb, wgt, src, sup):  # fmt: skip
     """The output cloud in one parallel pass over the coarse cells: representative j of cell c
     goes to row cell_out[c] + j (cells in order, fine-cell order inside)."""
@@ -704,14 +713,10 @@ def _emit(start, cell_nsel, cell_out, stage_src, stage_P, stage_sup, use_stage, 
             p = stage_src[a + j]
             k = o + j
             if use_stage:
-                xyz[k, 0] = stage_P[a + j, 0]
-                xyz[k, 1] = stage_P[a + j, 1]
-                xyz[k, 2] = stage_P[a + j, 2]
                 sup[k] = stage_sup[a + j]
-            else:
-                xyz[k, 0] = P[p, 0]
-                xyz[k, 1] = P[p, 1]
-                xyz[k, 2] = P[p, 2]
+            xyz[k, 0] = P[p, 0]
+            xyz[k, 1] = P[p, 1]
+            xyz[k, 2] = P[p, 2]
             wgt[k] = om[p]
             rgb[k, 0] = color[p, 0]  # p is the flat (camera, row, column) pixel index
             rgb[k, 1] = color[p, 1]
@@ -755,11 +760,11 @@ class _Workspace:
         self.runs = np.empty(npx, dtype=np.int64)
         self.run_u = np.empty((npx, 3), dtype=np.int32)
         self.row_info = np.empty((n * h, 3), dtype=np.int64)
-        self.members_in = np.empty(npx, dtype=np.int64)
-        self.members = np.empty(npx, dtype=np.int64)
+        idx = np.int32 if npx < 2**31 else np.int64  # pixel indices
+        self.members_in = np.empty(npx, dtype=idx)
+        self.members = np.empty(npx, dtype=idx)
         self.fkey = np.empty(npx, dtype=np.int32)
-        self.stage_src = np.empty(npx, dtype=np.int64)
-        self.stage_P = np.empty((npx, 3), dtype=np.float32)
+        self.stage_src = np.empty(npx, dtype=idx)
         self.stage_sup = np.empty(npx, dtype=np.int16)
 
     def rank(self, on: bool) -> np.ndarray:
@@ -788,7 +793,7 @@ class _Cells(NamedTuple):
     rank: np.ndarray  # ranking value of eq. (28) (om itself without range_priority)
     start: np.ndarray  # (C + 1,) int64 slots of each coarse cell
     cell_key: np.ndarray  # (C,) int64 packed coarse key
-    members: np.ndarray  # (M,) int64 pixel indices of the in-range candidates, grouped by cell
+    members: np.ndarray  # (M,) int32 pixel indices of the in-range candidates, grouped by cell
     largest: int  # points in the largest coarse cell
     candidates: int
     out_of_range: int
@@ -843,7 +848,7 @@ def _select_points(c: _Cells, prm: KernelParams, ws: _Workspace, cons: Consensus
         sel_prm = sel_prm._replace(rho_bar=_F(rho_sum.sum() / max(total, 1)))
     nsel = np.empty(n_cells, dtype=np.int64)
     _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
-            hw, ws.stage_src, ws.stage_P, ws.stage_sup, nsel)  # fmt: skip
+            hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
     return _Selection(c.start, nsel, int(nsel.sum()))
 
 
@@ -880,7 +885,7 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     sup = np.empty(k if cons.on else 0, dtype=np.int16)
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
-    _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_P, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
+    _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
           hw, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
