@@ -203,13 +203,13 @@ def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present:
 
 
 @njit(cache=True, parallel=True, fastmath=False)
-def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, run_u, row_info):
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
     """Stage 1, one pass per pixel, parallel over camera rows. Writes, at the pixel's own index
     p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 2 candidate beyond the hash's range),
     out_P[p] (world point), out_w[p] (omega, eq. 22) and, when prm.range_priority, out_pr[p]
     (omega / sigma(z), rps.selection_priority). Also the row's *runs*: maximal stretches of
-    candidates (flag 1) of one coarse cell, runs[row W + r] = the cell key, run_u[row W + r] =
-    (first u, last u, candidates); row_info[row] = (candidates, beyond range, runs)."""
+    candidates (flag 1) of one coarse cell, runs[row W + r] = the cell key, r_lo / r_hi / r_n
+    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs)."""
     n, h, w = depth.shape
     alpha, beta, eps, r_c, tau, min_w, s_c = prm.alpha, prm.beta, prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
     use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
@@ -337,9 +337,9 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 if key != last_key:
                     if run_n > 0:
                         runs[rb + nr] = last_key
-                        run_u[rb + nr, 0] = run_lo
-                        run_u[rb + nr, 1] = run_hi
-                        run_u[rb + nr, 2] = run_n
+                        r_lo[rb + nr] = run_lo
+                        r_hi[rb + nr] = run_hi
+                        r_n[rb + nr] = run_n
                         nr += 1
                     last_key = key
                     run_lo = u
@@ -351,9 +351,9 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 n_oor += 1
         if run_n > 0:
             runs[rb + nr] = last_key
-            run_u[rb + nr, 0] = run_lo
-            run_u[rb + nr, 1] = run_hi
-            run_u[rb + nr, 2] = run_n
+            r_lo[rb + nr] = run_lo
+            r_hi[rb + nr] = run_hi
+            r_n[rb + nr] = run_n
             nr += 1
         row_info[row, 0] = cnt
         row_info[row, 1] = n_oor
@@ -361,7 +361,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
 
 
 @njit(cache=True)
-def _cells(runs, run_u, row_info, w):
+def _cells(runs, r_n, row_info, w):
     """Coarse cells of the runs (serial, one hash lookup per run, not per point): cell ids in
     first-appearance order (input order), each run's key in ``runs`` replaced by the first
     slot of its points in the cell-grouped order. Returns (start (C+1,): each cell's slots,
@@ -398,7 +398,7 @@ def _cells(runs, run_u, row_info, w):
                     break
                 slot = (slot + 1) & mask
             runs[rb + r] = cid
-            counts[cid + 1] += run_u[rb + r, 2]
+            counts[cid + 1] += r_n[rb + r]
     largest = 0
     for c in range(n_cells):
         if counts[c + 1] > largest:
@@ -411,18 +411,18 @@ def _cells(runs, run_u, row_info, w):
         for r in range(row_info[row, 2]):
             cid = runs[rb + r]
             runs[rb + r] = fill[cid]
-            fill[cid] += run_u[rb + r, 2]
+            fill[cid] += r_n[rb + r]
     return start, cell_key[:n_cells].copy(), largest
 
 
 @njit(cache=True, parallel=True)
-def _scatter(flags, runs, run_u, row_info, w, members):
+def _scatter(flags, runs, r_lo, r_hi, row_info, w, members):
     """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``)."""
     for row in prange(row_info.shape[0]):
         rb = row * w
         for r in range(row_info[row, 2]):
             k = runs[rb + r]
-            for u in range(run_u[rb + r, 0], run_u[rb + r, 1] + 1):
+            for u in range(r_lo[rb + r], r_hi[rb + r] + 1):
                 if flags[rb + u] == 1:
                     members[k] = rb + u
                     k += 1
@@ -758,7 +758,6 @@ class _Workspace:
         self.om = np.empty(npx, dtype=np.float32)
         self.pr = np.empty(1, dtype=np.float32)
         self.runs = np.empty(npx, dtype=np.int64)
-        self.run_u = np.empty((npx, 3), dtype=np.int32)
         self.row_info = np.empty((n * h, 3), dtype=np.int64)
         idx = np.int32 if npx < 2**31 else np.int64  # pixel indices
         self.members_in = np.empty(npx, dtype=idx)
@@ -814,12 +813,15 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     present = p.present.numpy().astype(np.bool_)
     rank = ws.rank(prm.range_priority)
     with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
-        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, ws.run_u, ws.row_info)
-    start, cell_key, largest = _cells(ws.runs, ws.run_u, ws.row_info, w)
+        # a run's first u, last u and size live in three buffers that stages 3-4 use later
+        r_lo, r_hi, r_n = ws.members, ws.fkey, ws.stage_src
+        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, r_lo, r_hi, r_n,
+                ws.row_info)  # fmt: skip
+    start, cell_key, largest = _cells(ws.runs, r_n, ws.row_info, w)
     m = int(start[-1])
     members = ws.members_in[:m]
     with numba.parallel_chunksize(8):
-        _scatter(ws.flags, ws.runs, ws.run_u, ws.row_info, w, members)
+        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, members)
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
     return _Cells(ws.P, ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
@@ -841,14 +843,18 @@ def _select_points(c: _Cells, prm: KernelParams, ws: _Workspace, cons: Consensus
     csize = np.empty(n_cells, dtype=np.float32)
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
-    _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, members, fkey, csize, rho_sum, fine_n)
+    with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
+        _fine_pass(
+            c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, members, fkey, csize, rho_sum, fine_n
+        )
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
         sel_prm = sel_prm._replace(rho_bar=_F(rho_sum.sum() / max(total, 1)))
     nsel = np.empty(n_cells, dtype=np.int64)
-    _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
-            hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
+    with numba.parallel_chunksize(1):
+        _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
+                hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
     return _Selection(c.start, nsel, int(nsel.sum()))
 
 
@@ -885,8 +891,9 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     sup = np.empty(k if cons.on else 0, dtype=np.int16)
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
-    _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
-          hw, xyz, rgb, wgt, src, sup)  # fmt: skip
+    with numba.parallel_chunksize(256):
+        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
+              hw, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
         torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
