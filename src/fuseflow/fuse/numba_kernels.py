@@ -443,11 +443,13 @@ def _chunks(start, n_chunks):
 
 
 @njit(cache=True, parallel=True)
-def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, members, fkey, csize, cell_rho_sum, cell_fine_n):
+def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
+               cell_fine_n):  # fmt: skip
     """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
     chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
-    (for rho_bar) and fine-cell count. prm: CellParams."""
+    (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
+    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead."""
     s_c, s0, s_min, s_max, eps, adaptive, fixed = (
         prm.s_c,
         prm.s0,
@@ -534,14 +536,52 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, members, fk
             rsum = 0.0
             for g in range(ng):
                 rsum += _F(gstart[g + 1]) / sf3
+                if not reorder:
+                    fkey[a + g] = gstart[g + 1]
                 gstart[g + 1] += gstart[g]
-            for t in range(n):  # gstart[g] is now the next free slot of group g
-                g = gid[t]
-                members[a + gstart[g]] = members_in[a + t]
-                fkey[a + gstart[g]] = g
-                gstart[g] += 1
+            if reorder:
+                for t in range(n):  # gstart[g] is now the next free slot of group g
+                    g = gid[t]
+                    members[a + gstart[g]] = members_in[a + t]
+                    fkey[a + gstart[g]] = g
+                    gstart[g] += 1
             cell_rho_sum[c] = rsum
             cell_fine_n[c] = ng
+
+
+@njit(cache=True, inline="always")
+def _cell_k(n, n_coarse, fine_cells, sf3, prm):
+    """k of a fine cell of n points: eq. (26) (or the fixed k), 0 for a lone point in a densely
+    sampled coarse cell of n_coarse points in fine_cells occupied fine cells (lone_cell_mean).
+    prm: SelectParams."""
+    if prm.fixed_k:
+        return prm.k_const
+    if prm.lone_cell_mean > 0 and n == 1 and float(n_coarse) >= prm.lone_cell_mean * float(fine_cells):
+        return 0
+    rho = _F(n) / sf3
+    kf = np.ceil(_F(prm.k0) * (rho / prm.rho_bar) * _F(prm.ratio))  # eq. (26)
+    k = int(kf)
+    if k < 1:
+        k = 1
+    if k > prm.k_max:
+        k = prm.k_max
+    return k
+
+
+@njit(cache=True, parallel=True)
+def _count(start, gsize, csize, fine_n, prm, cell_count):
+    """Points that selection keeps per coarse cell, from the fine-cell sizes alone (``_fine_pass``
+    with reorder False): min(k, n) per fine cell, which the FPS of eq. (28) picks unless points
+    of the cell coincide (it stops early then): the density search's count."""
+    for c in prange(start.shape[0] - 1):
+        a = start[c]
+        sf = csize[c]
+        sf3 = sf * sf * sf
+        cnt = 0
+        for g in range(fine_n[c]):
+            n = gsize[a + g]
+            cnt += min(_cell_k(n, start[c + 1] - a, fine_n[c], sf3, prm), n)
+        cell_count[c] = cnt
 
 
 @njit(cache=True, parallel=True)
@@ -555,8 +595,6 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
     go to stage_src[start[c] + j] (point index) and, with consensus, stage_sup (supporting
     cameras) while P of each representative is replaced by its moved position once its fine
     cell is done (nothing reads it later); cell_nsel[c] = how many."""
-    k0, ratio, k_max, rho_bar = prm.k0, prm.ratio, prm.k_max, prm.rho_bar
-    fixed_k, k_const, lone_mean = prm.fixed_k, prm.k_const, prm.lone_cell_mean
     on, gate, na, nb, nz0 = cons.on, cons.gate, cons.noise_a, cons.noise_b, cons.noise_z0
     n_cam = T_wc.shape[0]
     inv_hw = 1.0 / np.float64(hw)
@@ -578,19 +616,10 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
                 while t1 < b and fkey[t1] == fkey[t0]:
                     t1 += 1
                 n = t1 - t0
-                if not fixed_k and lone_mean > 0 and n == 1 and float(b - a) >= lone_mean * float(fine_n[c]):
-                    t0 = t1  # a lone point in a densely sampled coarse cell: k = 0 (lone_cell_mean)
+                k = _cell_k(n, b - a, fine_n[c], sf3, prm)
+                if k == 0:  # a lone point in a densely sampled coarse cell (lone_cell_mean)
+                    t0 = t1
                     continue
-                if not fixed_k:
-                    rho = _F(n) / sf3
-                    kf = np.ceil(_F(k0) * (rho / rho_bar) * _F(ratio))  # eq. (26)
-                    k = int(kf)
-                    if k < 1:
-                        k = 1
-                    if k > k_max:
-                        k = k_max
-                else:
-                    k = k_const
                 # first pick: highest rank, ties -> first in input order
                 best = t0
                 for t in range(t0 + 1, t1):
@@ -833,9 +862,12 @@ class _Selection(NamedTuple):
     points: int
 
 
-def _select_points(c: _Cells, prm: KernelParams, ws: _Workspace, cons: ConsensusParams, T_wc, T_cw, hw: int):
+def _select_points(
+    c: _Cells, prm: KernelParams, ws: _Workspace, cons: ConsensusParams, T_wc, T_cw, hw: int, count_only: bool = False
+):
     """Stages 3 and 4 on the grouped candidates: fine cells, eq. (26), FPS and (cons.on) the
-    consensus; the representatives staged per coarse cell in ``ws`` (``_select``)."""
+    consensus; the representatives staged per coarse cell in ``ws`` (``_select``). With
+    ``count_only`` only how many points selection keeps (``_count``; density control)."""
     n_cells = c.start.shape[0] - 1
     m = c.members.shape[0]
     chunks = _chunks(c.start, min(max(n_cells, 1), 16 * numba.get_num_threads()))
@@ -844,14 +876,16 @@ def _select_points(c: _Cells, prm: KernelParams, ws: _Workspace, cons: Consensus
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
     with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
-        _fine_pass(
-            c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, members, fkey, csize, rho_sum, fine_n
-        )
+        _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, not count_only, members, fkey,
+                   csize, rho_sum, fine_n)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
         sel_prm = sel_prm._replace(rho_bar=_F(rho_sum.sum() / max(total, 1)))
     nsel = np.empty(n_cells, dtype=np.int64)
+    if count_only:
+        _count(c.start, fkey, csize, fine_n, sel_prm, nsel)
+        return _Selection(c.start, nsel, int(nsel.sum()))
     with numba.parallel_chunksize(1):
         _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
                 hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
@@ -873,7 +907,7 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
         off = consensus_params(cfg, on=False)
 
         def count_at(s0: float) -> int:
-            return _select_points(c, kernel_params(with_s0(cfg, s0)), ws, off, T_wc, T_cw, hw).points
+            return _select_points(c, kernel_params(with_s0(cfg, s0)), ws, off, T_wc, T_cw, hw, count_only=True).points
 
         s0, _ = search_s0(count_at, cfg.s0, cfg.target_points)
         cfg = with_s0(cfg, s0)
