@@ -171,7 +171,7 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     return KernelParams(pixel, cell, select)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _gate(depth, lo, hi, present, out, row_count):
     """api.valid_depth and the absent-view mask in one pass: out = depth where lo < depth < hi
     in a present view, else 0; row_count[row] = kept pixels of that row."""
@@ -202,7 +202,7 @@ def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present:
     return torch.from_numpy(out), tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
 
 
-@njit(cache=True, parallel=True, fastmath=False)
+@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
 def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
     """Stage 1, one pass per pixel, parallel over camera rows. Writes, at the pixel's own index
     p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 2 candidate beyond the hash's range),
@@ -220,7 +220,16 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     half = _F(0.5)
     two = _F(2.0)
     nine = _F(9.0)
-    kn = nbr.shape[1]
+    dflat = depth.reshape(n * h * w)
+    # the neighbours that vote (in the graph and present) first, in graph order
+    vn = np.empty_like(nbr)
+    nbr_n = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        for kk in range(nbr.shape[1]):
+            j = nbr[i, kk]
+            if j >= 0 and present[j]:
+                vn[i, nbr_n[i]] = j
+                nbr_n[i] += 1
     for row in prange(n * h):
         i = row // h
         v = row - i * h
@@ -237,16 +246,17 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
         for u in range(w):
             base = rb + u
             flags[base] = 0
-            z = depth[i, v, u]
+            z = dflat[base]
             if z <= 0:
                 continue
             if use_mcm:
                 # eq. (16)-(17) on the 3x3 window; a window pixel without depth -> c = 0
                 if u == 0 or v == 0 or u == w - 1 or v == h - 1:
                     continue
-                d0, d1, d2 = depth[i, v - 1, u - 1], depth[i, v - 1, u], depth[i, v - 1, u + 1]
-                d3, d5 = depth[i, v, u - 1], depth[i, v, u + 1]
-                d6, d7, d8 = depth[i, v + 1, u - 1], depth[i, v + 1, u], depth[i, v + 1, u + 1]
+                up, dn = base - w, base + w  # flat indices of the rows above and below
+                d0, d1, d2 = dflat[up - 1], dflat[up], dflat[up + 1]
+                d3, d5 = dflat[base - 1], dflat[base + 1]
+                d6, d7, d8 = dflat[dn - 1], dflat[dn], dflat[dn + 1]
                 if d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
                     continue
                 # same summation order as the window loop of the reference kernel (row-major)
@@ -284,10 +294,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             if use_cvgc:
                 agree = 0
                 votes = 0
-                for kk in range(kn):
-                    j = nbr[i, kk]
-                    if j < 0 or not present[j]:
-                        continue
+                for kk in range(nbr_n[i]):
+                    j = vn[i, kk]
                     # scalar loads, no array view: a view per vote costs an atomic refcount
                     # update on M_rel's memory info, shared by the threads
                     zj = M_rel[i, j, 2, 0] * x + M_rel[i, j, 2, 1] * y + M_rel[i, j, 2, 2] * z + M_rel[i, j, 2, 3]
@@ -301,7 +309,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                     vj = np.floor(Kf[j, 1, 1] * ynj + Kf[j, 1, 2] + half)
                     if uj < 0 or uj > w - 1 or vj < 0 or vj > h - 1:
                         continue
-                    d = depth[j, int(vj), int(uj)]
+                    d = dflat[(j * h + int(vj)) * w + int(uj)]
                     if d <= 0:
                         continue
                     r = abs(zj - d) / (zj + eps)  # eq. (20)
@@ -360,7 +368,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
         row_info[row, 2] = nr
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cells(runs, r_n, row_info, w):
     """Coarse cells of the runs (serial, one hash lookup per run, not per point): cell ids in
     first-appearance order (input order), each run's key in ``runs`` replaced by the first
@@ -415,7 +423,7 @@ def _cells(runs, r_n, row_info, w):
     return start, cell_key[:n_cells].copy(), largest
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _scatter(flags, runs, r_lo, r_hi, row_info, w, members):
     """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``)."""
     for row in prange(row_info.shape[0]):
@@ -428,7 +436,7 @@ def _scatter(flags, runs, r_lo, r_hi, row_info, w, members):
                     k += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _chunks(start, n_chunks):
     """Cell ranges of about equal point counts: bounds (n_chunks + 1,) into the cells."""
     n_cells = start.shape[0] - 1
@@ -442,7 +450,7 @@ def _chunks(start, n_chunks):
     return b
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
                cell_fine_n):  # fmt: skip
     """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
@@ -549,7 +557,7 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             cell_fine_n[c] = ng
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cell_k(n, n_coarse, fine_cells, sf3, prm):
     """k of a fine cell of n points: eq. (26) (or the fixed k), 0 for a lone point in a densely
     sampled coarse cell of n_coarse points in fine_cells occupied fine cells (lone_cell_mean).
@@ -568,7 +576,7 @@ def _cell_k(n, n_coarse, fine_cells, sf3, prm):
     return k
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _count(start, gsize, csize, fine_n, prm, cell_count):
     """Points that selection keeps per coarse cell, from the fine-cell sizes alone (``_fine_pass``
     with reorder False): min(k, n) per fine cell, which the FPS of eq. (28) picks unless points
@@ -584,7 +592,7 @@ def _count(start, gsize, csize, fine_n, prm, cell_count):
         cell_count[c] = cnt
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
             stage_src, stage_sup, cell_nsel):  # fmt: skip
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
@@ -673,7 +681,7 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
             cell_nsel[c] = ns_c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cam_of(p, hw, inv_hw):
     """p // hw without a 64-bit integer division (~40 cycles on this CPU): a float64 estimate
     (exact to +-1 for p < 2^52), corrected."""
@@ -685,7 +693,7 @@ def _cam_of(p, hw, inv_hw):
     return c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _consensus_point(
     P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
 ):
@@ -729,7 +737,7 @@ def _consensus_point(
     out_sup[ks] = ns
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, P, om, color, rig_index, hw,
           xyz, rgb, wgt, src, sup):  # fmt: skip
     """The output cloud in one parallel pass over the coarse cells: representative j of cell c
