@@ -10,6 +10,7 @@ and colour.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -209,3 +210,23 @@ def test_numba_equals_torch_64_cameras():
     sim = Simulator(SimConfig(cameras=64, resolution=(32, 24), frames=1))
     rt, _ = both(sim.render(0).frame, sim.rig, FuseConfig())
     assert rt.report.views == 64 and len(rt.cloud) > 0
+
+
+@pytest.mark.parametrize("factor", [0.5, 1.5])
+def test_density_search_count_is_the_output_count(sim_frame, monkeypatch, factor):
+    """The compiled s0 search counts min(k, n) per fine cell without running the FPS; at the s0
+    it picks, that count is the size of the cloud the full selection then returns."""
+    from fuseflow.fuse.density import search_s0 as search
+
+    frame, rig = sim_frame
+    base = len(fuse_with_report(frame, rig, FuseConfig(backend="numba")).cloud)
+    seen = {}
+
+    def spy(count_at, s0, target, *args, **kwargs):
+        seen["s0"], seen["count"] = search(count_at, s0, target, *args, **kwargs)
+        return seen["s0"], seen["count"]
+
+    # by module object: the attribute fuseflow.fuse is the function fuse, not the package
+    monkeypatch.setattr(sys.modules["fuseflow.fuse.density"], "search_s0", spy)
+    cloud = fuse_with_report(frame, rig, FuseConfig(backend="numba", target_points=int(base * factor))).cloud
+    assert seen["s0"] != FuseConfig().s0 and len(cloud) == seen["count"]
