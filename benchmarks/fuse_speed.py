@@ -1,6 +1,8 @@
 """FUSE per-frame time and peak memory vs Open3D VoxelBlockGrid TSDF and naive + voxel_down_sample.
 
     flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_speed.py --json docs/data/fuse_speed.json
+    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_speed.py --data sim,icl,hocap --cameras 8,16 \
+        --methods fuse,vbg --json benchmarks/results/fuse_speed_real.json   (the real rigs beside the ring)
     fuseflow bench fuse --cameras 1,2,4,8,16 --json OUT          (the same program)
 
 The benchmark itself (method, memory measurement, output) is fuseflow.eval.bench.fuse_speed; this
@@ -29,6 +31,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--resolution", default="640x480", help="WxH (default 640x480)")
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--json", type=Path, default=None, help="write {meta, rows} here")
+    ap.add_argument("--data", default="sim", help="comma list of sim, icl, hocap (real 8-camera rigs, N <= 8)")
+    ap.add_argument("--data-dir", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "data",
+                    help="shared data folder with icl-livingroom1 and hocap-8rs (default ../shared/data)")  # fmt: skip
+    ap.add_argument("--points", type=int, default=None, help="FUSE with FuseConfig.target_points = N")
     ap.add_argument("--work", type=Path, default=None, help="folder for the rendered frames (default: a temp dir)")
     return ap.parse_args(argv)
 
@@ -42,6 +48,7 @@ def main(argv: list[str] | None = None) -> int:
             cams, args.frames, args.warmup, args.device, methods, resolution, args.seed, args.work, args.json,
             command="benchmarks/fuse_speed.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             log=lambda line: print(line, flush=True),
+            data=[d.strip() for d in args.data.split(",") if d.strip()], data_dir=args.data_dir, points=args.points,
         )  # fmt: skip
     except BenchmarkFailed as exc:
         print(f"error: {exc}")

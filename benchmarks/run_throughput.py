@@ -2,9 +2,14 @@
 (`fuse_recording`: FUSE + writing) on one recording, in one process.
 
     python benchmarks/run_throughput.py REC [--frames A:B] [--repeats 2]
+    python benchmarks/run_throughput.py --icl ../shared/data/icl-livingroom1 [--icl-frames 20]
 
 REC: any recording with extrinsics in rig.json (e.g. `fuseflow simulate R --cameras 4
 --frames 150 --resolution 320x240 --dynamic`, or an ICL virtual rig from `fuseflow convert`).
+``--icl``: the ICL 8-camera rig of issue 17 (ICL frames 0, 25, ..., 175 as 8 cameras with the
+reference trajectory as extrinsics, every pixel valid) written as a static recording of
+``--icl-frames`` identical frames (a static rig filming a static scene) in a temporary folder.
+
 Prints frames/s of each (median over repeats, after a warm-up frame that compiles the kernels),
 the ratio run / fuse-only (issue 17 asks >= 0.8), and the health monitor's ms per frame.
 """
@@ -22,9 +27,26 @@ import numpy as np
 import torch
 
 
+def _icl_recording(icl: Path, out: Path, frames: int) -> Path:
+    """ICL frames 0, 25, ..., 175 as an 8-camera rig, its one frame repeated ``frames`` times."""
+    import shutil
+
+    from fuseflow.io import make_virtual_rig, open_recording
+
+    rig = make_virtual_rig(open_recording(icl), [25 * k for k in range(8)], out)
+    for cam in rig.cameras:
+        for kind in ("color", "depth"):
+            first = sorted((out / cam.id / kind).iterdir())[0]
+            for t in range(1, frames):
+                shutil.copyfile(first, first.with_name(f"{t:06d}{first.suffix}"))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("rec", type=Path)
+    ap.add_argument("rec", type=Path, nargs="?", default=None)
+    ap.add_argument("--icl", type=Path, default=None, help="ICL-NUIM folder: time the ICL 8-camera rig instead")
+    ap.add_argument("--icl-frames", type=int, default=20)
     ap.add_argument("--frames", default=None, help="A:B frame positions (default all)")
     ap.add_argument("--repeats", type=int, default=2)
     args = ap.parse_args(argv)
@@ -33,6 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     from fuseflow.pipeline import PipelineConfig, fuse_recording, run
     from fuseflow.pipeline.health import frame_health
 
+    if (args.rec is None) == (args.icl is None):
+        ap.error("give REC or --icl")
+    tmp_rec = tempfile.TemporaryDirectory(prefix="run_throughput_icl_") if args.icl else None
+    if tmp_rec is not None:
+        args.rec = _icl_recording(args.icl, Path(tmp_rec.name) / "icl8", args.icl_frames)
     rec = open_recording(args.rec)
     a, _, b = (args.frames or ":").partition(":")
     positions = range(len(rec))[int(a) if a else 0 : int(b) if b else len(rec)]

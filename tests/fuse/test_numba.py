@@ -10,6 +10,7 @@ and colour.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -124,7 +125,7 @@ def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone):
 def test_numba_select_prefers_the_near_point_like_torch():
     """The compiled _select with the ranking value of rps.selection_priority picks the near
     point of a cell whose two points have equal omega, in either input order."""
-    from fuseflow.fuse.numba_kernels import _select, kernel_params
+    from fuseflow.fuse.numba_kernels import _select, consensus_params, kernel_params
     from fuseflow.fuse.rps import selection_priority
 
     P = np.array([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0]], dtype=np.float32)
@@ -133,19 +134,28 @@ def test_numba_select_prefers_the_near_point_like_torch():
         pr = selection_priority(omega, torch.tensor(z), FuseConfig().noise_sigma).numpy()
         # k = 1 in every cell (fixed_k), lone_cell_mean off
         prm = kernel_params(FuseConfig(lone_cell_mean=0.0)).select._replace(fixed_k=True, k_const=1)
-        sel = np.zeros(2, dtype=np.bool_)
+        src, nsel = np.full(2, -1, dtype=np.int64), np.zeros(1, dtype=np.int64)
         _select(
             P,
             pr,
-            np.array([0, 2]),
+            omega.numpy(),
+            np.array([0, 2]),  # one coarse cell holding points 0 and 1
             np.array([0, 1]),
-            np.zeros(2, dtype=np.int64),
+            np.zeros(2, dtype=np.int32),  # one fine cell
             np.array([0.01], dtype=np.float32),
             np.array([1]),
             prm,
-            sel,
+            np.array([0, 1]),  # one chunk of cells
+            2,
+            consensus_params(FuseConfig(), on=False),
+            np.zeros((1, 3, 4), dtype=np.float32),
+            np.zeros((1, 4, 4), dtype=np.float32),
+            2,
+            src,
+            np.zeros(2, dtype=np.int16),
+            nsel,
         )
-        assert sel.tolist() == [z[0] < z[1], z[1] < z[0]]
+        assert nsel[0] == 1 and src[0] == (0 if z[0] < z[1] else 1)
 
 
 def test_numba_equals_torch_on_analytic_scene_with_noise_and_edges():
@@ -200,3 +210,23 @@ def test_numba_equals_torch_64_cameras():
     sim = Simulator(SimConfig(cameras=64, resolution=(32, 24), frames=1))
     rt, _ = both(sim.render(0).frame, sim.rig, FuseConfig())
     assert rt.report.views == 64 and len(rt.cloud) > 0
+
+
+@pytest.mark.parametrize("factor", [0.5, 1.5])
+def test_density_search_count_is_the_output_count(sim_frame, monkeypatch, factor):
+    """The compiled s0 search counts min(k, n) per fine cell without running the FPS; at the s0
+    it picks, that count is the size of the cloud the full selection then returns."""
+    from fuseflow.fuse.density import search_s0 as search
+
+    frame, rig = sim_frame
+    base = len(fuse_with_report(frame, rig, FuseConfig(backend="numba")).cloud)
+    seen = {}
+
+    def spy(count_at, s0, target, *args, **kwargs):
+        seen["s0"], seen["count"] = search(count_at, s0, target, *args, **kwargs)
+        return seen["s0"], seen["count"]
+
+    # by module object: the attribute fuseflow.fuse is the function fuse, not the package
+    monkeypatch.setattr(sys.modules["fuseflow.fuse.density"], "search_s0", spy)
+    cloud = fuse_with_report(frame, rig, FuseConfig(backend="numba", target_points=int(base * factor))).cloud
+    assert seen["s0"] != FuseConfig().s0 and len(cloud) == seen["count"]

@@ -18,7 +18,16 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["CellIndex", "adaptive_hash", "fixed_hash", "COARSE_OFFSET", "FINE_BITS"]
+__all__ = [
+    "CellIndex",
+    "adaptive_hash",
+    "fixed_hash",
+    "COARSE_BITS",
+    "COARSE_OFFSET",
+    "FINE_BITS",
+    "FIXED_BITS",
+    "FIXED_OFFSET",
+]
 
 COARSE_BITS = 14
 COARSE_OFFSET = 1 << (COARSE_BITS - 1)

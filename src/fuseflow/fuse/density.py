@@ -4,8 +4,10 @@ The number of output points falls with s_0 (fine cells grow as s_f ~ s_0 / sqrt(
 roughly as a power law M ~ s_0^-p, but p is not the 2 of an ideal surface: k per cell (eq. 26),
 sparse cells and the s_min / s_max clips bend it (p ~ 1.1-1.3 measured on simulated rigs). So
 s_0 is searched by the secant method in log-log space from the configured s_0 (first step with
-p = 1.2), each step costing only the hash and selection stages (eq. 23-28) on the candidates
-that MCM and CVGC already produced.
+p = 1.2), each step costing only the fine hash of eq. (23)-(25) and the k of eq. (26) per
+fine cell on the candidates that MCM and CVGC already produced (the compiled path counts
+min(k, n) per fine cell, which is what the FPS of eq. (28) selects unless points coincide; the
+final pass at the chosen s_0 selects exactly).
 """
 
 from __future__ import annotations

@@ -23,18 +23,29 @@ numba is imported here only; ``import fuseflow`` does not load it.
 
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
+import numba
 import numpy as np
 import torch
 from numba import njit, prange
 
-from fuseflow.fuse.ash import COARSE_OFFSET, FIXED_OFFSET
+from fuseflow.fuse.ash import COARSE_BITS, COARSE_OFFSET, FIXED_BITS, FIXED_OFFSET
 from fuseflow.fuse.config import FuseConfig
 from fuseflow.geometry.camera import relative_transforms
 from fuseflow.types import FusedCloud
 
-__all__ = ["fuse_numba", "gate_depth", "PixelParams", "CellParams", "SelectParams", "kernel_params"]
+__all__ = [
+    "fuse_numba",
+    "gate_depth",
+    "PixelParams",
+    "CellParams",
+    "SelectParams",
+    "ConsensusParams",
+    "kernel_params",
+    "consensus_params",
+]
 
 _F = np.float32
 
@@ -76,6 +87,10 @@ class PixelParams(NamedTuple):
     noise_z0: np.float32
     mcm_noise: bool
     """Noise-aware MCM (FuseConfig.mcm_noise): sigma(z)^2 taken out of g and v (mcm.py)."""
+    offset: int
+    """Offset added to each cell index before packing (ash.COARSE_OFFSET or FIXED_OFFSET)."""
+    bits: int
+    """Bits per axis of the packed first-level key (14 with ASH, 21 without)."""
 
 
 class CellParams(NamedTuple):
@@ -93,6 +108,10 @@ class CellParams(NamedTuple):
     fixed_size: np.float32
     s_c3: np.float32
     """s_c^3 (the coarse cell volume of eq. 23), rounded once to float32."""
+    offset: int
+    """As PixelParams.offset (to unpack a coarse key into the cell's origin)."""
+    bits: int
+    """As PixelParams.bits."""
 
 
 class SelectParams(NamedTuple):
@@ -125,17 +144,19 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     """The kernels' parameters from ``cfg`` (``select.rho_bar`` is 1 until ``_fine_pass`` ran)."""
     adaptive = cfg.use_ash
     s_c = cfg.coarse_size if adaptive else cfg.fixed_size
-    qlim = (COARSE_OFFSET if adaptive else FIXED_OFFSET) - 1
+    offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
+    bits = COARSE_BITS if adaptive else FIXED_BITS
+    qlim = offset - 1
     a, b, z0 = cfg.noise_sigma
     pixel = PixelParams(
         alpha=_F(cfg.alpha), beta=_F(cfg.beta), eps=_F(cfg.eps), r_c=_F(cfg.r_c), tau=_F(cfg.tau),
         min_weight=_F(cfg.min_weight), cell=_F(s_c), use_mcm=bool(cfg.use_mcm), use_cvgc=bool(cfg.use_cvgc),
         visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
-        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise),
+        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise), offset=offset, bits=bits,
     )  # fmt: skip
     cell = CellParams(
         s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
-        adaptive=bool(adaptive), fixed_size=_F(cfg.fixed_size), s_c3=_F(s_c**3),
+        adaptive=bool(adaptive), fixed_size=_F(cfg.fixed_size), s_c3=_F(s_c**3), offset=offset, bits=bits,
     )  # fmt: skip
     if cfg.use_rps and adaptive:
         fixed_k, k_const = False, 0
@@ -150,7 +171,7 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     return KernelParams(pixel, cell, select)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _gate(depth, lo, hi, present, out, row_count):
     """api.valid_depth and the absent-view mask in one pass: out = depth where lo < depth < hi
     in a present view, else 0; row_count[row] = kept pixels of that row."""
@@ -181,57 +202,72 @@ def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present:
     return torch.from_numpy(out), tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
 
 
-@njit(cache=True, parallel=True, fastmath=False)
-def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, row_count):
-    """Stage 1, one pass per pixel. prm: PixelParams. out_pr: the range-aware ranking value
-    omega / sigma(z) (rps.selection_priority) when prm.range_priority, else unused (may have
-    length 1)."""
+@njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
+    """Stage 1, one pass per pixel, parallel over camera rows. Writes, at the pixel's own index
+    p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 2 candidate beyond the hash's range),
+    out_P[p] (world point), out_w[p] (omega, eq. 22) and, when prm.range_priority, out_pr[p]
+    (omega / sigma(z), rps.selection_priority). Also the row's *runs*: maximal stretches of
+    candidates (flag 1) of one coarse cell, runs[row W + r] = the cell key, r_lo / r_hi / r_n
+    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs)."""
     n, h, w = depth.shape
     alpha, beta, eps, r_c, tau, min_w, s_c = prm.alpha, prm.beta, prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
     use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
-    qlim = prm.qlim
+    qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
     mn = prm.mcm_noise
     zero = _F(0.0)
     half = _F(0.5)
     two = _F(2.0)
     nine = _F(9.0)
-    kn = nbr.shape[1]
+    dflat = depth.reshape(n * h * w)
+    # the neighbours that vote (in the graph and present) first, in graph order
+    vn = np.empty_like(nbr)
+    nbr_n = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        for kk in range(nbr.shape[1]):
+            j = nbr[i, kk]
+            if j >= 0 and present[j]:
+                vn[i, nbr_n[i]] = j
+                nbr_n[i] += 1
     for row in prange(n * h):
         i = row // h
         v = row - i * h
         cnt = 0
+        n_oor = 0
+        nr = 0
+        last_key = np.int64(-1)
+        run_lo = 0
+        run_hi = 0
+        run_n = 0
+        rb = row * w
         fx, s, cx = Kf[i, 0, 0], Kf[i, 0, 1], Kf[i, 0, 2]
         fy, cy = Kf[i, 1, 1], Kf[i, 1, 2]
         for u in range(w):
-            base = (i * h + v) * w + u
+            base = rb + u
             flags[base] = 0
-            z = depth[i, v, u]
+            z = dflat[base]
             if z <= 0:
                 continue
             if use_mcm:
                 # eq. (16)-(17) on the 3x3 window; a window pixel without depth -> c = 0
                 if u == 0 or v == 0 or u == w - 1 or v == h - 1:
                     continue
-                full = True
-                sm = _F(0.0)
-                for dv in range(-1, 2):
-                    for du in range(-1, 2):
-                        d = depth[i, v + dv, u + du]
-                        if d <= 0:
-                            full = False
-                        sm += d
-                if not full:
+                up, dn = base - w, base + w  # flat indices of the rows above and below
+                d0, d1, d2 = dflat[up - 1], dflat[up], dflat[up + 1]
+                d3, d5 = dflat[base - 1], dflat[base + 1]
+                d6, d7, d8 = dflat[dn - 1], dflat[dn], dflat[dn + 1]
+                if d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
                     continue
-                mean = sm / nine
-                var = _F(0.0)
-                for dv in range(-1, 2):
-                    for du in range(-1, 2):
-                        e = depth[i, v + dv, u + du] - mean
-                        var += e * e
-                var = var / nine
-                gx = (depth[i, v, u + 1] - depth[i, v, u - 1]) * half
-                gy = (depth[i, v + 1, u] - depth[i, v - 1, u]) * half
+                # same summation order as the window loop of the reference kernel (row-major)
+                sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
+                mean = (sm + d8) / nine
+                e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
+                e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
+                var = (((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6) + e7 * e7
+                var = (var + e8 * e8) / nine
+                gx = (d5 - d3) * half
+                gy = (d7 - d1) * half
                 gsq = gx * gx + gy * gy
                 if mn:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
                     dzn = z - nz0
@@ -258,23 +294,22 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             if use_cvgc:
                 agree = 0
                 votes = 0
-                for kk in range(kn):
-                    j = nbr[i, kk]
-                    if j < 0 or not present[j]:
-                        continue
-                    m = M_rel[i, j]
-                    xj = m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3]
-                    yj = m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3]
-                    zj = m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3]
+                for kk in range(nbr_n[i]):
+                    j = vn[i, kk]
+                    # scalar loads, no array view: a view per vote costs an atomic refcount
+                    # update on M_rel's memory info, shared by the threads
+                    zj = M_rel[i, j, 2, 0] * x + M_rel[i, j, 2, 1] * y + M_rel[i, j, 2, 2] * z + M_rel[i, j, 2, 3]
                     if not zj > eps:
                         continue
+                    xj = M_rel[i, j, 0, 0] * x + M_rel[i, j, 0, 1] * y + M_rel[i, j, 0, 2] * z + M_rel[i, j, 0, 3]
+                    yj = M_rel[i, j, 1, 0] * x + M_rel[i, j, 1, 1] * y + M_rel[i, j, 1, 2] * z + M_rel[i, j, 1, 3]
                     xnj = xj / zj
                     ynj = yj / zj
                     uj = np.floor(Kf[j, 0, 0] * xnj + Kf[j, 0, 1] * ynj + Kf[j, 0, 2] + half)
                     vj = np.floor(Kf[j, 1, 1] * ynj + Kf[j, 1, 2] + half)
                     if uj < 0 or uj > w - 1 or vj < 0 or vj > h - 1:
                         continue
-                    d = depth[j, int(vj), int(uj)]
+                    d = dflat[(j * h + int(vj)) * w + int(uj)]
                     if d <= 0:
                         continue
                     r = abs(zj - d) / (zj + eps)  # eq. (20)
@@ -288,14 +323,12 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             om = two * c * wg / (c + wg + eps)  # eq. (22)
             if not om >= min_w:
                 continue
-            t = T_wc[i]
-            px = t[0, 0] * x + t[0, 1] * y + t[0, 2] * z + t[0, 3]
-            py = t[1, 0] * x + t[1, 1] * y + t[1, 2] * z + t[1, 3]
-            pz = t[2, 0] * x + t[2, 1] * y + t[2, 2] * z + t[2, 3]
+            px = T_wc[i, 0, 0] * x + T_wc[i, 0, 1] * y + T_wc[i, 0, 2] * z + T_wc[i, 0, 3]
+            py = T_wc[i, 1, 0] * x + T_wc[i, 1, 1] * y + T_wc[i, 1, 2] * z + T_wc[i, 1, 3]
+            pz = T_wc[i, 2, 0] * x + T_wc[i, 2, 1] * y + T_wc[i, 2, 2] * z + T_wc[i, 2, 3]
             qx = np.floor(px / s_c)
             qy = np.floor(py / s_c)
             qz = np.floor(pz / s_c)
-            flags[base] = 1 if (abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim) else 2
             out_P[base, 0] = px
             out_P[base, 1] = py
             out_P[base, 2] = pz
@@ -304,104 +337,127 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 dz = z - nz0
                 out_pr[base] = om / (na + nb * (dz * dz))
             cnt += 1
-        row_count[row] = cnt
+            if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
+                flags[base] = 1
+                key = (
+                    ((np.int64(qx) + off) << (2 * bits)) | ((np.int64(qy) + off) << bits) | (np.int64(qz) + off)
+                )  # eq. (23)'s coarse cell, packed as in ash.py
+                if key != last_key:
+                    if run_n > 0:
+                        runs[rb + nr] = last_key
+                        r_lo[rb + nr] = run_lo
+                        r_hi[rb + nr] = run_hi
+                        r_n[rb + nr] = run_n
+                        nr += 1
+                    last_key = key
+                    run_lo = u
+                    run_n = 0
+                run_hi = u
+                run_n += 1
+            else:
+                flags[base] = 2
+                n_oor += 1
+        if run_n > 0:
+            runs[rb + nr] = last_key
+            r_lo[rb + nr] = run_lo
+            r_hi[rb + nr] = run_hi
+            r_n[rb + nr] = run_n
+            nr += 1
+        row_info[row, 0] = cnt
+        row_info[row, 1] = n_oor
+        row_info[row, 2] = nr
 
 
-@njit(cache=True, parallel=True)
-def _compact(flags, out_P, out_w, out_pr, prm, row_start, h, w, P, om, pr, q, pix, cam, oor):
-    """Kept pixels of ``_pixels`` (flags 1 / 2) into input-order arrays; prm: PixelParams."""
-    rp, s_c = prm.range_priority, prm.cell
-    nrows = row_start.shape[0] - 1
-    for row in prange(nrows):
-        k = row_start[row]
-        i = row // h
-        base0 = row * w
-        for u in range(w):
-            f = flags[base0 + u]
-            if f == 0:
-                continue
-            b = base0 + u
-            P[k, 0] = out_P[b, 0]
-            P[k, 1] = out_P[b, 1]
-            P[k, 2] = out_P[b, 2]
-            om[k] = out_w[b]
-            if rp:
-                pr[k] = out_pr[b]
-            if f == 1:
-                q[k, 0] = np.int64(np.floor(out_P[b, 0] / s_c))
-                q[k, 1] = np.int64(np.floor(out_P[b, 1] / s_c))
-                q[k, 2] = np.int64(np.floor(out_P[b, 2] / s_c))
-            pix[k] = (row - i * h) * w + u
-            cam[k] = i
-            oor[k] = f == 2
-            k += 1
-
-
-@njit(cache=True)
-def _coarse_ids(q, keep, offset, bits):
-    """Coarse cell id (first-appearance order) of every kept point, -1 for the others."""
-    m = q.shape[0]
-    size = 1
-    while size < 2 * m + 16:
+@njit(cache=True, error_model="numpy")
+def _cells(runs, r_n, row_info, w):
+    """Coarse cells of the runs (serial, one hash lookup per run, not per point): cell ids in
+    first-appearance order (input order), each run's key in ``runs`` replaced by the first
+    slot of its points in the cell-grouped order. Returns (start (C+1,): each cell's slots,
+    cell_key (C,): its packed key, the largest cell's size)."""
+    n_rows = row_info.shape[0]
+    n_runs = 0
+    for row in range(n_rows):
+        n_runs += row_info[row, 2]
+    size = 16
+    while size < 2 * n_runs + 16:
         size *= 2
     mask = size - 1
     tkeys = np.full(size, -1, dtype=np.int64)
     tvals = np.empty(size, dtype=np.int64)
-    ids = np.full(m, -1, dtype=np.int64)
+    cell_key = np.empty(n_runs, dtype=np.int64)
+    counts = np.zeros(n_runs + 1, dtype=np.int64)
     n_cells = 0
-    last_key = -2
-    last_id = -1
-    for p in range(m):
-        if not keep[p]:
-            continue
-        key = ((q[p, 0] + offset) << (2 * bits)) | ((q[p, 1] + offset) << bits) | (q[p, 2] + offset)
-        if key == last_key:
-            ids[p] = last_id
-            continue
-        hsh = (key * np.int64(-7046029254386353131)) >> 20
-        slot = hsh & mask
-        while True:
-            tk = tkeys[slot]
-            if tk == key:
-                cid = tvals[slot]
-                break
-            if tk == -1:
-                tkeys[slot] = key
-                tvals[slot] = n_cells
-                cid = n_cells
-                n_cells += 1
-                break
-            slot = (slot + 1) & mask
-        ids[p] = cid
-        last_key = key
-        last_id = cid
-    return ids, n_cells
-
-
-@njit(cache=True)
-def _bucket(ids, n_cells):
-    """Counting sort of points by cell id, stable: (start (C+1,), members (kept M,))."""
-    counts = np.zeros(n_cells + 1, dtype=np.int64)
-    for p in range(ids.shape[0]):
-        if ids[p] >= 0:
-            counts[ids[p] + 1] += 1
+    for row in range(n_rows):
+        rb = row * w
+        for r in range(row_info[row, 2]):
+            key = runs[rb + r]
+            slot = ((key * np.int64(-7046029254386353131)) >> 20) & mask
+            while True:
+                tk = tkeys[slot]
+                if tk == key:
+                    cid = tvals[slot]
+                    break
+                if tk == -1:
+                    tkeys[slot] = key
+                    tvals[slot] = n_cells
+                    cell_key[n_cells] = key
+                    cid = n_cells
+                    n_cells += 1
+                    break
+                slot = (slot + 1) & mask
+            runs[rb + r] = cid
+            counts[cid + 1] += r_n[rb + r]
+    largest = 0
     for c in range(n_cells):
+        if counts[c + 1] > largest:
+            largest = counts[c + 1]
         counts[c + 1] += counts[c]
-    start = counts.copy()
-    members = np.empty(counts[n_cells], dtype=np.int64)
-    fill = counts[:n_cells].copy()
-    for p in range(ids.shape[0]):
-        c = ids[p]
-        if c >= 0:
-            members[fill[c]] = p
-            fill[c] += 1
-    return start, members
+    start = counts[: n_cells + 1].copy()
+    fill = counts[:n_cells]
+    for row in range(n_rows):  # stable: runs in input order, so points keep input order in a cell
+        rb = row * w
+        for r in range(row_info[row, 2]):
+            cid = runs[rb + r]
+            runs[rb + r] = fill[cid]
+            fill[cid] += r_n[rb + r]
+    return start, cell_key[:n_cells].copy(), largest
 
 
-@njit(cache=True, parallel=True)
-def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n):
-    """Eq. (23)-(25) per coarse cell: fine keys, stable local sort (members reordered in place),
-    and the per-cell sum of fine-cell densities (for rho_bar) and fine-cell count. prm: CellParams."""
+@njit(cache=True, parallel=True, error_model="numpy")
+def _scatter(flags, runs, r_lo, r_hi, row_info, w, members):
+    """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``)."""
+    for row in prange(row_info.shape[0]):
+        rb = row * w
+        for r in range(row_info[row, 2]):
+            k = runs[rb + r]
+            for u in range(r_lo[rb + r], r_hi[rb + r] + 1):
+                if flags[rb + u] == 1:
+                    members[k] = rb + u
+                    k += 1
+
+
+@njit(cache=True, error_model="numpy")
+def _chunks(start, n_chunks):
+    """Cell ranges of about equal point counts: bounds (n_chunks + 1,) into the cells."""
+    n_cells = start.shape[0] - 1
+    total = start[n_cells]
+    b = np.empty(n_chunks + 1, dtype=np.int64)
+    b[0] = 0
+    for k in range(1, n_chunks):
+        c = np.searchsorted(start, (total * k) // n_chunks)
+        b[k] = min(max(c, b[k - 1]), n_cells)
+    b[n_chunks] = n_cells
+    return b
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
+               cell_fine_n):  # fmt: skip
+    """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
+    chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
+    group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
+    (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
+    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead."""
     s_c, s0, s_min, s_max, eps, adaptive, fixed = (
         prm.s_c,
         prm.s0,
@@ -412,272 +468,379 @@ def _fine_pass(P, q, start, members, prm, fkey, csize, cell_rho_sum, cell_fine_n
         prm.fixed_size,
     )
     s_c3 = prm.s_c3
-    n_cells = start.shape[0] - 1
-    for c in prange(n_cells):
-        a = start[c]
-        b = start[c + 1]
-        n = b - a
-        if adaptive:
-            rho = _F(n) / s_c3  # eq. (23)
-            sf = s0 / np.sqrt(rho + eps)  # eq. (24)
-            if sf < s_min:
-                sf = s_min
-            if sf > s_max:
-                sf = s_max
-        else:
-            sf = fixed
-        csize[c] = sf
-        # fine keys, grouped by first appearance through a small open-addressing table
-        # (an O(n) counting sort instead of a comparison sort); stable: input order kept
-        keys = np.empty(n, dtype=np.int64)
-        gid = np.empty(n, dtype=np.int64)
-        tsize = 2 * n + 1
-        tk = np.full(tsize, -1, dtype=np.int64)
-        tv = np.empty(tsize, dtype=np.int64)
-        ng = 0
-        last_k = np.int64(-1)
-        last_g = 0
-        for t in range(n):
-            p = members[a + t]
-            k3 = np.int64(0)
+    bits, off = prm.bits, prm.offset
+    bmask = (np.int64(1) << bits) - 1
+    tcap = 16
+    while tcap < 2 * largest + 1:
+        tcap *= 2
+    for ch in prange(chunks.shape[0] - 1):
+        gid = np.empty(largest, dtype=np.int64)
+        gstart = np.empty(largest + 1, dtype=np.int64)
+        tk = np.empty(tcap, dtype=np.int64)
+        tv = np.empty(tcap, dtype=np.int64)
+        for c in range(chunks[ch], chunks[ch + 1]):
+            a = start[c]
+            b = start[c + 1]
+            n = b - a
             if adaptive:
-                for ax in range(3):
-                    o = _F(q[p, ax]) * s_c
-                    f = np.floor((P[p, ax] - o) / sf)  # eq. (25)
-                    fi = np.int64(f)
-                    if fi < 0:
-                        fi = 0
-                    if fi > 127:
-                        fi = 127
-                    k3 = (k3 << 7) | fi
-            keys[t] = k3
-            if k3 == last_k:
-                gid[t] = last_g
-                continue
-            slot = (k3 * 40503) % tsize
-            while True:
-                if tk[slot] == k3:
-                    g = tv[slot]
-                    break
-                if tk[slot] == -1:
-                    tk[slot] = k3
-                    tv[slot] = ng
-                    g = ng
-                    ng += 1
-                    break
-                slot += 1
-                if slot == tsize:
-                    slot = 0
-            gid[t] = g
-            last_k = k3
-            last_g = g
-        gstart = np.zeros(ng + 1, dtype=np.int64)
-        for t in range(n):
-            gstart[gid[t] + 1] += 1
-        for g in range(ng):
-            gstart[g + 1] += gstart[g]
-        fill = gstart[:ng].copy()
-        tmp = np.empty(n, dtype=np.int64)
-        for t in range(n):
-            g = gid[t]
-            tmp[fill[g]] = members[a + t]
-            fkey[a + fill[g]] = g
-            fill[g] += 1
-        sf3 = sf * sf * sf
-        rsum = 0.0
-        for g in range(ng):
-            rsum += _F(gstart[g + 1] - gstart[g]) / sf3
-        for t in range(n):
-            members[a + t] = tmp[t]
-        nf = ng
-        cell_rho_sum[c] = rsum
-        cell_fine_n[c] = nf
-
-
-@njit(cache=True, parallel=True)
-def _select(P, om, start, members, fkey, csize, fine_n, prm, selected):
-    """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell. om: the
-    ranking value (omega, or omega / sigma(z) with range_priority); only compared. fine_n:
-    occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm: SelectParams."""
-    k0, ratio, k_max, rho_bar = prm.k0, prm.ratio, prm.k_max, prm.rho_bar
-    fixed_k, k_const, lone_mean = prm.fixed_k, prm.k_const, prm.lone_cell_mean
-    n_cells = start.shape[0] - 1
-    for c in prange(n_cells):
-        a = start[c]
-        b = start[c + 1]
-        sf = csize[c]
-        sf3 = sf * sf * sf
-        t0 = a
-        d2 = np.empty(k_max * 0 + (b - a), dtype=np.float32)
-        while t0 < b:
-            t1 = t0 + 1
-            while t1 < b and fkey[t1] == fkey[t0]:
-                t1 += 1
-            n = t1 - t0
-            if not fixed_k and lone_mean > 0 and n == 1 and float(b - a) >= lone_mean * float(fine_n[c]):
-                t0 = t1  # a lone point in a densely sampled coarse cell: k = 0 (lone_cell_mean)
-                continue
-            if not fixed_k:
-                rho = _F(n) / sf3
-                kf = np.ceil(_F(k0) * (rho / rho_bar) * _F(ratio))  # eq. (26)
-                k = int(kf)
-                if k < 1:
-                    k = 1
-                if k > k_max:
-                    k = k_max
+                rho = _F(n) / s_c3  # eq. (23)
+                sf = s0 / np.sqrt(rho + eps)  # eq. (24)
+                if sf < s_min:
+                    sf = s_min
+                if sf > s_max:
+                    sf = s_max
             else:
-                k = k_const
-            # first pick: highest omega, ties -> first in input order
-            best = t0
-            for t in range(t0 + 1, t1):
-                if om[members[t]] > om[members[best]]:
-                    best = t
-            selected[members[best]] = True
-            for t in range(t0, t1):
-                d2[t - t0] = np.inf
-            last = members[best]
-            for _r in range(1, k):
-                bs = _F(0.0)
-                bt = -1
-                for t in range(t0, t1):
-                    p = members[t]
-                    if selected[p]:
-                        continue
-                    dx = P[p, 0] - P[last, 0]
-                    dy = P[p, 1] - P[last, 1]
-                    dz = P[p, 2] - P[last, 2]
-                    dd = dx * dx + dy * dy + dz * dz
-                    if dd < d2[t - t0]:
-                        d2[t - t0] = dd
-                    sc = np.sqrt(d2[t - t0]) * om[p]  # eq. (28)
-                    if sc > bs:
-                        bs = sc
-                        bt = t
-                if bt < 0:
-                    break
-                last = members[bt]
-                selected[last] = True
-            t0 = t1
-
-
-@njit(cache=True, parallel=True)
-def _consensus(P, om, cam, T_wc, T_cw, start, members, fkey, selected, gate, na, nb, nz0, outP, support):
-    """rps.consensus for every selected point, fine cell by fine cell (parallel over coarse
-    cells): outP / support of each selected point (indexed like P). Same arithmetic as the
-    reference: float32 geometry, float64 sums, members in fine-cell order."""
-    n_cells = start.shape[0] - 1
-    for c in prange(n_cells):
-        a = start[c]
-        b = start[c + 1]
-        seen = np.empty(b - a, dtype=np.int64)
-        t0 = a
-        while t0 < b:
-            t1 = t0 + 1
-            while t1 < b and fkey[t1] == fkey[t0]:
-                t1 += 1
-            for ts in range(t0, t1):
-                s = members[ts]
-                if not selected[s]:
+                sf = fixed
+            csize[c] = sf
+            key = cell_key[c]
+            ox = _F(((key >> (2 * bits)) & bmask) - off) * s_c
+            oy = _F(((key >> bits) & bmask) - off) * s_c
+            oz = _F((key & bmask) - off) * s_c
+            # fine keys grouped by first appearance through a small open-addressing table
+            # (an O(n) counting sort, stable: input order kept inside a fine cell)
+            tsize = 16
+            while tsize < 2 * n + 1:
+                tsize *= 2
+            tmask = tsize - 1
+            for e in range(tsize):
+                tk[e] = -1
+            ng = 0
+            last_k = np.int64(-1)
+            last_g = 0
+            for t in range(n):
+                p = members_in[a + t]
+                k3 = np.int64(0)
+                if adaptive:
+                    fxi = np.int64(np.floor((P[p, 0] - ox) / sf))  # eq. (25)
+                    fyi = np.int64(np.floor((P[p, 1] - oy) / sf))
+                    fzi = np.int64(np.floor((P[p, 2] - oz) / sf))
+                    fxi = min(max(fxi, 0), 127)
+                    fyi = min(max(fyi, 0), 127)
+                    fzi = min(max(fzi, 0), 127)
+                    k3 = (((fxi << 7) | fyi) << 7) | fzi
+                if k3 == last_k:
+                    gid[t] = last_g
                     continue
-                i = cam[s]
-                cx, cy, cz = T_wc[i, 0, 3], T_wc[i, 1, 3], T_wc[i, 2, 3]
-                dx = P[s, 0] - cx
-                dy = P[s, 1] - cy
-                dz = P[s, 2] - cz
-                t_s = np.sqrt(dx * dx + dy * dy + dz * dz)
-                ux = dx / t_s
-                uy = dy / t_s
-                uz = dz / t_s
-                zs = T_cw[i, 2, 0] * P[s, 0] + T_cw[i, 2, 1] * P[s, 1] + T_cw[i, 2, 2] * P[s, 2] + T_cw[i, 2, 3]
-                dn = zs - nz0
-                lim = gate * (na + nb * (dn * dn))
-                num = 0.0
-                den = 0.0
-                ns = 0
-                for t in range(t0, t1):
-                    q = members[t]
-                    tq = (P[q, 0] - cx) * ux + (P[q, 1] - cy) * uy + (P[q, 2] - cz) * uz
-                    if not abs(tq - t_s) < lim:
-                        continue
-                    wq = np.float64(om[q])
-                    num += wq * np.float64(tq)
-                    den += wq
-                    cq = cam[q]
-                    new = True
-                    for e in range(ns):
-                        if seen[e] == cq:
-                            new = False
-                            break
-                    if new:
-                        seen[ns] = cq
-                        ns += 1
-                if den > 0:
-                    tn = _F(num / den)
-                else:
-                    tn = t_s
-                outP[s, 0] = cx + tn * ux
-                outP[s, 1] = cy + tn * uy
-                outP[s, 2] = cz + tn * uz
-                support[s] = ns
-            t0 = t1
+                slot = ((k3 * np.int64(-7046029254386353131)) >> 24) & tmask
+                while True:
+                    if tk[slot] == k3:
+                        g = tv[slot]
+                        break
+                    if tk[slot] == -1:
+                        tk[slot] = k3
+                        tv[slot] = ng
+                        g = ng
+                        ng += 1
+                        break
+                    slot = (slot + 1) & tmask
+                gid[t] = g
+                last_k = k3
+                last_g = g
+            for g in range(ng + 1):
+                gstart[g] = 0
+            for t in range(n):
+                gstart[gid[t] + 1] += 1
+            sf3 = sf * sf * sf
+            rsum = 0.0
+            for g in range(ng):
+                rsum += _F(gstart[g + 1]) / sf3
+                if not reorder:
+                    fkey[a + g] = gstart[g + 1]
+                gstart[g + 1] += gstart[g]
+            if reorder:
+                for t in range(n):  # gstart[g] is now the next free slot of group g
+                    g = gid[t]
+                    members[a + gstart[g]] = members_in[a + t]
+                    fkey[a + gstart[g]] = g
+                    gstart[g] += 1
+            cell_rho_sum[c] = rsum
+            cell_fine_n[c] = ng
 
 
-@njit(cache=True)
-def _out_positions(members, selected, pos):
-    """pos[t] = output slot of members[t] when it is selected (fine-cell order), else -1."""
-    k = 0
-    for t in range(members.shape[0]):
-        if selected[members[t]]:
-            pos[t] = k
-            k += 1
-        else:
-            pos[t] = -1
+@njit(cache=True, inline="always", error_model="numpy")
+def _cell_k(n, n_coarse, fine_cells, sf3, prm):
+    """k of a fine cell of n points: eq. (26) (or the fixed k), 0 for a lone point in a densely
+    sampled coarse cell of n_coarse points in fine_cells occupied fine cells (lone_cell_mean).
+    prm: SelectParams."""
+    if prm.fixed_k:
+        return prm.k_const
+    if prm.lone_cell_mean > 0 and n == 1 and float(n_coarse) >= prm.lone_cell_mean * float(fine_cells):
+        return 0
+    rho = _F(n) / sf3
+    kf = np.ceil(_F(prm.k0) * (rho / prm.rho_bar) * _F(prm.ratio))  # eq. (26)
+    k = int(kf)
+    if k < 1:
+        k = 1
+    if k > prm.k_max:
+        k = prm.k_max
     return k
 
 
-@njit(cache=True, parallel=True)
-def _gather(members, pos, P, om, cam, pix, color, rig_index, hw, xyz, rgb, wgt, src):
-    """The output cloud in one parallel pass (numpy fancy indexing took ~45 ms at N = 8)."""
-    for t in prange(members.shape[0]):
-        k = pos[t]
-        if k < 0:
+@njit(cache=True, parallel=True, error_model="numpy")
+def _count(start, gsize, csize, fine_n, prm, cell_count):
+    """Points that selection keeps per coarse cell, from the fine-cell sizes alone (``_fine_pass``
+    with reorder False): min(k, n) per fine cell, which the FPS of eq. (28) picks unless points
+    of the cell coincide (it stops early then): the density search's count."""
+    for c in prange(start.shape[0] - 1):
+        a = start[c]
+        sf = csize[c]
+        sf3 = sf * sf * sf
+        cnt = 0
+        for g in range(fine_n[c]):
+            n = gsize[a + g]
+            cnt += min(_cell_k(n, start[c + 1] - a, fine_n[c], sf3, prm), n)
+        cell_count[c] = cnt
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
+            stage_src, stage_sup, cell_nsel):  # fmt: skip
+    """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
+    cons.on) rps.consensus for the representatives of that fine cell while it is in cache.
+    rank: the ranking value (omega, or omega / sigma(z) with range_priority); only compared.
+    fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm:
+    SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
+    go to stage_src[start[c] + j] (point index) and, with consensus, stage_sup (supporting
+    cameras) while P of each representative is replaced by its moved position once its fine
+    cell is done (nothing reads it later); cell_nsel[c] = how many."""
+    on, gate, na, nb, nz0 = cons.on, cons.gate, cons.noise_a, cons.noise_b, cons.noise_z0
+    n_cam = T_wc.shape[0]
+    inv_hw = 1.0 / np.float64(hw)
+    for ch in prange(chunks.shape[0] - 1):
+        d2 = np.empty(largest, dtype=np.float32)
+        sel = np.zeros(largest, dtype=np.bool_)
+        moved = np.empty((largest if on else 0, 3), dtype=np.float32)
+        stamp = np.zeros(n_cam, dtype=np.int64)
+        tick = 0
+        for c in range(chunks[ch], chunks[ch + 1]):
+            a = start[c]
+            b = start[c + 1]
+            sf = csize[c]
+            sf3 = sf * sf * sf
+            ns_c = 0
+            t0 = a
+            while t0 < b:
+                t1 = t0 + 1
+                while t1 < b and fkey[t1] == fkey[t0]:
+                    t1 += 1
+                n = t1 - t0
+                k = _cell_k(n, b - a, fine_n[c], sf3, prm)
+                if k == 0:  # a lone point in a densely sampled coarse cell (lone_cell_mean)
+                    t0 = t1
+                    continue
+                # first pick: highest rank, ties -> first in input order
+                best = t0
+                for t in range(t0 + 1, t1):
+                    if rank[members[t]] > rank[members[best]]:
+                        best = t
+                for t in range(n):
+                    sel[t] = False
+                    d2[t] = np.inf
+                sel[best - t0] = True
+                last = members[best]
+                for _r in range(1, k):
+                    bs = _F(0.0)
+                    bt = -1
+                    for t in range(t0, t1):
+                        if sel[t - t0]:
+                            continue
+                        p = members[t]
+                        dx = P[p, 0] - P[last, 0]
+                        dy = P[p, 1] - P[last, 1]
+                        dz = P[p, 2] - P[last, 2]
+                        dd = dx * dx + dy * dy + dz * dz
+                        if dd < d2[t - t0]:
+                            d2[t - t0] = dd
+                        sc = np.sqrt(d2[t - t0]) * rank[p]  # eq. (28)
+                        if sc > bs:
+                            bs = sc
+                            bt = t
+                    if bt < 0:
+                        break
+                    last = members[bt]
+                    sel[bt - t0] = True
+                n0 = ns_c
+                for ts in range(t0, t1):
+                    if not sel[ts - t0]:
+                        continue
+                    s = members[ts]
+                    stage_src[a + ns_c] = s
+                    if on:
+                        i = _cam_of(s, hw, inv_hw)
+                        tick += 1
+                        _consensus_point(P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0,
+                                         stamp, tick, moved, stage_sup, ns_c - n0, a + ns_c)  # fmt: skip
+                    ns_c += 1
+                if on:  # the cell's representatives move only after all of them were computed
+                    for e in range(ns_c - n0):
+                        s = stage_src[a + n0 + e]
+                        P[s, 0] = moved[e, 0]
+                        P[s, 1] = moved[e, 1]
+                        P[s, 2] = moved[e, 2]
+                t0 = t1
+            cell_nsel[c] = ns_c
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cam_of(p, hw, inv_hw):
+    """p // hw without a 64-bit integer division (~40 cycles on this CPU): a float64 estimate
+    (exact to +-1 for p < 2^52), corrected."""
+    c = np.int64(np.float64(p) * inv_hw)
+    if c * hw > p:
+        c -= 1
+    elif (c + 1) * hw <= p:
+        c += 1
+    return c
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _consensus_point(
+    P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
+):
+    """rps.consensus for representative s of camera i in the fine cell members[t0:t1]: out_P[k]
+    = s moved along its ray to the omega-weighted mean of the cell's candidates within ``gate``
+    sigma(z) of it, out_sup[ks] = their distinct cameras. Same arithmetic as the reference:
+    float32 geometry, float64 sums, members in fine-cell order."""
+    cx, cy, cz = T_wc[i, 0, 3], T_wc[i, 1, 3], T_wc[i, 2, 3]
+    dx = P[s, 0] - cx
+    dy = P[s, 1] - cy
+    dz = P[s, 2] - cz
+    t_s = np.sqrt(dx * dx + dy * dy + dz * dz)
+    ux = dx / t_s
+    uy = dy / t_s
+    uz = dz / t_s
+    zs = T_cw[i, 2, 0] * P[s, 0] + T_cw[i, 2, 1] * P[s, 1] + T_cw[i, 2, 2] * P[s, 2] + T_cw[i, 2, 3]
+    dn = zs - nz0
+    lim = gate * (na + nb * (dn * dn))
+    num = 0.0
+    den = 0.0
+    ns = 0
+    for t in range(t0, t1):
+        q = members[t]
+        tq = (P[q, 0] - cx) * ux + (P[q, 1] - cy) * uy + (P[q, 2] - cz) * uz
+        if not abs(tq - t_s) < lim:
             continue
-        a = members[t]
-        xyz[k, 0] = P[a, 0]
-        xyz[k, 1] = P[a, 1]
-        xyz[k, 2] = P[a, 2]
-        wgt[k] = om[a]
-        c = cam[a]
-        q = c * hw + pix[a]
-        rgb[k, 0] = color[q, 0]
-        rgb[k, 1] = color[q, 1]
-        rgb[k, 2] = color[q, 2]
-        src[k] = rig_index[c]
+        wq = np.float64(om[q])
+        num += wq * np.float64(tq)
+        den += wq
+        cq = _cam_of(q, hw, inv_hw)
+        if stamp[cq] != tick:
+            stamp[cq] = tick
+            ns += 1
+    if den > 0:
+        tn = _F(num / den)
+    else:
+        tn = t_s
+    out_P[k, 0] = cx + tn * ux
+    out_P[k, 1] = cy + tn * uy
+    out_P[k, 2] = cz + tn * uz
+    out_sup[ks] = ns
 
 
-@njit(cache=True, parallel=True)
-def _gather_i16(members, pos, val, out):
-    """out[pos[t]] = val[members[t]] for the selected members (the support column)."""
-    for t in prange(members.shape[0]):
-        k = pos[t]
-        if k >= 0:
-            out[k] = val[members[t]]
+@njit(cache=True, parallel=True, error_model="numpy")
+def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, P, om, color, rig_index, hw,
+          xyz, rgb, wgt, src, sup):  # fmt: skip
+    """The output cloud in one parallel pass over the coarse cells: representative j of cell c
+    goes to row cell_out[c] + j (cells in order, fine-cell order inside)."""
+    inv_hw = 1.0 / np.float64(hw)
+    for c in prange(start.shape[0] - 1):
+        a = start[c]
+        o = cell_out[c]
+        for j in range(cell_nsel[c]):
+            p = stage_src[a + j]
+            k = o + j
+            if use_stage:
+                sup[k] = stage_sup[a + j]
+            xyz[k, 0] = P[p, 0]
+            xyz[k, 1] = P[p, 1]
+            xyz[k, 2] = P[p, 2]
+            wgt[k] = om[p]
+            rgb[k, 0] = color[p, 0]  # p is the flat (camera, row, column) pixel index
+            rgb[k, 1] = color[p, 1]
+            rgb[k, 2] = color[p, 2]
+            src[k] = rig_index[_cam_of(p, hw, inv_hw)]
 
 
-class _Candidates(NamedTuple):
-    """Stage-1 output, in input order (camera, row, column) of the M candidates."""
-
-    P: np.ndarray  # (M, 3) float32 world points
-    om: np.ndarray  # (M,) float32 joint weight, eq. (22)
-    rank: np.ndarray  # (M,) float32 ranking value of eq. (28) (om itself without range_priority)
-    q: np.ndarray  # (M, 3) int64 first-level cell index (valid where not out of range)
-    pix: np.ndarray  # (M,) int64 pixel index v * W + u in the source view
-    cam: np.ndarray  # (M,) int64 source view (frame order)
-    oor: np.ndarray  # (M,) bool beyond the hash's addressable range
+# --- orchestration ------------------------------------------------------------------------
 
 
-def _candidates(p, prm: PixelParams) -> _Candidates:
-    """Stage 1 and 2: ``_pixels`` over every view, then ``_compact`` into input order."""
+class ConsensusParams(NamedTuple):
+    """Scalars of the consensus step inside ``_select`` (rps.consensus)."""
+
+    on: bool
+    gate: np.float32
+    """Gate in sigma(z) (FuseConfig.consensus_gate)."""
+    noise_a: np.float32
+    noise_b: np.float32
+    noise_z0: np.float32
+
+
+def consensus_params(cfg: FuseConfig, on: bool | None = None) -> ConsensusParams:
+    """ConsensusParams of ``cfg`` (``on`` overrides cfg.consensus)."""
+    a, b, z0 = cfg.noise_sigma
+    on = bool(cfg.consensus) if on is None else bool(on)
+    return ConsensusParams(on, _F(cfg.consensus_gate), _F(a), _F(b), _F(z0))
+
+
+class _Workspace:
+    """Per-thread buffers of one frame shape, reused from frame to frame: a fresh 100+ MB of
+    arrays per frame cost as much in page faults as some kernels (the kernel zero-fills every
+    new page). Buffers hold no result; the cloud is built from new arrays."""
+
+    def __init__(self, n: int, h: int, w: int) -> None:
+        npx = n * h * w
+        self.shape = (n, h, w)
+        self.flags = np.empty(npx, dtype=np.int8)
+        self.P = np.empty((npx, 3), dtype=np.float32)
+        self.om = np.empty(npx, dtype=np.float32)
+        self.pr = np.empty(1, dtype=np.float32)
+        self.runs = np.empty(npx, dtype=np.int64)
+        self.row_info = np.empty((n * h, 3), dtype=np.int64)
+        idx = np.int32 if npx < 2**31 else np.int64  # pixel indices
+        self.members_in = np.empty(npx, dtype=idx)
+        self.members = np.empty(npx, dtype=idx)
+        self.fkey = np.empty(npx, dtype=np.int32)
+        self.stage_src = np.empty(npx, dtype=idx)
+        self.stage_sup = np.empty(npx, dtype=np.int16)
+
+    def rank(self, on: bool) -> np.ndarray:
+        """The buffer for the range-aware ranking value (length 1 when unused)."""
+        if on and self.pr.shape[0] != self.om.shape[0]:
+            self.pr = np.empty(self.om.shape[0], dtype=np.float32)
+        return self.pr
+
+
+_LOCAL = threading.local()
+
+
+def _workspace(n: int, h: int, w: int) -> _Workspace:
+    ws = getattr(_LOCAL, "ws", None)
+    if ws is None or ws.shape != (n, h, w):
+        _LOCAL.ws = ws = None  # drop the old buffers before allocating new ones
+        _LOCAL.ws = ws = _Workspace(n, h, w)
+    return ws
+
+
+class _Cells(NamedTuple):
+    """Stage 1-2 output: candidates at their pixel index, grouped by coarse cell."""
+
+    P: np.ndarray  # (N H W, 3) float32 world points (valid at candidate pixels)
+    om: np.ndarray  # (N H W,) float32 joint weight, eq. (22)
+    rank: np.ndarray  # ranking value of eq. (28) (om itself without range_priority)
+    start: np.ndarray  # (C + 1,) int64 slots of each coarse cell
+    cell_key: np.ndarray  # (C,) int64 packed coarse key
+    members: np.ndarray  # (M,) int32 pixel indices of the in-range candidates, grouped by cell
+    largest: int  # points in the largest coarse cell
+    candidates: int
+    out_of_range: int
+
+
+def _parallel_chunk() -> int:
+    return max(1, 4 * numba.get_num_threads())
+
+
+def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
+    """Stages 1-2: ``_pixels`` over every view, coarse cells per run, members grouped by cell."""
     depth = p.depth.contiguous().numpy()
     n, h, w = depth.shape
     Kf = p.K.numpy().astype(np.float32)
@@ -685,99 +848,96 @@ def _candidates(p, prm: PixelParams) -> _Candidates:
     T_wc = p.T_world_cam.numpy().astype(np.float32)
     nbr = p.graph.index.numpy().astype(np.int64)
     present = p.present.numpy().astype(np.bool_)
-    npx = n * h * w
-    flags = np.empty(npx, dtype=np.int8)
-    out_P = np.empty((npx, 3), dtype=np.float32)
-    out_w = np.empty(npx, dtype=np.float32)
-    rp = prm.range_priority
-    out_pr = np.empty(npx if rp else 1, dtype=np.float32)
-    row_count = np.zeros(n * h, dtype=np.int64)
-    _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, row_count)
-    row_start = np.zeros(n * h + 1, dtype=np.int64)
-    np.cumsum(row_count, out=row_start[1:])
-    m = int(row_start[-1])
-    P = np.empty((m, 3), dtype=np.float32)
-    om = np.empty(m, dtype=np.float32)
-    rank = np.empty(m, dtype=np.float32) if rp else om
-    q = np.empty((m, 3), dtype=np.int64)
-    pix = np.empty(m, dtype=np.int64)
-    cam = np.empty(m, dtype=np.int64)
-    oor = np.empty(m, dtype=np.bool_)
-    _compact(flags, out_P, out_w, out_pr, prm, row_start, h, w, P, om, rank, q, pix, cam, oor)
-    return _Candidates(P, om, rank, q, pix, cam, oor)
+    rank = ws.rank(prm.range_priority)
+    with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
+        # a run's first u, last u and size live in three buffers that stages 3-4 use later
+        r_lo, r_hi, r_n = ws.members, ws.fkey, ws.stage_src
+        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, r_lo, r_hi, r_n,
+                ws.row_info)  # fmt: skip
+    start, cell_key, largest = _cells(ws.runs, r_n, ws.row_info, w)
+    m = int(start[-1])
+    members = ws.members_in[:m]
+    with numba.parallel_chunksize(8):
+        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, members)
+    cand = int(ws.row_info[:, 0].sum())
+    oor = int(ws.row_info[:, 1].sum())
+    return _Cells(ws.P, ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
 
 
-def _select_points(c: _Candidates, prm: KernelParams, cons=None):
-    """Stages 3 and 4: coarse cells, fine cells and representatives. Returns (members: point
-    indices grouped by fine cell, pos: output slot of each member or -1), the point count and,
-    when ``cons`` = (cam, T_wc, T_cw, gate, noise_sigma) is given, the consensus positions
-    (M, 3) and support (M,) of the selected points (``_consensus``), else (None, None)."""
-    adaptive = prm.cell.adaptive
-    bits = 14 if adaptive else 21
-    offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
-    ids, n_cells = _coarse_ids(c.q, ~c.oor, offset, bits)
-    start, members = _bucket(ids, n_cells)
-    fkey = np.empty(members.shape[0], dtype=np.int64)
+class _Selection(NamedTuple):
+    start: np.ndarray
+    cell_nsel: np.ndarray  # (C,) representatives per coarse cell
+    points: int
+
+
+def _select_points(
+    c: _Cells, prm: KernelParams, ws: _Workspace, cons: ConsensusParams, T_wc, T_cw, hw: int, count_only: bool = False
+):
+    """Stages 3 and 4 on the grouped candidates: fine cells, eq. (26), FPS and (cons.on) the
+    consensus; the representatives staged per coarse cell in ``ws`` (``_select``). With
+    ``count_only`` only how many points selection keeps (``_count``; density control)."""
+    n_cells = c.start.shape[0] - 1
+    m = c.members.shape[0]
+    chunks = _chunks(c.start, min(max(n_cells, 1), 16 * numba.get_num_threads()))
+    members, fkey = ws.members[:m], ws.fkey[:m]
     csize = np.empty(n_cells, dtype=np.float32)
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
-    _fine_pass(c.P, c.q, start, members, prm.cell, fkey, csize, rho_sum, fine_n)
+    with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
+        _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, not count_only, members, fkey,
+                   csize, rho_sum, fine_n)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
         sel_prm = sel_prm._replace(rho_bar=_F(rho_sum.sum() / max(total, 1)))
-    selected = np.zeros(c.P.shape[0], dtype=np.bool_)
-    _select(c.P, c.rank, start, members, fkey, csize, fine_n, sel_prm, selected)
-    # output in the fine-cell order of the members array
-    pos = np.empty(members.shape[0], dtype=np.int64)
-    k = _out_positions(members, selected, pos)
-    if cons is None:
-        return members, pos, k, None, None
-    cam, T_wc, T_cw, gate, (na, nb, nz0) = cons
-    outP = c.P.copy()
-    support = np.zeros(c.P.shape[0], dtype=np.int16)
-    _consensus(
-        c.P, c.om, cam, T_wc, T_cw, start, members, fkey, selected, _F(gate), _F(na), _F(nb), _F(nz0), outP, support
-    )
-    return members, pos, k, outP, support
+    nsel = np.empty(n_cells, dtype=np.int64)
+    if count_only:
+        _count(c.start, fkey, csize, fine_n, sel_prm, nsel)
+        return _Selection(c.start, nsel, int(nsel.sum()))
+    with numba.parallel_chunksize(1):
+        _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
+                hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
+    return _Selection(c.start, nsel, int(nsel.sum()))
 
 
 def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
     prm = kernel_params(cfg)
-    c = _candidates(p, prm.pixel)
+    n, h, w = p.depth.shape
+    ws = _workspace(n, h, w)
+    c = _candidates(p, prm.pixel, ws)
+    T_wc = p.T_world_cam.numpy().astype(np.float32)
+    T_cw = p.T_cam_world.numpy().astype(np.float32)
+    hw = h * w
     if cfg.target_points is not None:  # density control: search s0 on the hash + selection only
         from fuseflow.fuse.density import search_s0, with_s0
 
+        off = consensus_params(cfg, on=False)
+
         def count_at(s0: float) -> int:
-            return _select_points(c, kernel_params(with_s0(cfg, s0)))[2]
+            return _select_points(c, kernel_params(with_s0(cfg, s0)), ws, off, T_wc, T_cw, hw, count_only=True).points
 
         s0, _ = search_s0(count_at, cfg.s0, cfg.target_points)
         cfg = with_s0(cfg, s0)
         prm = kernel_params(cfg)
-    cons = None
-    if cfg.consensus:
-        T_wc = p.T_world_cam.numpy().astype(np.float32)
-        T_cw = p.T_cam_world.numpy().astype(np.float32)
-        cons = (c.cam, T_wc, T_cw, cfg.consensus_gate, cfg.noise_sigma)
-    members, pos, k, outP, sup_all = _select_points(c, prm, cons)
-    n, h, w = p.depth.shape
+    cons = consensus_params(cfg)
+    s = _select_points(c, prm, ws, cons, T_wc, T_cw, hw)
+    k = s.points
+    cell_out = np.zeros(s.cell_nsel.shape[0], dtype=np.int64)
+    if cell_out.shape[0] > 1:
+        np.cumsum(s.cell_nsel[:-1], out=cell_out[1:])
     xyz = np.empty((k, 3), dtype=np.float32)
     rgb = np.empty((k, 3), dtype=np.uint8)
     wgt = np.empty(k, dtype=np.float32)
     src = np.empty(k, dtype=np.int16)
+    sup = np.empty(k if cons.on else 0, dtype=np.int16)
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
-    _gather(
-        members, pos, c.P if outP is None else outP, c.om, c.cam, c.pix, color, rig_index, h * w, xyz, rgb, wgt, src
-    )
-    support = None
-    if sup_all is not None:
-        support = np.empty(k, dtype=np.int16)
-        _gather_i16(members, pos, sup_all, support)
-        support = torch.from_numpy(support)
+    with numba.parallel_chunksize(256):
+        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
+              hw, xyz, rgb, wgt, src, sup)  # fmt: skip
+    support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
         torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
     )
-    out_of_range = int(c.oor.sum())
-    return cloud, int(sum(p.valid_per_view)), int(c.P.shape[0]) - out_of_range, out_of_range
+    return cloud, int(sum(p.valid_per_view)), c.candidates - c.out_of_range, c.out_of_range

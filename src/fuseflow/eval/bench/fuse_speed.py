@@ -24,6 +24,18 @@ What it does (issue 5):
   1 cm voxels, integrate every view then extract_point_cloud), baselines.voxel_downsampled_fusion
   (back-project every valid pixel, Open3D voxel_down_sample at 1 cm).
 
+Real data sets (``data``, beside the simulated ring ``sim``), read from ``data_dir`` (the
+shared data folder) and written to the work folder as .npy frames and one rig per frame:
+
+* ``icl``: the ICL-NUIM living room as an 8-camera static rig: frame t of the benchmark is ICL
+  frames t, t + 25, ..., t + 175 as 8 cameras with the reference trajectory as extrinsics
+  (every pixel valid, ~2.41 M valid pixels); different t are different rigs and views, so
+  VoxelBlockGrid's content-dependent time is sampled over several. N < 8 = every (8 / N)-th view.
+* ``hocap``: the 8 RealSense cameras of hocap-8rs with the reference extrinsics (io/hocap.py);
+  one synchronised frame, fused ``warmup + frames`` times.
+
+N = 16 exists only for ``sim``. ``points``: FUSE with FuseConfig.target_points (density control).
+
 Output: report lines (a table) through ``log`` and, with ``json_path``, {"meta": ..., "rows":
 [one row per (method, N)]}.
 """
@@ -49,6 +61,7 @@ from fuseflow.errors import ValidationError
 from fuseflow.eval.bench import BenchmarkFailed
 
 __all__ = [
+    "DATA",
     "DEFAULT_METHODS",
     "METHODS",
     "FuseSpeedResult",
@@ -64,6 +77,12 @@ METHODS = {
     "naive_voxel": "naive back-projection + Open3D voxel_down_sample 1 cm",
 }
 DEFAULT_METHODS = ("fuse", "vbg", "naive_voxel")
+DATA = {
+    "sim": "simulated dynamic studio ring (rendered here)",
+    "icl": "ICL-NUIM living room, 8 frames 25 apart as an 8-camera rig (icl-livingroom1)",
+    "hocap": "hocap-8rs: 8 RealSense cameras, reference extrinsics",
+}
+DATA_FOLDERS = {"icl": "icl-livingroom1", "hocap": "hocap-8rs"}
 
 
 @dataclass
@@ -152,26 +171,27 @@ def _render(work: Path, cameras: int, frames: int, resolution: tuple[int, int], 
 # ------------------------------------------------------------------------------------ child
 
 
-def _method_fn(method: str, rig: Any, dev: Any) -> Callable:
-    """``fn(frame) -> FusedCloud`` for a key of :data:`METHODS`."""
+def _method_fn(method: str, dev: Any, points: int | None = None) -> Callable:
+    """``fn(frame, rig) -> FusedCloud`` for a key of :data:`METHODS`."""
     if method in ("fuse", "fuse_torch"):
         from fuseflow.fuse import FuseConfig, fuse
 
-        cfg = FuseConfig(backend="torch") if method == "fuse_torch" else FuseConfig()
-        return lambda frame: fuse(frame.to(dev), rig, cfg)
+        cfg = FuseConfig(backend="torch" if method == "fuse_torch" else "auto", target_points=points)
+        return lambda frame, rig: fuse(frame.to(dev), rig, cfg)
     if method == "vbg":
         from fuseflow.eval.baselines import tsdf_fusion
 
-        return lambda frame: tsdf_fusion(frame, rig, voxel=0.01)
+        return lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
     if method == "naive_voxel":
         from fuseflow.eval.baselines import voxel_downsampled_fusion
 
-        return lambda frame: voxel_downsampled_fusion(frame, rig, voxel=0.01)
+        return lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)
     raise ValidationError(f"unknown method {method!r}")
 
 
-def _child(method: str, n: int, work: Path, warmup: int, frames: int, device: str) -> dict:
-    """One (method, N) row, timed in this (fresh) process over the frames rendered in ``work``."""
+def _child(method: str, n: int, work: Path, warmup: int, frames: int, device: str, points: int | None = None) -> dict:
+    """One (method, N) row, timed in this (fresh) process over the frames rendered in ``work``
+    (one rig for all frames, or ``work/rigs/NNN/rig.json`` per frame)."""
     import gc
 
     import numpy as np
@@ -180,19 +200,21 @@ def _child(method: str, n: int, work: Path, warmup: int, frames: int, device: st
     from fuseflow import Frame
     from fuseflow.io import read_rig
 
-    rig_all = read_rig(work)
+    per_frame = (work / "rigs").is_dir()
+    rig_all = read_rig(work / "rigs" / "000" if per_frame else work)
     sel = _subset(len(rig_all), n)
-    rig = rig_all.subset(sel)
     dev = torch.device(device)
-    run = _method_fn(method, rig, dev)
+    run = _method_fn(method, dev, points)
 
-    def load(t: int) -> Frame:
+    def load(t: int) -> tuple[Frame, Any]:
+        rig = (read_rig(work / "rigs" / f"{t:03d}") if per_frame else rig_all).subset(sel)
         d = np.load(work / f"depth_{t:03d}.npy")[sel]
         c = np.load(work / f"color_{t:03d}.npy")[sel]
-        return Frame(t, rig.ids, torch.from_numpy(c), torch.from_numpy(d), torch.ones(len(sel), dtype=torch.bool))
+        pres = torch.ones(len(sel), dtype=torch.bool)
+        return Frame(t, rig.ids, torch.from_numpy(c), torch.from_numpy(d), pres), rig
 
     for t in range(warmup):
-        run(load(t))
+        run(*load(t))
     gc.collect()
     if dev.type == "cuda":
         torch.cuda.synchronize()
@@ -201,15 +223,16 @@ def _child(method: str, n: int, work: Path, warmup: int, frames: int, device: st
     hwm_reset = _reset_hwm()
     ms, pts = [], []
     for t in range(warmup, warmup + frames):
-        frame = load(t)
+        frame, rig = load(t)
         t0 = time.perf_counter()
-        cloud = run(frame)
+        cloud = run(frame, rig)
         if dev.type == "cuda":
             torch.cuda.synchronize()
         ms.append((time.perf_counter() - t0) * 1000.0)
         pts.append(len(cloud))
         del cloud, frame
     row = {
+        "data": work.name if work.name in DATA else "sim",
         "method": method,
         "cameras": n,
         "ms": statistics.median(ms),
@@ -223,19 +246,23 @@ def _child(method: str, n: int, work: Path, warmup: int, frames: int, device: st
         "device": device,
         "frames": frames,
         "warmup": warmup,
+        "target_points": points,
+        "valid_pixels": int(np.count_nonzero(np.load(work / f"depth_{warmup:03d}.npy")[sel] > 0)),
     }
     if dev.type == "cuda":
         row["gpu_peak_mb"] = torch.cuda.max_memory_allocated() / 2**20
     return row
 
 
-def _time_in_child(method: str, n: int, work: Path, warmup: int, frames: int, device: str) -> dict:
+def _time_in_child(method: str, n: int, work: Path, warmup: int, frames: int, device: str,
+                   points: int | None = None) -> dict:  # fmt: skip
     """Run :func:`_child` in a fresh interpreter that imports this same fuseflow; its row."""
     import fuseflow
 
     row_file = work / f"row_{method}_{n}.json"
     row_file.unlink(missing_ok=True)
-    cmd = [sys.executable, "-m", __name__, method, str(n), str(work), str(warmup), str(frames), device, str(row_file)]
+    cmd = [sys.executable, "-m", __name__, method, str(n), str(work), str(warmup), str(frames), device, str(row_file),
+           str(points or 0)]  # fmt: skip
     src = str(Path(fuseflow.__file__).resolve().parents[1])  # the child imports this fuseflow
     path = os.pathsep.join([src] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else []))
     env = {**os.environ, "PYTHONWARNINGS": "ignore", "PYTHONPATH": path}
@@ -253,18 +280,21 @@ def _time_in_child(method: str, n: int, work: Path, warmup: int, frames: int, de
 def format_row(row: dict[str, Any]) -> str:
     """One row as the report line the program prints."""
     return (
-        f"{row['method']:12s} N={row['cameras']:2d}  {row['ms']:8.1f} ms  (min {row['ms_min']:.1f}, max {row['ms_max']:.1f})  "
+        f"{row.get('data', 'sim'):5s} {row['method']:12s} N={row['cameras']:2d}  {row['ms']:8.1f} ms  (min {row['ms_min']:.1f}, max {row['ms_max']:.1f})  "
         f"peak {row['peak_mb']:6.0f} MB (base {row['base_mb']:.0f})  {row['points']:8d} points"
     )
 
 
 def _derived(rows: list[dict[str, Any]]) -> dict[str, float]:
-    by = {(r["method"], r["cameras"]): r for r in rows}
+    """Ratios of medians; keys of the real data sets start with their name (``icl_...``)."""
     derived = {}
-    if ("fuse", 8) in by and ("vbg", 8) in by:
-        derived["vbg_over_fuse_N8"] = by[("vbg", 8)]["ms"] / by[("fuse", 8)]["ms"]
-    if ("fuse", 8) in by and ("fuse", 16) in by:
-        derived["fuse_t16_over_t8"] = by[("fuse", 16)]["ms"] / by[("fuse", 8)]["ms"]
+    for data in dict.fromkeys(r.get("data", "sim") for r in rows):
+        by = {(r["method"], r["cameras"]): r for r in rows if r.get("data", "sim") == data}
+        pre = "" if data == "sim" else f"{data}_"
+        if ("fuse", 8) in by and ("vbg", 8) in by:
+            derived[pre + "vbg_over_fuse_N8"] = by[("vbg", 8)]["ms"] / by[("fuse", 8)]["ms"]
+        if ("fuse", 8) in by and ("fuse", 16) in by:
+            derived[pre + "fuse_t16_over_t8"] = by[("fuse", 16)]["ms"] / by[("fuse", 8)]["ms"]
     return derived
 
 
@@ -282,7 +312,9 @@ def _meta(command: str, methods: Sequence[str], resolution: tuple[int, int], n_t
         "frames": frames,
         "warmup": warmup,
         "seed": seed,
-        "scene": "studio, dynamic, Kinect-class noise, GT extrinsics",
+        "scene": "sim: studio, dynamic, Kinect-class noise, GT extrinsics; icl: ICL-NUIM living room frames "
+        "t + 25 k (k < 8) as 8 cameras, reference trajectory; hocap: hocap-8rs, reference extrinsics",
+        "load_average": os.getloadavg(),
         "memory": "peak_mb = VmHWM of a fresh process per row over the timed frames (reset with "
         "/proc/self/clear_refs after warm-up); base_mb = VmRSS before the timed frames",
         "machine": {
@@ -297,6 +329,36 @@ def _meta(command: str, methods: Sequence[str], resolution: tuple[int, int], n_t
         "derived": derived,
         "date": time.strftime("%Y-%m-%d %H:%M"),
     }
+
+
+def _write_real(work: Path, data: str, data_dir: Path, total: int) -> None:
+    """``total`` frames of a real data set as .npy files plus one rig per frame (module docstring)."""
+    import numpy as np
+
+    from fuseflow.io import make_virtual_rig, open_recording, write_rig
+    from fuseflow.io.hocap import convert_hocap
+
+    src = Path(data_dir) / DATA_FOLDERS[data]
+    if not src.is_dir():
+        raise ValidationError(f"--data {data}: {src} not found (pass the shared data folder with --data-dir)")
+    with tempfile.TemporaryDirectory(prefix=f"fuse_speed_{data}_") as tmp:
+        if data == "icl":
+            seq = open_recording(src)
+            if total + 175 > len(seq):
+                raise ValidationError(f"--data icl: at most {len(seq) - 175} warm-up + timed frames")
+        else:
+            convert_hocap(src, Path(tmp) / "rec", with_extrinsics=True)
+            frame0 = open_recording(Path(tmp) / "rec")[0]
+        for t in range(total):
+            if data == "icl":
+                rig = make_virtual_rig(seq, [t + 25 * k for k in range(8)], Path(tmp) / f"rig{t}")
+                frame = open_recording(Path(tmp) / f"rig{t}")[0]
+            else:
+                frame, rig = frame0, open_recording(Path(tmp) / "rec").rig
+            write_rig(work / "rigs" / f"{t:03d}", rig)
+            np.save(work / f"depth_{t:03d}.npy", frame.depth.numpy())
+            np.save(work / f"color_{t:03d}.npy", frame.color.numpy())
+    write_rig(work, rig)
 
 
 def _ensure_frames(work: Path, n_total: int, total: int, resolution: tuple[int, int], seed: int, log) -> None:
@@ -319,6 +381,9 @@ def run_fuse_speed(
     json_path: Path | None = None,
     command: str = "",
     log: Callable[[str], None] | None = None,
+    data: Sequence[str] = ("sim",),
+    data_dir: Path | None = None,
+    points: int | None = None,
 ) -> FuseSpeedResult:
     """Time every (method, N) in a fresh process each (module docstring) and report as it goes.
 
@@ -333,26 +398,41 @@ def run_fuse_speed(
         work: folder for the rendered frames (reused when complete); None = a temporary folder.
         json_path: also write {"meta", "rows"} here (meta names ``command``, the machine, versions).
         log: called with each report line (progress, one line per row, derived ratios).
+        data: keys of :data:`DATA` (``sim`` = the rendered ring; ``icl`` / ``hocap`` = real
+            8-camera rigs from ``data_dir``, N <= 8 only).
+        data_dir: the shared data folder holding icl-livingroom1 / hocap-8rs.
+        points: time FUSE with FuseConfig.target_points = this (None = the default density).
     Raises:
         ValidationError: bad options (messages name the program's option).
         BenchmarkFailed: a timed child process failed (its stderr tail is in the message).
     """
     log = log or (lambda s: None)
-    cams, methods = list(cameras), list(methods)
+    cams, methods, data = list(cameras), list(methods), list(data)
     _check(cams, methods, device)
+    bad = [d for d in data if d not in DATA]
+    if bad:
+        raise ValidationError(f"unknown data sets {bad}; choose from {list(DATA)}")
+    if any(d != "sim" for d in data) and data_dir is None:
+        raise ValidationError("--data icl / hocap need the shared data folder (--data-dir)")
     n_total = max(cams)
     tmp = tempfile.TemporaryDirectory(prefix="fuse_speed_") if work is None else None
     work = Path(tmp.name) if tmp is not None else Path(work)
     try:
         work.mkdir(parents=True, exist_ok=True)
-        _ensure_frames(work, n_total, warmup + frames, resolution, seed, log)
         result = FuseSpeedResult()
-        for n in cams:
-            for m in methods:
-                dev = device if m in ("fuse", "fuse_torch") else "cpu"
-                row = _time_in_child(m, n, work, warmup, frames, dev)
-                result.rows.append(row)
-                log(format_row(row))
+        for d in data:
+            dwork = work if d == "sim" else work / d
+            if d == "sim":
+                _ensure_frames(work, n_total, warmup + frames, resolution, seed, log)
+            elif not (dwork / f"depth_{warmup + frames - 1:03d}.npy").exists():
+                dwork.mkdir(parents=True, exist_ok=True)
+                _write_real(dwork, d, Path(data_dir), warmup + frames)
+            for n in cams if d == "sim" else [c for c in cams if c <= 8]:
+                for m in methods:
+                    dev = device if m in ("fuse", "fuse_torch") else "cpu"
+                    row = _time_in_child(m, n, dwork, warmup, frames, dev, points if m != "vbg" else None)
+                    result.rows.append(row)
+                    log(format_row(row))
         result.derived = _derived(result.rows)
         for k, v in result.derived.items():
             log(f"{k}: {v:.2f}")
@@ -370,12 +450,14 @@ def run_fuse_speed(
 
 
 def _child_main(argv: list[str]) -> None:
-    """``python -m fuseflow.eval.bench.fuse_speed METHOD N WORK WARMUP FRAMES DEVICE ROW_JSON``."""
+    """``python -m fuseflow.eval.bench.fuse_speed METHOD N WORK WARMUP FRAMES DEVICE ROW_JSON [POINTS]``."""
     ap = argparse.ArgumentParser(description="one timed (method, N) row of fuseflow's fuse_speed benchmark")
     for name in ("method", "n", "work", "warmup", "frames", "device", "row_json"):
         ap.add_argument(name)
+    ap.add_argument("points", nargs="?", default="0")
     a = ap.parse_args(argv)
-    row = _child(a.method, int(a.n), Path(a.work), int(a.warmup), int(a.frames), a.device)
+    pts = int(a.points) or None
+    row = _child(a.method, int(a.n), Path(a.work), int(a.warmup), int(a.frames), a.device, pts)
     Path(a.row_json).write_text(json.dumps(row))
 
 
