@@ -93,10 +93,33 @@ def evaluate(result, T_ref: np.ndarray, ids: list[str]) -> dict:
         re, te = relative_error(np.array(p["edge"]["T_ji"]), T_ref[b] @ invert_rigid(T_ref[a]))
         wrong_edges += int(re > WRONG_DEG or te > WRONG_M)
     row["edges"] = accepted
+    row.update(_image_route_counts(result.info["pairs"], T_ref, ids))
     row["wrong_edges"] = wrong_edges
     row["cycle_dropped"] = len(result.info["cycle_dropped"])
     row["routes"] = sorted({p["edge"]["route"] for p in result.info["pairs"] if p["edge"]})
     return row
+
+
+def _image_route_counts(pairs: list[dict], T_ref: np.ndarray, ids: list[str]) -> dict:
+    """What the image matcher (RGBDConfig.matcher) itself gave, before the floor route and the
+    global solve: pairs with a RANSAC candidate of the image routes (sift3d / sift4) within 5 deg /
+    200 mm of the reference (the feasibility note's "correct"), pairs where such a candidate
+    passed the depth verification, and those of them within 1 deg / 50 mm; image matches summed."""
+    right = verified = verified_right = matches = 0
+    for p in pairs:
+        a, b = (ids.index(c) for c in p["cameras"])
+        T_ji = T_ref[b] @ invert_rigid(T_ref[a])
+        errs = [
+            (c["ok"], *relative_error(np.array(c["T_ji"]), T_ji))
+            for c in p["candidates"]
+            if c["route"] in ("sift3d", "sift4")
+        ]
+        right += any(r <= 5.0 and t <= 0.2 for _, r, t in errs)
+        verified += any(ok for ok, _, _ in errs)
+        verified_right += any(ok and r <= WRONG_DEG and t <= WRONG_M for ok, r, t in errs)
+        matches += p["matches"]
+    return {"pairs": len(pairs), "image_right": right, "image_verified": verified,
+            "image_verified_right": verified_right, "image_matches": matches}  # fmt: skip
 
 
 def evaluate_calibration(cal, T_ref: np.ndarray, ids: list[str]) -> dict:
@@ -244,8 +267,9 @@ def summary(args) -> None:
         key = (data, r.get("scene", ""), r["n"], r.get("frames", 1), r.get("every", ""), r.get("res", ""))
         groups.setdefault(key, []).append(r)
     print("| data | scene | N | frames | runs | all placed | placed (mean) | rot deg (mean / max) "
-          "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) |")  # fmt: skip
-    print("|" + "---|" * 13)
+          "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) "
+          "| image pairs: right / verified (right) / all |")  # fmt: skip
+    print("|" + "---|" * 14)
     for key in sorted(groups, key=str):
         g = groups[key]
         data, scene, n, nf, every, res = key
@@ -259,6 +283,10 @@ def summary(args) -> None:
         wcam = sum(r.get("wrong_cameras", 0) for r in g)
         wun = sum(r.get("wrong_unflagged", 0) for r in g)
         t = np.median([r["time_s"] for r in g])
+        img = "-"
+        if all("image_right" in r for r in g):
+            s_ = {k: sum(r[k] for r in g) for k in ("image_right", "image_verified", "image_verified_right", "pairs")}
+            img = f"{s_['image_right']} / {s_['image_verified']} ({s_['image_verified_right']}) / {s_['pairs']}"
 
         def mm(v, f):
             return f"{f(np.mean(v))} / {f(np.max(v))}" if v else "-"
@@ -267,7 +295,7 @@ def summary(args) -> None:
         label += f" {res}" if res and res != "640x480" else ""
         print(f"| {data} | {label} | {n} | {nf} | {len(g)} | {full}/{len(g)} | {placed:.1f} | "
               f"{mm(rot, lambda x: f'{x:.3f}')} | {mm(tr, lambda x: f'{x:.1f}')} | "
-              f"{(f'{max(wc):.2f} / {max(wm):.0f}') if wc else '-'} | {we} | {wcam} ({wun}) | {t:.1f} |")  # fmt: skip
+              f"{(f'{max(wc):.2f} / {max(wm):.0f}') if wc else '-'} | {we} | {wcam} ({wun}) | {t:.1f} | {img} |")  # fmt: skip
 
 
 def main() -> None:

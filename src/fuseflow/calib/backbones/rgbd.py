@@ -4,14 +4,16 @@ COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. O
 (``rgbd_backbone``), one or several frames of a static rig:
 
 1. Per camera (``prepare_camera``): median colour / depth over the frames, the floor plane
-   (:mod:`fuseflow.calib.floor`) and its metric top-down image with SIFT on it, SIFT on every
-   frame's image lifted to 3-D by that frame's depth, and a subsampled point set for checks.
+   (:mod:`fuseflow.calib.floor`) and its metric top-down image with SIFT on it, keypoints of every
+   frame's image (SIFT, or the learned ``RGBDConfig.matcher``, :mod:`fuseflow.calib.matchers`)
+   lifted to 3-D by that frame's depth, and a subsampled point set for checks.
 2. Per camera pair, candidate relative poses from three routes (several hypotheses each,
    sequential RANSAC with a fixed seed):
    ``floor``: top-down SIFT matches, 4-DoF RANSAC (yaw + shift on the floor; both floor planes
    fix roll, pitch and height); ``sift3d``: image SIFT matches pooled over frames, lifted by
    depth, 6-DoF 3-D RANSAC (Kabsch); ``sift4``: the same 3-D matches, 4-DoF on the floor (two
-   correct matches suffice).
+   correct matches suffice). With a learned matcher, its matches replace SIFT's in ``sift3d`` and
+   ``sift4`` (the route names stay).
 3. Verification (``verify_pose``): every candidate is scored by depth agreement between the two
    views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
    and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
