@@ -143,8 +143,9 @@ class RGBDConfig:
     matcher: str = "sift"
     """Image matcher of the ``sift3d`` / ``sift4`` routes (:mod:`fuseflow.calib.matchers`): "sift",
     or "xfeat", "aliked", "disk" with ``fuseflow[matchers]``. The floor route always uses SIFT
-    (rotation-invariant; the top-down views differ by any yaw). Default SIFT: the learned ones did
-    not place more cameras on the wide-baseline benchmark (docs/gmac-rgbd.md, "Learned matchers")."""
+    (rotation-invariant; the top-down views differ by any yaw). Default SIFT: on 3-4 camera rings
+    XFeat placed no more cameras, found no right pair of its own (SIFT: 3 of 54) and doubled the
+    time (docs/gmac-rgbd.md, "Learned matchers")."""
 
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
