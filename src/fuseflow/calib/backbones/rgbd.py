@@ -143,9 +143,9 @@ class RGBDConfig:
     matcher: str = "sift"
     """Image matcher of the ``sift3d`` / ``sift4`` routes (:mod:`fuseflow.calib.matchers`): "sift",
     or "xfeat", "aliked", "disk" with ``fuseflow[matchers]``. The floor route always uses SIFT
-    (rotation-invariant; the top-down views differ by any yaw). Default SIFT: on 3-4 camera rings
-    XFeat placed no more cameras, found no right pair of its own (SIFT: 3 of 54) and doubled the
-    time (docs/gmac-rgbd.md, "Learned matchers")."""
+    (rotation-invariant; the top-down views differ by any yaw). Default SIFT: XFeat placed no more
+    cameras right on 3-4 camera rings (no right pair of its own; SIFT 3 of 54), put hocap-8rs
+    1.8 deg off where SIFT is 0.6, and costs 2-3x the time (docs/gmac-rgbd.md, "Learned matchers")."""
 
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
