@@ -145,7 +145,7 @@ class RGBDConfig:
     or "xfeat", "aliked", "disk" with ``fuseflow[matchers]``. The floor route always uses SIFT
     (rotation-invariant; the top-down views differ by any yaw). Default SIFT: XFeat placed no more
     cameras right on 3-4 camera rings (no right pair of its own; SIFT 3 of 54), put hocap-8rs
-    1.8 deg off where SIFT is 0.6, and costs 2-3x the time (docs/gmac-rgbd.md, "Learned matchers")."""
+    1.8 deg off where SIFT is 0.6 (ALIKED, DISK: 2.2), and costs 2-3x the time (docs/gmac-rgbd.md, "Learned matchers")."""
 
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
