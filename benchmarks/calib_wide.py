@@ -117,7 +117,7 @@ def _image_route_counts(pairs: list[dict], T_ref: np.ndarray, ids: list[str]) ->
         right += any(r <= 5.0 and t <= 0.2 for _, r, t in errs)
         verified += any(ok for ok, _, _ in errs)
         verified_right += any(ok and r <= WRONG_DEG and t <= WRONG_M for ok, r, t in errs)
-        matches += p["matches"]
+        matches += p.get("matches", 0)
     return {"pairs": len(pairs), "image_right": right, "image_verified": verified,
             "image_verified_right": verified_right, "image_matches": matches}  # fmt: skip
 

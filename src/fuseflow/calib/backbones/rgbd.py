@@ -147,6 +147,25 @@ class RGBDConfig:
     cameras right on 3-4 camera rings (no right pair of its own; SIFT 3 of 54), put hocap-8rs
     1.8 deg off where SIFT is 0.6 (ALIKED, DISK: 2.2), and costs 2-3x the time (docs/gmac-rgbd.md, "Learned matchers")."""
 
+    geometric: bool = True
+    """Route (c), geometry only (:mod:`fuseflow.calib.geometric`): for cameras the other routes
+    leave unplaced, FPFH + RANSAC + ICP candidates against every other camera, proposed only
+    from a wide basin of convergence and verified like every candidate. Default on: it runs
+    only where a camera is left unplaced, so rigs the other routes place pay nothing; on
+    hocap-8rs it places the two cameras that look up through the ceiling rig
+    (docs/gmac-rgbd.md)."""
+
+    geometric_voxel: float = 0.02
+    """Voxel of the geometry route's clouds, metres (FPFH radius 5 voxels = 10 cm)."""
+
+    geometric_starts: int = 20
+    """Distinct RANSAC hypotheses refined by ICP per pair in the geometry route."""
+
+    geometric_min_starts: int = 3
+    """Fewest ICP starts that must converge to a pose for the geometry route to propose it
+    (and twice as many as to any other pose that passes the verification). Measured on
+    hocap-8rs, 30 starts: right poses 7-28, wrong ones 1-4 (``calib.geometric`` docstring)."""
+
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
 
@@ -246,6 +265,16 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
     t_pairs = time.perf_counter() - t0 - t_prep
     kept, dropped, untested = prune_cycles(edges, cfg.cycle_rot_deg, cfg.cycle_trans_m)
     T_int, placed_int, refine_info = _global_poses(n, kept, cfg)
+    geo_info: list[dict] = []
+    t1 = time.perf_counter()
+    if cfg.geometric and not placed_int.all():
+        with one_torch_thread():
+            geo_edges, geo_info = _geometric_edges(cams, placed_int, edges, cfg)
+        if geo_edges:
+            edges = {**edges, **geo_edges}
+            kept, dropped, untested = prune_cycles(edges, cfg.cycle_rot_deg, cfg.cycle_trans_m)
+            T_int, placed_int, refine_info = _global_poses(n, kept, cfg)
+    t_geo = time.perf_counter() - t1
     T = np.tile(np.eye(4), (n, 1, 1))
     registered = np.zeros(n, dtype=bool)
     for a, k in enumerate(order):
@@ -257,12 +286,12 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
     info = {
         "metric": True,
         "frames": len(frames),
-        "pairs": [{**p, "cameras": [ids[p["pair"][0]], ids[p["pair"][1]]]} for p in pairs_info],
+        "pairs": [{**p, "cameras": [ids[p["pair"][0]], ids[p["pair"][1]]]} for p in pairs_info + geo_info],
         "cycle_dropped": [[ids[d["edge"][0]], ids[d["edge"][1]]] for d in dropped],
         "untested_edges": [[ids[a], ids[b]] for a, b in untested],
         "cameras": _camera_info(cams, ids, kept, untested, placed_int),
         "refine": refine_info,
-        "time_s": {"prepare": t_prep, "pairs": t_pairs, "total": time.perf_counter() - t0},
+        "time_s": {"prepare": t_prep, "pairs": t_pairs, "geometric": t_geo, "total": time.perf_counter() - t0},
     }
     tracks = tuple(
         (ids[e.i], ids[e.j], e.X_i, e.X_j, e.sigma)
@@ -643,6 +672,53 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple
                                  "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
             info.append(entry)
     return edges, info
+
+
+def _geometric_edges(
+    cams: list[CameraEvidence], placed: np.ndarray, edges: dict[tuple[int, int], Edge], cfg: RGBDConfig
+) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
+    """Route (c) on every pair with an unplaced camera and no edge yet (module docstring of
+    :mod:`fuseflow.calib.geometric`): the passing pose cluster with the most ICP starts becomes
+    an edge when at least ``geometric_min_starts`` starts reached it and at least twice as many
+    as reached any other passing pose. Its correspondences are the FPFH matches it explains."""
+    from fuseflow.calib.geometric import cloud_features, geometric_candidates
+
+    feats: dict[int, object] = {}
+
+    def feat(k: int):
+        if k not in feats:
+            feats[k] = cloud_features(_backproject(cams[k].depth, cams[k].K, 2), cfg.geometric_voxel)
+        return feats[k]
+
+    out: dict[tuple[int, int], Edge] = {}
+    info = []
+    n = len(cams)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if (placed[i] and placed[j]) or (i, j) in edges:
+                continue
+            a, b = cams[i], cams[j]
+            clusters = geometric_candidates(feat(i), feat(j), cfg.geometric_starts, seed=cfg.seed + 2)
+            rows, passing = [], []
+            for c in clusters:
+                chk = verify_pose(a, b, c.T_ba, cfg.tau)
+                ok = chk.passes(cfg)
+                rows.append({"route": "geometric", "inliers": int(len(c.X_a)), "starts": c.starts, "ok": ok,
+                             **_round(chk), "T_ji": np.round(c.T_ba, 6).tolist()})  # fmt: skip
+                if ok:
+                    passing.append((c, chk))
+            entry = {"pair": [i, j], "stage": "geometric", "candidates": rows, "edge": None}
+            if passing:
+                c, chk = passing[0]  # clusters come largest first
+                runner_up = passing[1][0].starts if len(passing) > 1 else 0
+                if c.starts >= cfg.geometric_min_starts and c.starts >= 2 * runner_up and len(c.X_a) >= 3:
+                    sigma = np.maximum(cfg.geometric_voxel / 2, cfg.sigma0 + cfg.sigma2 * c.X_b[:, 2] ** 2)
+                    out[(i, j)] = Edge(i, j, c.T_ba, float(chk.agree), c.X_a, c.X_b, sigma)
+                    entry["edge"] = {"route": "geometric", "agreement": round(chk.agreement, 4),
+                                     "starts": c.starts, "support": int(len(c.X_a)),
+                                     "T_ji": np.round(c.T_ba, 6).tolist()}  # fmt: skip
+            info.append(entry)
+    return out, info
 
 
 def _round(chk: PairCheck) -> dict:

@@ -1,0 +1,201 @@
+"""Route (c) of the metric RGB-D backbone: relative poses from depth geometry alone.
+
+For camera pairs that no image or floor match places (textureless scenes, views 100-130 deg
+apart, cameras looking up at a ceiling rig), the two depth clouds are registered without colour:
+
+1. ``CloudFeatures``: each camera's median depth back-projected, voxel-downsampled
+   (``voxel``), normals oriented to the camera, FPFH descriptors (Rusu et al. 2009, Open3D).
+2. ``geometric_candidates``: mutual nearest neighbours in FPFH space; RANSAC on 3-point
+   samples whose side lengths agree (rigid motion preserves them); the ``starts`` best distinct
+   hypotheses (by inlier count) each refined by point-to-plane ICP (3 and 1.5 voxels, source
+   cloud 2x coarser), converged poses within 2 deg / 4 cm pooled into one *cluster* (basin), one
+   pose per basin refined at 0.75 voxel on the full cloud (basins meeting there merge).
+
+Why clusters: on hocap-8rs, a right pose is reached from 7-28 of 30 different RANSAC starts,
+while each wrong pose (180-deg flips, 50-130 deg turns) from 1-4, and many wrong poses *pass*
+the pairwise depth verification (agreement 0.80-0.98 on small overlaps; FPFH + RANSAC alone was
+70-180 deg off on every simulated pair of ../shared/notes/wide-baseline-calibration.md, with ICP
+fitness that looked fine). So a pose is proposed only when its basin is wide
+(``min_starts``) and at least twice as wide as any other pose that also passes; the caller
+(``rgbd._geometric_edges``) verifies it (``verify_pose``) and the cycle test sees it with
+every other edge. Inlier counts and ICP fitness never decide.
+
+Conventions as in :mod:`fuseflow.calib.backbones.rgbd`: camera frames (OpenCV axes), metres,
+``T_ba`` maps camera a's coordinates to camera b's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CloudFeatures", "PoseCluster", "cloud_features", "geometric_candidates", "pose_clusters"]
+
+
+@dataclass
+class CloudFeatures:
+    """One camera's downsampled cloud (camera frame, metres) and its FPFH descriptors."""
+
+    points: np.ndarray  # (P, 3) float64
+    normals: np.ndarray  # (P, 3) float64, oriented towards the camera
+    fpfh: np.ndarray  # (P, 33) float64
+    voxel: float
+
+
+def cloud_features(X: np.ndarray, voxel: float) -> CloudFeatures:
+    """FPFH features of the camera-frame points ``X`` (M, 3) metres at voxel size ``voxel`` m
+    (normals from a 2.5-voxel neighbourhood, FPFH from 5 voxels, Open3D's usual ratios)."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(X, dtype=np.float64)))
+    pc = pc.voxel_down_sample(voxel)
+    if len(pc.points) < 10:
+        z = np.zeros((0, 3))
+        return CloudFeatures(z, z, np.zeros((0, 33)), voxel)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel, max_nn=30))
+    pc.orient_normals_towards_camera_location(np.zeros(3))
+    f = o3d.pipelines.registration.compute_fpfh_feature(
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+    )
+    return CloudFeatures(np.asarray(pc.points), np.asarray(pc.normals), np.asarray(f.data).T.copy(), voxel)
+
+
+def _mutual_matches(fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
+    """(K, 2) index pairs that are each other's nearest neighbour in descriptor space."""
+    from scipy.spatial import cKDTree
+
+    if len(fa) == 0 or len(fb) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    _, j = cKDTree(fb).query(fa, k=1)
+    _, i2 = cKDTree(fa).query(fb, k=1)
+    i = np.arange(len(fa))
+    keep = i2[j] == i
+    return np.c_[i[keep], j[keep]].astype(np.int64)
+
+
+def _ransac_hypotheses(
+    Xa: np.ndarray, Xb: np.ndarray, thr: float, iterations: int, starts: int, seed: int
+) -> list[tuple[np.ndarray, int]]:
+    """The ``starts`` best distinct (5 deg / 10 cm apart) rigid fits Xb ~ T Xa of random
+    3-match samples whose side lengths agree within 10 % + 1 cm and exceed 10 cm; each with its
+    inlier count (residual < thr)."""
+    from fuseflow.calib.backbones.rgbd import _kabsch
+
+    m = len(Xa)
+    if m < 3:
+        return []
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, m, size=(iterations, 3))
+    la = np.linalg.norm(Xa[idx] - Xa[np.roll(idx, 1, axis=1)], axis=2)
+    lb = np.linalg.norm(Xb[idx] - Xb[np.roll(idx, 1, axis=1)], axis=2)
+    ok = np.all(np.abs(la - lb) < 0.1 * np.maximum(la, lb) + 0.01, axis=1) & np.all(la > 0.1, axis=1)
+    idx = idx[ok]
+    if not len(idx):
+        return []
+    T = _kabsch(Xa[idx], Xb[idx])
+    good = np.all(np.isfinite(T), axis=(1, 2))
+    T = T[good]
+    inl = np.zeros(len(T), dtype=np.int64)
+    for s in range(0, len(T), 2048):  # bounded memory: (chunk, m, 3)
+        q = np.einsum("hij,kj->hki", T[s : s + 2048, :3, :3], Xa) + T[s : s + 2048, None, :3, 3]
+        inl[s : s + 2048] = (np.linalg.norm(q - Xb[None], axis=2) < thr).sum(axis=1)
+    out: list[tuple[np.ndarray, int]] = []
+    for h in np.argsort(-inl, kind="stable"):
+        if len(out) >= starts or inl[h] < 3:
+            break
+        if any(_close(T[h], o, 5.0, 0.1) for o, _ in out):
+            continue
+        out.append((T[h], int(inl[h])))
+    return out
+
+
+def _close(A: np.ndarray, B: np.ndarray, deg: float, m: float) -> bool:
+    from fuseflow.calib.backbones.rgbd import relative_error
+
+    r, t = relative_error(A, B)
+    return r < deg and t < m
+
+
+def _icp(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dists: tuple[float, ...]) -> np.ndarray:
+    """Point-to-plane ICP of the points ``a`` (P, 3) onto b from T, one run per correspondence
+    distance in ``dists`` (voxels of b), coarse to fine."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    pa = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(a))
+    pb = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(b.points))
+    pb.normals = o3d.utility.Vector3dVector(b.normals)
+    crit = reg.ICPConvergenceCriteria(max_iteration=30)
+    for d in dists:
+        T = reg.registration_icp(
+            pa, pb, d * b.voxel, T, reg.TransformationEstimationPointToPlane(), crit
+        ).transformation
+    return np.asarray(T)
+
+
+def _coarse(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(P', 3) voxel-downsampled copy of ``points`` (the cheap source cloud of the first ICP)."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(voxel)
+    return np.asarray(pc.points)
+
+
+@dataclass(frozen=True)
+class PoseCluster:
+    """ICP-refined poses that agree within 1 deg / 2 cm: ``T_ba`` (4, 4) of the first one
+    (the start with the most RANSAC inliers), ``starts`` how many starts reached it, and the
+    FPFH matches it explains (``X_a``, ``X_b`` (K, 3) metres)."""
+
+    T_ba: np.ndarray
+    starts: int
+    X_a: np.ndarray
+    X_b: np.ndarray
+
+
+def pose_clusters(poses: list[np.ndarray], deg: float = 1.0, m: float = 0.02) -> list[tuple[np.ndarray, int]]:
+    """Greedy clustering of (4, 4) poses in the given order: each joins the first cluster whose
+    representative is within ``deg`` / ``m``. Returns [(representative, members)], largest first
+    (ties: first formed)."""
+    out: list[list] = []
+    for T in poses:
+        for c in out:
+            if _close(T, c[0], deg, m):
+                c[1] += 1
+                break
+        else:
+            out.append([T, 1])
+    return [(T, k) for T, k in sorted(out, key=lambda c: -c[1])]
+
+
+def geometric_candidates(
+    a: CloudFeatures, b: CloudFeatures, starts: int = 20, iterations: int = 20000, seed: int = 0
+) -> list[PoseCluster]:
+    """Clusters of ICP-refined FPFH-RANSAC poses from camera a to camera b (module docstring),
+    largest first. Empty when either cloud has too few points or no 3 matches agree."""
+    m = _mutual_matches(a.fpfh, b.fpfh)
+    if len(m) < 3:
+        return []
+    Xa, Xb = a.points[m[:, 0]], b.points[m[:, 1]]
+    thr = 1.5 * a.voxel
+    hyps = _ransac_hypotheses(Xa, Xb, thr, iterations, starts, seed)
+    # every start converges on a 2x coarser source cloud (3 and 1.5 voxels); the basins are
+    # counted there (2 deg / 4 cm), and only one pose per basin is refined at 0.75 voxel
+    coarse_a = _coarse(a.points, 2 * a.voxel)
+    coarse = pose_clusters([_icp(coarse_a, b, T, (3.0, 1.5)) for T, _ in hyps], 2.0, 0.04)
+    fine = [(_icp(a.points, b, T, (1.5, 0.75)), k) for T, k in coarse]
+    merged: list[list] = []
+    for T, k in fine:  # two coarse basins can meet at the fine scale
+        for c in merged:
+            if _close(T, c[0], 1.0, 0.02):
+                c[1] += k
+                break
+        else:
+            merged.append([T, k])
+    out = []
+    for T, k in sorted(merged, key=lambda c: -c[1]):
+        r = np.linalg.norm(Xa @ T[:3, :3].T + T[:3, 3] - Xb, axis=1)
+        ok = r < thr
+        out.append(PoseCluster(T, k, Xa[ok], Xb[ok]))
+    return out
