@@ -30,7 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CloudFeatures", "PoseCluster", "cloud_features", "geometric_candidates", "pose_clusters"]
+from fuseflow.calib.posegraph import rotation_angle_deg
+from fuseflow.types import invert_rigid
+
+__all__ = ["CloudFeatures", "PoseCluster", "cloud_features", "geometric_candidates", "kabsch", "pose_clusters"]
 
 
 @dataclass
@@ -61,6 +64,24 @@ def cloud_features(X: np.ndarray, voxel: float) -> CloudFeatures:
     return CloudFeatures(np.asarray(pc.points), np.asarray(pc.normals), np.asarray(f.data).T.copy(), voxel)
 
 
+def kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Batched rigid fit B ~ R A + t of (..., K, 3) point sets; (..., 4, 4)."""
+    ca, cb = A.mean(axis=-2, keepdims=True), B.mean(axis=-2, keepdims=True)
+    H = np.swapaxes(A - ca, -1, -2) @ (B - cb)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = 1
+    D[..., 1, 1] = 1
+    D[..., 2, 2] = d
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    T = np.zeros(H.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = cb[..., 0, :] - (R @ np.swapaxes(ca, -1, -2))[..., 0]
+    T[..., 3, 3] = 1
+    return T
+
+
 def _mutual_matches(fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """(K, 2) index pairs that are each other's nearest neighbour in descriptor space."""
     from scipy.spatial import cKDTree
@@ -80,8 +101,6 @@ def _ransac_hypotheses(
     """The ``starts`` best distinct (5 deg / 10 cm apart) rigid fits Xb ~ T Xa of random
     3-match samples whose side lengths agree within 10 % + 1 cm and exceed 10 cm; each with its
     inlier count (residual < thr)."""
-    from fuseflow.calib.backbones.rgbd import _kabsch
-
     m = len(Xa)
     if m < 3:
         return []
@@ -93,7 +112,7 @@ def _ransac_hypotheses(
     idx = idx[ok]
     if not len(idx):
         return []
-    T = _kabsch(Xa[idx], Xb[idx])
+    T = kabsch(Xa[idx], Xb[idx])
     good = np.all(np.isfinite(T), axis=(1, 2))
     T = T[good]
     inl = np.zeros(len(T), dtype=np.int64)
@@ -111,10 +130,8 @@ def _ransac_hypotheses(
 
 
 def _close(A: np.ndarray, B: np.ndarray, deg: float, m: float) -> bool:
-    from fuseflow.calib.backbones.rgbd import relative_error
-
-    r, t = relative_error(A, B)
-    return r < deg and t < m
+    D = A @ invert_rigid(B)
+    return rotation_angle_deg(D[:3, :3]) < deg and float(np.linalg.norm(A[:3, 3] - B[:3, 3])) < m
 
 
 def _icp(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dists: tuple[float, ...]) -> np.ndarray:

@@ -39,6 +39,7 @@ import torch
 from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
+from fuseflow.calib.geometric import kabsch
 from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.errors import ValidationError
@@ -488,24 +489,6 @@ def _match(da: np.ndarray, db: np.ndarray, ratio: float) -> np.ndarray:
     return np.array(out, dtype=np.int64).reshape(-1, 2)
 
 
-def _kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Batched rigid fit B ~ R A + t of (..., K, 3) point sets; (..., 4, 4)."""
-    ca, cb = A.mean(axis=-2, keepdims=True), B.mean(axis=-2, keepdims=True)
-    H = np.swapaxes(A - ca, -1, -2) @ (B - cb)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
-    D = np.zeros(H.shape)
-    D[..., 0, 0] = 1
-    D[..., 1, 1] = 1
-    D[..., 2, 2] = d
-    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
-    T = np.zeros(H.shape[:-2] + (4, 4))
-    T[..., :3, :3] = R
-    T[..., :3, 3] = cb[..., 0, :] - (R @ np.swapaxes(ca, -1, -2))[..., 0]
-    T[..., 3, 3] = 1
-    return T
-
-
 def _ransac_sequential(fit_batch, fit_refine, residual, thr, m: int, k_min: int, cfg: RGBDConfig, seed: int):
     """Sequential RANSAC: up to cfg.hypotheses models, each the largest consensus of the matches
     the previous ones did not explain. fit_batch(idx (H, k_min)) -> models (H, 4, 4);
@@ -615,7 +598,7 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
     thr = cfg.inlier_m + cfg.inlier_rel * Xb[:, 2]
 
     def fit(idx):
-        T = _kabsch(Xa[idx], Xb[idx])
+        T = kabsch(Xa[idx], Xb[idx])
         if idx.shape[1] == 3:  # minimal sample: reject near-degenerate (collinear, tiny) triples
             A = Xa[idx]
             area = np.linalg.norm(np.cross(A[:, 1] - A[:, 0], A[:, 2] - A[:, 0]), axis=1)
@@ -742,7 +725,7 @@ def _refit(a: CameraEvidence, b: CameraEvidence, c: dict, chk: PairCheck, cands:
         Xa, Xb = _support(T, cands, cfg)
         if len(Xa) < 6:
             return c, chk
-        T = _kabsch(Xa[None], Xb[None])[0]
+        T = kabsch(Xa[None], Xb[None])[0]
     new = verify_pose(a, b, T, cfg.tau)
     if new.passes(cfg) and new.agreement >= chk.agreement - 0.02 and new.agree >= 0.9 * chk.agree:
         return {**c, "T_ba": T, "route": c["route"] + "+refit"}, new
