@@ -33,7 +33,18 @@ import numpy as np
 from fuseflow.calib.posegraph import rotation_angle_deg
 from fuseflow.types import invert_rigid
 
-__all__ = ["CloudFeatures", "PoseCluster", "cloud_features", "geometric_candidates", "kabsch", "pose_clusters"]
+__all__ = [
+    "CloudFeatures",
+    "PoseCluster",
+    "cloud_features",
+    "geometric_candidates",
+    "kabsch",
+    "pose_clusters",
+]
+
+
+#: Most points per cloud whose descriptors are matched (``geometric_candidates``).
+MATCH_POINTS = 5000
 
 
 @dataclass
@@ -83,16 +94,27 @@ def kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def _mutual_matches(fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
-    """(K, 2) index pairs that are each other's nearest neighbour in descriptor space."""
-    from scipy.spatial import cKDTree
+    """(K, 2) index pairs that are each other's nearest neighbour in descriptor space (exact,
+    by chunked distance matrices: a k-d tree in 33 dimensions is slower)."""
+    import torch
 
     if len(fa) == 0 or len(fb) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    _, j = cKDTree(fb).query(fa, k=1)
-    _, i2 = cKDTree(fa).query(fb, k=1)
-    i = np.arange(len(fa))
-    keep = i2[j] == i
-    return np.c_[i[keep], j[keep]].astype(np.int64)
+    A = torch.from_numpy(np.ascontiguousarray(fa, dtype=np.float32))
+    B = torch.from_numpy(np.ascontiguousarray(fb, dtype=np.float32))
+    best_b = torch.empty(len(A), dtype=torch.int64)
+    best_a_d = torch.full((len(B),), float("inf"))
+    best_a = torch.zeros(len(B), dtype=torch.int64)
+    for s in range(0, len(A), 4096):
+        D = torch.cdist(A[s : s + 4096], B)  # (chunk, |B|)
+        best_b[s : s + 4096] = D.argmin(dim=1)
+        d, i = D.min(dim=0)
+        better = d < best_a_d
+        best_a_d = torch.where(better, d, best_a_d)
+        best_a = torch.where(better, i + s, best_a)
+    i = torch.arange(len(A))
+    keep = best_a[best_b] == i
+    return torch.stack([i[keep], best_b[keep]], dim=1).numpy().astype(np.int64)
 
 
 def _ransac_hypotheses(
@@ -134,41 +156,87 @@ def _close(A: np.ndarray, B: np.ndarray, deg: float, m: float) -> bool:
     return rotation_angle_deg(D[:3, :3]) < deg and float(np.linalg.norm(A[:3, 3] - B[:3, 3])) < m
 
 
-def _icp(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dists: tuple[float, ...]) -> np.ndarray:
-    """Point-to-plane ICP of the points ``a`` (P, 3) onto b from T, one run per correspondence
-    distance in ``dists`` (voxels of b), coarse to fine."""
-    import open3d as o3d
+def _se3(x: np.ndarray) -> np.ndarray:
+    """(4, 4) rigid transform of the twist x = (w (3,), t (3,)) (rotation by Rodrigues)."""
+    w, t = x[:3], x[3:]
+    th = float(np.linalg.norm(w))
+    Kx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    R = np.eye(3) if th < 1e-12 else np.eye(3) + np.sin(th) / th * Kx + (1 - np.cos(th)) / th**2 * Kx @ Kx
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
 
-    reg = o3d.pipelines.registration
-    pa = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(a))
-    pb = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(b.points))
-    pb.normals = o3d.utility.Vector3dVector(b.normals)
-    crit = reg.ICPConvergenceCriteria(max_iteration=30)
+
+def _icp(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dists: tuple[float, ...], tree=None) -> np.ndarray:
+    """Point-to-plane ICP (Gauss-Newton, Huber-weighted) of the points ``a`` (P, 3) onto b from
+    T (4, 4): up to 20 steps per correspondence distance in ``dists`` (voxels of b), coarse to
+    fine. Single-threaded numpy + a k-d tree: deterministic. ``tree``: b's cKDTree, if built."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(b.points) if tree is None else tree
+    T = np.array(T, dtype=np.float64)
     for d in dists:
-        T = reg.registration_icp(
-            pa, pb, d * b.voxel, T, reg.TransformationEstimationPointToPlane(), crit
-        ).transformation
-    return np.asarray(T)
+        dm = d * b.voxel
+        for _ in range(20):
+            q = a @ T[:3, :3].T + T[:3, 3]
+            dist, j = tree.query(q, k=1, distance_upper_bound=dm)
+            ok = np.isfinite(dist)
+            if ok.sum() < 6:
+                return T
+            q, n, p = q[ok], b.normals[j[ok]], b.points[j[ok]]
+            r = np.sum(n * (q - p), axis=1)
+            J = np.c_[np.cross(q, n), n]  # d r / d (w, t) for q -> exp(w) q + t
+            w = 1.0 / np.maximum(1.0, np.abs(r) / (0.5 * dm))
+            H = (J * w[:, None]).T @ J
+            if np.linalg.cond(H) > 1e10:
+                return T
+            x = -np.linalg.solve(H, (J * w[:, None]).T @ r)
+            T = _se3(x) @ T
+            if np.abs(x).max() < 1e-7:
+                break
+    return T
 
 
-def _coarse(points: np.ndarray, voxel: float) -> np.ndarray:
-    """(P', 3) voxel-downsampled copy of ``points`` (the cheap source cloud of the first ICP)."""
+def _support(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dm: float, tree, most: int = 400):
+    """Correspondences that pin the ICP pose T for the pose graph: up to ``most`` points of a
+    (P, 3) within ``dm`` metres of b after T, paired with their foot points on b's tangent
+    planes (mapped back into b's frame): X_b - T X_a is the point-to-plane residual along b's
+    normal. Returns (X_a (K, 3), X_b (K, 3))."""
+    q = a @ T[:3, :3].T + T[:3, 3]
+    dist, j = tree.query(q, k=1, distance_upper_bound=dm)
+    ok = np.flatnonzero(np.isfinite(dist))
+    ok = ok[:: max(1, len(ok) // most)]
+    n, p = b.normals[j[ok]], b.points[j[ok]]
+    foot = q[ok] - n * np.sum(n * (q[ok] - p), axis=1, keepdims=True)
+    return a[ok], foot
+
+
+def _coarse(c: CloudFeatures, factor: float = 2.0) -> CloudFeatures:
+    """``c`` voxel-downsampled ``factor`` x coarser, normals averaged (no descriptors): the
+    cheap clouds of the first ICP stage."""
     import open3d as o3d
 
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(voxel)
-    return np.asarray(pc.points)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(c.points))
+    pc.normals = o3d.utility.Vector3dVector(c.normals)
+    pc = pc.voxel_down_sample(factor * c.voxel)
+    n = np.asarray(pc.normals)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return CloudFeatures(np.asarray(pc.points), n, np.zeros((len(n), 0)), c.voxel)
 
 
 @dataclass(frozen=True)
 class PoseCluster:
     """ICP-refined poses that agree within 1 deg / 2 cm: ``T_ba`` (4, 4) of the first one
-    (the start with the most RANSAC inliers), ``starts`` how many starts reached it, and the
-    FPFH matches it explains (``X_a``, ``X_b`` (K, 3) metres)."""
+    (the start with the most RANSAC inliers), ``starts`` how many starts reached it,
+    correspondences that pin it (``_support``: ``X_a``, ``X_b`` (K, 3) metres), and the
+    descriptor matches it explains within 1.5 voxels (``M_a``, ``M_b`` (L, 3) metres)."""
 
     T_ba: np.ndarray
     starts: int
     X_a: np.ndarray
     X_b: np.ndarray
+    M_a: np.ndarray
+    M_b: np.ndarray
 
 
 def pose_clusters(poses: list[np.ndarray], deg: float = 1.0, m: float = 0.02) -> list[tuple[np.ndarray, int]]:
@@ -191,7 +259,12 @@ def geometric_candidates(
 ) -> list[PoseCluster]:
     """Clusters of ICP-refined FPFH-RANSAC poses from camera a to camera b (module docstring),
     largest first. Empty when either cloud has too few points or no 3 matches agree."""
-    m = _mutual_matches(a.fpfh, b.fpfh)
+    # descriptors of at most MATCH_POINTS regularly spaced points per cloud are matched (the
+    # distance matrix is the cost); ICP and the checks use every point
+    ia = np.arange(0, len(a.fpfh), max(1, len(a.fpfh) // MATCH_POINTS))
+    ib = np.arange(0, len(b.fpfh), max(1, len(b.fpfh) // MATCH_POINTS))
+    m = _mutual_matches(a.fpfh[ia], b.fpfh[ib])
+    m = np.c_[ia[m[:, 0]], ib[m[:, 1]]]
     if len(m) < 3:
         return []
     Xa, Xb = a.points[m[:, 0]], b.points[m[:, 1]]
@@ -199,9 +272,13 @@ def geometric_candidates(
     hyps = _ransac_hypotheses(Xa, Xb, thr, iterations, starts, seed)
     # every start converges on a 2x coarser source cloud (3 and 1.5 voxels); the basins are
     # counted there (2 deg / 4 cm), and only one pose per basin is refined at 0.75 voxel
-    coarse_a = _coarse(a.points, 2 * a.voxel)
-    coarse = pose_clusters([_icp(coarse_a, b, T, (3.0, 1.5)) for T, _ in hyps], 2.0, 0.04)
-    fine = [(_icp(a.points, b, T, (1.5, 0.75)), k) for T, k in coarse]
+    from scipy.spatial import cKDTree
+
+    coarse_a, coarse_b = _coarse(a), _coarse(b)
+    tree_c, tree = cKDTree(coarse_b.points), cKDTree(b.points)
+    coarse = pose_clusters([_icp(coarse_a.points, coarse_b, T, (3.0, 1.5), tree_c) for T, _ in hyps], 2.0, 0.04)
+    fine_a = a.points[:: max(1, len(a.points) // 4000)]  # ~4000 points pin 6 DoF
+    fine = [(_icp(fine_a, b, T, (1.5, 0.75), tree), k) for T, k in coarse]
     merged: list[list] = []
     for T, k in fine:  # two coarse basins can meet at the fine scale
         for c in merged:
@@ -212,7 +289,7 @@ def geometric_candidates(
             merged.append([T, k])
     out = []
     for T, k in sorted(merged, key=lambda c: -c[1]):
-        r = np.linalg.norm(Xa @ T[:3, :3].T + T[:3, 3] - Xb, axis=1)
-        ok = r < thr
-        out.append(PoseCluster(T, k, Xa[ok], Xb[ok]))
+        X_a, X_b = _support(fine_a, b, T, 0.75 * b.voxel, tree)
+        ok = np.linalg.norm(Xa @ T[:3, :3].T + T[:3, 3] - Xb, axis=1) < thr
+        out.append(PoseCluster(T, k, X_a, X_b, Xa[ok], Xb[ok]))
     return out
