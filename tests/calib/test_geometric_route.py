@@ -2,70 +2,25 @@
 pair is registered from depth alone, a pair that shares no geometry is refused, the result is
 deterministic.
 
-Scene: ten random boxes, spheres and cylinders on a floor, ray-cast by Open3D (the simulator's
-rooms are too plain for any point descriptor: docs/gmac-rgbd.md), two cameras 25 deg apart at
-320x240 with depth noise growing with z^2 and a uniform grey image (no SIFT keypoint at all).
+Scene: ``fuseflow.synth.primitives`` (ten random boxes, spheres and cylinders on a floor,
+ray-cast; the simulator's rooms are too plain for any point descriptor: docs/gmac-rgbd.md), two
+cameras 25 deg apart at 320x240, depth noise growing with z^2, a uniform grey image (no SIFT
+keypoint at all).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
 from fuseflow.calib.geometric import pose_clusters
-from fuseflow.synth.rigs import look_at
-from fuseflow.types import Camera, Frame, Rig, invert_rigid
-
-W, H = 320, 240
-K = np.array([[280.0, 0.0, 160.0], [0.0, 280.0, 120.0], [0.0, 0.0, 1.0]])
-
-
-def _scene(seed: int):
-    import open3d as o3d
-
-    rng = np.random.default_rng(seed)
-    mesh = o3d.geometry.TriangleMesh.create_box(6, 6, 0.02).translate((-3, -3, -0.02))
-    for k in range(10):
-        if k % 3 == 0:
-            m = o3d.geometry.TriangleMesh.create_box(*rng.uniform(0.15, 0.6, 3))
-        elif k % 3 == 1:
-            m = o3d.geometry.TriangleMesh.create_sphere(rng.uniform(0.1, 0.3))
-        else:
-            m = o3d.geometry.TriangleMesh.create_cylinder(rng.uniform(0.05, 0.2), rng.uniform(0.3, 1.2))
-        m.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0, 0, rng.uniform(0, np.pi))), center=(0, 0, 0))
-        xy = rng.uniform(-1.0, 1.0, 2)
-        m.translate((xy[0], xy[1], -m.get_axis_aligned_bounding_box().min_bound[2]))
-        mesh += m
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return scene
-
-
-def _depth(scene, T_cw: np.ndarray) -> np.ndarray:
-    import open3d as o3d
-
-    rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(o3d.core.Tensor(K), o3d.core.Tensor(T_cw), W, H)
-    z = scene.cast_rays(rays)["t_hit"].numpy()  # unnormalised pinhole rays: t is the z depth
-    return np.where(np.isfinite(z), z, 0.0).astype(np.float32)
+from fuseflow.synth.primitives import primitive_views
+from fuseflow.types import invert_rigid
 
 
 def _pair(seeds=(0, 0), angle_deg: float = 25.0):
-    """A textureless two-camera frame (camera k sees scene seeds[k]), its bare rig and the true
-    camera-from-world poses."""
-    Ts, depths = [], []
-    for k, a in enumerate((0.0, angle_deg)):
-        eye = np.array([2.6 * np.cos(np.radians(a)), 2.6 * np.sin(np.radians(a)), 1.6])
-        Ts.append(look_at(eye, np.array([0.0, 0.0, 0.3])))
-        depths.append(_depth(_scene(seeds[k]), Ts[-1]))
-    D = np.stack(depths)
-    noise = np.random.default_rng(7).normal(0.0, 0.002, D.shape) * D**2
-    D = np.where(D > 0, D + noise, 0.0).astype(np.float32)
-    cams = tuple(Camera(f"cam{k:02d}", W, H, K, depth_range=(0.2, 8.0)) for k in range(2))
-    frame = Frame(0, ("cam00", "cam01"), torch.full((2, H, W, 3), 128, dtype=torch.uint8), torch.from_numpy(D),
-                  torch.ones(2, dtype=torch.bool))  # fmt: skip
-    return frame, Rig(cams), np.stack(Ts)
+    return primitive_views((0.0, angle_deg), seeds)
 
 
 @pytest.fixture(scope="module")
