@@ -137,7 +137,10 @@ def evaluate_calibration(cal, T_ref: np.ndarray, ids: list[str]) -> dict:
         row["worst_cam_mm"] = float(max(p[1] for p in e.per_camera.values()))
         wrong = [c for c, p in e.per_camera.items() if p[0] > WRONG_DEG or p[1] > WRONG_M * 1000]
         row["wrong_cameras"] = len(wrong)
-        row["wrong_unflagged"] = len([c for c in wrong if c not in r.suspect_cameras])
+        unchecked = [w for w in r.warnings if "close no cycle" in w]  # auto's warning, named cameras
+        row["wrong_unflagged"] = len(
+            [c for c in wrong if c not in r.suspect_cameras and not any(repr(c) in w for w in unchecked)]
+        )
     return row
 
 

@@ -73,3 +73,18 @@ def test_pose_clusters_count_basins():
     out = pose_clusters(poses, deg=1.0, m=0.02)
     assert [k for _, k in out] == [3, 2, 1]
     np.testing.assert_array_equal(out[0][0], poses[0])  # the first member represents its basin
+
+
+def test_calibrate_warns_that_a_tree_edge_is_unchecked(textureless):
+    """Through ``calibrate`` (auto backbone): both cameras placed by route (c), and the report
+    says their pose had no independent check (one edge, no cycle)."""
+    from fuseflow.calib import calibrate
+
+    frame, rig, T_true, _ = textureless
+    cal = calibrate(frame, rig)
+    assert set(cal.T_cam_world) == {"cam00", "cam01"}
+    warn = [w for w in cal.report.warnings if "close no cycle" in w]
+    assert len(warn) == 1 and "'cam00'" in warn[0] and "'cam01'" in warn[0]
+    T = cal.T_cam_world
+    rot, trans = relative_error(T["cam01"] @ invert_rigid(T["cam00"]), T_true[1] @ invert_rigid(T_true[0]))
+    assert rot < 0.5 and trans < 0.015, (rot, trans)

@@ -194,6 +194,12 @@ def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, 
     )
     warnings = [f"{n}: {w}" for n, p in runs.items() for w in p.warnings]
     warnings += [f"{n} failed: {v}" for n, v in failures.items()]
+    cams = info.get("rgbd", {}).get("cameras", {})
+    unchecked = sorted(c for c in T if placed_by.get(c) == "rgbd" and not cams.get(c, {}).get("cycle_checked", True))
+    if unchecked:  # a tree edge has passed its pairwise check only (docs/gmac-rgbd.md, Limits)
+        warnings.append(
+            f"cameras {unchecked} are placed by rgbd edges that close no cycle: no independent check of their pose"
+        )
     timings = {f"{n}_{k}": v for n, p in runs.items() for k, v in p.timings.items()}
     timings["auto"] = time.perf_counter() - t0
     scale_check = runs["rgbd"].scale_check if "rgbd" in runs else None
