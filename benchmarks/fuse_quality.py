@@ -51,6 +51,9 @@ def _methods():
     for switch in ("range_priority", "mcm_noise", "consensus"):  # each switch flipped from the default
         flip = not getattr(FuseConfig(), switch)
         rows[f"FUSE {switch}={flip}"] = f(replace(FuseConfig(), **{switch: flip}))
+    for mm in (0, 1, 2, 3, 4):  # beyond the paper: gap-tolerant MCM window (mcm.py)
+        if mm != FuseConfig().mcm_max_missing:
+            rows[f"FUSE mcm_max_missing={mm}"] = f(replace(FuseConfig(), mcm_max_missing=mm))
     for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells
         if lone != FuseConfig().lone_cell_mean:
             rows[f"FUSE lone_cell_mean={lone:g}"] = f(replace(FuseConfig(), lone_cell_mean=lone))

@@ -106,6 +106,36 @@ def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
     assert torch.equal(c, c0)
 
 
+def test_gap_tolerant_window_keeps_surfaces_with_dropouts_and_still_rejects_edges():
+    """mcm_max_missing: a smooth 45-degree plane with 5 % isolated dropouts keeps c > 0.8 next to
+    the holes (c = 0 there under DESIGN.md's rule), a 5 % depth edge with the same dropouts keeps
+    a median below 0.05 and no pixel above r_c, and 0 reproduces the strict rule exactly."""
+    rng = np.random.default_rng(2)
+    f, z0 = 525.0, 2.0
+    plane = z0 * (1 + np.arange(64) / f)[None, :].repeat(64, 0) * (1 + 0.003 * rng.standard_normal((64, 64)))
+    holes = rng.random((64, 64)) < 0.05
+    plane[holes] = 0.0
+    edge = np.full((64, 16), z0)
+    edge[:, 8:] *= 1.05
+    edge[rng.random(edge.shape) < 0.05] = 0.0
+    cfg = FuseConfig()
+    t = lambda d: torch.tensor(d[None], dtype=torch.float32)  # noqa: E731
+    hp = np.pad(holes, 1).astype(int)
+    n_missing = sum(hp[1 + dv : 65 + dv, 1 + du : 65 + du] for dv in (-1, 0, 1) for du in (-1, 0, 1))
+    near_hole = torch.from_numpy((~holes & (n_missing >= 1) & (n_missing <= 3))[1:-1, 1:-1])
+    strict = confidence(t(plane), cfg.alpha, cfg.beta)[0, 1:-1, 1:-1]
+    tolerant = confidence(t(plane), cfg.alpha, cfg.beta, max_missing=3)[0, 1:-1, 1:-1]
+    assert float(strict[near_hole].max()) == 0.0
+    assert float(tolerant[near_hole].median()) > 0.8
+    ce = confidence(t(edge), cfg.alpha, cfg.beta, max_missing=3)[0, 2:-2, 7:9]
+    # an edge pixel whose far-side neighbours are missing can look smoother (here up to 0.19), so
+    # the target is the median, and no edge pixel may pass the candidate threshold r_c
+    assert float(ce.median()) < 0.05 and float(ce.max()) < cfg.r_c
+    assert torch.equal(
+        confidence(t(plane), cfg.alpha, cfg.beta, max_missing=0), confidence(t(plane), cfg.alpha, cfg.beta)
+    )
+
+
 def test_noise_sigma_presets_mirror_the_simulator():
     from fuseflow.synth.config import KINECT_V1, REALSENSE_D435
 

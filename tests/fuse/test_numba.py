@@ -84,6 +84,19 @@ def test_numba_equals_torch_consensus_switch(sim_frame):
     assert 0 < float(moved.median()) < 0.02 and float(moved.max()) < 0.2
 
 
+def test_numba_equals_torch_gap_tolerant_mcm(sim_frame):
+    """FuseConfig.mcm_max_missing: both backends agree with and without the gap-tolerant
+    window, and tolerating missing neighbours adds candidates (the simulator drops pixels)."""
+    frame, rig = sim_frame
+    on = FuseConfig()
+    assert on.mcm_max_missing == 3
+    rt, _ = both(frame, rig, on)
+    strict, _ = both(frame, rig, replace(on, mcm_max_missing=0))
+    assert rt.report.candidates > strict.report.candidates
+    noisy, _ = both(frame, rig, replace(on, mcm_noise=True))  # both branches of the kernel
+    assert noisy.report.candidates != rt.report.candidates
+
+
 @pytest.fixture(scope="module")
 def sim_frame():
     from fuseflow.synth import SimConfig, Simulator

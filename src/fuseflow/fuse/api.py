@@ -166,7 +166,7 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     dev = depth.device
     n, h, w = depth.shape
     ns = cfg.noise_sigma if cfg.mcm_noise else None
-    c = confidence(depth, cfg.alpha, cfg.beta, cfg.window, cfg.eps, cfg.use_mcm, ns)  # eq. (16)-(18)
+    c = confidence(depth, cfg.alpha, cfg.beta, cfg.window, cfg.eps, cfg.use_mcm, ns, cfg.mcm_max_missing)  # (16)-(18)
     valid_pixels = int((depth > 0).sum())
     cand = (c > cfg.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
     xn, yn = pixel_rays(p.K, h, w)

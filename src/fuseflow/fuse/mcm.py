@@ -17,6 +17,14 @@ v_n(x) = max(Var - sigma^2, 0) / (z^2 + eps)                  (E[Var] = (8/9) si
 
 A slope or an edge keeps its geometric part (it is many sigma), a smooth surface far away
 (Kinect sigma / z = 0.6 % at 4 m) no longer loses c to its noise. Derivation in config.py.
+
+Gap-tolerant window (``FuseConfig.mcm_max_missing`` = m > 0, beyond the paper and DESIGN.md's
+"a neighbour with no depth makes the pixel an edge pixel"): a 3x3 window with at most m of its
+8 neighbours missing is measured on the pixels it has: mean and variance over the valid pixels
+(in row-major order), each central difference replaced by the one-sided difference with the
+centre when one side is missing (0 when both are). Isolated dropouts and the range cut no
+longer erase far surfaces (docs/fuse.md, "Where the completeness gap is"); pixels on the image
+border keep c = 0.
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ["valid_depth", "confidence", "gradient_and_variance", "noise_sigma_of"]
+__all__ = ["valid_depth", "confidence", "gradient_and_variance", "noise_sigma_of", "tolerant_gradient_and_variance"]
 
 
 def valid_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
@@ -83,6 +91,49 @@ def gradient_and_variance(
     return g, v, full
 
 
+def tolerant_gradient_and_variance(
+    depth: torch.Tensor, eps: float = 1e-6, noise_sigma: tuple[float, float, float] | None = None
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """g, v of the gap-tolerant 3x3 window (module docstring) and the number of missing
+    neighbours (N, H, W) int64 (9 at the image border). Float32 operations in the order of the
+    compiled kernel (numba_kernels._pixels)."""
+    n, h, w = depth.shape
+    P = F.unfold(depth[:, None], 3, padding=1).reshape(n, 9, h, w)
+    ok = P > 0
+    zero = torch.zeros_like(depth)
+    cnt = ok.sum(dim=1)
+    s = zero
+    for k in range(9):  # sequential, row-major: the kernel's order
+        s = s + torch.where(ok[:, k], P[:, k], zero)
+    mean = s / cnt.clamp(min=1).to(torch.float32)
+    var = zero
+    for k in range(9):
+        e = P[:, k] - mean
+        var = var + torch.where(ok[:, k], e * e, zero)
+    var = var / cnt.clamp(min=1).to(torch.float32)
+    half = torch.tensor(0.5, dtype=torch.float32)
+
+    def diff(a: int, b: int) -> torch.Tensor:
+        pa, pb = P[:, a], P[:, b]
+        va, vb = ok[:, a], ok[:, b]
+        return torch.where(va & vb, (pb - pa) * half, torch.where(vb, pb - depth, torch.where(va, depth - pa, zero)))
+
+    gx, gy = diff(3, 5), diff(1, 7)
+    gsq = gx * gx + gy * gy
+    if noise_sigma is not None:
+        sg = noise_sigma_of(depth, noise_sigma)
+        s2 = sg * sg
+        gsq = torch.clamp(gsq - s2, min=0.0)
+        var = torch.clamp(var - s2, min=0.0)
+    g = torch.sqrt(gsq) / (depth + eps)
+    v = var / (depth * depth + eps)
+    missing = 9 - cnt
+    border = torch.zeros((h, w), dtype=torch.bool, device=depth.device)
+    border[0, :] = border[-1, :] = True
+    border[:, 0] = border[:, -1] = True
+    return g, v, torch.where(border[None], torch.full_like(missing, 9), missing)
+
+
 def confidence(
     depth: torch.Tensor,
     alpha: float,
@@ -91,6 +142,7 @@ def confidence(
     eps: float = 1e-6,
     use_mcm: bool = True,
     noise_sigma: tuple[float, float, float] | None = None,
+    max_missing: int = 0,
 ) -> torch.Tensor:
     """c(x) of eq. (18) for every pixel.
 
@@ -100,6 +152,8 @@ def confidence(
         alpha, beta: eq. (18) weights. window: r of eq. (17). eps: eq. (16)-(17).
         use_mcm: False = "w/o MCM" (Table VII): c = 1 wherever there is depth.
         noise_sigma: (a, b, z0) for the noise-aware g_n, v_n (FuseConfig.mcm_noise); None = off.
+        max_missing: FuseConfig.mcm_max_missing (gap-tolerant 3x3 window, module docstring);
+            0 = DESIGN.md's rule (any missing neighbour: c = 0). > 0 needs window = 3.
 
     Returns:
         (N, H, W) float32 in [0, 1]; 0 where there is no depth or the window is incomplete.
@@ -107,6 +161,10 @@ def confidence(
     valid = depth > 0
     if not use_mcm:
         return valid.to(torch.float32)
+    if max_missing > 0:
+        g, v, missing = tolerant_gradient_and_variance(depth, eps, noise_sigma)
+        c = torch.exp(-alpha * g - beta * v)
+        return torch.where(valid & (missing <= max_missing), c, torch.zeros_like(c))
     g, v, full = gradient_and_variance(depth, window, eps, noise_sigma)
     c = torch.exp(-alpha * g - beta * v)
     return torch.where(valid & full, c, torch.zeros_like(c))

@@ -87,6 +87,8 @@ class PixelParams(NamedTuple):
     noise_z0: np.float32
     mcm_noise: bool
     """Noise-aware MCM (FuseConfig.mcm_noise): sigma(z)^2 taken out of g and v (mcm.py)."""
+    mcm_max_missing: int
+    """FuseConfig.mcm_max_missing: gap-tolerant 3x3 window (mcm.py); 0 = any missing -> c = 0."""
     offset: int
     """Offset added to each cell index before packing (ash.COARSE_OFFSET or FIXED_OFFSET)."""
     bits: int
@@ -152,7 +154,8 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
         alpha=_F(cfg.alpha), beta=_F(cfg.beta), eps=_F(cfg.eps), r_c=_F(cfg.r_c), tau=_F(cfg.tau),
         min_weight=_F(cfg.min_weight), cell=_F(s_c), use_mcm=bool(cfg.use_mcm), use_cvgc=bool(cfg.use_cvgc),
         visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
-        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise), offset=offset, bits=bits,
+        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise),
+        mcm_max_missing=int(cfg.mcm_max_missing), offset=offset, bits=bits,
     )  # fmt: skip
     cell = CellParams(
         s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
@@ -202,6 +205,52 @@ def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present:
     return torch.from_numpy(out), tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
 
 
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss):
+    """mcm.tolerant_gradient_and_variance for one pixel whose 3x3 window misses some depth
+    (float32, the same operations in the same order): (gx^2 + gy^2, variance), or (-1, -1)
+    when more than ``mmiss`` neighbours are missing."""
+    zero = _F(0.0)
+    half = _F(0.5)
+    cnt = 0
+    s = zero
+    for d in (d0, d1, d2, d3, z, d5, d6, d7, d8):
+        if d > 0:
+            s = s + d
+            cnt += 1
+        else:
+            s = s + zero
+    if 9 - cnt > mmiss:
+        return _F(-1.0), _F(-1.0)
+    fc = _F(cnt)
+    mean = s / fc
+    var = zero
+    for d in (d0, d1, d2, d3, z, d5, d6, d7, d8):
+        e = d - mean
+        if d > 0:
+            var = var + e * e
+        else:
+            var = var + zero
+    var = var / fc
+    if d3 > 0 and d5 > 0:
+        gx = (d5 - d3) * half
+    elif d5 > 0:
+        gx = d5 - z
+    elif d3 > 0:
+        gx = z - d3
+    else:
+        gx = zero
+    if d1 > 0 and d7 > 0:
+        gy = (d7 - d1) * half
+    elif d7 > 0:
+        gy = d7 - z
+    elif d1 > 0:
+        gy = z - d1
+    else:
+        gy = zero
+    return gx * gx + gy * gy, var
+
+
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
 def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
     """Stage 1, one pass per pixel, parallel over camera rows. Writes, at the pixel's own index
@@ -216,6 +265,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
     mn = prm.mcm_noise
+    mmiss = prm.mcm_max_missing
     zero = _F(0.0)
     half = _F(0.5)
     two = _F(2.0)
@@ -258,17 +308,24 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 d3, d5 = dflat[base - 1], dflat[base + 1]
                 d6, d7, d8 = dflat[dn - 1], dflat[dn], dflat[dn + 1]
                 if d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
-                    continue
-                # same summation order as the window loop of the reference kernel (row-major)
-                sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
-                mean = (sm + d8) / nine
-                e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
-                e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
-                var = (((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6) + e7 * e7
-                var = (var + e8 * e8) / nine
-                gx = (d5 - d3) * half
-                gy = (d7 - d1) * half
-                gsq = gx * gx + gy * gy
+                    if mmiss == 0:
+                        continue
+                    gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
+                    if gsq < zero:  # more neighbours missing than allowed
+                        continue
+                else:
+                    # same summation order as the window loop of the reference kernel (row-major)
+                    sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
+                    mean = (sm + d8) / nine
+                    e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
+                    e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
+                    var = (
+                        ((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6
+                    ) + e7 * e7
+                    var = (var + e8 * e8) / nine
+                    gx = (d5 - d3) * half
+                    gy = (d7 - d1) * half
+                    gsq = gx * gx + gy * gy
                 if mn:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
                     dzn = z - nz0
                     sg = na + nb * (dzn * dzn)
