@@ -10,6 +10,11 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     echo "installing libusb-1.0-0 (needed by open3d)" >&2
     $SUDO apt-get update -qq >/dev/null && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
+# The test extra installs about 4 GB into .venv (open3d 0.9 GB, torch 0.75 GB, rerun 0.5 GB, ray
+# 0.25 GB). pip's wheel cache would hold a second copy of what it downloads, so it is off: one CI
+# run failed with "No space left on device" during this install. Free space is printed for that.
+echo "free disk space where .venv goes: $(df -h . | awk 'NR==2 {print $4}')" >&2
+export PIP_NO_CACHE_DIR=1
 python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 if [ -n "$extras" ]; then
