@@ -140,3 +140,19 @@ def test_icl_indices_stay_inside_the_sequence() -> None:
     assert paper.icl_indices(8, 1, 211) != paper.icl_indices(8, 0, 211)
     with pytest.raises(ValidationError):
         paper.icl_indices(9, 0, 200)
+
+
+def test_table_viii_has_the_default_calibration_row_and_it_places_every_camera() -> None:
+    """FULL adds "default (auto) + GMAC" to Table VIII (the product's calibration, beyond the
+    paper's colmap protocol); the cell calibrates a 4-camera room ring and fuses with it."""
+    from dataclasses import replace
+
+    assert "default:GMAC" in paper.extrinsic_sources(paper.FULL)
+    assert "default:GMAC" not in paper.extrinsic_sources(paper.QUICK)
+    pc = replace(paper.QUICK, resolution=(320, 240), frames=1, default_calib_row=True)
+    keys = [c.key for c in paper.plan(pc, tables=["extrinsics"], icl=False)]
+    assert any("default" in k for k in keys)
+    cell = paper._extrinsics_cell("sim-room", "default:GMAC", 0, pc)
+    assert not cell.get("failed"), cell.get("error")
+    assert cell["pose"]["rot_deg"] < 0.5 and cell["pose"]["trans_mm"] < 20
+    assert len(cell["frames"]) == 1 and cell["frames"][0]["points"] > 1000

@@ -100,6 +100,9 @@ class PaperConfig:
     needs full-size images: at 320x240 its mapper built no model of the 8-camera studio ring."""
     calib_icl_stride: int | None = None
     """ICL stride of the calibration cells; None = ``icl_stride``."""
+    default_calib_row: bool = False
+    """Table VIII also fuses with the product's default calibration (``CalibConfig()``: the
+    ``auto`` backbone and joint refinement, beyond the paper), row "default (auto) + GMAC"."""
 
     def for_calibration(self) -> PaperConfig:
         """This config with the calibration cells' resolution and ICL stride."""
@@ -116,7 +119,7 @@ QUICK = PaperConfig(
 )  # fmt: skip
 FULL = PaperConfig(
     "full", (320, 240), 2, (2, 4, 8), (1, 2, 4, 6, 8), frames=3, seeds=2, calib_seeds=3,
-    calib_resolution=(640, 480), calib_icl_stride=1,
+    calib_resolution=(640, 480), calib_icl_stride=1, default_calib_row=True,
 )  # fmt: skip
 
 
@@ -357,6 +360,22 @@ def calibrations(sample: Sample, backbone: str, seed: int, rows: Iterable[str]) 
     return out
 
 
+def default_calibration(sample: Sample, seed: int) -> dict:
+    """{"T": {id: 4x4 list} | None, "seconds": s, "error": str} of ``calibrate`` with the
+    product's default config (auto backbone, joint refinement); T is None when it fails or
+    leaves a camera unplaced (the report's reason in "error")."""
+    import fuseflow
+    from fuseflow.calib import CalibConfig, calibrate
+
+    bare = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in sample.rig.cameras))
+    t0 = time.perf_counter()
+    try:
+        cal = calibrate(sample.frame, bare, CalibConfig(seed=seed))
+    except FuseFlowError as exc:
+        return {"T": None, "error": str(exc)}
+    return {"T": {k: np.asarray(v).tolist() for k, v in cal.T_cam_world.items()}, "seconds": time.perf_counter() - t0}
+
+
 def pose_row(T: dict | None, rig) -> dict[str, float] | None:
     """Rotation / translation error against the rig's extrinsics; None when < 2 cameras placed."""
     from fuseflow.eval.metrics import pose_errors
@@ -458,18 +477,21 @@ def _gmac_cell(dataset: str, backbone: str, seed: int, pc: PaperConfig, icl_dir:
 
 
 def _extrinsics_cell(dataset: str, source: str, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> dict:
-    """FUSE on every frame with extrinsics from ``source``: "GT", "<backbone>:GMAC" or
-    "<backbone>:Original" (calibrated on the first frame of the seed), at the calibration
-    resolution."""
+    """FUSE on every frame with extrinsics from ``source``: "GT", "<backbone>:GMAC",
+    "<backbone>:Original" or "default:GMAC" (the product's default calibration; each calibrated on
+    the first frame of the seed), at the calibration resolution."""
     pc = pc.for_calibration()
     n = pc.pipeline_cameras
     samples = _samples(dataset, n, seed, pc, icl_dir)
     rig = samples[0].rig
     pose = None
-    if source != "GT":
+    if source == "default:GMAC":
+        cal = default_calibration(samples[0], seed)
+    elif source != "GT":
         backbone, what = source.split(":")
         row = "GMAC (default)" if what == "GMAC" else ORIGINAL
         cal = calibrations(samples[0], backbone, seed, ["GMAC (default)"])[row]
+    if source != "GT":
         pose = pose_row(cal.get("T"), rig)
         rig = anchored_rig(cal.get("T"), rig)
         if rig is None:
@@ -490,6 +512,8 @@ def extrinsic_sources(pc: PaperConfig) -> list[str]:
     for b in pc.backbones:
         # the perturbed stand-in has no depth of its own, so it has no naive-scale "Original"
         out += [f"{b}:GMAC"] + ([f"{b}:Original"] if b != "perturbed" else [])
+    if pc.default_calib_row:
+        out.append("default:GMAC")
     return out
 
 
@@ -819,7 +843,7 @@ def _md_extrinsics(results: dict, pc: PaperConfig) -> list[str]:
                    and c.meta["source"] == src]  # fmt: skip
             frames = [f for r in sel for f in r.get("frames", [])]
             nfail = sum(1 for r in sel if r.get("failed"))
-            label = {"GT": "GT"}.get(src, src.replace(":", " + "))
+            label = {"GT": "GT", "default:GMAC": "default (auto) + GMAC"}.get(src, src.replace(":", " + "))
             ps = [r["pose"] for r in sel if r.get("pose")]
             poses[label] = (ms([p["rot_deg"] for p in ps]), ms([p["trans_mm"] for p in ps], 1), nfail, len(sel))
             rows.append((label, frames))
