@@ -48,7 +48,7 @@ def _methods():
     rows.update({f"FUSE {k}": f(v) for k, v in ABLATIONS.items()})
     rows["FUSE visibility_aware=False"] = f(replace(FuseConfig(), visibility_aware=False))
     rows["FUSE min_weight=0"] = f(replace(FuseConfig(), min_weight=0.0))
-    for switch in ("range_priority", "mcm_noise", "consensus"):  # each switch flipped from the default
+    for switch in ("range_priority", "mcm_noise", "consensus", "multiview_mean"):  # each switch flipped from the default
         flip = not getattr(FuseConfig(), switch)
         rows[f"FUSE {switch}={flip}"] = f(replace(FuseConfig(), **{switch: flip}))
     for mm in (0, 1, 2, 3, 4):  # beyond the paper: gap-tolerant MCM window (mcm.py)

@@ -19,7 +19,7 @@ import torch
 from fuseflow.errors import ValidationError
 from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.config import FuseConfig
-from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
+from fuseflow.fuse.cvgc import cvgc_counts, multiview_mean, omega_geo
 from fuseflow.fuse.mcm import confidence, valid_depth
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
 from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
@@ -185,8 +185,11 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     omega = joint_weight(c_m, w_geo, cfg.eps)  # eq. (22)
     keep = omega >= cfg.min_weight
     X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
+    z_s = X[:, 2]  # the pixel's own depth ranks it (range_priority), before any averaging
+    if cfg.multiview_mean and cfg.use_cvgc:
+        X = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.multiview_gate,
+                           cfg.noise_sigma, cfg.eps)  # fmt: skip
     P = _to_world(X, cam, p.T_world_cam)
-    z_s = X[:, 2]
     if cfg.use_ash:
         cells = adaptive_hash(P, cfg.coarse_size, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps)  # eq. (23)-(25)
     else:

@@ -197,6 +197,24 @@ class FuseConfig:
     it took the share of points beyond 2 cm from 6.80 / 6.44 % to 2.61 / 2.42 % and accuracy
     from 10.0 / 9.8 mm to 8.8 / 8.6 mm, F @ 1 cm 0.538 -> 0.554, Chamfer unchanged, 20 % fewer
     points (docs/fuse.md, Quality); 1.5 measured the same, 3 and 4 kept more of the tail."""
+    multiview_mean: bool = True
+    """Beyond the paper: multi-view depth averaging inside CVGC (cvgc.multiview_mean). For each
+    candidate of camera i, every neighbour j whose depth D_j at the projection x_ij (eq. 19)
+    agrees with the point's depth z_ij in j within ``multiview_gate`` sqrt(sigma(z_ij)^2 +
+    sigma(D_j)^2) contributes its own measured point Q_j (pixel x_ij back-projected at D_j);
+    the candidate becomes the inverse-variance (1 / sigma(z)^2, ``noise_sigma``) weighted 3D
+    mean of itself and those Q_j. Independent measurements of the same surface average their
+    noise down like a TSDF averages it, with no state and no smoothing across depth edges (a
+    neighbour on the other side of an edge, or seeing a flying pixel, fails the gate). The
+    mean is taken in 3D and not along the candidate's ray: moving along the ray by the
+    neighbour's depth correction assumes the surface is fronto-parallel to j, which
+    over-corrects on surfaces j sees more obliquely (measured worse than no averaging;
+    docs/fuse.md, Quality). CVGC's votes use the unaveraged point. Needs ``use_cvgc``.
+    False = candidates are the pixels' own back-projections (``paper``)."""
+    multiview_gate: float = 3.0
+    """Agreement gate of ``multiview_mean`` in units of the combined expected noise
+    sqrt(sigma(z_ij)^2 + sigma(D_j)^2) of the two depths compared: 3 keeps 99.7 % of the same
+    surface's Gaussian noise. > 0."""
     consensus: bool = True
     """Beyond the paper: multi-view consensus (rps.consensus). After selection each
     representative moves along its viewing ray to the omega-weighted mean of the candidates of
@@ -251,6 +269,7 @@ class FuseConfig:
             "k0",
             "ratio",
             "consensus_gate",
+            "multiview_gate",
             "eps",
         ):
             v = getattr(self, name)
@@ -295,7 +314,7 @@ class FuseConfig:
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
         if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
             bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        for name in ("range_priority", "mcm_noise", "consensus"):
+        for name in ("range_priority", "mcm_noise", "consensus", "multiview_mean"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "a bool")
         if self.backend not in ("auto", "torch", "numba"):
@@ -327,6 +346,7 @@ PRESETS: dict[str, FuseConfig] = {
         mcm_max_missing=0,
         mcm_noise=False,
         consensus=False,
+        multiview_mean=False,
     ),
     **ABLATIONS,
 }
