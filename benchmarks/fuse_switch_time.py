@@ -6,7 +6,7 @@ The rig is fuse_speed's ``--data icl`` frame 0 (ICL living room frames 0, 25, ..
 cameras, reference trajectory as extrinsics; real depth, 640x480). ``fuse()`` with the default
 config and with the switch flipped are called alternately in one process (after one untimed
 warm-up call each, compilation), ``--runs`` times each; the report is the median per setting
-and the output point counts.
+and the output point counts. ``--base k_neighbours=7`` changes an integer field for both.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--switch", default="multiview_mean", help="a bool field of FuseConfig")
     ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--base", default="", help="comma list NAME=INT applied to both settings, e.g. k_neighbours=7")
     ap.add_argument("--data-dir", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
     args = ap.parse_args(argv)
     from fuseflow.fuse import FuseConfig, fuse
@@ -32,7 +33,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="fuse_switch_time_") as tmp:
         rig = make_virtual_rig(seq, [25 * k for k in range(8)], Path(tmp) / "rig")
         frame = open_recording(Path(tmp) / "rig")[0]
-    default = FuseConfig()
+    base = dict((kv.split("=")[0], int(kv.split("=")[1])) for kv in args.base.split(",") if kv)
+    default = replace(FuseConfig(), **base)
     cfgs = {v: replace(default, **{args.switch: v}) for v in (True, False)}
     times: dict[bool, list[float]] = {True: [], False: []}
     points = {}
@@ -45,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
             times[v].append((time.perf_counter() - t0) * 1000.0)
     for v in (True, False):
         ms = sorted(times[v])
-        print(f"{args.switch}={v}: median {statistics.median(ms):.1f} ms (runs {', '.join(f'{t:.0f}' for t in ms)}), "
+        print(f"{args.base} {args.switch}={v}: median {statistics.median(ms):.1f} ms (runs {', '.join(f'{t:.0f}' for t in ms)}), "
               f"{points[v]} points")  # fmt: skip
     return 0
 
