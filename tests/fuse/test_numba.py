@@ -33,15 +33,19 @@ def assert_same_cloud(a, b, share: float = 0.998, tol: float = 1e-6) -> None:
         return
     assert (a.support is None) == (b.support is None)
     for x, y in ((a, b), (b, a)):
-        d, j = cKDTree(y.xyz.numpy().astype(np.float64)).query(x.xyz.numpy().astype(np.float64))
-        sup = True if x.support is None else x.support.numpy() == y.support.numpy()[j]
+        # the 3 nearest: with multiview_mean two cameras' points that average the same
+        # measurements land within float rounding of each other, so the nearest may be the twin
+        kq = min(3, len(y))
+        d, j = cKDTree(y.xyz.numpy().astype(np.float64)).query(x.xyz.numpy().astype(np.float64), k=kq)
+        d, j = d.reshape(len(x), kq), j.reshape(len(x), kq)
+        sup = True if x.support is None else x.support.numpy()[:, None] == y.support.numpy()[j]
         same = (
             (d <= tol)
             & sup
-            & (np.abs(x.weight.numpy() - y.weight.numpy()[j]) <= 1e-5)
-            & (x.camera.numpy() == y.camera.numpy()[j])
-            & (x.rgb.numpy() == y.rgb.numpy()[j]).all(axis=1)
-        )
+            & (np.abs(x.weight.numpy()[:, None] - y.weight.numpy()[j]) <= 1e-5)
+            & (x.camera.numpy()[:, None] == y.camera.numpy()[j])
+            & (x.rgb.numpy()[:, None, :] == y.rgb.numpy()[j]).all(axis=2)
+        ).any(axis=1)
         assert same.mean() >= share, f"only {same.mean():.5f} of {len(x)} points match"
 
 
