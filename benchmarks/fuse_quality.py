@@ -56,6 +56,8 @@ def _methods():
         rows[f"FUSE k_neighbours={k}"] = f(replace(FuseConfig(), k_neighbours=k))
         off = replace(FuseConfig(), k_neighbours=k, multiview_mean=False)
         rows[f"FUSE k_neighbours={k} multiview_mean=False"] = f(off)
+        rows[f"FUSE k_neighbours={k} s0=5"] = f(replace(FuseConfig(), k_neighbours=k, s0=5.0))
+    rows["FUSE s0=5"] = f(replace(FuseConfig(), s0=5.0))  # about VBG's point count (~430 k)
     for mm in (0, 1, 2, 3, 4):  # beyond the paper: gap-tolerant MCM window (mcm.py)
         if mm != FuseConfig().mcm_max_missing:
             rows[f"FUSE mcm_max_missing={mm}"] = f(replace(FuseConfig(), mcm_max_missing=mm))
