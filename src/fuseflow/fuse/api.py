@@ -1,7 +1,8 @@
 """``fuse(frame, rig, config) -> FusedCloud``: FUSE (paper III-C), stateless, one frame at a time.
 
 Stages, each in its own module: MCM (mcm.py, eq. 16-18) -> back-projection -> CVGC over the
-neighbour graph (neighbours.py, cvgc.py, eq. 19-21) -> joint weight (weights.py, eq. 22) ->
+neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``multiview_mean`` each candidate also
+becomes the mean of its agreeing neighbours' measurements) -> joint weight (weights.py, eq. 22) ->
 ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
 (the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
 (numba_kernels.py); ``"auto"`` picks numba for CPU tensors.

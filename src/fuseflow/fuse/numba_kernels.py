@@ -7,7 +7,8 @@ tolerance). Structure, and why:
 
 1. ``_pixels`` (parallel over camera rows): MCM (eq. 16-18) on the 3x3 window, the candidate
    test of eq. (27) *before* any projection (exact: omega <= 2c), back-projection, CVGC over
-   <= K_max neighbours (eq. 19-21), the joint weight (22), the minimum-weight filter, the world
+   <= K_max neighbours (eq. 19-21) with, in the same loop, the multi-view mean of the agreeing
+   neighbours' points (cvgc.multiview_mean), the joint weight (22), the minimum-weight filter, the world
    point and its coarse cell coordinates (eq. 23's key computed during back-projection). One
    pass over the depth maps, no full-size temporaries besides the outputs.
 2. ``_compact``: per-row counts -> prefix sum -> parallel scatter into input order.
