@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -32,6 +33,8 @@ def test_config_presets_and_validation():
         FuseConfig(window=4)
     assert PRESETS["paper"].range_priority is False  # eq. (28) ranks by omega alone
     assert PRESETS["paper"].lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
+    assert PRESETS["paper"].multiview_mean is False  # candidates are the pixels' own points
+    assert PRESETS["quality"] == replace(FuseConfig(), k_neighbours=7, s0=5.0)
     with pytest.raises(ValidationError, match="noise_sigma"):
         FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
     with pytest.raises(ValidationError, match="noise_sigma"):
