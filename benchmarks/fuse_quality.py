@@ -48,9 +48,16 @@ def _methods():
     rows.update({f"FUSE {k}": f(v) for k, v in ABLATIONS.items()})
     rows["FUSE visibility_aware=False"] = f(replace(FuseConfig(), visibility_aware=False))
     rows["FUSE min_weight=0"] = f(replace(FuseConfig(), min_weight=0.0))
-    for switch in ("range_priority", "mcm_noise", "consensus"):  # each switch flipped from the default
+    # each switch flipped from the default
+    for switch in ("range_priority", "mcm_noise", "consensus", "multiview_mean"):
         flip = not getattr(FuseConfig(), switch)
         rows[f"FUSE {switch}={flip}"] = f(replace(FuseConfig(), **{switch: flip}))
+    for k in (7,):  # more neighbours: more votes and more measurements for multiview_mean
+        rows[f"FUSE k_neighbours={k}"] = f(replace(FuseConfig(), k_neighbours=k))
+        off = replace(FuseConfig(), k_neighbours=k, multiview_mean=False)
+        rows[f"FUSE k_neighbours={k} multiview_mean=False"] = f(off)
+        rows[f"FUSE k_neighbours={k} s0=5"] = f(replace(FuseConfig(), k_neighbours=k, s0=5.0))
+    rows["FUSE s0=5"] = f(replace(FuseConfig(), s0=5.0))  # about VBG's point count (~430 k)
     for mm in (0, 1, 2, 3, 4):  # beyond the paper: gap-tolerant MCM window (mcm.py)
         if mm != FuseConfig().mcm_max_missing:
             rows[f"FUSE mcm_max_missing={mm}"] = f(replace(FuseConfig(), mcm_max_missing=mm))

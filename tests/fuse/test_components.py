@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -32,6 +33,8 @@ def test_config_presets_and_validation():
         FuseConfig(window=4)
     assert PRESETS["paper"].range_priority is False  # eq. (28) ranks by omega alone
     assert PRESETS["paper"].lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
+    assert PRESETS["paper"].multiview_mean is False  # candidates are the pixels' own points
+    assert PRESETS["quality"] == replace(FuseConfig(), k_neighbours=7, s0=5.0)
     with pytest.raises(ValidationError, match="noise_sigma"):
         FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
     with pytest.raises(ValidationError, match="noise_sigma"):
@@ -279,7 +282,9 @@ def test_range_priority_prefers_the_near_camera_and_keeps_weights(backend):
 
     assert near_share(on) > 0.95 and near_share(on) > near_share(off) + 0.2
     # only the selection changes: with every point of every cell kept, same points and weights
-    keep_all = replace(base, k_max=16, k0=1000.0)
+    # (multiview_mean off: it pulls the two cameras' points of a patch together, so some cells
+    # then hold more than 16 points and "keep all" would not keep them all)
+    keep_all = replace(base, k_max=16, k0=1000.0, multiview_mean=False)
     a, b = fuse(frame, rig, keep_all), fuse(frame, rig, replace(keep_all, range_priority=True))
     oa, ob = np.lexsort(a.xyz.numpy().T), np.lexsort(b.xyz.numpy().T)
     assert np.array_equal(a.xyz.numpy()[oa], b.xyz.numpy()[ob])

@@ -42,13 +42,33 @@ def test_plane_seen_by_several_cameras_fuses_to_the_plane(n_cams):
     resid = xyz[:, 2] - PLANE_Z
     assert len(xyz) > 0.2 * n_cams * 40 * 30  # a real cloud, not a handful of points
     assert np.abs(resid).max() < 5 * sigma  # no outliers
-    assert resid.std() < 1.2 * sigma  # points are selected, never averaged: the sensor noise stays
+    assert resid.std() < 1.2 * sigma  # an upper bound: multiview_mean and consensus average some noise away
     assert abs(resid.mean()) < 0.2 * sigma
     # the cloud covers the region the cameras see (not one corner of it)
     assert np.ptp(xyz[:, 0]) > 2.0 and np.ptp(xyz[:, 1]) > 1.2
     assert res.report.isolated == () and res.report.warnings == ()
     # fusion thins: fewer points than valid pixels, more than one per fine cell would give nothing
     assert len(xyz) < 0.7 * res.report.valid_pixels
+
+
+def test_multiview_mean_averages_the_noise_without_crossing_depth_edges():
+    """FuseConfig.multiview_mean: a noisy plane seen by 3 cameras fuses to the plane with
+    clearly less spread than with the switch off (each point averages the agreeing
+    neighbours' measurements), and at a box's silhouette no point is pulled between the box
+    and the wall behind it (only neighbours within the noise gate count)."""
+    rig = make_rig([(-0.5, 0.0, 0.0), (0.0, 0.05, 0.0), (0.5, 0.0, 0.0)])
+    frame = render(rig, [Rect(PLANE_Z)], noise=NOISE, seed=7)
+    std = {}
+    for on in (False, True):
+        cloud = fuse(frame, rig, replace(FuseConfig(), multiview_mean=on))
+        resid = cloud.xyz.numpy()[:, 2] - PLANE_Z
+        assert abs(resid.mean()) < 0.2 * NOISE * PLANE_Z
+        std[on] = resid.std()
+    assert std[True] < 0.85 * std[False], std  # measured 5.2 vs 6.6 mm
+    box = Rect(1.5, -0.25, 0.25, -0.25, 0.25)
+    edge = render(rig, [Rect(PLANE_Z), box], noise=0.002, seed=3)
+    cloud = fuse(edge, rig, replace(FuseConfig(), multiview_mean=True, use_mcm=False))
+    assert len(cloud) > 2000 and _off_surface(cloud.xyz.numpy(), box).sum() == 0
 
 
 def _flying_pixel_scene():

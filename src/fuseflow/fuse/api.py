@@ -1,7 +1,8 @@
 """``fuse(frame, rig, config) -> FusedCloud``: FUSE (paper III-C), stateless, one frame at a time.
 
 Stages, each in its own module: MCM (mcm.py, eq. 16-18) -> back-projection -> CVGC over the
-neighbour graph (neighbours.py, cvgc.py, eq. 19-21) -> joint weight (weights.py, eq. 22) ->
+neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``multiview_mean`` each candidate also
+becomes the mean of its agreeing neighbours' measurements) -> joint weight (weights.py, eq. 22) ->
 ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
 (the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
 (numba_kernels.py); ``"auto"`` picks numba for CPU tensors.
@@ -19,7 +20,7 @@ import torch
 from fuseflow.errors import ValidationError
 from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.config import FuseConfig
-from fuseflow.fuse.cvgc import cvgc_counts, omega_geo
+from fuseflow.fuse.cvgc import cvgc_counts, multiview_mean, omega_geo
 from fuseflow.fuse.mcm import confidence, valid_depth
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
 from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
@@ -185,8 +186,11 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     omega = joint_weight(c_m, w_geo, cfg.eps)  # eq. (22)
     keep = omega >= cfg.min_weight
     X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
+    z_s = X[:, 2]  # the pixel's own depth ranks it (range_priority), before any averaging
+    if cfg.multiview_mean and cfg.use_cvgc:
+        X = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.multiview_gate,
+                           cfg.noise_sigma, cfg.eps)  # fmt: skip
     P = _to_world(X, cam, p.T_world_cam)
-    z_s = X[:, 2]
     if cfg.use_ash:
         cells = adaptive_hash(P, cfg.coarse_size, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps)  # eq. (23)-(25)
     else:

@@ -7,6 +7,11 @@ its derivation written next to it (DESIGN.md section 2). Presets:
   a minimum joint weight for RPS candidates).
 * ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
   depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
+* ``PRESETS["quality"]``: the default with ``k_neighbours = 7`` (on an 8-camera ring: every
+  other camera, so ``multiview_mean`` averages up to 8 measurements) and ``s0 = 5`` (about the
+  point count of a 1 cm TSDF): on the simulated 8-camera studio it met issue 17's accuracy,
+  F-score and outlier targets where the default misses two (docs/fuse.md, Quality), at more
+  CVGC time (O(K_max) per point).
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
 """
@@ -115,7 +120,10 @@ class FuseConfig:
     # ---- neighbour graph (paper III-C-2, DESIGN.md 2.2)
     k_neighbours: int = 4
     """K_max, the most neighbour cameras per camera. CVGC cost is O(K_max) per point; 4 covers
-    the cameras on either side of a ring rig twice over. 1..16."""
+    the cameras on either side of a ring rig twice over. 1..16. With ``multiview_mean`` more
+    neighbours average more measurements: 7 (``PRESETS["quality"]``) took accuracy from
+    7.8-8.0 to 7.1-7.2 mm on the simulated 8-camera studio at +37 % time on the ICL 8-view
+    frame (docs/fuse.md, Quality); 4 is kept for time."""
     min_overlap: float = 0.05
     """Overlap floor: a camera j is a neighbour of i only when at least this share of i's
     frustum samples lands in j's image in front of it. 0..1."""
@@ -197,6 +205,28 @@ class FuseConfig:
     it took the share of points beyond 2 cm from 6.80 / 6.44 % to 2.61 / 2.42 % and accuracy
     from 10.0 / 9.8 mm to 8.8 / 8.6 mm, F @ 1 cm 0.538 -> 0.554, Chamfer unchanged, 20 % fewer
     points (docs/fuse.md, Quality); 1.5 measured the same, 3 and 4 kept more of the tail."""
+    multiview_mean: bool = True
+    """Beyond the paper: multi-view depth averaging inside CVGC (cvgc.multiview_mean). For each
+    candidate of camera i, every neighbour j whose depth D_j at the projection x_ij (eq. 19)
+    agrees with the point's depth z_ij in j within ``multiview_gate`` sqrt(sigma(z_ij)^2 +
+    sigma(D_j)^2) contributes its own measured point Q_j (pixel x_ij back-projected at D_j);
+    the candidate becomes the inverse-variance (1 / sigma(z)^2, ``noise_sigma``) weighted 3D
+    mean of itself and those Q_j. Independent measurements of the same surface average their
+    noise down like a TSDF averages it, with no state and no smoothing across depth edges (a
+    neighbour on the other side of an edge, or seeing a flying pixel, fails the gate). The
+    mean is taken in 3D and not along the candidate's ray: moving along the ray by the
+    neighbour's depth correction assumes the surface is fronto-parallel to j, which
+    over-corrects on surfaces j sees more obliquely (measured worse than no averaging;
+    docs/fuse.md, Quality). CVGC's votes use the unaveraged point. Needs ``use_cvgc``.
+    False = candidates are the pixels' own back-projections (``paper``). Default on: on the
+    simulated 8-camera studio (seeds 11, 29, 47; static and dynamic) accuracy 8.49-8.74 ->
+    7.82-7.97 mm, F @ 1 cm 0.587-0.604 -> 0.631-0.643, share beyond 2 cm 2.30-2.66 % ->
+    1.09-1.26 %, completeness 0.3 mm better, 6 % fewer points; +13 % time on the ICL 8-view
+    frame (docs/fuse.md, Quality, "Multi-view mean")."""
+    multiview_gate: float = 3.0
+    """Agreement gate of ``multiview_mean`` in units of the combined expected noise
+    sqrt(sigma(z_ij)^2 + sigma(D_j)^2) of the two depths compared: 3 keeps 99.7 % of the same
+    surface's Gaussian noise. > 0."""
     consensus: bool = True
     """Beyond the paper: multi-view consensus (rps.consensus). After selection each
     representative moves along its viewing ray to the omega-weighted mean of the candidates of
@@ -251,6 +281,7 @@ class FuseConfig:
             "k0",
             "ratio",
             "consensus_gate",
+            "multiview_gate",
             "eps",
         ):
             v = getattr(self, name)
@@ -295,7 +326,7 @@ class FuseConfig:
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
         if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
             bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        for name in ("range_priority", "mcm_noise", "consensus"):
+        for name in ("range_priority", "mcm_noise", "consensus", "multiview_mean"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "a bool")
         if self.backend not in ("auto", "torch", "numba"):
@@ -327,7 +358,9 @@ PRESETS: dict[str, FuseConfig] = {
         mcm_max_missing=0,
         mcm_noise=False,
         consensus=False,
+        multiview_mean=False,
     ),
+    "quality": replace(_DEFAULT, k_neighbours=7, s0=5.0),
     **ABLATIONS,
 }
 

@@ -21,7 +21,7 @@ from fuseflow.geometry.agreement import project_votes
 from fuseflow.geometry.camera import pixel_rays, relative_transforms
 from fuseflow.geometry.overlap import NeighbourGraph
 
-__all__ = ["cvgc_counts", "cvgc_votes", "omega_geo"]
+__all__ = ["cvgc_counts", "cvgc_votes", "omega_geo", "multiview_mean"]
 
 
 def cvgc_counts(
@@ -67,6 +67,100 @@ def cvgc_counts(
             agree.index_add_(0, sel, a.to(torch.int32))
             votes.index_add_(0, sel, v.to(torch.int32))
     return agree, votes
+
+
+def _sigma(z: torch.Tensor, noise_sigma: tuple[float, float, float]) -> torch.Tensor:
+    """sigma(z) = a + b (z - z0)^2, float32 (the kernel's operations)."""
+    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
+    dz = z - z0
+    return a + b * (dz * dz)
+
+
+def _neighbour_points(
+    X: torch.Tensor, M_ji: list, M_ij: list, Kj: list, depth_j: torch.Tensor, eps: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Project X (camera i) into j as eq. (19) does (``project_votes``' arithmetic), read D_j
+    at the nearest pixel and back-project that pixel at D_j into camera i.
+
+    Returns z_ij (M,), D_j (M,) (0 = no depth / outside / behind), Q (M, 3) in camera i."""
+    m, K = M_ji, Kj
+    x, y, z = X[:, 0], X[:, 1], X[:, 2]
+    xj = m[0][0] * x + m[0][1] * y + m[0][2] * z + m[0][3]
+    yj = m[1][0] * x + m[1][1] * y + m[1][2] * z + m[1][3]
+    zj = m[2][0] * x + m[2][1] * y + m[2][2] * z + m[2][3]
+    h, w = depth_j.shape
+    front = zj > eps
+    zs = torch.where(front, zj, torch.ones_like(zj))
+    xn = xj / zs
+    yn = yj / zs
+    ui = torch.floor(K[0][0] * xn + K[0][1] * yn + K[0][2] + 0.5)
+    vi = torch.floor(K[1][1] * yn + K[1][2] + 0.5)
+    inside = front & (ui >= 0) & (ui <= w - 1) & (vi >= 0) & (vi <= h - 1)
+    flat = (vi.clamp(0, h - 1).to(torch.int64) * w + ui.clamp(0, w - 1).to(torch.int64)).clamp(0, h * w - 1)
+    d = torch.where(inside, depth_j.reshape(-1)[flat], torch.zeros_like(zj))
+    ynp = (vi - K[1][2]) / K[1][1]  # pixel_rays' formula for the pixel x_ij
+    xnp = ((ui - K[0][2]) - K[0][1] * ynp) / K[0][0]
+    qx, qy = xnp * d, ynp * d
+    n = M_ij
+    Q = [n[r][0] * qx + n[r][1] * qy + n[r][2] * d + n[r][3] for r in range(3)]
+    return zj, d, torch.stack(Q, dim=1)
+
+
+def multiview_mean(
+    X: torch.Tensor,
+    cam: torch.Tensor,
+    depth: torch.Tensor,
+    K: torch.Tensor,
+    T_cam_world: torch.Tensor,
+    graph: NeighbourGraph,
+    present: torch.Tensor,
+    gate: float,
+    noise_sigma: tuple[float, float, float],
+    eps: float = 1e-6,
+) -> torch.Tensor:
+    """Multi-view depth averaging (beyond the paper, ``FuseConfig.multiview_mean``).
+
+    Each point X of camera i becomes X + sum_j r_j (Q_j - X) / (1 + sum_j r_j) over its present
+    neighbours j (graph order) whose depth D_j at x_ij (eq. 19) satisfies
+    (z_ij - D_j)^2 < gate^2 (sigma(z_ij)^2 + sigma(D_j)^2); Q_j is j's pixel x_ij back-projected
+    at D_j, in camera i's frame, and r_j = sigma(z)^2 / sigma(D_j)^2 its inverse-variance weight
+    relative to X's own (z = X's depth). The inverse-variance 3D mean of X and the Q_j.
+
+    Args: as ``cvgc_counts``; gate in units of the combined sigma; noise_sigma (a, b, z0).
+
+    Returns:
+        (M, 3) float32 averaged points in each point's own camera frame. Same float32
+        operations in the same order as the compiled kernel (numba_kernels._pixels).
+    """
+    M_all = relative_transforms(T_cam_world).tolist()
+    index = graph.index.tolist()
+    pres = present.detach().cpu().tolist()
+    Kl = K.tolist()
+    out = X.clone()
+    g2 = torch.tensor(gate * gate, dtype=torch.float32, device=X.device)
+    one = torch.ones((), dtype=torch.float32, device=X.device)
+    for i in range(depth.shape[0]):
+        sel = torch.nonzero(cam == i).squeeze(1)
+        if sel.numel() == 0:
+            continue
+        Xi = X[sel]
+        s0 = _sigma(Xi[:, 2], noise_sigma)
+        v0 = s0 * s0
+        num = torch.zeros_like(Xi)
+        den = one.expand(Xi.shape[0]).clone()
+        for j in index[i]:
+            if j < 0 or not pres[j]:
+                continue
+            zj, d, Q = _neighbour_points(Xi, M_all[i][j], M_all[j][i], Kl[j], depth[j], eps)
+            sz, sd = _sigma(zj, noise_sigma), _sigma(d, noise_sigma)
+            vd = sd * sd
+            e = zj - d
+            ok = (d > 0) & (e * e < g2 * (sz * sz + vd))
+            r = torch.where(ok, v0 / vd, torch.zeros_like(vd))
+            num = num + r[:, None] * (Q - Xi)
+            den = den + r
+        out[sel] = Xi + num / den[:, None]
+    return out
 
 
 def omega_geo(agree: torch.Tensor, votes: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
