@@ -17,10 +17,19 @@ import torch
 
 from fuseflow.geometry import pair_agreement
 from fuseflow.io.recording import Recording
-from fuseflow.io.timesync import OffsetEstimate, estimate_frame_offset, read_timestamps, shift_views
+from fuseflow.io.timesync import (
+    OffsetEstimate,
+    PairLag,
+    estimate_frame_offset,
+    pair_lags,
+    read_timestamps,
+    shift_views,
+    solve_frame_offsets,
+)
+from fuseflow.pipeline.sync_covisible import covisible_curves
 from fuseflow.types import Frame, Rig
 
-__all__ = ["SyncReport", "check_sync", "sync_scores"]
+__all__ = ["SyncReport", "check_sync", "check_sync_covisible", "sync_scores", "covisible_curves"]
 
 
 @dataclass(frozen=True)
@@ -30,6 +39,9 @@ class SyncReport:
 
     offsets: dict[str, OffsetEstimate]
     frames: tuple[int, ...]
+    method: str = "agreement"
+    pairs: tuple[PairLag, ...] = ()
+    sub_frame: dict[str, float] | None = None
 
     def late(self) -> dict[str, int]:
         """Cameras with a non-zero offset: id -> frames late (negative: early)."""
@@ -41,11 +53,15 @@ class SyncReport:
             if e.frames:
                 ms = "" if not np.isfinite(e.ms) else f", {e.ms:+.0f} ms"
                 word = "late" if e.frames > 0 else "early"
-                out.append(
-                    f"{c} is about {e.frames:+d} frame{'s' if abs(e.frames) != 1 else ''} {word}{ms} (its depth agrees "
-                    f"best with its neighbours' frame t{-e.frames:+d} on {e.consistency:.0%} of the sampled frames); "
-                    "--sync-offsets auto re-times it"
-                )
+                head = f"{c} is about {e.frames:+d} frame{'s' if abs(e.frames) != 1 else ''} {word}{ms}"
+                if self.method == "covisible":
+                    sub = (self.sub_frame or {}).get(c, float("nan"))
+                    why = (f"the motion of the surface it shares with its neighbours lags by {sub:+.2f} frames, "
+                           f"{e.consistency:.0%} of its {e.frames_used} camera pairs agree")  # fmt: skip
+                else:
+                    why = (f"its depth agrees best with its neighbours' frame t{-e.frames:+d} on {e.consistency:.0%} "
+                           "of the sampled frames")  # fmt: skip
+                out.append(f"{head} ({why}); --sync-offsets auto re-times it")
         return out
 
 
@@ -98,6 +114,36 @@ def _period_s(rec: Recording) -> float | None:
     return float(np.median(periods)) if periods else None
 
 
+def _positions(m: int, max_shift: int, count: int) -> list[int]:
+    positions = sorted({int(round(x)) for x in np.linspace(max_shift, m - 1 - max_shift, min(count, m))})
+    return [t for t in positions if 0 <= t < m] or [0]
+
+
+def check_sync_covisible(
+    rec: Recording, rig: Rig, sel: list[int], max_shift: int = 3, sample_frames: int = 48, tau: float = 0.03
+) -> SyncReport:
+    """The motion-based check (``sync_covisible``): directed co-visible scores per camera pair on
+    ``sample_frames`` positions, a sub-frame lag per pair kept only when both directions agree
+    (``io.timesync.pair_lags``), and the offsets solved jointly (``solve_frame_offsets``)."""
+    shifts = list(range(-max_shift, max_shift + 1))
+    positions = _positions(len(rec), max_shift, sample_frames)
+    with torch.no_grad():
+        curves, _ = covisible_curves(rec, rig, sel, positions, shifts, tau=tau)
+    pairs = pair_lags(curves, shifts)
+    frames, sub = solve_frame_offsets(pairs, len(rig))
+    period = _period_s(rec)
+    offsets = {}
+    for n, c in enumerate(rig.ids):
+        mine = [p for p in pairs if p.kept and n in (p.i, p.j)]
+        fits = [p for p in mine if abs(p.lag - (sub[p.j] - sub[p.i])) < 0.5]
+        k = int(frames[n])
+        ms = k * period * 1000.0 if period else float("nan")
+        gain = float(np.mean([p.prominence for p in mine])) if mine else 0.0
+        offsets[c] = OffsetEstimate(k, ms, len(fits) / len(mine) if mine else 0.0, gain, len(mine), {})
+    return SyncReport(offsets, tuple(rec.frame_numbers[t] for t in positions), "covisible", tuple(pairs),
+                      {c: float(sub[n]) for n, c in enumerate(rig.ids)})  # fmt: skip
+
+
 def check_sync(
     rec: Recording,
     rig: Rig,
@@ -106,16 +152,22 @@ def check_sync(
     sample_frames: int = 8,
     samples: int = 5000,
     tau: float = 0.02,
+    method: str = "covisible",
 ) -> SyncReport:
-    """Estimate every camera's frame offset on ``sample_frames`` positions spread over ``rec``
-    (shifts -max_shift..max_shift); ``sel`` maps ``rig`` (placed cameras) to the recording's
-    views. Cameras are found one at a time (the most confident first) and the rest re-estimated
-    with it re-timed. Costs ~ (late cameras + 1) x sample_frames x (2 max_shift + 1) x N
-    restricted agreement passes."""
+    """Estimate every camera's frame offset; ``sel`` maps ``rig`` (placed cameras) to the
+    recording's views. ``method`` "covisible" (default): ``check_sync_covisible``; "agreement":
+    the per-pixel agreement check below (kept for comparison, biased at 30 fps).
+
+    Agreement: on ``sample_frames`` positions spread over ``rec`` (shifts
+    -max_shift..max_shift), cameras are found one at a time (the most confident first) and the
+    rest re-estimated with it re-timed. Costs ~ (late cameras + 1) x sample_frames x
+    (2 max_shift + 1) x N restricted agreement passes."""
+    if method == "covisible":
+        return check_sync_covisible(rec, rig, sel, max_shift)
+    if method != "agreement":
+        raise ValueError(f"sync check method must be 'covisible' or 'agreement', got {method!r}")
     shifts = list(range(-max_shift, max_shift + 1))
-    m = len(rec)
-    positions = sorted({int(round(x)) for x in np.linspace(max_shift, m - 1 - max_shift, min(sample_frames, m))})
-    positions = [t for t in positions if 0 <= t < m] or [0]
+    positions = _positions(len(rec), max_shift, sample_frames)
     period = _period_s(rec)
     found: dict[str, OffsetEstimate] = {}
     # One camera at a time, most confident first: an in-sync camera next to a late one agrees
