@@ -5,7 +5,8 @@ with ``synth.desync.apply_desync``, run ``pipeline.sync.check_sync`` with the gr
 compare the offsets found with the truth (a static scene must report nothing). Prints one row per
 recording and a table per config: exact / of seeds, false alarms, seconds per check.
 
-    PYTHONPATH=src python benchmarks/sync_check.py /tmp/sync-grid --seeds 5 [--fps 30]
+    PYTHONPATH=src python benchmarks/sync_check.py /tmp/sync-grid --seeds 5 [--fps 30 --frames 90]
+        [--method covisible|agreement] [--configs c4_160_late2,c4_160_sync,c3_160_early1]
 
 Recordings are kept in the folder and reused on a second run.
 """
@@ -40,7 +41,7 @@ CONFIGS = {
 
 def make(root: Path, name: str, seed: int, fps: float, frames: int) -> Path:
     n, res, dynamic, desync = CONFIGS[name]
-    out = root / f"{name}_fps{fps:g}_s{seed}"
+    out = root / f"{name}_fps{fps:g}_f{frames}_s{seed}"
     if not (out / "gt.json").exists() or (desync and "desync" not in json.loads((out / "gt.json").read_text())):
         simulate_recording(out, SimConfig(cameras=n, frames=frames, scene="studio", dynamic=dynamic, resolution=res,
                                           seed=seed, fps=fps))  # fmt: skip
@@ -56,20 +57,23 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--configs", default=",".join(CONFIGS))
+    ap.add_argument("--method", default="covisible", choices=["covisible", "agreement"])
+    ap.add_argument("--first-seed", type=int, default=0)
     a = ap.parse_args()
     print(
-        f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, fps {a.fps:g}, {a.frames} frames"
+        f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, fps {a.fps:g}, {a.frames} frames, "
+        f"method {a.method}"
     )
     rows: dict[str, list[tuple[bool, bool, float]]] = {}
     for name in a.configs.split(","):
-        for seed in range(a.seeds):
+        for seed in range(a.first_seed, a.first_seed + a.seeds):
             rec_dir = make(a.root, name, seed, a.fps, a.frames)
             gt = json.loads((rec_dir / "gt.json").read_text())
             dynamic = CONFIGS[name][2]
             truth = {c: k for c, k in gt.get("desync", {}).items() if k} if dynamic else {}
             rec = open_recording(rec_dir)
             t0 = time.perf_counter()
-            report = check_sync(rec, rec.rig, list(range(len(rec.rig))))
+            report = check_sync(rec, rec.rig, list(range(len(rec.rig))), method=a.method)
             dt = time.perf_counter() - t0
             found = report.late()
             false_alarm = any(c not in truth for c in found)
