@@ -446,7 +446,7 @@ def pair_lags(
     for i in range(c.shape[0]):
         for j in range(i + 1, c.shape[0]):
             ab, ba = c[i, j], c[j, i]
-            if np.isfinite(ab).sum() < 3 or np.isfinite(ba).sum() < 3:
+            if np.isfinite(ab).sum() < 5 or np.isfinite(ba).sum() < 5:  # too few shifts for a peak
                 continue
             f, b = _subframe_peak(ab, shifts), _subframe_peak(ba, shifts)
             prom = min(_prominence(ab), _prominence(ba))

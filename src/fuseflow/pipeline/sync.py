@@ -126,8 +126,9 @@ def check_sync_covisible(
     ``sample_frames`` positions, a sub-frame lag per pair kept only when both directions agree
     (``io.timesync.pair_lags``), and the offsets solved jointly (``solve_frame_offsets``)."""
     # searched 2 frames past max_shift: a peak on the edge of the range cannot be refined, and
-    # +-3 cut the -2 peak of a late camera's backward curve (measured, 30 fps seed 3)
-    reach = max_shift + 2
+    # +-3 cut the -2 peak of a late camera's backward curve (measured, 30 fps seed 3); a short
+    # recording (5 fps, 12 frames) keeps +-max_shift so that some positions have every shift
+    reach = max_shift + 2 if len(rec) - 2 * (max_shift + 2) >= 24 else max_shift
     shifts = list(range(-reach, reach + 1))
     positions = _positions(len(rec), reach, sample_frames)
     with torch.no_grad():
@@ -153,25 +154,26 @@ def check_sync(
     rig: Rig,
     sel: list[int],
     max_shift: int = 3,
-    sample_frames: int = 8,
+    sample_frames: int | None = None,
     samples: int = 5000,
     tau: float = 0.02,
     method: str = "covisible",
 ) -> SyncReport:
     """Estimate every camera's frame offset; ``sel`` maps ``rig`` (placed cameras) to the
-    recording's views. ``method`` "covisible" (default): ``check_sync_covisible``; "agreement":
-    the per-pixel agreement check below (kept for comparison, biased at 30 fps).
+    recording's views. ``method`` "covisible" (default): ``check_sync_covisible`` on
+    ``sample_frames`` (default 48) positions; "agreement": the per-pixel agreement check below
+    (default 8 positions; kept for comparison, biased by a frame at 30 fps).
 
     Agreement: on ``sample_frames`` positions spread over ``rec`` (shifts
     -max_shift..max_shift), cameras are found one at a time (the most confident first) and the
     rest re-estimated with it re-timed. Costs ~ (late cameras + 1) x sample_frames x
     (2 max_shift + 1) x N restricted agreement passes."""
     if method == "covisible":
-        return check_sync_covisible(rec, rig, sel, max_shift)
+        return check_sync_covisible(rec, rig, sel, max_shift, sample_frames or 48)
     if method != "agreement":
         raise ValueError(f"sync check method must be 'covisible' or 'agreement', got {method!r}")
     shifts = list(range(-max_shift, max_shift + 1))
-    positions = _positions(len(rec), max_shift, sample_frames)
+    positions = _positions(len(rec), max_shift, sample_frames or 8)
     period = _period_s(rec)
     found: dict[str, OffsetEstimate] = {}
     # One camera at a time, most confident first: an in-sync camera next to a late one agrees
