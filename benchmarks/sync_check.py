@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shutil
 import time
 from pathlib import Path
 
@@ -43,6 +44,7 @@ def make(root: Path, name: str, seed: int, fps: float, frames: int) -> Path:
     n, res, dynamic, desync = CONFIGS[name]
     out = root / f"{name}_fps{fps:g}_f{frames}_s{seed}"
     if not (out / "gt.json").exists() or (desync and "desync" not in json.loads((out / "gt.json").read_text())):
+        shutil.rmtree(out, ignore_errors=True)  # an unfinished one (interrupted run)
         simulate_recording(out, SimConfig(cameras=n, frames=frames, scene="studio", dynamic=dynamic, resolution=res,
                                           seed=seed, fps=fps))  # fmt: skip
         if desync:

@@ -139,3 +139,11 @@ def test_solve_frame_offsets_needs_three_cameras_and_a_whole_frame():
     # half a frame between two whole frames is not clearly supported
     offset, sub = solve_frame_offsets(pair_lags(_curves([0, 0, 1.5]), SHIFTS), 3)
     assert list(offset) == [0, 0, 0] and sub[2] == pytest.approx(1.5, abs=0.15)
+
+
+def test_solve_frame_offsets_wants_two_pairs_for_a_camera():
+    # cam01 "3 frames early" from its pair with cam00 only (cam01-cam02 and cam01-cam03 share no surface)
+    pairs = pair_lags(_curves([0, -3.0, 0, 0], flat=[(1, 2), (1, 3), (0, 2)]), SHIFTS)
+    offset, sub = solve_frame_offsets(pairs, 4)
+    assert sub[1] == pytest.approx(-3.0, abs=0.1) and list(offset) == [0, 0, 0, 0]
+    assert list(solve_frame_offsets(pairs, 4, min_pairs=1)[0]) == [0, -3, 0, 0]

@@ -495,21 +495,26 @@ def _solve_component(cams: list[int], pairs: Sequence[PairLag]) -> np.ndarray:
 
 
 def solve_frame_offsets(
-    pairs: Sequence[PairLag], n: int, max_fraction: float = 0.35, min_offset: float = 0.6
+    pairs: Sequence[PairLag], n: int, max_fraction: float = 0.35, min_offset: float = 0.6, min_pairs: int = 2
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per camera offsets (frames, + = late) jointly from pair lags (``pair_lags``).
 
     Only kept pairs count; cameras are solved per connected group of at least 3 cameras (two
     cameras alone cannot say which one is late). Returns ``(offset, sub)``: ``offset`` (n,) int,
-    non-zero only where the sub-frame solution ``sub`` is at least ``min_offset`` from 0 and
-    within ``max_fraction`` of a whole frame (a camera between two frames is not "clearly
-    supported"); ``sub`` (n,) float, NaN for cameras in no group."""
+    non-zero only where the sub-frame solution ``sub`` is at least ``min_offset`` from 0, within
+    ``max_fraction`` of a whole frame, and fitted within half a frame by at least ``min_pairs``
+    of the camera's kept pairs ("clearly supported": one pair alone gave a false -3 on an
+    in-sync 30-fps rig); ``sub`` (n,) float, NaN for cameras in no group."""
     kept = [p for p in pairs if p.kept]
     sub = np.full(n, np.nan)
     for cams in _components(n, kept):
         sub[cams] = _solve_component(cams, kept)
+    support = np.zeros(n, dtype=np.int64)
+    for p in kept:
+        if np.isfinite(sub[p.i]) and abs(p.lag - (sub[p.j] - sub[p.i])) < 0.5:
+            support[[p.i, p.j]] += 1
     r = np.where(np.isfinite(sub), np.round(sub), 0.0)
-    ok = np.isfinite(sub) & (np.abs(sub) >= min_offset) & (np.abs(sub - r) <= max_fraction)
+    ok = np.isfinite(sub) & (np.abs(sub) >= min_offset) & (np.abs(sub - r) <= max_fraction) & (support >= min_pairs)
     return np.where(ok, r, 0).astype(np.int64), sub
 
 
