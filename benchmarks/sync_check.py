@@ -6,7 +6,7 @@ compare the offsets found with the truth (a static scene must report nothing). P
 recording and a table per config: exact / of seeds, false alarms, seconds per check.
 
     PYTHONPATH=src python benchmarks/sync_check.py /tmp/sync-grid --seeds 5 [--fps 30 --frames 90]
-        [--method covisible|agreement] [--configs c4_160_late2,c4_160_sync,c3_160_early1]
+        [--method auto|covisible|agreement] [--configs c4_160_late2,c4_160_sync,c3_160_early1]
 
 Recordings are kept in the folder and reused on a second run.
 """
@@ -59,7 +59,7 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--configs", default=",".join(CONFIGS))
-    ap.add_argument("--method", default="covisible", choices=["covisible", "agreement"])
+    ap.add_argument("--method", default="auto", choices=["auto", "covisible", "agreement"])
     ap.add_argument("--first-seed", type=int, default=0)
     a = ap.parse_args()
     print(
