@@ -80,8 +80,9 @@ def main() -> None:
             found = report.late()
             false_alarm = any(c not in truth for c in found)
             rows.setdefault(name, []).append((found == truth, false_alarm, dt))
+            sub = {c: round(v, 2) for c, v in (report.sub_frame or {}).items()}  # co-visible: sub-frame solve
             print(f"{name:14s} seed {seed}: truth {truth} found {found} {'OK' if found == truth else 'WRONG'} "
-                  f"({dt:.1f} s)", flush=True)  # fmt: skip
+                  f"({dt:.1f} s, {report.method}{f', sub-frame {sub}' if sub else ''})", flush=True)  # fmt: skip
     print("\n| config | exact | false alarm | s / check (median) |\n|---|---|---|---|")
     for name, r in rows.items():
         ok, fa, dt = zip(*r, strict=True)

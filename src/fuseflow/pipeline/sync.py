@@ -1,11 +1,20 @@
 """Camera-sync check: is a camera's stream a few frames late or early against its neighbours?
 
-For a camera c and a shift s, the score of frame t is the depth agreement of c's view at t with
-its neighbours' views at t + s (``geometry.pair_agreement`` restricted to c's pairs, tau 2 %:
-the 5 % of the fusion vote hides the few-centimetre motion between frames). A camera k frames
-late shows at t what its neighbours showed at t - k, so it agrees best at s = -k; in a static
-scene every shift agrees alike and nothing is reported. ``io.timesync.estimate_frame_offset``
-turns the scores into an offset only when one shift is consistently better.
+Two checks, ``check_sync`` picks one ("auto": by recording length):
+
+- **co-visible** (``check_sync_covisible``, module ``sync_covisible``): per camera pair, the
+  moving surface both cameras see, scored with one camera shifted; a sub-frame lag per pair
+  from both directions, the per-camera offsets solved jointly over the pairs
+  (``io.timesync.pair_lags``, ``solve_frame_offsets``). Works at 30 fps on recordings of
+  60-90 frames (docs/formats.md "Camera-sync check").
+- **agreement** (``sync_scores``): for a camera c and a shift s, the score of frame t is the
+  depth agreement of c's view at t with its neighbours' views at t + s
+  (``geometry.pair_agreement`` restricted to c's pairs, tau 2 %: the 5 % of the fusion vote
+  hides the few-centimetre motion between frames). A camera k frames late shows at t what its
+  neighbours showed at t - k, so it agrees best at s = -k; in a static scene every shift agrees
+  alike and nothing is reported. ``io.timesync.estimate_frame_offset`` turns the scores into an
+  offset only when one shift is consistently better. Used on short recordings (a dozen frames
+  at 5 fps); biased by a frame at 30 fps.
 """
 
 from __future__ import annotations
@@ -123,18 +132,31 @@ def _positions(m: int, max_shift: int, count: int) -> list[int]:
     return [t for t in positions if 0 <= t < m] or [0]
 
 
+def _window(m: int, reach: int, count: int) -> list[int]:
+    """``count`` positions every other frame in the middle of the recording (all loaded frames
+    also feed each pixel's background depth), or spread over it when it is short."""
+    span = 2 * count
+    if m - 2 * reach <= span:
+        return _positions(m, reach, count)
+    start = (m - span) // 2
+    return list(range(start, start + span, 2))
+
+
 def check_sync_covisible(
     rec: Recording, rig: Rig, sel: list[int], max_shift: int = 3, sample_frames: int = 48, tau: float = 0.03
 ) -> SyncReport:
     """The motion-based check (``sync_covisible``): directed co-visible scores per camera pair on
-    ``sample_frames`` positions, a sub-frame lag per pair kept only when both directions agree
-    (``io.timesync.pair_lags``), and the offsets solved jointly (``solve_frame_offsets``)."""
+    ``sample_frames`` positions (every other frame of a window in the middle of a long
+    recording: 2 x 48 frames, 3.2 s at 30 fps), a sub-frame lag per pair kept only when both
+    directions agree (``io.timesync.pair_lags``), and the offsets solved jointly
+    (``io.timesync.solve_frame_offsets``). Cost: N (N - 1) x sample_frames x (2 max_shift + 5)
+    projections of the moving pixels, plus loading ~2 x sample_frames frames."""
     # searched 2 frames past max_shift: a peak on the edge of the range cannot be refined, and
     # +-3 cut the -2 peak of a late camera's backward curve (measured, 30 fps seed 3); a short
     # recording (5 fps, 12 frames) keeps +-max_shift so that some positions have every shift
     reach = max_shift + 2 if len(rec) - 2 * (max_shift + 2) >= COVISIBLE_MIN_FRAMES else max_shift
     shifts = list(range(-reach, reach + 1))
-    positions = _positions(len(rec), reach, sample_frames)
+    positions = _window(len(rec), reach, sample_frames)
     with torch.no_grad():
         curves, _ = covisible_curves(rec, rig, sel, positions, shifts, tau=tau)
     pairs = pair_lags(curves, shifts)
