@@ -53,8 +53,10 @@ def test_sync_config_validates():
 @pytest.fixture(scope="module")
 def walk30(tmp_path_factory):
     out = tmp_path_factory.mktemp("sync30") / "sync"
+    # surface_density 100: the GT surface .ply files (not used here; 21 MB a frame at the
+    # default) stay small; depth and colour do not depend on it
     simulate_recording(out, SimConfig(cameras=4, frames=60, scene="studio", dynamic=True, resolution=(160, 120),
-                                      seed=0, fps=30.0))  # fmt: skip
+                                      seed=0, fps=30.0, surface_density=100.0))  # fmt: skip
     late = out.with_name("late")
     shutil.copytree(out, late)
     apply_desync(late, "cam03:2")
