@@ -41,6 +41,12 @@ def test_in_sync_static_rig_reports_no_offset(static_rec):
     assert set(report.offsets) == set(rec.rig.ids)
 
 
+def test_sync_check_method_is_validated(static_rec):
+    rec = open_recording(static_rec)
+    with pytest.raises(ValidationError, match="covisible"):
+        check_sync(rec, rec.rig, list(range(len(rec.rig))), method="centroid")
+
+
 def test_sync_config_validates():
     with pytest.raises(ValidationError, match="sync"):
         PipelineConfig(sync="maybe")

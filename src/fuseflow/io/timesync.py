@@ -46,6 +46,7 @@ __all__ = [
     "Timestamps",
     "estimate_frame_offset",
     "PairLag",
+    "FrameOffsets",
     "pair_lags",
     "solve_frame_offsets",
     "ShiftedRecording",
@@ -494,17 +495,32 @@ def _solve_component(cams: list[int], pairs: Sequence[PairLag]) -> np.ndarray:
     return o - ref
 
 
+@dataclass(frozen=True)
+class FrameOffsets:
+    """Per camera offsets solved from pair lags (``solve_frame_offsets``).
+
+    Attributes:
+        frames: (N,) int64, whole frames (+ = late); 0 where not clearly supported.
+        sub_frame: (N,) float64, the least-squares solution in frames, NaN for cameras in no
+            group of >= 3 connected cameras.
+        support: (N,) int64, kept pairs of each camera that fit the solution within half a frame.
+    """
+
+    frames: np.ndarray
+    sub_frame: np.ndarray
+    support: np.ndarray
+
+
 def solve_frame_offsets(
     pairs: Sequence[PairLag], n: int, max_fraction: float = 0.35, min_offset: float = 0.6, min_pairs: int = 2
-) -> tuple[np.ndarray, np.ndarray]:
+) -> FrameOffsets:
     """Per camera offsets (frames, + = late) jointly from pair lags (``pair_lags``).
 
     Only kept pairs count; cameras are solved per connected group of at least 3 cameras (two
-    cameras alone cannot say which one is late). Returns ``(offset, sub)``: ``offset`` (n,) int,
-    non-zero only where the sub-frame solution ``sub`` is at least ``min_offset`` from 0, within
-    ``max_fraction`` of a whole frame, and fitted within half a frame by at least ``min_pairs``
-    of the camera's kept pairs ("clearly supported": one pair alone gave a false -3 on an
-    in-sync 30-fps rig); ``sub`` (n,) float, NaN for cameras in no group."""
+    cameras alone cannot say which one is late). A camera's whole-frame offset is non-zero only
+    where its sub-frame solution is at least ``min_offset`` from 0, within ``max_fraction`` of a
+    whole frame, and fitted within half a frame by at least ``min_pairs`` of its kept pairs
+    ("clearly supported": one pair alone gave a false -3 on an in-sync 30-fps rig)."""
     kept = [p for p in pairs if p.kept]
     sub = np.full(n, np.nan)
     for cams in _components(n, kept):
@@ -515,7 +531,7 @@ def solve_frame_offsets(
             support[[p.i, p.j]] += 1
     r = np.where(np.isfinite(sub), np.round(sub), 0.0)
     ok = np.isfinite(sub) & (np.abs(sub) >= min_offset) & (np.abs(sub - r) <= max_fraction) & (support >= min_pairs)
-    return np.where(ok, r, 0).astype(np.int64), sub
+    return FrameOffsets(np.where(ok, r, 0).astype(np.int64), sub, support)
 
 
 class ShiftedRecording(Recording):

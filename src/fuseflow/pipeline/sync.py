@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from fuseflow.errors import ValidationError
 from fuseflow.geometry import pair_agreement
 from fuseflow.io.recording import Recording
 from fuseflow.io.timesync import (
@@ -160,8 +161,8 @@ def check_sync_covisible(
     with torch.no_grad():
         curves, _ = covisible_curves(rec, rig, sel, positions, shifts, tau=tau)
     pairs = pair_lags(curves, shifts)
-    frames, sub = solve_frame_offsets(pairs, len(rig))
-    frames = np.where(np.abs(frames) <= max_shift, frames, 0)
+    solved = solve_frame_offsets(pairs, len(rig))
+    frames, sub = np.where(np.abs(solved.frames) <= max_shift, solved.frames, 0), solved.sub_frame
     period = _period_s(rec)
     offsets = {}
     for n, c in enumerate(rig.ids):
@@ -203,7 +204,7 @@ def check_sync(
     if method == "covisible":
         return check_sync_covisible(rec, rig, sel, max_shift, sample_frames or 48)
     if method != "agreement":
-        raise ValueError(f"sync check method must be 'auto', 'covisible' or 'agreement', got {method!r}")
+        raise ValidationError(f"sync check method must be 'auto', 'covisible' or 'agreement', got {method!r}")
     shifts = list(range(-max_shift, max_shift + 1))
     positions = _positions(len(rec), max_shift, sample_frames or 8)
     period = _period_s(rec)
