@@ -40,7 +40,7 @@ from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.geometric import kabsch
-from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher
+from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
@@ -360,7 +360,7 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
                 keep = [k for k, p in enumerate(kps) if free[int(p.pt[1]), int(p.pt[0])] > p.size]
                 kps, desc = [kps[k] for k in keep], desc[keep]
             if desc is not None and len(kps):
-                td_xy = topdown.to_floor(np.array([p.pt for p in kps]))
+                td_xy = topdown.to_floor(sift_uv(kps))
                 td_desc = desc.astype(np.float32)
     return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *_samples(depth_med, K, plane, cfg))
 
@@ -411,24 +411,35 @@ def _image_matcher(cfg: RGBDConfig) -> Matcher:
     return get_matcher(cfg.matcher)
 
 
+#: Half-width (pixels) of the window whose depth lifts a keypoint (``_lift_keypoints``): 5x5.
+LIFT_HALF = 2
+
+
 def _lift_keypoints(
     matcher: Matcher, image: np.ndarray, depth: np.ndarray, K: np.ndarray
 ) -> tuple[np.ndarray, ImageFeatures]:
     """The matcher's keypoints of one (H, W, 3) uint8 image with valid depth, as camera-frame
-    points (Q, 3) and their features. Depth: the median of the 3x3 neighbourhood's valid values,
-    and only where they agree within 2 % (keypoints sit on edges; a depth edge gives no point)."""
+    points (Q, 3) and their features. Depth: a least-squares plane through the (2 LIFT_HALF + 1)^2
+    window around the nearest pixel, evaluated at the keypoint's sub-pixel position; only where
+    every pixel has depth and none is more than 2 % of the depth off that plane (keypoints sit on
+    edges; a depth edge gives no point). The depth at the rounded pixel was up to half a pixel's
+    depth gradient off (~6 mm on the floor at 3 m), the same in every frame of a static scene, so
+    pooling frames did not average it out (docs/gmac.md, "multi-frame pooling")."""
     feats = matcher.extract(image)
     if not len(feats):
         return np.zeros((0, 3)), feats
     uv = feats.uv
     h, w = depth.shape
-    ui = np.clip(np.rint(uv[:, 0]).astype(int), 1, w - 2)
-    vi = np.clip(np.rint(uv[:, 1]).astype(int), 1, h - 2)
-    win = np.stack([depth[vi + dv, ui + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
-    valid = win > 0
-    z = np.where(valid.all(axis=1), np.median(win, axis=1), 0.0)
-    flat = (win.max(axis=1) - win.min(axis=1)) < 0.02 * np.maximum(z, 1e-6)
-    ok = (z > 0) & flat
+    r = LIFT_HALF
+    ui = np.clip(np.rint(uv[:, 0]).astype(int), r, w - 1 - r)
+    vi = np.clip(np.rint(uv[:, 1]).astype(int), r, h - 1 - r)
+    offs = np.array([(dv, du) for dv in range(-r, r + 1) for du in range(-r, r + 1)], dtype=np.float64)
+    win = np.stack([depth[vi + int(dv), ui + int(du)] for dv, du in offs], axis=1).astype(np.float64)
+    A = np.c_[np.ones(len(offs)), offs[:, 1], offs[:, 0]]  # z = c0 + c1 du + c2 dv
+    coef = win @ np.linalg.pinv(A).T
+    z = coef[:, 0] + coef[:, 1] * (uv[:, 0] - ui) + coef[:, 2] * (uv[:, 1] - vi)
+    off_plane = np.abs(win - coef @ A.T).max(axis=1)
+    ok = (win > 0).all(axis=1) & (z > 0) & (off_plane < 0.02 * np.maximum(z, 1e-6))
     uv, z = uv[ok], z[ok]
     X = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * z, (uv[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
     return X, feats.subset(ok)
