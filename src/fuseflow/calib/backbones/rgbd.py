@@ -46,7 +46,7 @@ from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["RGBDConfig", "rgbd_backbone", "prepare_camera", "verify_pose", "PairCheck", "CameraEvidence"]
+__all__ = ["RGBDConfig", "rgbd_backbone", "prepare_camera", "verify_pose", "PairCheck", "CameraEvidence", "merge_repeats"]
 
 
 @dataclass(frozen=True)
@@ -631,15 +631,49 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
     return [{"route": "sift3d", "T_ba": T, "inliers": int(len(s)), "X_a": Xa[s], "X_b": Xb[s]} for T, s in models]
 
 
+#: Matches of different frames whose keypoints are within this many pixels of each other in both
+#: images (Chebyshev distance over the four coordinates) are one scene point (``merge_repeats``).
+SAME_MATCH_PX = 1.0
+
+
 def _pooled_matches(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig) -> tuple[np.ndarray, np.ndarray]:
     """3-D matches of the image route (cfg.matcher), pooled over frames (same instant in both
-    cameras)."""
-    XA, XB = [], []
+    cameras), a static point matched in several frames counted once (``merge_repeats``)."""
+    XA, XB, UV = [], [], []
     for (xa, da), (xb, db) in zip(a.kp, b.kp):
         mm = _image_matcher(cfg).match(da, db)
         XA.append(xa[mm[:, 0]])
         XB.append(xb[mm[:, 1]])
-    return (np.concatenate(XA), np.concatenate(XB)) if XA else (np.zeros((0, 3)), np.zeros((0, 3)))
+        UV.append(np.c_[da.uv[mm[:, 0]], db.uv[mm[:, 1]]])
+    if not XA:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return merge_repeats(np.concatenate(UV), np.concatenate(XA), np.concatenate(XB))
+
+
+def merge_repeats(uv: np.ndarray, Xa: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One 3-D match per scene point: matches (uv (M, 4) pixel coordinates in image a then b,
+    Xa, Xb (M, 3) their lifted points) whose keypoints lie within ``SAME_MATCH_PX`` of each other
+    in both images (chains of them) become one, at the mean of their points, in the order of
+    their first member. A static rig re-detects the same keypoints in every frame, with the same
+    localisation error (the image is the same, only the depth noise differs): pooled k times, one
+    keypoint's error counted k times against the floor route's, computed once from the median
+    image, and pooling 10 frames came out less accurate than 1 (docs/gmac.md, "multi-frame
+    pooling"). The mean keeps the depth noise averaged over the frames."""
+    if len(uv) < 2:
+        return Xa, Xb
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(uv).query_pairs(SAME_MATCH_PX, p=np.inf, output_type="ndarray")
+    m = len(uv)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    k, label = connected_components(graph, directed=False)
+    count = np.bincount(label, minlength=k)[:, None]
+    A, B = np.zeros((k, 3)), np.zeros((k, 3))
+    np.add.at(A, label, Xa)
+    np.add.at(B, label, Xb)
+    return A / count, B / count
 
 
 def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
