@@ -153,6 +153,6 @@ def test_median_depth_drops_pixels_something_moved_through():
         depths[t][:, 2] = 1.8
     depths[3][0, 0] += 0.02  # sensor noise on the static floor: kept
     greys = [np.zeros((4, 6), np.uint8)] * 4
-    _, d = _median_images(greys, depths)
+    _, d, _ = _median_images(greys, depths)
     assert np.all(d[:, 2] == 0.0)
     assert np.allclose(np.delete(d, 2, axis=1), 3.0, atol=0.011)

@@ -340,14 +340,18 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
     K = cam.K.copy()
     if not depths:
         raise CalibrationError(f"rgbd backbone: camera {cam.id!r} has no view in any frame")
-    grey_med, depth_med = _median_images(greys, depths)
+    grey_med, depth_med, depth_floor = _median_images(greys, depths)
     sift = cv2.SIFT_create(nfeatures=cfg.sift_features)
     kp = [_lift_keypoints(_image_matcher(cfg), im, d, K) for im, d in zip(images, depths)]
     X = _backproject(depth_med, K)
     plane = fit_floor_plane(X, band=cfg.floor_band, seed=cfg.seed)
     topdown, td_xy, td_desc = None, np.zeros((0, 2)), np.zeros((0, 128), np.float32)
     if plane is not None:
-        topdown = render_topdown(grey_med, depth_med, K, plane, cfg.floor_res, cfg.floor_max_range)
+        # the floor where most frames saw it, not only where nothing ever moved: the floor the
+        # cameras share is the middle of the rig, where people walk (studio 4-ring seed 2, 10
+        # dynamic frames: 2 right floor matches of 23 for cameras 0-1 with the static depth, 20
+        # of 34 on one frame)
+        topdown = render_topdown(grey_med, depth_floor, K, plane, cfg.floor_res, cfg.floor_max_range)
         if topdown is not None:
             mask = cv2.erode(topdown.mask.astype(np.uint8), np.ones((7, 7), np.uint8))
             kps, desc = sift.detectAndCompute(topdown.image, mask)
@@ -371,12 +375,14 @@ DYNAMIC_MIN_M = 0.1
 DYNAMIC_REL = 0.05
 
 
-def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel median grey and depth (ignoring missing depth) over frames: people and other
-    moving things leave the floor image of a static rig. Pixels where something moved get no
-    depth (0): only the static scene is verified."""
+    moving things leave the floor image of a static rig. Returns (grey, static depth, median
+    depth): in the static depth, pixels where something moved have no depth (0): only the static
+    scene is verified; the median depth keeps them (the floor where most frames saw the floor:
+    the top-down floor image, ``prepare_camera``)."""
     if len(greys) == 1:
-        return greys[0], depths[0]
+        return greys[0], depths[0], depths[0]
     g = np.median(np.stack(greys), axis=0).astype(np.uint8)
     D = np.stack(depths)
     with np.errstate(all="ignore"):
@@ -391,8 +397,8 @@ def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[n
             moved = np.nanmax(np.where(D > 0, np.abs(D - d), np.nan), axis=0) > np.maximum(
                 DYNAMIC_MIN_M, DYNAMIC_REL * d
             )
-    d = np.where(moved, np.nan, d)
-    return g, np.nan_to_num(d, nan=0.0).astype(np.float32)
+    d = np.nan_to_num(d, nan=0.0).astype(np.float32)
+    return g, np.where(moved, 0.0, d).astype(np.float32), d
 
 
 def _backproject(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> np.ndarray:
