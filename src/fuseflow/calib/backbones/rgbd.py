@@ -46,7 +46,15 @@ from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["RGBDConfig", "rgbd_backbone", "prepare_camera", "verify_pose", "PairCheck", "CameraEvidence", "merge_repeats"]
+__all__ = [
+    "RGBDConfig",
+    "rgbd_backbone",
+    "prepare_camera",
+    "verify_pose",
+    "PairCheck",
+    "CameraEvidence",
+    "merge_repeats",
+]
 
 
 @dataclass(frozen=True)
