@@ -171,3 +171,22 @@ def test_deform_conv2d_offsets_sample_where_they_point():
     right = F.pad(x[:, :, :, 1:], (0, 1, 0, 0))
     expect = 0.5 * (F.conv2d(x, w, padding=1) + F.conv2d(right, w, padding=1))
     torch.testing.assert_close(deform_conv2d(x, off_half, w, padding=1)[..., 1:], expect[..., 1:])
+
+
+def test_sift_keypoints_have_pixel_centres_at_integers():
+    """DESIGN.md's convention: pixel centres at integer coordinates. A point at u in an image is
+    at 2 u + 0.5 in the image twice as large whose 2x2 blocks average to it. OpenCV's own
+    keypoints give 0.25 (they are 0.25 px off, ``matchers.SIFT_PT_OFFSET``): lifted by depth that
+    was a few millimetres of systematic error per 3-D match (docs/gmac.md, multi-frame pooling)."""
+    import cv2
+
+    full, _ = _pair(size=(640, 480))
+    grey = cv2.cvtColor(full, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    half = ((grey[0::2, 0::2] + grey[1::2, 0::2] + grey[0::2, 1::2] + grey[1::2, 1::2]) / 4).round().astype(np.uint8)
+    m = get_matcher("sift")
+    fa, fb = m.extract(half), m.extract(grey.astype(np.uint8))
+    mm = m.match(fa, fb)
+    off = fb.uv[mm[:, 1]] - 2 * fa.uv[mm[:, 0]]
+    off = off[np.linalg.norm(off - np.median(off, axis=0), axis=1) < 1.5]
+    assert len(off) >= 50, len(off)
+    np.testing.assert_allclose(np.median(off, axis=0), [0.5, 0.5], atol=0.08)

