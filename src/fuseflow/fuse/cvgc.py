@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from fuseflow.geometry.agreement import project_votes
+from fuseflow.fuse.mcm import noise_sigma_of
+from fuseflow.geometry.agreement import project_to_pixel, project_votes
 from fuseflow.geometry.camera import pixel_rays, relative_transforms
 from fuseflow.geometry.overlap import NeighbourGraph
 
@@ -69,37 +70,16 @@ def cvgc_counts(
     return agree, votes
 
 
-def _sigma(z: torch.Tensor, noise_sigma: tuple[float, float, float]) -> torch.Tensor:
-    """sigma(z) = a + b (z - z0)^2, float32 (the kernel's operations)."""
-    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
-    dz = z - z0
-    return a + b * (dz * dz)
-
-
 def _neighbour_points(
     X: torch.Tensor, M_ji: list, M_ij: list, Kj: list, depth_j: torch.Tensor, eps: float
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Project X (camera i) into j as eq. (19) does (``project_votes``' arithmetic), read D_j
-    at the nearest pixel and back-project that pixel at D_j into camera i.
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Project X (camera i) into j (eq. 19, ``project_to_pixel``), read D_j at the nearest pixel
+    and back-project that pixel at D_j into camera i.
 
     Returns z_ij (M,), D_j (M,) (0 = no depth / outside / behind), Q (M, 3) in camera i."""
-    m, K = M_ji, Kj
-    x, y, z = X[:, 0], X[:, 1], X[:, 2]
-    xj = m[0][0] * x + m[0][1] * y + m[0][2] * z + m[0][3]
-    yj = m[1][0] * x + m[1][1] * y + m[1][2] * z + m[1][3]
-    zj = m[2][0] * x + m[2][1] * y + m[2][2] * z + m[2][3]
-    h, w = depth_j.shape
-    front = zj > eps
-    zs = torch.where(front, zj, torch.ones_like(zj))
-    xn = xj / zs
-    yn = yj / zs
-    ui = torch.floor(K[0][0] * xn + K[0][1] * yn + K[0][2] + 0.5)
-    vi = torch.floor(K[1][1] * yn + K[1][2] + 0.5)
-    inside = front & (ui >= 0) & (ui <= w - 1) & (vi >= 0) & (vi <= h - 1)
-    flat = (vi.clamp(0, h - 1).to(torch.int64) * w + ui.clamp(0, w - 1).to(torch.int64)).clamp(0, h * w - 1)
-    d = torch.where(inside, depth_j.reshape(-1)[flat], torch.zeros_like(zj))
-    ynp = (vi - K[1][2]) / K[1][1]  # pixel_rays' formula for the pixel x_ij
-    xnp = ((ui - K[0][2]) - K[0][1] * ynp) / K[0][0]
+    zj, ui, vi, d = project_to_pixel(X, M_ji, Kj, depth_j, eps)
+    ynp = (vi - Kj[1][2]) / Kj[1][1]  # pixel_rays' formula for the pixel x_ij
+    xnp = ((ui - Kj[0][2]) - Kj[0][1] * ynp) / Kj[0][0]
     qx, qy = xnp * d, ynp * d
     n = M_ij
     Q = [n[r][0] * qx + n[r][1] * qy + n[r][2] * d + n[r][3] for r in range(3)]
@@ -144,7 +124,7 @@ def multiview_mean(
         if sel.numel() == 0:
             continue
         Xi = X[sel]
-        s0 = _sigma(Xi[:, 2], noise_sigma)
+        s0 = noise_sigma_of(Xi[:, 2], noise_sigma)
         v0 = s0 * s0
         num = torch.zeros_like(Xi)
         den = one.expand(Xi.shape[0]).clone()
@@ -152,7 +132,7 @@ def multiview_mean(
             if j < 0 or not pres[j]:
                 continue
             zj, d, Q = _neighbour_points(Xi, M_all[i][j], M_all[j][i], Kl[j], depth[j], eps)
-            sz, sd = _sigma(zj, noise_sigma), _sigma(d, noise_sigma)
+            sz, sd = noise_sigma_of(zj, noise_sigma), noise_sigma_of(d, noise_sigma)
             vd = sd * sd
             e = zj - d
             ok = (d > 0) & (e * e < g2 * (sz * sz + vd))

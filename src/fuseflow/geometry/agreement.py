@@ -27,12 +27,48 @@ from fuseflow.types import Frame, Rig
 
 __all__ = [
     "one_torch_thread",
+    "project_to_pixel",
     "project_votes",
     "pair_agreement",
     "camera_agreement",
     "depth_agreement",
     "subsample_stride",
 ]
+
+
+def project_to_pixel(
+    X: torch.Tensor, m: list, Kj: list, depth_j: torch.Tensor, eps: float = 1e-6
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Eq. (19): points of camera i projected into camera j, and j's depth at the nearest pixel.
+
+    Args:
+        X: (M, 3) float32 points in camera i's frame (metres).
+        m: [R_ji | t_ji] as nested lists of python floats holding float32 values (3 x 4), Kj:
+            K_j likewise (3 x 3): torch rounds them back to the same float32, so the arithmetic
+            is the compiled kernels' (numba_kernels._pixels).
+        depth_j: (H, W) float32 metres (0 = no depth).
+
+    Returns:
+        z_ij (M,) depth in j, u_ij and v_ij (M,) the nearest pixel (float32 integers), D_j (M,)
+        j's depth there (0 where j has none, x_ij is outside the image or X is behind j).
+    """
+    x, y, z = X[:, 0], X[:, 1], X[:, 2]
+    xj = m[0][0] * x + m[0][1] * y + m[0][2] * z + m[0][3]
+    yj = m[1][0] * x + m[1][1] * y + m[1][2] * z + m[1][3]
+    zj = m[2][0] * x + m[2][1] * y + m[2][2] * z + m[2][3]
+    h, w = depth_j.shape
+    front = zj > eps
+    zs = torch.where(front, zj, torch.ones_like(zj))
+    xn = xj / zs
+    yn = yj / zs
+    u = Kj[0][0] * xn + Kj[0][1] * yn + Kj[0][2]
+    v = Kj[1][1] * yn + Kj[1][2]
+    ui = torch.floor(u + 0.5)
+    vi = torch.floor(v + 0.5)
+    inside = front & (ui >= 0) & (ui <= w - 1) & (vi >= 0) & (vi <= h - 1)
+    flat = (vi.clamp(0, h - 1).to(torch.int64) * w + ui.clamp(0, w - 1).to(torch.int64)).clamp(0, h * w - 1)
+    d = torch.where(inside, depth_j.reshape(-1)[flat], torch.zeros_like(zj))
+    return zj, ui, vi, d
 
 
 def project_votes(
@@ -55,25 +91,8 @@ def project_votes(
     Returns:
         agree (M,) bool (r_ij < tau) and vote (M,) bool (j counts in V_i(x)).
     """
-    x, y, z = X[:, 0], X[:, 1], X[:, 2]
     # python floats holding float32 values: torch rounds them back to the same float32
-    m = M_ji.tolist()
-    Kj = K_j.tolist()
-    xj = m[0][0] * x + m[0][1] * y + m[0][2] * z + m[0][3]
-    yj = m[1][0] * x + m[1][1] * y + m[1][2] * z + m[1][3]
-    zj = m[2][0] * x + m[2][1] * y + m[2][2] * z + m[2][3]
-    h, w = depth_j.shape
-    front = zj > eps
-    zs = torch.where(front, zj, torch.ones_like(zj))
-    xn = xj / zs
-    yn = yj / zs
-    u = Kj[0][0] * xn + Kj[0][1] * yn + Kj[0][2]
-    v = Kj[1][1] * yn + Kj[1][2]
-    ui = torch.floor(u + 0.5)
-    vi = torch.floor(v + 0.5)
-    inside = front & (ui >= 0) & (ui <= w - 1) & (vi >= 0) & (vi <= h - 1)
-    flat = (vi.clamp(0, h - 1).to(torch.int64) * w + ui.clamp(0, w - 1).to(torch.int64)).clamp(0, h * w - 1)
-    d = torch.where(inside, depth_j.reshape(-1)[flat], torch.zeros_like(zj))
+    zj, _, _, d = project_to_pixel(X, M_ji.tolist(), K_j.tolist(), depth_j, eps)
     has = d > 0
     r = torch.abs(zj - d) / (zj + eps)
     agree = has & (r < tau)
