@@ -156,3 +156,23 @@ def test_table_viii_has_the_default_calibration_row_and_it_places_every_camera()
     assert not cell.get("failed"), cell.get("error")
     assert cell["pose"]["rot_deg"] < 0.5 and cell["pose"]["trans_mm"] < 20
     assert len(cell["frames"]) == 1 and cell["frames"][0]["points"] > 1000
+
+
+def test_table_i_has_the_default_calibration_row_and_renders_it() -> None:
+    """With default_calib_row, Table I/III gets one cell per data set and seed for the product's
+    default calibration, and the markdown shows it under its own heading."""
+    from dataclasses import replace
+
+    pc = replace(paper.QUICK, resolution=(320, 240), frames=1, calib_seeds=1, default_calib_row=True)
+    cells = paper.plan(pc, tables=["gmac"], icl=False)
+    default = [c for c in cells if c.meta["backbone"] == "default"]
+    assert [c.key for c in default] == ["gmac-sim-room-default-s0"]
+    assert not [c for c in paper.plan(paper.QUICK, tables=["gmac"], icl=False) if c.meta["backbone"] == "default"]
+    res = default[0].compute()
+    row = res["rows"][paper.DEFAULT_ROW]
+    assert not row["failed"], row.get("error")
+    assert row["placed"] == pc.calib_cameras
+    assert row["rot_deg"] < 0.5 and row["trans_mm"] < 20
+    md = "\n".join(paper._md_gmac({default[0].key: (default[0], res)}, pc))
+    assert "the product's default calibration" in md
+    assert f"| {paper.DEFAULT_ROW} |" in md and "0/1 |" in md
