@@ -5,12 +5,14 @@ Same float32 operations in the same order as the PyTorch reference, so results a
 float rounding of exp / sqrt and float32 reductions (tests/fuse/test_numba.py states the
 tolerance). Structure, and why:
 
-1. ``_pixels`` (parallel over camera rows): MCM (eq. 16-18) on the 3x3 window, the candidate
-   test of eq. (27) *before* any projection (exact: omega <= 2c), back-projection, CVGC over
-   <= K_max neighbours (eq. 19-21) with, in the same loop, the multi-view mean of the agreeing
-   neighbours' points (cvgc.multiview_mean), the joint weight (22), the minimum-weight filter, the world
-   point and its coarse cell coordinates (eq. 23's key computed during back-projection). One
-   pass over the depth maps, no full-size temporaries besides the outputs.
+1. ``_pixels`` (parallel over blocks of camera rows): MCM (eq. 16-18) on the 3x3 window
+   (``_mcm_row``), the candidate test of eq. (27) *before* any projection (exact: omega <= 2c),
+   back-projection, CVGC over <= K_max neighbours (eq. 19-21, ``_votes``) with the multi-view
+   mean of the agreeing neighbours' points (cvgc.multiview_mean), the joint weight (22), the
+   minimum-weight filter, the world point and its coarse cell. Each row runs as a few passes
+   over row-sized scratch, one neighbour at a time, written so that the arithmetic passes
+   vectorise (same float32 operations per point as the reference; bit-identical to the
+   single-pass form it replaced). No full-size temporaries besides the outputs.
 2. ``_compact``: per-row counts -> prefix sum -> parallel scatter into input order.
 3. ``_coarse_ids``: an open-addressing hash of coarse keys with a last-key cache (neighbouring
    pixels share a coarse cell ~90 % of the time); counting sort of the points by coarse cell
@@ -257,41 +259,215 @@ def _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss):
     return gx * gx + gy * gy, var
 
 
+@njit(cache=True, error_model="numpy")
+def _ray_tables(Kf, h, w):
+    """pixel_rays' normalised coordinates per camera, row and column: yt[j, v] = (v - cy) / fy
+    and, when every camera has zero skew, xt[j, u] = (u - cx) / fx (with skew s = 0 the formula
+    ((u - cx) - s yn) / fx gives exactly this value; returns skew0 False otherwise and the
+    kernels compute x inline). Exact: the same float32 operations, done once per frame instead
+    of once per pixel and per multi-view vote."""
+    n = Kf.shape[0]
+    yt = np.empty((n, h), dtype=np.float32)
+    xt = np.empty((n, w), dtype=np.float32)
+    skew0 = True
+    for j in range(n):
+        if Kf[j, 0, 1] != 0:
+            skew0 = False
+        for v in range(h):
+            yt[j, v] = (_F(v) - Kf[j, 1, 2]) / Kf[j, 1, 1]
+        for u in range(w):
+            xt[j, u] = (_F(u) - Kf[j, 0, 2]) / Kf[j, 0, 0]
+    return xt, yt, skew0
+
+
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-def _neighbour_point(Kf, M_rel, i, j, uj, vj, d):
-    """cvgc._neighbour_points for one vote: camera j's pixel (uj, vj) back-projected at its
-    depth d (pixel_rays' formula), in camera i's frame (float32, the same operations)."""
-    ynp = (_F(vj) - Kf[j, 1, 2]) / Kf[j, 1, 1]
-    xnp = ((_F(uj) - Kf[j, 0, 2]) - Kf[j, 0, 1] * ynp) / Kf[j, 0, 0]
-    qx = xnp * d
-    qy = ynp * d
-    ax = M_rel[j, i, 0, 0] * qx + M_rel[j, i, 0, 1] * qy + M_rel[j, i, 0, 2] * d + M_rel[j, i, 0, 3]
-    ay = M_rel[j, i, 1, 0] * qx + M_rel[j, i, 1, 1] * qy + M_rel[j, i, 1, 2] * d + M_rel[j, i, 1, 3]
-    az = M_rel[j, i, 2, 0] * qx + M_rel[j, i, 2, 1] * qy + M_rel[j, i, 2, 2] * d + M_rel[j, i, 2, 3]
-    return ax, ay, az
+def _ray_x(Kf, xt, j, u, yn, skew0):
+    """x of pixel_rays for column u of camera j whose y is yn (table when skew is zero)."""
+    if skew0:
+        return xt[j, u]
+    return ((_F(u) - Kf[j, 0, 2]) - Kf[j, 0, 1] * yn) / Kf[j, 0, 0]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, tau, zjs, idx, dv, xq, yq,
+           ag, vo, mx, my, mz, md):  # fmt: skip
+    """CVGC (eq. 19-21) and the multi-view mean (cvgc.multiview_mean) of neighbour j for the nc
+    candidates (X, Y, Z: camera-i points; v0: their sigma(z)^2) of one row: adds to the vote
+    counts ag / vo and the mean's sums mx, my, mz, md. Three loops: projection (eq. 19) into a
+    pixel index, the depth lookup, then the votes, so that the first and last are branch-free
+    and vectorise; per point the float32 operations are those of cvgc.py / agreement.py."""
+    eps, vis, mv, mv_g2 = prm.eps, prm.visibility_aware, prm.mv_mean, prm.mv_gate2
+    na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
+    half = _F(0.5)
+    zero = _F(0.0)
+    wm1 = _F(w - 1)
+    hm1 = _F(h - 1)
+    m00, m01, m02, m03 = M_rel[i, j, 0, 0], M_rel[i, j, 0, 1], M_rel[i, j, 0, 2], M_rel[i, j, 0, 3]
+    m10, m11, m12, m13 = M_rel[i, j, 1, 0], M_rel[i, j, 1, 1], M_rel[i, j, 1, 2], M_rel[i, j, 1, 3]
+    m20, m21, m22, m23 = M_rel[i, j, 2, 0], M_rel[i, j, 2, 1], M_rel[i, j, 2, 2], M_rel[i, j, 2, 3]
+    k00, k01, k02 = Kf[j, 0, 0], Kf[j, 0, 1], Kf[j, 0, 2]
+    k11, k12 = Kf[j, 1, 1], Kf[j, 1, 2]
+    wi = np.int32(w)
+    for t in range(nc):  # eq. (19): nearest pixel of camera j, -1 when behind or outside
+        x = X[t]
+        y = Y[t]
+        z = Z[t]
+        zj = m20 * x + m21 * y + m22 * z + m23
+        xj = m00 * x + m01 * y + m02 * z + m03
+        yj = m10 * x + m11 * y + m12 * z + m13
+        xnj = xj / zj
+        ynj = yj / zj
+        uj = np.floor(k00 * xnj + k01 * ynj + k02 + half)
+        vj = np.floor(k11 * ynj + k12 + half)
+        inside = (zj > eps) & (uj >= zero) & (uj <= wm1) & (vj >= zero) & (vj <= hm1)
+        uc = min(max(uj, zero), wm1)  # clamped, so that the conversion is defined everywhere
+        vc = min(max(vj, zero), hm1)
+        k = np.int32(vc) * wi + np.int32(uc)
+        idx[t] = k if inside else np.int32(-1)
+        zjs[t] = zj
+    jb = j * h * w
+    for t in range(nc):  # D_j at the pixel (0 = none), and the pixel's ray when averaging
+        k = idx[t]
+        if k < 0:
+            dv[t] = zero
+            continue
+        dv[t] = dflat[jb + k]
+        if mv:
+            iv = k // wi
+            iu = k - iv * wi
+            yq[t] = yt[j, iv]
+            xq[t] = _ray_x(Kf, xt, j, iu, yq[t], skew0)
+    for t in range(nc):  # eq. (20)-(21)
+        d = dv[t]
+        zj = zjs[t]
+        has = d > zero
+        r = abs(zj - d) / (zj + eps)
+        agree = has & (r < tau)
+        ag[t] += np.int32(agree)
+        vo[t] += np.int32(agree | (has & ((not vis) | (d > zj))))
+    if mv:
+        n00, n01, n02, n03 = M_rel[j, i, 0, 0], M_rel[j, i, 0, 1], M_rel[j, i, 0, 2], M_rel[j, i, 0, 3]
+        n10, n11, n12, n13 = M_rel[j, i, 1, 0], M_rel[j, i, 1, 1], M_rel[j, i, 1, 2], M_rel[j, i, 1, 3]
+        n20, n21, n22, n23 = M_rel[j, i, 2, 0], M_rel[j, i, 2, 1], M_rel[j, i, 2, 2], M_rel[j, i, 2, 3]
+        for t in range(nc):  # cvgc.multiview_mean: j's measured point, inverse-variance weighted
+            d = dv[t]
+            zj = zjs[t]
+            dzj = zj - nz0
+            szj = na + nb * (dzj * dzj)
+            dd = d - nz0
+            sd = na + nb * (dd * dd)
+            vd = sd * sd
+            e = zj - d
+            gate = (d > zero) & (e * e < mv_g2 * (szj * szj + vd))
+            qx = xq[t] * d  # cvgc._neighbour_points: the pixel back-projected at D_j, in camera i
+            qy = yq[t] * d
+            ax = n00 * qx + n01 * qy + n02 * d + n03
+            ay = n10 * qx + n11 * qy + n12 * d + n13
+            az = n20 * qx + n21 * qy + n22 * d + n23
+            rw = v0[t] / vd
+            mx[t] = (mx[t] + rw * (ax - X[t])) if gate else mx[t]
+            my[t] = (my[t] + rw * (ay - Y[t])) if gate else my[t]
+            mz[t] = (mz[t] + rw * (az - Z[t])) if gate else mz[t]
+            md[t] = (md[t] + rw) if gate else md[t]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
+    """MCM (eq. 16-18) of the interior pixels u = 1 .. w - 2 of the image row starting at flat
+    index rb (not the first or last row of its image): cc[u] = c(x), or -1 where the pixel has
+    no depth or its window fails (any missing neighbour, or more than mcm_max_missing with the
+    gap-tolerant window). The complete-window arithmetic runs first over the whole row in
+    straight-line loops the compiler vectorises (gq, vr: scratch); per pixel the float32
+    operations and their order are those of the reference (mcm.py)."""
+    zero = _F(0.0)
+    half = _F(0.5)
+    nine = _F(9.0)
+    eps, alpha, beta = prm.eps, prm.alpha, prm.beta
+    up = rb - w
+    dn = rb + w
+    for u in range(1, w - 1):
+        d0, d1, d2 = dflat[up + u - 1], dflat[up + u], dflat[up + u + 1]
+        d3, z, d5 = dflat[rb + u - 1], dflat[rb + u], dflat[rb + u + 1]
+        d6, d7, d8 = dflat[dn + u - 1], dflat[dn + u], dflat[dn + u + 1]
+        # same summation order as the window loop of the reference kernel (row-major)
+        sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
+        mean = (sm + d8) / nine
+        e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
+        e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
+        var = (((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6) + e7 * e7
+        vr[u] = (var + e8 * e8) / nine
+        gx = (d5 - d3) * half
+        gy = (d7 - d1) * half
+        gq[u] = gx * gx + gy * gy
+    mmiss = prm.mcm_max_missing
+    for u in range(1, w - 1):
+        z = dflat[rb + u]
+        d0, d1, d2 = dflat[up + u - 1], dflat[up + u], dflat[up + u + 1]
+        d3, d5 = dflat[rb + u - 1], dflat[rb + u + 1]
+        d6, d7, d8 = dflat[dn + u - 1], dflat[dn + u], dflat[dn + u + 1]
+        cc[u] = _F(1.0)  # 1 = measured, -1 = rejected (the c of a measured pixel follows)
+        if z <= 0:
+            cc[u] = _F(-1.0)
+        elif d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
+            if mmiss == 0:
+                cc[u] = _F(-1.0)
+            else:
+                gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
+                if gsq < zero:  # more neighbours missing than allowed
+                    cc[u] = _F(-1.0)
+                gq[u] = gsq
+                vr[u] = var
+    if prm.mcm_noise:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
+        na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
+        for u in range(1, w - 1):
+            z = dflat[rb + u]
+            dzn = z - nz0
+            sg = na + nb * (dzn * dzn)
+            s2 = sg * sg
+            gsq = gq[u] - s2
+            if gsq < zero:
+                gsq = zero
+            var = vr[u] - s2
+            if var < zero:
+                var = zero
+            gq[u] = gsq
+            vr[u] = var
+    for u in range(1, w - 1):  # the exponent of eq. (18), vectorised (sqrt and divisions)
+        z = dflat[rb + u]
+        g = np.sqrt(gq[u]) / (z + eps)
+        vv = vr[u] / (z * z + eps)
+        gq[u] = -alpha * g - beta * vv
+    for u in range(1, w - 1):
+        if cc[u] > zero:
+            cc[u] = np.exp(gq[u])  # eq. (18)
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
 def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
-    """Stage 1, one pass per pixel, parallel over camera rows. Writes, at the pixel's own index
+    """Stage 1, parallel over blocks of camera rows. Writes, at the pixel's own index
     p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 2 candidate beyond the hash's range),
     out_P[p] (world point), out_w[p] (omega, eq. 22) and, when prm.range_priority, out_pr[p]
     (omega / sigma(z), rps.selection_priority). Also the row's *runs*: maximal stretches of
     candidates (flag 1) of one coarse cell, runs[row W + r] = the cell key, r_lo / r_hi / r_n
-    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs)."""
+    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs).
+
+    Each row runs in passes over row-sized scratch: MCM and eq. (27)'s test (``_mcm_row``) ->
+    the row's candidates and their camera-frame points -> CVGC one neighbour at a time over all
+    candidates (that neighbour's matrix and intrinsics stay in registers, its depth map is
+    swept in order) -> weight, world point and coarse runs. Per point the float32 operations
+    and their order are those of the single-pass form (votes in graph order), so the results
+    are bit-identical to it."""
     n, h, w = depth.shape
-    alpha, beta, eps, r_c, tau, min_w, s_c = prm.alpha, prm.beta, prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
+    eps, r_c, tau, min_w, s_c = prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
     use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
     qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
-    mn = prm.mcm_noise
-    mmiss = prm.mcm_max_missing
     mv, mv_g2 = prm.mv_mean, prm.mv_gate2
     zero = _F(0.0)
     half = _F(0.5)
     two = _F(2.0)
-    nine = _F(9.0)
     dflat = depth.reshape(n * h * w)
+    xt, yt, skew0 = _ray_tables(Kf, h, w)
     # the neighbours that vote (in the graph and present) first, in graph order
     vn = np.empty_like(nbr)
     nbr_n = np.zeros(n, dtype=np.int64)
@@ -301,172 +477,149 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             if j >= 0 and present[j]:
                 vn[i, nbr_n[i]] = j
                 nbr_n[i] += 1
-    for row in prange(n * h):
-        i = row // h
-        v = row - i * h
-        cnt = 0
-        n_oor = 0
-        nr = 0
-        last_key = np.int64(-1)
-        run_lo = 0
-        run_hi = 0
-        run_n = 0
-        rb = row * w
-        fx, s, cx = Kf[i, 0, 0], Kf[i, 0, 1], Kf[i, 0, 2]
-        fy, cy = Kf[i, 1, 1], Kf[i, 1, 2]
-        for u in range(w):
-            base = rb + u
-            flags[base] = 0
-            z = dflat[base]
-            if z <= 0:
-                continue
+    rows_per = 4
+    n_blk = (n * h + rows_per - 1) // rows_per
+    for blk in prange(n_blk):
+        cc = np.empty(w, dtype=np.float32)  # c(x) per column (-1: no candidate)
+        gq = np.empty(w, dtype=np.float32)
+        vr = np.empty(w, dtype=np.float32)
+        cu = np.empty(w, dtype=np.int64)  # the row's candidates: column, c, point, votes
+        cw = np.empty(w, dtype=np.float32)
+        cx_ = np.empty(w, dtype=np.float32)
+        cy_ = np.empty(w, dtype=np.float32)
+        cz_ = np.empty(w, dtype=np.float32)
+        ag = np.empty(w, dtype=np.int32)
+        vo = np.empty(w, dtype=np.int32)
+        v0 = np.empty(w, dtype=np.float32)
+        zjs = np.empty(w, dtype=np.float32)  # per-neighbour scratch of _votes
+        idx = np.empty(w, dtype=np.int32)
+        dv = np.empty(w, dtype=np.float32)
+        xq = np.empty(w, dtype=np.float32)
+        yq = np.empty(w, dtype=np.float32)
+        mx = np.empty(w, dtype=np.float32)
+        my = np.empty(w, dtype=np.float32)
+        mz = np.empty(w, dtype=np.float32)
+        md = np.empty(w, dtype=np.float32)
+        for row in range(blk * rows_per, min((blk + 1) * rows_per, n * h)):
+            i = row // h
+            v = row - i * h
+            rb = row * w
+            for u in range(w):
+                flags[rb + u] = 0
+            # MCM and eq. (27): the row's candidates
+            nc = 0
             if use_mcm:
-                # eq. (16)-(17) on the 3x3 window; a window pixel without depth -> c = 0
-                if u == 0 or v == 0 or u == w - 1 or v == h - 1:
+                if v == 0 or v == h - 1:  # a window pixel outside the image -> c = 0
+                    row_info[row, 0] = 0
+                    row_info[row, 1] = 0
+                    row_info[row, 2] = 0
                     continue
-                up, dn = base - w, base + w  # flat indices of the rows above and below
-                d0, d1, d2 = dflat[up - 1], dflat[up], dflat[up + 1]
-                d3, d5 = dflat[base - 1], dflat[base + 1]
-                d6, d7, d8 = dflat[dn - 1], dflat[dn], dflat[dn + 1]
-                if d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
-                    if mmiss == 0:
-                        continue
-                    gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
-                    if gsq < zero:  # more neighbours missing than allowed
-                        continue
-                else:
-                    # same summation order as the window loop of the reference kernel (row-major)
-                    sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
-                    mean = (sm + d8) / nine
-                    e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
-                    e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
-                    var = (
-                        ((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6
-                    ) + e7 * e7
-                    var = (var + e8 * e8) / nine
-                    gx = (d5 - d3) * half
-                    gy = (d7 - d1) * half
-                    gsq = gx * gx + gy * gy
-                if mn:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
-                    dzn = z - nz0
-                    sg = na + nb * (dzn * dzn)
-                    s2 = sg * sg
-                    gsq = gsq - s2
-                    if gsq < zero:
-                        gsq = zero
-                    var = var - s2
-                    if var < zero:
-                        var = zero
-                g = np.sqrt(gsq) / (z + eps)
-                vv = var / (z * z + eps)
-                c = np.exp(-alpha * g - beta * vv)  # eq. (18)
-            else:
-                c = _F(1.0)
-            if not c > r_c:  # eq. (27)
-                continue
-            yn = (_F(v) - cy) / fy
-            xn = ((_F(u) - cx) - s * yn) / fx
-            x = xn * z
-            y = yn * z
-            wg = c
-            xw, yw, zw = x, y, z  # the point written out (multi-view mean when mv)
+                _mcm_row(dflat, rb, w, prm, gq, vr, cc)
+                for u in range(1, w - 1):
+                    c = cc[u]
+                    if c >= zero and c > r_c:  # -1: no depth or a failed window
+                        cu[nc] = u
+                        cw[nc] = c
+                        nc += 1
+            elif _F(1.0) > r_c:
+                for u in range(w):
+                    if dflat[rb + u] > 0:
+                        cu[nc] = u
+                        cw[nc] = _F(1.0)
+                        nc += 1
+            yn = yt[i, v]
+            for t in range(nc):
+                u = cu[t]
+                z = dflat[rb + u]
+                xn = _ray_x(Kf, xt, i, u, yn, skew0)
+                cx_[t] = xn * z
+                cy_[t] = yn * z
+                cz_[t] = z
             if use_cvgc:
-                agree = 0
-                votes = 0
-                mvx, mvy, mvz, mvd = zero, zero, zero, _F(1.0)
-                dz0 = z - nz0
-                s0 = na + nb * (dz0 * dz0)
-                v0 = s0 * s0
+                for t in range(nc):
+                    ag[t] = 0
+                    vo[t] = 0
+                    mx[t] = zero
+                    my[t] = zero
+                    mz[t] = zero
+                    md[t] = _F(1.0)
+                    if mv:
+                        z = cz_[t]
+                        dz0 = z - nz0
+                        s0 = na + nb * (dz0 * dz0)
+                        v0[t] = s0 * s0
                 for kk in range(nbr_n[i]):
-                    j = vn[i, kk]
-                    # scalar loads, no array view: a view per vote costs an atomic refcount
-                    # update on M_rel's memory info, shared by the threads
-                    zj = M_rel[i, j, 2, 0] * x + M_rel[i, j, 2, 1] * y + M_rel[i, j, 2, 2] * z + M_rel[i, j, 2, 3]
-                    if not zj > eps:
-                        continue
-                    xj = M_rel[i, j, 0, 0] * x + M_rel[i, j, 0, 1] * y + M_rel[i, j, 0, 2] * z + M_rel[i, j, 0, 3]
-                    yj = M_rel[i, j, 1, 0] * x + M_rel[i, j, 1, 1] * y + M_rel[i, j, 1, 2] * z + M_rel[i, j, 1, 3]
-                    xnj = xj / zj
-                    ynj = yj / zj
-                    uj = np.floor(Kf[j, 0, 0] * xnj + Kf[j, 0, 1] * ynj + Kf[j, 0, 2] + half)
-                    vj = np.floor(Kf[j, 1, 1] * ynj + Kf[j, 1, 2] + half)
-                    if uj < 0 or uj > w - 1 or vj < 0 or vj > h - 1:
-                        continue
-                    d = dflat[(j * h + int(vj)) * w + int(uj)]
-                    if d <= 0:
-                        continue
-                    if mv:  # cvgc.multiview_mean: j's measured point, inverse-variance weighted
-                        dzj = zj - nz0
-                        szj = na + nb * (dzj * dzj)
-                        dd = d - nz0
-                        sd = na + nb * (dd * dd)
-                        vd = sd * sd
-                        e = zj - d
-                        if e * e < mv_g2 * (szj * szj + vd):
-                            ax, ay, az = _neighbour_point(Kf, M_rel, i, j, uj, vj, d)
-                            rw = v0 / vd
-                            mvx = mvx + rw * (ax - x)
-                            mvy = mvy + rw * (ay - y)
-                            mvz = mvz + rw * (az - z)
-                            mvd = mvd + rw
-                    r = abs(zj - d) / (zj + eps)  # eq. (20)
-                    if r < tau:
-                        agree += 1
-                        votes += 1
-                    elif (not vis) or d > zj:
-                        votes += 1
-                if votes > 0:
-                    wg = _F(agree) / _F(votes)  # eq. (21)
-                if mv:
-                    xw = x + mvx / mvd
-                    yw = y + mvy / mvd
-                    zw = z + mvz / mvd
-            om = two * c * wg / (c + wg + eps)  # eq. (22)
-            if not om >= min_w:
-                continue
-            px = T_wc[i, 0, 0] * xw + T_wc[i, 0, 1] * yw + T_wc[i, 0, 2] * zw + T_wc[i, 0, 3]
-            py = T_wc[i, 1, 0] * xw + T_wc[i, 1, 1] * yw + T_wc[i, 1, 2] * zw + T_wc[i, 1, 3]
-            pz = T_wc[i, 2, 0] * xw + T_wc[i, 2, 1] * yw + T_wc[i, 2, 2] * zw + T_wc[i, 2, 3]
-            qx = np.floor(px / s_c)
-            qy = np.floor(py / s_c)
-            qz = np.floor(pz / s_c)
-            out_P[base, 0] = px
-            out_P[base, 1] = py
-            out_P[base, 2] = pz
-            out_w[base] = om
-            if rp:
-                dz = z - nz0
-                out_pr[base] = om / (na + nb * (dz * dz))
-            cnt += 1
-            if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
-                flags[base] = 1
-                key = (
-                    ((np.int64(qx) + off) << (2 * bits)) | ((np.int64(qy) + off) << bits) | (np.int64(qz) + off)
-                )  # eq. (23)'s coarse cell, packed as in ash.py
-                if key != last_key:
-                    if run_n > 0:
-                        runs[rb + nr] = last_key
-                        r_lo[rb + nr] = run_lo
-                        r_hi[rb + nr] = run_hi
-                        r_n[rb + nr] = run_n
-                        nr += 1
-                    last_key = key
-                    run_lo = u
-                    run_n = 0
-                run_hi = u
-                run_n += 1
-            else:
-                flags[base] = 2
-                n_oor += 1
-        if run_n > 0:
-            runs[rb + nr] = last_key
-            r_lo[rb + nr] = run_lo
-            r_hi[rb + nr] = run_hi
-            r_n[rb + nr] = run_n
-            nr += 1
-        row_info[row, 0] = cnt
-        row_info[row, 1] = n_oor
-        row_info[row, 2] = nr
+                    _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm, tau,
+                           zjs, idx, dv, xq, yq, ag, vo, mx, my, mz, md)  # fmt: skip
+            cnt = 0
+            n_oor = 0
+            nr = 0
+            last_key = np.int64(-1)
+            run_lo = 0
+            run_hi = 0
+            run_n = 0
+            for t in range(nc):
+                u = cu[t]
+                base = rb + u
+                c = cw[t]
+                x = cx_[t]
+                y = cy_[t]
+                z = cz_[t]
+                wg = c
+                xw, yw, zw = x, y, z  # the point written out (multi-view mean when mv)
+                if use_cvgc:
+                    if vo[t] > 0:
+                        wg = _F(ag[t]) / _F(vo[t])  # eq. (21)
+                    if mv:
+                        xw = x + mx[t] / md[t]
+                        yw = y + my[t] / md[t]
+                        zw = z + mz[t] / md[t]
+                om = two * c * wg / (c + wg + eps)  # eq. (22)
+                if not om >= min_w:
+                    continue
+                px = T_wc[i, 0, 0] * xw + T_wc[i, 0, 1] * yw + T_wc[i, 0, 2] * zw + T_wc[i, 0, 3]
+                py = T_wc[i, 1, 0] * xw + T_wc[i, 1, 1] * yw + T_wc[i, 1, 2] * zw + T_wc[i, 1, 3]
+                pz = T_wc[i, 2, 0] * xw + T_wc[i, 2, 1] * yw + T_wc[i, 2, 2] * zw + T_wc[i, 2, 3]
+                qx = np.floor(px / s_c)
+                qy = np.floor(py / s_c)
+                qz = np.floor(pz / s_c)
+                out_P[base, 0] = px
+                out_P[base, 1] = py
+                out_P[base, 2] = pz
+                out_w[base] = om
+                if rp:
+                    dz = z - nz0
+                    out_pr[base] = om / (na + nb * (dz * dz))
+                cnt += 1
+                if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
+                    flags[base] = 1
+                    key = (
+                        ((np.int64(qx) + off) << (2 * bits)) | ((np.int64(qy) + off) << bits) | (np.int64(qz) + off)
+                    )  # eq. (23)'s coarse cell, packed as in ash.py
+                    if key != last_key:
+                        if run_n > 0:
+                            runs[rb + nr] = last_key
+                            r_lo[rb + nr] = run_lo
+                            r_hi[rb + nr] = run_hi
+                            r_n[rb + nr] = run_n
+                            nr += 1
+                        last_key = key
+                        run_lo = u
+                        run_n = 0
+                    run_hi = u
+                    run_n += 1
+                else:
+                    flags[base] = 2
+                    n_oor += 1
+            if run_n > 0:
+                runs[rb + nr] = last_key
+                r_lo[rb + nr] = run_lo
+                r_hi[rb + nr] = run_hi
+                r_n[rb + nr] = run_n
+                nr += 1
+            row_info[row, 0] = cnt
+            row_info[row, 1] = n_oor
+            row_info[row, 2] = nr
 
 
 @njit(cache=True, error_model="numpy")
