@@ -380,6 +380,7 @@ def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
     straight-line loops the compiler vectorises (gq, vr: scratch); per pixel the float32
     operations and their order are those of the reference (mcm.py)."""
     zero = _F(0.0)
+    one = _F(1.0)
     half = _F(0.5)
     nine = _F(9.0)
     eps, alpha, beta = prm.eps, prm.alpha, prm.beta
@@ -399,24 +400,23 @@ def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
         gx = (d5 - d3) * half
         gy = (d7 - d1) * half
         gq[u] = gx * gx + gy * gy
+        full = (d0 > zero) & (d1 > zero) & (d2 > zero) & (d3 > zero) & (z > zero)
+        full = full & (d5 > zero) & (d6 > zero) & (d7 > zero) & (d8 > zero)
+        cc[u] = one if full else -one  # 1: c follows below; -1: no depth or an incomplete window
     mmiss = prm.mcm_max_missing
-    for u in range(1, w - 1):
-        z = dflat[rb + u]
-        d0, d1, d2 = dflat[up + u - 1], dflat[up + u], dflat[up + u + 1]
-        d3, d5 = dflat[rb + u - 1], dflat[rb + u + 1]
-        d6, d7, d8 = dflat[dn + u - 1], dflat[dn + u], dflat[dn + u + 1]
-        cc[u] = _F(1.0)  # 1 = measured, -1 = rejected (the c of a measured pixel follows)
-        if z <= 0:
-            cc[u] = _F(-1.0)
-        elif d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
-            if mmiss == 0:
-                cc[u] = _F(-1.0)
-            else:
-                gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
-                if gsq < zero:  # more neighbours missing than allowed
-                    cc[u] = _F(-1.0)
-                gq[u] = gsq
-                vr[u] = var
+    if mmiss > 0:  # the gap-tolerant window where a neighbour is missing
+        for u in range(1, w - 1):
+            z = dflat[rb + u]
+            if cc[u] > zero or not z > zero:
+                continue
+            d0, d1, d2 = dflat[up + u - 1], dflat[up + u], dflat[up + u + 1]
+            d3, d5 = dflat[rb + u - 1], dflat[rb + u + 1]
+            d6, d7, d8 = dflat[dn + u - 1], dflat[dn + u], dflat[dn + u + 1]
+            gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
+            if gsq >= zero:  # else more neighbours missing than allowed
+                cc[u] = one
+            gq[u] = gsq
+            vr[u] = var
     if prm.mcm_noise:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
         na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
         for u in range(1, w - 1):
@@ -706,12 +706,16 @@ def _chunks(start, n_chunks):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
-               cell_fine_n):  # fmt: skip
+               cell_fine_n, om, rank, copy_rank, Pc, omc, rkc):  # fmt: skip
     """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
     chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
-    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead."""
+    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead.
+    With ``reorder`` also the point, weight and ranking value of each slot, in slot order:
+    Pc, omc, rkc (rkc only when ``copy_rank``: without range_priority the ranking value is omega
+    and the selection reads omc), so that the selection reads them in order instead of
+    gathering them by pixel index."""
     s_c, s0, s_min, s_max, eps, adaptive, fixed = (
         prm.s_c,
         prm.s0,
@@ -732,6 +736,9 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
         gstart = np.empty(largest + 1, dtype=np.int64)
         tk = np.empty(tcap, dtype=np.int64)
         tv = np.empty(tcap, dtype=np.int64)
+        tx = np.empty(largest, dtype=np.float32)
+        ty = np.empty(largest, dtype=np.float32)
+        tz = np.empty(largest, dtype=np.float32)
         for c in range(chunks[ch], chunks[ch + 1]):
             a = start[c]
             b = start[c + 1]
@@ -761,17 +768,25 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             ng = 0
             last_k = np.int64(-1)
             last_g = 0
-            for t in range(n):
+            for t in range(n):  # the cell's points, gathered once
                 p = members_in[a + t]
-                k3 = np.int64(0)
-                if adaptive:
-                    fxi = np.int64(np.floor((P[p, 0] - ox) / sf))  # eq. (25)
-                    fyi = np.int64(np.floor((P[p, 1] - oy) / sf))
-                    fzi = np.int64(np.floor((P[p, 2] - oz) / sf))
+                tx[t] = P[p, 0]
+                ty[t] = P[p, 1]
+                tz[t] = P[p, 2]
+            if adaptive:
+                for t in range(n):  # eq. (25), a branch-free loop that vectorises
+                    fxi = np.int64(np.floor((tx[t] - ox) / sf))
+                    fyi = np.int64(np.floor((ty[t] - oy) / sf))
+                    fzi = np.int64(np.floor((tz[t] - oz) / sf))
                     fxi = min(max(fxi, 0), 127)
                     fyi = min(max(fyi, 0), 127)
                     fzi = min(max(fzi, 0), 127)
-                    k3 = (((fxi << 7) | fyi) << 7) | fzi
+                    gid[t] = (((fxi << 7) | fyi) << 7) | fzi
+            else:
+                for t in range(n):
+                    gid[t] = 0
+            for t in range(n):  # fine key -> fine group, in place
+                k3 = gid[t]
                 if k3 == last_k:
                     gid[t] = last_g
                     continue
@@ -804,8 +819,16 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             if reorder:
                 for t in range(n):  # gstart[g] is now the next free slot of group g
                     g = gid[t]
-                    members[a + gstart[g]] = members_in[a + t]
-                    fkey[a + gstart[g]] = g
+                    p = members_in[a + t]
+                    q = a + gstart[g]
+                    members[q] = p
+                    fkey[q] = g
+                    Pc[q, 0] = tx[t]
+                    Pc[q, 1] = ty[t]
+                    Pc[q, 2] = tz[t]
+                    omc[q] = om[p]
+                    if copy_rank:
+                        rkc[q] = rank[p]
                     gstart[g] += 1
             cell_rho_sum[c] = rsum
             cell_fine_n[c] = ng
@@ -847,15 +870,16 @@ def _count(start, gsize, csize, fine_n, prm, cell_count):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
+def _select(Pc, rkc, omc, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
             stage_src, stage_sup, cell_nsel):  # fmt: skip
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
     cons.on) rps.consensus for the representatives of that fine cell while it is in cache.
-    rank: the ranking value (omega, or omega / sigma(z) with range_priority); only compared.
+    Pc, omc, rkc: point, omega and ranking value (omega, or omega / sigma(z) with
+    range_priority; only compared) per slot (``_fine_pass``); members: the pixel of each slot.
     fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm:
     SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
-    go to stage_src[start[c] + j] (point index) and, with consensus, stage_sup (supporting
-    cameras) while P of each representative is replaced by its moved position once its fine
+    go to stage_src[start[c] + j] (their slot) and, with consensus, stage_sup (supporting
+    cameras) while Pc of each representative is replaced by its moved position once its fine
     cell is done (nothing reads it later); cell_nsel[c] = how many."""
     on, gate, na, nb, nz0 = cons.on, cons.gate, cons.noise_a, cons.noise_b, cons.noise_z0
     n_cam = T_wc.shape[0]
@@ -885,52 +909,55 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
                 # first pick: highest rank, ties -> first in input order
                 best = t0
                 for t in range(t0 + 1, t1):
-                    if rank[members[t]] > rank[members[best]]:
+                    if rkc[t] > rkc[best]:
                         best = t
-                for t in range(n):
-                    sel[t] = False
-                    d2[t] = np.inf
-                sel[best - t0] = True
-                last = members[best]
-                for _r in range(1, k):
-                    bs = _F(0.0)
-                    bt = -1
-                    for t in range(t0, t1):
-                        if sel[t - t0]:
-                            continue
-                        p = members[t]
-                        dx = P[p, 0] - P[last, 0]
-                        dy = P[p, 1] - P[last, 1]
-                        dz = P[p, 2] - P[last, 2]
-                        dd = dx * dx + dy * dy + dz * dz
-                        if dd < d2[t - t0]:
-                            d2[t - t0] = dd
-                        sc = np.sqrt(d2[t - t0]) * rank[p]  # eq. (28)
-                        if sc > bs:
-                            bs = sc
-                            bt = t
-                    if bt < 0:
-                        break
-                    last = members[bt]
-                    sel[bt - t0] = True
+                if k > 1:
+                    for t in range(n):
+                        sel[t] = False
+                        d2[t] = np.inf
+                    sel[best - t0] = True
+                    last = best
+                    for _r in range(1, k):
+                        bs = _F(0.0)
+                        bt = -1
+                        lx, ly, lz = Pc[last, 0], Pc[last, 1], Pc[last, 2]
+                        for t in range(t0, t1):
+                            if sel[t - t0]:
+                                continue
+                            dx = Pc[t, 0] - lx
+                            dy = Pc[t, 1] - ly
+                            dz = Pc[t, 2] - lz
+                            dd = dx * dx + dy * dy + dz * dz
+                            if dd < d2[t - t0]:
+                                d2[t - t0] = dd
+                            sc = np.sqrt(d2[t - t0]) * rkc[t]  # eq. (28)
+                            if sc > bs:
+                                bs = sc
+                                bt = t
+                        if bt < 0:
+                            break
+                        last = bt
+                        sel[bt - t0] = True
                 n0 = ns_c
                 for ts in range(t0, t1):
-                    if not sel[ts - t0]:
+                    if k > 1:
+                        if not sel[ts - t0]:
+                            continue
+                    elif ts != best:
                         continue
-                    s = members[ts]
-                    stage_src[a + ns_c] = s
+                    stage_src[a + ns_c] = ts
                     if on:
-                        i = _cam_of(s, hw, inv_hw)
+                        i = _cam_of(members[ts], hw, inv_hw)
                         tick += 1
-                        _consensus_point(P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0,
+                        _consensus_point(Pc, omc, members, t0, t1, ts, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0,
                                          stamp, tick, moved, stage_sup, ns_c - n0, a + ns_c)  # fmt: skip
                     ns_c += 1
                 if on:  # the cell's representatives move only after all of them were computed
                     for e in range(ns_c - n0):
                         s = stage_src[a + n0 + e]
-                        P[s, 0] = moved[e, 0]
-                        P[s, 1] = moved[e, 1]
-                        P[s, 2] = moved[e, 2]
+                        Pc[s, 0] = moved[e, 0]
+                        Pc[s, 1] = moved[e, 1]
+                        Pc[s, 2] = moved[e, 2]
                 t0 = t1
             cell_nsel[c] = ns_c
 
@@ -949,35 +976,34 @@ def _cam_of(p, hw, inv_hw):
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _consensus_point(
-    P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
+    Pc, omc, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
 ):
-    """rps.consensus for representative s of camera i in the fine cell members[t0:t1]: out_P[k]
-    = s moved along its ray to the omega-weighted mean of the cell's candidates within ``gate``
-    sigma(z) of it, out_sup[ks] = their distinct cameras. Same arithmetic as the reference:
-    float32 geometry, float64 sums, members in fine-cell order."""
+    """rps.consensus for the representative in slot s (camera i) of the fine cell of slots
+    t0 .. t1 - 1: out_P[k] = it moved along its ray to the omega-weighted mean of the cell's
+    candidates within ``gate`` sigma(z) of it, out_sup[ks] = their distinct cameras. Same
+    arithmetic as the reference: float32 geometry, float64 sums, members in fine-cell order."""
     cx, cy, cz = T_wc[i, 0, 3], T_wc[i, 1, 3], T_wc[i, 2, 3]
-    dx = P[s, 0] - cx
-    dy = P[s, 1] - cy
-    dz = P[s, 2] - cz
+    dx = Pc[s, 0] - cx
+    dy = Pc[s, 1] - cy
+    dz = Pc[s, 2] - cz
     t_s = np.sqrt(dx * dx + dy * dy + dz * dz)
     ux = dx / t_s
     uy = dy / t_s
     uz = dz / t_s
-    zs = T_cw[i, 2, 0] * P[s, 0] + T_cw[i, 2, 1] * P[s, 1] + T_cw[i, 2, 2] * P[s, 2] + T_cw[i, 2, 3]
+    zs = T_cw[i, 2, 0] * Pc[s, 0] + T_cw[i, 2, 1] * Pc[s, 1] + T_cw[i, 2, 2] * Pc[s, 2] + T_cw[i, 2, 3]
     dn = zs - nz0
     lim = gate * (na + nb * (dn * dn))
     num = 0.0
     den = 0.0
     ns = 0
     for t in range(t0, t1):
-        q = members[t]
-        tq = (P[q, 0] - cx) * ux + (P[q, 1] - cy) * uy + (P[q, 2] - cz) * uz
+        tq = (Pc[t, 0] - cx) * ux + (Pc[t, 1] - cy) * uy + (Pc[t, 2] - cz) * uz
         if not abs(tq - t_s) < lim:
             continue
-        wq = np.float64(om[q])
+        wq = np.float64(omc[t])
         num += wq * np.float64(tq)
         den += wq
-        cq = _cam_of(q, hw, inv_hw)
+        cq = _cam_of(members[t], hw, inv_hw)
         if stamp[cq] != tick:
             stamp[cq] = tick
             ns += 1
@@ -992,7 +1018,7 @@ def _consensus_point(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, P, om, color, rig_index, hw,
+def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, members, Pc, omc, color, rig_index, hw,
           xyz, rgb, wgt, src, sup):  # fmt: skip
     """The output cloud in one parallel pass over the coarse cells: representative j of cell c
     goes to row cell_out[c] + j (cells in order, fine-cell order inside)."""
@@ -1001,14 +1027,15 @@ def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, P, om, co
         a = start[c]
         o = cell_out[c]
         for j in range(cell_nsel[c]):
-            p = stage_src[a + j]
+            q = stage_src[a + j]  # the slot
+            p = members[q]
             k = o + j
             if use_stage:
                 sup[k] = stage_sup[a + j]
-            xyz[k, 0] = P[p, 0]
-            xyz[k, 1] = P[p, 1]
-            xyz[k, 2] = P[p, 2]
-            wgt[k] = om[p]
+            xyz[k, 0] = Pc[q, 0]
+            xyz[k, 1] = Pc[q, 1]
+            xyz[k, 2] = Pc[q, 2]
+            wgt[k] = omc[q]
             rgb[k, 0] = color[p, 0]  # p is the flat (camera, row, column) pixel index
             rgb[k, 1] = color[p, 1]
             rgb[k, 2] = color[p, 2]
@@ -1046,6 +1073,7 @@ class _Workspace:
         self.shape = (n, h, w)
         self.flags = np.empty(npx, dtype=np.int8)
         self.P = np.empty((npx, 3), dtype=np.float32)
+        self.Pc = np.empty((npx, 3), dtype=np.float32)  # P in slot order (_fine_pass)
         self.om = np.empty(npx, dtype=np.float32)
         self.pr = np.empty(1, dtype=np.float32)
         self.runs = np.empty(npx, dtype=np.int64)
@@ -1137,9 +1165,15 @@ def _select_points(
     csize = np.empty(n_cells, dtype=np.float32)
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
+    # slot-ordered copies of point, omega and rank (read by _select and _emit); the coarse
+    # runs' buffer, free after _scatter, holds omega and the rank as float32
+    Pc = ws.Pc[:m]
+    spare = ws.runs.view(np.float32)
+    omc, rkc = spare[:m], spare[m : 2 * m]
+    copy_rank = c.rank is not c.om
     with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
         _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, not count_only, members, fkey,
-                   csize, rho_sum, fine_n)  # fmt: skip
+                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, Pc, omc, rkc)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
@@ -1149,8 +1183,8 @@ def _select_points(
         _count(c.start, fkey, csize, fine_n, sel_prm, nsel)
         return _Selection(c.start, nsel, int(nsel.sum()))
     with numba.parallel_chunksize(1):
-        _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
-                hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
+        _select(Pc, rkc if copy_rank else omc, omc, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest,
+                cons, T_wc, T_cw, hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
     return _Selection(c.start, nsel, int(nsel.sum()))
 
 
@@ -1190,7 +1224,8 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
     with numba.parallel_chunksize(256):
-        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
+        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.Pc,
+              ws.runs.view(np.float32), color, rig_index,
               hw, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
