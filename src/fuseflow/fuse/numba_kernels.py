@@ -289,7 +289,7 @@ def _ray_x(Kf, xt, j, u, yn, skew0):
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, tau, zjs, idx, dv, xq, yq,
+def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, tau, zjs, idx, ius, ivs, dv, xq, yq,
            ag, vo, mx, my, mz, md):  # fmt: skip
     """CVGC (eq. 19-21) and the multi-view mean (cvgc.multiview_mean) of neighbour j for the nc
     candidates (X, Y, Z: camera-i points; v0: their sigma(z)^2) of one row: adds to the vote
@@ -322,8 +322,11 @@ def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, ta
         inside = (zj > eps) & (uj >= zero) & (uj <= wm1) & (vj >= zero) & (vj <= hm1)
         uc = min(max(uj, zero), wm1)  # clamped, so that the conversion is defined everywhere
         vc = min(max(vj, zero), hm1)
-        k = np.int32(vc) * wi + np.int32(uc)
-        idx[t] = k if inside else np.int32(-1)
+        iu = np.int32(uc)
+        iv = np.int32(vc)
+        idx[t] = (iv * wi + iu) if inside else np.int32(-1)
+        ius[t] = iu
+        ivs[t] = iv
         zjs[t] = zj
     jb = j * h * w
     for t in range(nc):  # D_j at the pixel (0 = none), and the pixel's ray when averaging
@@ -333,8 +336,8 @@ def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, ta
             continue
         dv[t] = dflat[jb + k]
         if mv:
-            iv = k // wi
-            iu = k - iv * wi
+            iu = ius[t]
+            iv = ivs[t]
             yq[t] = yt[j, iv]
             xq[t] = _ray_x(Kf, xt, j, iu, yq[t], skew0)
     for t in range(nc):  # eq. (20)-(21)
@@ -493,6 +496,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
         v0 = np.empty(w, dtype=np.float32)
         zjs = np.empty(w, dtype=np.float32)  # per-neighbour scratch of _votes
         idx = np.empty(w, dtype=np.int32)
+        ius = np.empty(w, dtype=np.int32)
+        ivs = np.empty(w, dtype=np.int32)
         dv = np.empty(w, dtype=np.float32)
         xq = np.empty(w, dtype=np.float32)
         yq = np.empty(w, dtype=np.float32)
@@ -550,7 +555,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                         v0[t] = s0 * s0
                 for kk in range(nbr_n[i]):
                     _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm, tau,
-                           zjs, idx, dv, xq, yq, ag, vo, mx, my, mz, md)  # fmt: skip
+                           zjs, idx, ius, ivs, dv, xq, yq, ag, vo, mx, my, mz, md)  # fmt: skip
             cnt = 0
             n_oor = 0
             nr = 0
@@ -706,16 +711,16 @@ def _chunks(start, n_chunks):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
-               cell_fine_n, om, rank, copy_rank, Pc, omc, rkc):  # fmt: skip
+               cell_fine_n, om, rank, copy_rank, hw, Pc, omc, rkc, camc):  # fmt: skip
     """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
     chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
     density control): members untouched, fkey[start[c] + g] = size of fine cell g instead.
     With ``reorder`` also the point, weight and ranking value of each slot, in slot order:
-    Pc, omc, rkc (rkc only when ``copy_rank``: without range_priority the ranking value is omega
-    and the selection reads omc), so that the selection reads them in order instead of
-    gathering them by pixel index."""
+    Pc, omc, camc (the camera, p // hw) and rkc (only when ``copy_rank``: without
+    range_priority the ranking value is omega and the selection reads omc), so that the
+    selection reads them in order instead of gathering them by pixel index."""
     s_c, s0, s_min, s_max, eps, adaptive, fixed = (
         prm.s_c,
         prm.s0,
@@ -728,6 +733,7 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
     s_c3 = prm.s_c3
     bits, off = prm.bits, prm.offset
     bmask = (np.int64(1) << bits) - 1
+    inv_hw = 1.0 / np.float64(hw)
     tcap = 16
     while tcap < 2 * largest + 1:
         tcap *= 2
@@ -827,6 +833,7 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
                     Pc[q, 1] = ty[t]
                     Pc[q, 2] = tz[t]
                     omc[q] = om[p]
+                    camc[q] = _cam_of(p, hw, inv_hw)
                     if copy_rank:
                         rkc[q] = rank[p]
                     gstart[g] += 1
@@ -870,7 +877,7 @@ def _count(start, gsize, csize, fine_n, prm, cell_count):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _select(Pc, rkc, omc, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
+def _select(Pc, rkc, omc, camc, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
             stage_src, stage_sup, cell_nsel):  # fmt: skip
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
     cons.on) rps.consensus for the representatives of that fine cell while it is in cache.
@@ -947,9 +954,9 @@ def _select(Pc, rkc, omc, start, members, fkey, csize, fine_n, prm, chunks, larg
                         continue
                     stage_src[a + ns_c] = ts
                     if on:
-                        i = _cam_of(members[ts], hw, inv_hw)
+                        i = camc[ts]
                         tick += 1
-                        _consensus_point(Pc, omc, members, t0, t1, ts, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0,
+                        _consensus_point(Pc, omc, camc, t0, t1, ts, i, T_wc, T_cw, gate, na, nb, nz0,
                                          stamp, tick, moved, stage_sup, ns_c - n0, a + ns_c)  # fmt: skip
                     ns_c += 1
                 if on:  # the cell's representatives move only after all of them were computed
@@ -976,7 +983,7 @@ def _cam_of(p, hw, inv_hw):
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _consensus_point(
-    Pc, omc, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
+    Pc, omc, camc, t0, t1, s, i, T_wc, T_cw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
 ):
     """rps.consensus for the representative in slot s (camera i) of the fine cell of slots
     t0 .. t1 - 1: out_P[k] = it moved along its ray to the omega-weighted mean of the cell's
@@ -1003,7 +1010,7 @@ def _consensus_point(
         wq = np.float64(omc[t])
         num += wq * np.float64(tq)
         den += wq
-        cq = _cam_of(members[t], hw, inv_hw)
+        cq = camc[t]
         if stamp[cq] != tick:
             stamp[cq] = tick
             ns += 1
@@ -1018,11 +1025,10 @@ def _consensus_point(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, members, Pc, omc, color, rig_index, hw,
+def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, members, Pc, omc, camc, color, rig_index,
           xyz, rgb, wgt, src, sup):  # fmt: skip
     """The output cloud in one parallel pass over the coarse cells: representative j of cell c
     goes to row cell_out[c] + j (cells in order, fine-cell order inside)."""
-    inv_hw = 1.0 / np.float64(hw)
     for c in prange(start.shape[0] - 1):
         a = start[c]
         o = cell_out[c]
@@ -1039,7 +1045,7 @@ def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, members, 
             rgb[k, 0] = color[p, 0]  # p is the flat (camera, row, column) pixel index
             rgb[k, 1] = color[p, 1]
             rgb[k, 2] = color[p, 2]
-            src[k] = rig_index[_cam_of(p, hw, inv_hw)]
+            src[k] = rig_index[camc[q]]
 
 
 # --- orchestration ------------------------------------------------------------------------
@@ -1074,6 +1080,7 @@ class _Workspace:
         self.flags = np.empty(npx, dtype=np.int8)
         self.P = np.empty((npx, 3), dtype=np.float32)
         self.Pc = np.empty((npx, 3), dtype=np.float32)  # P in slot order (_fine_pass)
+        self.camc = np.empty(npx, dtype=np.int16)  # camera of each slot
         self.om = np.empty(npx, dtype=np.float32)
         self.pr = np.empty(1, dtype=np.float32)
         self.runs = np.empty(npx, dtype=np.int64)
@@ -1167,13 +1174,13 @@ def _select_points(
     fine_n = np.empty(n_cells, dtype=np.int64)
     # slot-ordered copies of point, omega and rank (read by _select and _emit); the coarse
     # runs' buffer, free after _scatter, holds omega and the rank as float32
-    Pc = ws.Pc[:m]
+    Pc, camc = ws.Pc[:m], ws.camc[:m]
     spare = ws.runs.view(np.float32)
     omc, rkc = spare[:m], spare[m : 2 * m]
     copy_rank = c.rank is not c.om
     with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
         _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, not count_only, members, fkey,
-                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, Pc, omc, rkc)  # fmt: skip
+                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, hw, Pc, omc, rkc, camc)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
@@ -1183,7 +1190,7 @@ def _select_points(
         _count(c.start, fkey, csize, fine_n, sel_prm, nsel)
         return _Selection(c.start, nsel, int(nsel.sum()))
     with numba.parallel_chunksize(1):
-        _select(Pc, rkc if copy_rank else omc, omc, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest,
+        _select(Pc, rkc if copy_rank else omc, omc, camc, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest,
                 cons, T_wc, T_cw, hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
     return _Selection(c.start, nsel, int(nsel.sum()))
 
@@ -1225,8 +1232,7 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     rig_index = p.rig_index.numpy().astype(np.int16)
     with numba.parallel_chunksize(256):
         _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.Pc,
-              ws.runs.view(np.float32), color, rig_index,
-              hw, xyz, rgb, wgt, src, sup)  # fmt: skip
+              ws.runs.view(np.float32), ws.camc, color, rig_index, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
         torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
