@@ -495,6 +495,13 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
         ag = np.empty(w, dtype=np.int32)
         vo = np.empty(w, dtype=np.int32)
         v0 = np.empty(w, dtype=np.float32)
+        oms = np.empty(w, dtype=np.float32)  # omega, world point and its cell per candidate
+        pwx = np.empty(w, dtype=np.float32)
+        pwy = np.empty(w, dtype=np.float32)
+        pwz = np.empty(w, dtype=np.float32)
+        qxs = np.empty(w, dtype=np.float32)
+        qys = np.empty(w, dtype=np.float32)
+        qzs = np.empty(w, dtype=np.float32)
         zjs = np.empty(w, dtype=np.float32)  # per-neighbour scratch of _votes
         idx = np.empty(w, dtype=np.int32)
         ius = np.empty(w, dtype=np.int32)
@@ -557,6 +564,9 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 for kk in range(nbr_n[i]):
                     _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm, tau,
                            zjs, idx, ius, ivs, dv, xq, yq, ag, vo, mx, my, mz, md)  # fmt: skip
+            t00, t01, t02, t03 = T_wc[i, 0, 0], T_wc[i, 0, 1], T_wc[i, 0, 2], T_wc[i, 0, 3]
+            t10, t11, t12, t13 = T_wc[i, 1, 0], T_wc[i, 1, 1], T_wc[i, 1, 2], T_wc[i, 1, 3]
+            t20, t21, t22, t23 = T_wc[i, 2, 0], T_wc[i, 2, 1], T_wc[i, 2, 2], T_wc[i, 2, 3]
             cnt = 0
             n_oor = 0
             nr = 0
@@ -564,9 +574,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             run_lo = 0
             run_hi = 0
             run_n = 0
-            for t in range(nc):
-                u = cu[t]
-                base = rb + u
+            for t in range(nc):  # eq. (21)-(22), the world point and its cell, vectorised
                 c = cw[t]
                 x = cx_[t]
                 y = cy_[t]
@@ -574,21 +582,30 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 wg = c
                 xw, yw, zw = x, y, z  # the point written out (multi-view mean when mv)
                 if use_cvgc:
-                    if vo[t] > 0:
-                        wg = _F(ag[t]) / _F(vo[t])  # eq. (21)
+                    wg = (_F(ag[t]) / _F(vo[t])) if vo[t] > 0 else c  # eq. (21)
                     if mv:
                         xw = x + mx[t] / md[t]
                         yw = y + my[t] / md[t]
                         zw = z + mz[t] / md[t]
-                om = two * c * wg / (c + wg + eps)  # eq. (22)
+                oms[t] = two * c * wg / (c + wg + eps)  # eq. (22)
+                px = t00 * xw + t01 * yw + t02 * zw + t03
+                py = t10 * xw + t11 * yw + t12 * zw + t13
+                pz = t20 * xw + t21 * yw + t22 * zw + t23
+                pwx[t] = px
+                pwy[t] = py
+                pwz[t] = pz
+                qxs[t] = np.floor(px / s_c)
+                qys[t] = np.floor(py / s_c)
+                qzs[t] = np.floor(pz / s_c)
+            for t in range(nc):
+                om = oms[t]
                 if not om >= min_w:
                     continue
-                px = T_wc[i, 0, 0] * xw + T_wc[i, 0, 1] * yw + T_wc[i, 0, 2] * zw + T_wc[i, 0, 3]
-                py = T_wc[i, 1, 0] * xw + T_wc[i, 1, 1] * yw + T_wc[i, 1, 2] * zw + T_wc[i, 1, 3]
-                pz = T_wc[i, 2, 0] * xw + T_wc[i, 2, 1] * yw + T_wc[i, 2, 2] * zw + T_wc[i, 2, 3]
-                qx = np.floor(px / s_c)
-                qy = np.floor(py / s_c)
-                qz = np.floor(pz / s_c)
+                u = cu[t]
+                base = rb + u
+                z = cz_[t]
+                px, py, pz = pwx[t], pwy[t], pwz[t]
+                qx, qy, qz = qxs[t], qys[t], qzs[t]
                 out_P[base, 0] = px
                 out_P[base, 1] = py
                 out_P[base, 2] = pz
