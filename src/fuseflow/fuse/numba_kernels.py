@@ -752,6 +752,8 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
     bits, off = prm.bits, prm.offset
     bmask = (np.int64(1) << bits) - 1
     inv_hw = 1.0 / np.float64(hw)
+    f0 = _F(0.0)
+    f127 = _F(127.0)
     tcap = 16
     while tcap < 2 * largest + 1:
         tcap *= 2
@@ -759,7 +761,6 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
         gid = np.empty(largest, dtype=np.int64)
         gstart = np.empty(largest + 1, dtype=np.int64)
         tk = np.empty(tcap, dtype=np.int64)
-        tv = np.empty(tcap, dtype=np.int64)
         tx = np.empty(largest, dtype=np.float32)
         ty = np.empty(largest, dtype=np.float32)
         tz = np.empty(largest, dtype=np.float32)
@@ -783,8 +784,12 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             oz = _F((key & bmask) - off) * s_c
             # fine keys grouped by first appearance through a small open-addressing table
             # (an O(n) counting sort, stable: input order kept inside a fine cell)
+            # room for twice the distinct fine keys: at most n, and at most nf^3 with nf fine
+            # cells per axis (eq. 25's clamp keeps the indices in 0 .. 127)
+            nf = min(np.int64(s_c / sf) + 2, 128) if adaptive else 1
+            nk = min(n, nf * nf * nf)
             tsize = 16
-            while tsize < 2 * n + 1:
+            while tsize < 2 * nk + 1:
                 tsize *= 2
             tmask = tsize - 1
             for e in range(tsize):
@@ -799,12 +804,14 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
                 tz[t] = P[p, 2]
             if adaptive:
                 for t in range(n):  # eq. (25), a branch-free loop that vectorises
-                    fxi = np.int64(np.floor((tx[t] - ox) / sf))
-                    fyi = np.int64(np.floor((ty[t] - oy) / sf))
-                    fzi = np.int64(np.floor((tz[t] - oz) / sf))
-                    fxi = min(max(fxi, 0), 127)
-                    fyi = min(max(fyi, 0), 127)
-                    fzi = min(max(fzi, 0), 127)
+                    # clamped to 0..127 as floats, then converted (the same integers as
+                    # converting first; int32 conversions vectorise, int64 ones do not on AVX2)
+                    fx = np.floor((tx[t] - ox) / sf)
+                    fy = np.floor((ty[t] - oy) / sf)
+                    fz = np.floor((tz[t] - oz) / sf)
+                    fxi = np.int32(min(max(fx, f0), f127))
+                    fyi = np.int32(min(max(fy, f0), f127))
+                    fzi = np.int32(min(max(fz, f0), f127))
                     gid[t] = (((fxi << 7) | fyi) << 7) | fzi
             else:
                 for t in range(n):
@@ -815,15 +822,15 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
                     gid[t] = last_g
                     continue
                 slot = ((k3 * np.int64(-7046029254386353131)) >> 24) & tmask
-                while True:
-                    if tk[slot] == k3:
-                        g = tv[slot]
-                        break
-                    if tk[slot] == -1:
-                        tk[slot] = k3
-                        tv[slot] = ng
+                while True:  # entries: key << 32 | group (keys < 2^21), -1 = empty
+                    e = tk[slot]
+                    if e == -1:
+                        tk[slot] = (k3 << 32) | ng
                         g = ng
                         ng += 1
+                        break
+                    if (e >> 32) == k3:
+                        g = e & 0xFFFFFFFF
                         break
                     slot = (slot + 1) & tmask
                 gid[t] = g
