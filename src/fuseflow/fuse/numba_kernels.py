@@ -701,15 +701,22 @@ def _cells(runs, r_n, row_info, w):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _scatter(flags, runs, r_lo, r_hi, row_info, w, members):
-    """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``)."""
+def _scatter(flags, runs, r_lo, r_hi, row_info, w, P, members, Pm):
+    """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``), and
+    Pm[slot] = its point P[pixel]: P is read in pixel order here (the scattered side is the
+    write), so that ``_fine_pass`` reads the points of a cell in order instead of gathering
+    them by pixel index (a cache miss at every run of a cell)."""
     for row in prange(row_info.shape[0]):
         rb = row * w
         for r in range(row_info[row, 2]):
             k = runs[rb + r]
             for u in range(r_lo[rb + r], r_hi[rb + r] + 1):
-                if flags[rb + u] == 1:
-                    members[k] = rb + u
+                p = rb + u
+                if flags[p] == 1:
+                    members[k] = p
+                    Pm[k, 0] = P[p, 0]
+                    Pm[k, 1] = P[p, 1]
+                    Pm[k, 2] = P[p, 2]
                     k += 1
 
 
@@ -730,7 +737,9 @@ def _chunks(start, n_chunks):
 @njit(cache=True, parallel=True, error_model="numpy")
 def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
                cell_fine_n, om, rank, copy_rank, hw, Pc, omc, rkc, camc):  # fmt: skip
-    """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
+    """P: the points of members_in, in its order (``_scatter``'s Pm).
+
+    Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
     chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
@@ -797,11 +806,10 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             ng = 0
             last_k = np.int64(-1)
             last_g = 0
-            for t in range(n):  # the cell's points, gathered once
-                p = members_in[a + t]
-                tx[t] = P[p, 0]
-                ty[t] = P[p, 1]
-                tz[t] = P[p, 2]
+            for t in range(n):  # the cell's points (P in slot order, _scatter)
+                tx[t] = P[a + t, 0]
+                ty[t] = P[a + t, 1]
+                tz[t] = P[a + t, 2]
             if adaptive:
                 for t in range(n):  # eq. (25), a branch-free loop that vectorises
                     # clamped to 0..127 as floats, then converted (the same integers as
@@ -1104,7 +1112,7 @@ class _Workspace:
         self.shape = (n, h, w)
         self.flags = np.empty(npx, dtype=np.int8)
         self.P = np.empty((npx, 3), dtype=np.float32)
-        self.Pc = np.empty((npx, 3), dtype=np.float32)  # P in slot order (_fine_pass)
+        self.Pm = np.empty((npx, 3), dtype=np.float32)  # P by coarse cell (_scatter); then P holds Pc
         self.camc = np.empty(npx, dtype=np.int16)  # camera of each slot
         self.om = np.empty(npx, dtype=np.float32)
         self.pr = np.empty(1, dtype=np.float32)
@@ -1138,7 +1146,7 @@ def _workspace(n: int, h: int, w: int) -> _Workspace:
 class _Cells(NamedTuple):
     """Stage 1-2 output: candidates at their pixel index, grouped by coarse cell."""
 
-    P: np.ndarray  # (N H W, 3) float32 world points (valid at candidate pixels)
+    P: np.ndarray  # (M, 3) float32 world points of the members, in members' order (_scatter)
     om: np.ndarray  # (N H W,) float32 joint weight, eq. (22)
     rank: np.ndarray  # ranking value of eq. (28) (om itself without range_priority)
     start: np.ndarray  # (C + 1,) int64 slots of each coarse cell
@@ -1172,10 +1180,10 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     m = int(start[-1])
     members = ws.members_in[:m]
     with numba.parallel_chunksize(8):
-        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, members)
+        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, ws.P, members, ws.Pm)
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
-    return _Cells(ws.P, ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
+    return _Cells(ws.Pm[:m], ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
 
 
 class _Selection(NamedTuple):
@@ -1199,7 +1207,8 @@ def _select_points(
     fine_n = np.empty(n_cells, dtype=np.int64)
     # slot-ordered copies of point, omega and rank (read by _select and _emit); the coarse
     # runs' buffer, free after _scatter, holds omega and the rank as float32
-    Pc, camc = ws.Pc[:m], ws.camc[:m]
+    # Pc in P's buffer: the points in pixel order are not read after _scatter
+    Pc, camc = ws.P[:m], ws.camc[:m]
     spare = ws.runs.view(np.float32)
     omc, rkc = spare[:m], spare[m : 2 * m]
     copy_rank = c.rank is not c.om
@@ -1256,7 +1265,7 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
     with numba.parallel_chunksize(4):  # a few hundred coarse cells of very different sizes
-        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.Pc,
+        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.P,
               ws.runs.view(np.float32), ws.camc, color, rig_index, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
