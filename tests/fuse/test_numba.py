@@ -166,9 +166,10 @@ def test_numba_select_prefers_the_near_point_like_torch():
         prm = kernel_params(FuseConfig(lone_cell_mean=0.0)).select._replace(fixed_k=True, k_const=1)
         src, nsel = np.full(2, -1, dtype=np.int64), np.zeros(1, dtype=np.int64)
         _select(
-            P,
+            P,  # the points in slot order (here slot = pixel)
             pr,
             omega.numpy(),
+            np.zeros(2, dtype=np.int16),  # camera of each slot
             np.array([0, 2]),  # one coarse cell holding points 0 and 1
             np.array([0, 1]),
             np.zeros(2, dtype=np.int32),  # one fine cell
@@ -185,7 +186,7 @@ def test_numba_select_prefers_the_near_point_like_torch():
             np.zeros(2, dtype=np.int16),
             nsel,
         )
-        assert nsel[0] == 1 and src[0] == (0 if z[0] < z[1] else 1)
+        assert nsel[0] == 1 and src[0] == (0 if z[0] < z[1] else 1)  # the chosen slot
 
 
 def test_numba_equals_torch_on_analytic_scene_with_noise_and_edges():
