@@ -13,13 +13,13 @@ tolerance). Structure, and why:
    over row-sized scratch, one neighbour at a time, written so that the arithmetic passes
    vectorise (same float32 operations per point as the reference; bit-identical to the
    single-pass form it replaced). No full-size temporaries besides the outputs.
-2. ``_compact``: per-row counts -> prefix sum -> parallel scatter into input order.
-3. ``_coarse_ids``: an open-addressing hash of coarse keys with a last-key cache (neighbouring
-   pixels share a coarse cell ~90 % of the time); counting sort of the points by coarse cell
-   (stable, so input order is kept inside a cell) instead of a global sort.
-4. ``_fine_pass`` / ``_select`` (parallel over coarse cells): eq. (24)-(25) fine keys, a stable
-   local sort, fine-cell densities for rho_bar, then eq. (26) and the weighted FPS of eq. (28)
-   inside every fine cell.
+2. ``_cells`` / ``_scatter``: coarse cells hashed once per run of same-cell candidates of a
+   row (serial), then the candidates' pixel indices and points written in coarse-cell order.
+3. ``_fine_pass`` (parallel over chunks of coarse cells): eq. (24)-(25) fine keys, a stable
+   local counting sort, fine-cell densities for rho_bar; point, omega and camera copied into
+   slot order so that the later stages read them sequentially.
+4. ``_select``: eq. (26), the weighted FPS of eq. (28) inside every fine cell and the
+   consensus (rps.consensus); ``_emit`` builds the cloud per coarse cell.
 
 numba is imported here only; ``import fuseflow`` does not load it.
 """
@@ -463,12 +463,11 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     are bit-identical to it."""
     n, h, w = depth.shape
     eps, r_c, tau, min_w, s_c = prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
-    use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
+    use_mcm, use_cvgc = prm.use_mcm, prm.use_cvgc
     qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
-    mv, mv_g2 = prm.mv_mean, prm.mv_gate2
+    mv = prm.mv_mean
     zero = _F(0.0)
-    half = _F(0.5)
     two = _F(2.0)
     dflat = depth.reshape(n * h * w)
     xt, yt, skew0 = _ray_tables(Kf, h, w)
@@ -923,7 +922,6 @@ def _select(Pc, rkc, omc, camc, start, members, fkey, csize, fine_n, prm, chunks
     cell is done (nothing reads it later); cell_nsel[c] = how many."""
     on, gate, na, nb, nz0 = cons.on, cons.gate, cons.noise_a, cons.noise_b, cons.noise_z0
     n_cam = T_wc.shape[0]
-    inv_hw = 1.0 / np.float64(hw)
     for ch in prange(chunks.shape[0] - 1):
         d2 = np.empty(largest, dtype=np.float32)
         sel = np.zeros(largest, dtype=np.bool_)
@@ -1015,9 +1013,7 @@ def _cam_of(p, hw, inv_hw):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _consensus_point(
-    Pc, omc, camc, t0, t1, s, i, T_wc, T_cw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
-):
+def _consensus_point(Pc, omc, camc, t0, t1, s, i, T_wc, T_cw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks):
     """rps.consensus for the representative in slot s (camera i) of the fine cell of slots
     t0 .. t1 - 1: out_P[k] = it moved along its ray to the omega-weighted mean of the cell's
     candidates within ``gate`` sigma(z) of it, out_sup[ks] = their distinct cameras. Same
@@ -1183,7 +1179,9 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
         _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, ws.P, members, ws.Pm)
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
-    return _Cells(ws.Pm[:m], ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
+    return _Cells(
+        ws.Pm[:m], ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor
+    )
 
 
 class _Selection(NamedTuple):
