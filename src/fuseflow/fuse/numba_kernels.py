@@ -5,19 +5,21 @@ Same float32 operations in the same order as the PyTorch reference, so results a
 float rounding of exp / sqrt and float32 reductions (tests/fuse/test_numba.py states the
 tolerance). Structure, and why:
 
-1. ``_pixels`` (parallel over camera rows): MCM (eq. 16-18) on the 3x3 window, the candidate
-   test of eq. (27) *before* any projection (exact: omega <= 2c), back-projection, CVGC over
-   <= K_max neighbours (eq. 19-21) with, in the same loop, the multi-view mean of the agreeing
-   neighbours' points (cvgc.multiview_mean), the joint weight (22), the minimum-weight filter, the world
-   point and its coarse cell coordinates (eq. 23's key computed during back-projection). One
-   pass over the depth maps, no full-size temporaries besides the outputs.
-2. ``_compact``: per-row counts -> prefix sum -> parallel scatter into input order.
-3. ``_coarse_ids``: an open-addressing hash of coarse keys with a last-key cache (neighbouring
-   pixels share a coarse cell ~90 % of the time); counting sort of the points by coarse cell
-   (stable, so input order is kept inside a cell) instead of a global sort.
-4. ``_fine_pass`` / ``_select`` (parallel over coarse cells): eq. (24)-(25) fine keys, a stable
-   local sort, fine-cell densities for rho_bar, then eq. (26) and the weighted FPS of eq. (28)
-   inside every fine cell.
+1. ``_pixels`` (parallel over blocks of camera rows): MCM (eq. 16-18) on the 3x3 window
+   (``_mcm_row``), the candidate test of eq. (27) *before* any projection (exact: omega <= 2c),
+   back-projection, CVGC over <= K_max neighbours (eq. 19-21, ``_votes``) with the multi-view
+   mean of the agreeing neighbours' points (cvgc.multiview_mean), the joint weight (22), the
+   minimum-weight filter, the world point and its coarse cell. Each row runs as a few passes
+   over row-sized scratch, one neighbour at a time, written so that the arithmetic passes
+   vectorise (same float32 operations per point as the reference; bit-identical to the
+   single-pass form it replaced). No full-size temporaries besides the outputs.
+2. ``_cells`` / ``_scatter``: coarse cells hashed once per run of same-cell candidates of a
+   row (serial), then the candidates' pixel indices and points written in coarse-cell order.
+3. ``_fine_pass`` (parallel over chunks of coarse cells): eq. (24)-(25) fine keys, a stable
+   local counting sort, fine-cell densities for rho_bar; point, omega and camera copied into
+   slot order so that the later stages read them sequentially.
+4. ``_select``: eq. (26), the weighted FPS of eq. (28) inside every fine cell and the
+   consensus (rps.consensus); ``_emit`` builds the cloud per coarse cell.
 
 numba is imported here only; ``import fuseflow`` does not load it.
 """
@@ -180,12 +182,13 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     return KernelParams(pixel, cell, select)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _gate(depth, lo, hi, present, out, row_count):
     """api.valid_depth and the absent-view mask in one pass: out = depth where lo < depth < hi
-    in a present view, else 0; row_count[row] = kept pixels of that row."""
+    in a present view, else 0; row_count[row] = kept pixels of that row. Serial: ~1 ms on the
+    ICL frame, less than starting both threads costs when another process holds a core."""
     n, h, w = depth.shape
-    for row in prange(n * h):
+    for row in range(n * h):
         i = row // h
         v = row - i * h
         cnt = 0
@@ -257,41 +260,217 @@ def _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss):
     return gx * gx + gy * gy, var
 
 
+@njit(cache=True, error_model="numpy")
+def _ray_tables(Kf, h, w):
+    """pixel_rays' normalised coordinates per camera, row and column: yt[j, v] = (v - cy) / fy
+    and, when every camera has zero skew, xt[j, u] = (u - cx) / fx (with skew s = 0 the formula
+    ((u - cx) - s yn) / fx gives exactly this value; returns skew0 False otherwise and the
+    kernels compute x inline). Exact: the same float32 operations, done once per frame instead
+    of once per pixel and per multi-view vote."""
+    n = Kf.shape[0]
+    yt = np.empty((n, h), dtype=np.float32)
+    xt = np.empty((n, w), dtype=np.float32)
+    skew0 = True
+    for j in range(n):
+        if Kf[j, 0, 1] != 0:
+            skew0 = False
+        for v in range(h):
+            yt[j, v] = (_F(v) - Kf[j, 1, 2]) / Kf[j, 1, 1]
+        for u in range(w):
+            xt[j, u] = (_F(u) - Kf[j, 0, 2]) / Kf[j, 0, 0]
+    return xt, yt, skew0
+
+
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-def _neighbour_point(Kf, M_rel, i, j, uj, vj, d):
-    """cvgc._neighbour_points for one vote: camera j's pixel (uj, vj) back-projected at its
-    depth d (pixel_rays' formula), in camera i's frame (float32, the same operations)."""
-    ynp = (_F(vj) - Kf[j, 1, 2]) / Kf[j, 1, 1]
-    xnp = ((_F(uj) - Kf[j, 0, 2]) - Kf[j, 0, 1] * ynp) / Kf[j, 0, 0]
-    qx = xnp * d
-    qy = ynp * d
-    ax = M_rel[j, i, 0, 0] * qx + M_rel[j, i, 0, 1] * qy + M_rel[j, i, 0, 2] * d + M_rel[j, i, 0, 3]
-    ay = M_rel[j, i, 1, 0] * qx + M_rel[j, i, 1, 1] * qy + M_rel[j, i, 1, 2] * d + M_rel[j, i, 1, 3]
-    az = M_rel[j, i, 2, 0] * qx + M_rel[j, i, 2, 1] * qy + M_rel[j, i, 2, 2] * d + M_rel[j, i, 2, 3]
-    return ax, ay, az
+def _ray_x(Kf, xt, j, u, yn, skew0):
+    """x of pixel_rays for column u of camera j whose y is yn (table when skew is zero)."""
+    if skew0:
+        return xt[j, u]
+    return ((_F(u) - Kf[j, 0, 2]) - Kf[j, 0, 1] * yn) / Kf[j, 0, 0]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, tau, zjs, idx, ius, ivs, dv, xq, yq,
+           ag, vo, mx, my, mz, md):  # fmt: skip
+    """CVGC (eq. 19-21) and the multi-view mean (cvgc.multiview_mean) of neighbour j for the nc
+    candidates (X, Y, Z: camera-i points; v0: their sigma(z)^2) of one row: adds to the vote
+    counts ag / vo and the mean's sums mx, my, mz, md. Three loops: projection (eq. 19) into a
+    pixel index, the depth lookup, then the votes, so that the first and last are branch-free
+    and vectorise; per point the float32 operations are those of cvgc.py / agreement.py."""
+    eps, vis, mv, mv_g2 = prm.eps, prm.visibility_aware, prm.mv_mean, prm.mv_gate2
+    na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
+    half = _F(0.5)
+    zero = _F(0.0)
+    wm1 = _F(w - 1)
+    hm1 = _F(h - 1)
+    m00, m01, m02, m03 = M_rel[i, j, 0, 0], M_rel[i, j, 0, 1], M_rel[i, j, 0, 2], M_rel[i, j, 0, 3]
+    m10, m11, m12, m13 = M_rel[i, j, 1, 0], M_rel[i, j, 1, 1], M_rel[i, j, 1, 2], M_rel[i, j, 1, 3]
+    m20, m21, m22, m23 = M_rel[i, j, 2, 0], M_rel[i, j, 2, 1], M_rel[i, j, 2, 2], M_rel[i, j, 2, 3]
+    k00, k01, k02 = Kf[j, 0, 0], Kf[j, 0, 1], Kf[j, 0, 2]
+    k11, k12 = Kf[j, 1, 1], Kf[j, 1, 2]
+    wi = np.int32(w)
+    for t in range(nc):  # eq. (19): nearest pixel of camera j, -1 when behind or outside
+        x = X[t]
+        y = Y[t]
+        z = Z[t]
+        zj = m20 * x + m21 * y + m22 * z + m23
+        xj = m00 * x + m01 * y + m02 * z + m03
+        yj = m10 * x + m11 * y + m12 * z + m13
+        xnj = xj / zj
+        ynj = yj / zj
+        uj = np.floor(k00 * xnj + k01 * ynj + k02 + half)
+        vj = np.floor(k11 * ynj + k12 + half)
+        inside = (zj > eps) & (uj >= zero) & (uj <= wm1) & (vj >= zero) & (vj <= hm1)
+        uc = min(max(uj, zero), wm1)  # clamped, so that the conversion is defined everywhere
+        vc = min(max(vj, zero), hm1)
+        iu = np.int32(uc)
+        iv = np.int32(vc)
+        idx[t] = (iv * wi + iu) if inside else np.int32(-1)
+        ius[t] = iu
+        ivs[t] = iv
+        zjs[t] = zj
+    jb = j * h * w
+    for t in range(nc):  # D_j at the pixel (0 = none), and the pixel's ray when averaging
+        k = idx[t]
+        if k < 0:
+            dv[t] = zero
+            continue
+        dv[t] = dflat[jb + k]
+        if mv:
+            iu = ius[t]
+            iv = ivs[t]
+            yq[t] = yt[j, iv]
+            xq[t] = _ray_x(Kf, xt, j, iu, yq[t], skew0)
+    for t in range(nc):  # eq. (20)-(21)
+        d = dv[t]
+        zj = zjs[t]
+        has = d > zero
+        r = abs(zj - d) / (zj + eps)
+        agree = has & (r < tau)
+        ag[t] += np.int32(agree)
+        vo[t] += np.int32(agree | (has & ((not vis) | (d > zj))))
+    if mv:
+        n00, n01, n02, n03 = M_rel[j, i, 0, 0], M_rel[j, i, 0, 1], M_rel[j, i, 0, 2], M_rel[j, i, 0, 3]
+        n10, n11, n12, n13 = M_rel[j, i, 1, 0], M_rel[j, i, 1, 1], M_rel[j, i, 1, 2], M_rel[j, i, 1, 3]
+        n20, n21, n22, n23 = M_rel[j, i, 2, 0], M_rel[j, i, 2, 1], M_rel[j, i, 2, 2], M_rel[j, i, 2, 3]
+        for t in range(nc):  # cvgc.multiview_mean: j's measured point, inverse-variance weighted
+            d = dv[t]
+            zj = zjs[t]
+            dzj = zj - nz0
+            szj = na + nb * (dzj * dzj)
+            dd = d - nz0
+            sd = na + nb * (dd * dd)
+            vd = sd * sd
+            e = zj - d
+            gate = (d > zero) & (e * e < mv_g2 * (szj * szj + vd))
+            qx = xq[t] * d  # cvgc._neighbour_points: the pixel back-projected at D_j, in camera i
+            qy = yq[t] * d
+            ax = n00 * qx + n01 * qy + n02 * d + n03
+            ay = n10 * qx + n11 * qy + n12 * d + n13
+            az = n20 * qx + n21 * qy + n22 * d + n23
+            rw = v0[t] / vd
+            mx[t] = (mx[t] + rw * (ax - X[t])) if gate else mx[t]
+            my[t] = (my[t] + rw * (ay - Y[t])) if gate else my[t]
+            mz[t] = (mz[t] + rw * (az - Z[t])) if gate else mz[t]
+            md[t] = (md[t] + rw) if gate else md[t]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
+    """MCM (eq. 16-18) of the interior pixels u = 1 .. w - 2 of the image row starting at flat
+    index rb (not the first or last row of its image): cc[u] = c(x), or -1 where the pixel has
+    no depth or its window fails (any missing neighbour, or more than mcm_max_missing with the
+    gap-tolerant window). The complete-window arithmetic runs first over the whole row in
+    straight-line loops the compiler vectorises (gq, vr: scratch); per pixel the float32
+    operations and their order are those of the reference (mcm.py)."""
+    zero = _F(0.0)
+    one = _F(1.0)
+    half = _F(0.5)
+    nine = _F(9.0)
+    eps, alpha, beta = prm.eps, prm.alpha, prm.beta
+    up = rb - w
+    dn = rb + w
+    for u in range(1, w - 1):
+        d0, d1, d2 = dflat[up + u - 1], dflat[up + u], dflat[up + u + 1]
+        d3, z, d5 = dflat[rb + u - 1], dflat[rb + u], dflat[rb + u + 1]
+        d6, d7, d8 = dflat[dn + u - 1], dflat[dn + u], dflat[dn + u + 1]
+        # same summation order as the window loop of the reference kernel (row-major)
+        sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
+        mean = (sm + d8) / nine
+        e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
+        e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
+        var = (((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6) + e7 * e7
+        vr[u] = (var + e8 * e8) / nine
+        gx = (d5 - d3) * half
+        gy = (d7 - d1) * half
+        gq[u] = gx * gx + gy * gy
+        full = (d0 > zero) & (d1 > zero) & (d2 > zero) & (d3 > zero) & (z > zero)
+        full = full & (d5 > zero) & (d6 > zero) & (d7 > zero) & (d8 > zero)
+        cc[u] = one if full else -one  # 1: c follows below; -1: no depth or an incomplete window
+    mmiss = prm.mcm_max_missing
+    if mmiss > 0:  # the gap-tolerant window where a neighbour is missing
+        for u in range(1, w - 1):
+            z = dflat[rb + u]
+            if cc[u] > zero or not z > zero:
+                continue
+            d0, d1, d2 = dflat[up + u - 1], dflat[up + u], dflat[up + u + 1]
+            d3, d5 = dflat[rb + u - 1], dflat[rb + u + 1]
+            d6, d7, d8 = dflat[dn + u - 1], dflat[dn + u], dflat[dn + u + 1]
+            gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
+            if gsq >= zero:  # else more neighbours missing than allowed
+                cc[u] = one
+            gq[u] = gsq
+            vr[u] = var
+    if prm.mcm_noise:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
+        na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
+        for u in range(1, w - 1):
+            z = dflat[rb + u]
+            dzn = z - nz0
+            sg = na + nb * (dzn * dzn)
+            s2 = sg * sg
+            gsq = gq[u] - s2
+            if gsq < zero:
+                gsq = zero
+            var = vr[u] - s2
+            if var < zero:
+                var = zero
+            gq[u] = gsq
+            vr[u] = var
+    for u in range(1, w - 1):  # the exponent of eq. (18), vectorised (sqrt and divisions)
+        z = dflat[rb + u]
+        g = np.sqrt(gq[u]) / (z + eps)
+        vv = vr[u] / (z * z + eps)
+        gq[u] = -alpha * g - beta * vv
+    for u in range(1, w - 1):
+        if cc[u] > zero:
+            cc[u] = np.exp(gq[u])  # eq. (18)
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
 def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
-    """Stage 1, one pass per pixel, parallel over camera rows. Writes, at the pixel's own index
+    """Stage 1, parallel over blocks of camera rows. Writes, at the pixel's own index
     p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 2 candidate beyond the hash's range),
     out_P[p] (world point), out_w[p] (omega, eq. 22) and, when prm.range_priority, out_pr[p]
     (omega / sigma(z), rps.selection_priority). Also the row's *runs*: maximal stretches of
     candidates (flag 1) of one coarse cell, runs[row W + r] = the cell key, r_lo / r_hi / r_n
-    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs)."""
+    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs).
+
+    Each row runs in passes over row-sized scratch: MCM and eq. (27)'s test (``_mcm_row``) ->
+    the row's candidates and their camera-frame points -> CVGC one neighbour at a time over all
+    candidates (that neighbour's matrix and intrinsics stay in registers, its depth map is
+    swept in order) -> weight, world point and coarse runs. Per point the float32 operations
+    and their order are those of the single-pass form (votes in graph order), so the results
+    are bit-identical to it."""
     n, h, w = depth.shape
-    alpha, beta, eps, r_c, tau, min_w, s_c = prm.alpha, prm.beta, prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
-    use_mcm, use_cvgc, vis = prm.use_mcm, prm.use_cvgc, prm.visibility_aware
+    eps, r_c, tau, min_w, s_c = prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
+    use_mcm, use_cvgc = prm.use_mcm, prm.use_cvgc
     qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
-    mn = prm.mcm_noise
-    mmiss = prm.mcm_max_missing
-    mv, mv_g2 = prm.mv_mean, prm.mv_gate2
+    mv = prm.mv_mean
     zero = _F(0.0)
-    half = _F(0.5)
     two = _F(2.0)
-    nine = _F(9.0)
     dflat = depth.reshape(n * h * w)
+    xt, yt, skew0 = _ray_tables(Kf, h, w)
     # the neighbours that vote (in the graph and present) first, in graph order
     vn = np.empty_like(nbr)
     nbr_n = np.zeros(n, dtype=np.int64)
@@ -301,172 +480,168 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             if j >= 0 and present[j]:
                 vn[i, nbr_n[i]] = j
                 nbr_n[i] += 1
-    for row in prange(n * h):
-        i = row // h
-        v = row - i * h
-        cnt = 0
-        n_oor = 0
-        nr = 0
-        last_key = np.int64(-1)
-        run_lo = 0
-        run_hi = 0
-        run_n = 0
-        rb = row * w
-        fx, s, cx = Kf[i, 0, 0], Kf[i, 0, 1], Kf[i, 0, 2]
-        fy, cy = Kf[i, 1, 1], Kf[i, 1, 2]
-        for u in range(w):
-            base = rb + u
-            flags[base] = 0
-            z = dflat[base]
-            if z <= 0:
-                continue
+    rows_per = 4
+    n_blk = (n * h + rows_per - 1) // rows_per
+    for blk in prange(n_blk):
+        cc = np.empty(w, dtype=np.float32)  # c(x) per column (-1: no candidate)
+        gq = np.empty(w, dtype=np.float32)
+        vr = np.empty(w, dtype=np.float32)
+        cu = np.empty(w, dtype=np.int64)  # the row's candidates: column, c, point, votes
+        cw = np.empty(w, dtype=np.float32)
+        cx_ = np.empty(w, dtype=np.float32)
+        cy_ = np.empty(w, dtype=np.float32)
+        cz_ = np.empty(w, dtype=np.float32)
+        ag = np.empty(w, dtype=np.int32)
+        vo = np.empty(w, dtype=np.int32)
+        v0 = np.empty(w, dtype=np.float32)
+        oms = np.empty(w, dtype=np.float32)  # omega, world point and its cell per candidate
+        pwx = np.empty(w, dtype=np.float32)
+        pwy = np.empty(w, dtype=np.float32)
+        pwz = np.empty(w, dtype=np.float32)
+        qxs = np.empty(w, dtype=np.float32)
+        qys = np.empty(w, dtype=np.float32)
+        qzs = np.empty(w, dtype=np.float32)
+        zjs = np.empty(w, dtype=np.float32)  # per-neighbour scratch of _votes
+        idx = np.empty(w, dtype=np.int32)
+        ius = np.empty(w, dtype=np.int32)
+        ivs = np.empty(w, dtype=np.int32)
+        dv = np.empty(w, dtype=np.float32)
+        xq = np.empty(w, dtype=np.float32)
+        yq = np.empty(w, dtype=np.float32)
+        mx = np.empty(w, dtype=np.float32)
+        my = np.empty(w, dtype=np.float32)
+        mz = np.empty(w, dtype=np.float32)
+        md = np.empty(w, dtype=np.float32)
+        for row in range(blk * rows_per, min((blk + 1) * rows_per, n * h)):
+            i = row // h
+            v = row - i * h
+            rb = row * w
+            for u in range(w):
+                flags[rb + u] = 0
+            # MCM and eq. (27): the row's candidates
+            nc = 0
             if use_mcm:
-                # eq. (16)-(17) on the 3x3 window; a window pixel without depth -> c = 0
-                if u == 0 or v == 0 or u == w - 1 or v == h - 1:
+                if v == 0 or v == h - 1:  # a window pixel outside the image -> c = 0
+                    row_info[row, 0] = 0
+                    row_info[row, 1] = 0
+                    row_info[row, 2] = 0
                     continue
-                up, dn = base - w, base + w  # flat indices of the rows above and below
-                d0, d1, d2 = dflat[up - 1], dflat[up], dflat[up + 1]
-                d3, d5 = dflat[base - 1], dflat[base + 1]
-                d6, d7, d8 = dflat[dn - 1], dflat[dn], dflat[dn + 1]
-                if d0 <= 0 or d1 <= 0 or d2 <= 0 or d3 <= 0 or d5 <= 0 or d6 <= 0 or d7 <= 0 or d8 <= 0:
-                    if mmiss == 0:
-                        continue
-                    gsq, var = _tolerant_window(d0, d1, d2, d3, z, d5, d6, d7, d8, mmiss)
-                    if gsq < zero:  # more neighbours missing than allowed
-                        continue
-                else:
-                    # same summation order as the window loop of the reference kernel (row-major)
-                    sm = (((((((zero + d0) + d1) + d2) + d3) + z) + d5) + d6) + d7
-                    mean = (sm + d8) / nine
-                    e0, e1, e2, e3, e4 = d0 - mean, d1 - mean, d2 - mean, d3 - mean, z - mean
-                    e5, e6, e7, e8 = d5 - mean, d6 - mean, d7 - mean, d8 - mean
-                    var = (
-                        ((((((zero + e0 * e0) + e1 * e1) + e2 * e2) + e3 * e3) + e4 * e4) + e5 * e5) + e6 * e6
-                    ) + e7 * e7
-                    var = (var + e8 * e8) / nine
-                    gx = (d5 - d3) * half
-                    gy = (d7 - d1) * half
-                    gsq = gx * gx + gy * gy
-                if mn:  # noise-aware MCM: the expected noise sigma(z)^2 out of g and v
-                    dzn = z - nz0
-                    sg = na + nb * (dzn * dzn)
-                    s2 = sg * sg
-                    gsq = gsq - s2
-                    if gsq < zero:
-                        gsq = zero
-                    var = var - s2
-                    if var < zero:
-                        var = zero
-                g = np.sqrt(gsq) / (z + eps)
-                vv = var / (z * z + eps)
-                c = np.exp(-alpha * g - beta * vv)  # eq. (18)
-            else:
-                c = _F(1.0)
-            if not c > r_c:  # eq. (27)
-                continue
-            yn = (_F(v) - cy) / fy
-            xn = ((_F(u) - cx) - s * yn) / fx
-            x = xn * z
-            y = yn * z
-            wg = c
-            xw, yw, zw = x, y, z  # the point written out (multi-view mean when mv)
+                _mcm_row(dflat, rb, w, prm, gq, vr, cc)
+                for u in range(1, w - 1):
+                    c = cc[u]
+                    if c >= zero and c > r_c:  # -1: no depth or a failed window
+                        cu[nc] = u
+                        cw[nc] = c
+                        nc += 1
+            elif _F(1.0) > r_c:
+                for u in range(w):
+                    if dflat[rb + u] > 0:
+                        cu[nc] = u
+                        cw[nc] = _F(1.0)
+                        nc += 1
+            yn = yt[i, v]
+            for t in range(nc):
+                u = cu[t]
+                z = dflat[rb + u]
+                xn = _ray_x(Kf, xt, i, u, yn, skew0)
+                cx_[t] = xn * z
+                cy_[t] = yn * z
+                cz_[t] = z
             if use_cvgc:
-                agree = 0
-                votes = 0
-                mvx, mvy, mvz, mvd = zero, zero, zero, _F(1.0)
-                dz0 = z - nz0
-                s0 = na + nb * (dz0 * dz0)
-                v0 = s0 * s0
+                for t in range(nc):
+                    ag[t] = 0
+                    vo[t] = 0
+                    mx[t] = zero
+                    my[t] = zero
+                    mz[t] = zero
+                    md[t] = _F(1.0)
+                    if mv:
+                        z = cz_[t]
+                        dz0 = z - nz0
+                        s0 = na + nb * (dz0 * dz0)
+                        v0[t] = s0 * s0
                 for kk in range(nbr_n[i]):
-                    j = vn[i, kk]
-                    # scalar loads, no array view: a view per vote costs an atomic refcount
-                    # update on M_rel's memory info, shared by the threads
-                    zj = M_rel[i, j, 2, 0] * x + M_rel[i, j, 2, 1] * y + M_rel[i, j, 2, 2] * z + M_rel[i, j, 2, 3]
-                    if not zj > eps:
-                        continue
-                    xj = M_rel[i, j, 0, 0] * x + M_rel[i, j, 0, 1] * y + M_rel[i, j, 0, 2] * z + M_rel[i, j, 0, 3]
-                    yj = M_rel[i, j, 1, 0] * x + M_rel[i, j, 1, 1] * y + M_rel[i, j, 1, 2] * z + M_rel[i, j, 1, 3]
-                    xnj = xj / zj
-                    ynj = yj / zj
-                    uj = np.floor(Kf[j, 0, 0] * xnj + Kf[j, 0, 1] * ynj + Kf[j, 0, 2] + half)
-                    vj = np.floor(Kf[j, 1, 1] * ynj + Kf[j, 1, 2] + half)
-                    if uj < 0 or uj > w - 1 or vj < 0 or vj > h - 1:
-                        continue
-                    d = dflat[(j * h + int(vj)) * w + int(uj)]
-                    if d <= 0:
-                        continue
-                    if mv:  # cvgc.multiview_mean: j's measured point, inverse-variance weighted
-                        dzj = zj - nz0
-                        szj = na + nb * (dzj * dzj)
-                        dd = d - nz0
-                        sd = na + nb * (dd * dd)
-                        vd = sd * sd
-                        e = zj - d
-                        if e * e < mv_g2 * (szj * szj + vd):
-                            ax, ay, az = _neighbour_point(Kf, M_rel, i, j, uj, vj, d)
-                            rw = v0 / vd
-                            mvx = mvx + rw * (ax - x)
-                            mvy = mvy + rw * (ay - y)
-                            mvz = mvz + rw * (az - z)
-                            mvd = mvd + rw
-                    r = abs(zj - d) / (zj + eps)  # eq. (20)
-                    if r < tau:
-                        agree += 1
-                        votes += 1
-                    elif (not vis) or d > zj:
-                        votes += 1
-                if votes > 0:
-                    wg = _F(agree) / _F(votes)  # eq. (21)
-                if mv:
-                    xw = x + mvx / mvd
-                    yw = y + mvy / mvd
-                    zw = z + mvz / mvd
-            om = two * c * wg / (c + wg + eps)  # eq. (22)
-            if not om >= min_w:
-                continue
-            px = T_wc[i, 0, 0] * xw + T_wc[i, 0, 1] * yw + T_wc[i, 0, 2] * zw + T_wc[i, 0, 3]
-            py = T_wc[i, 1, 0] * xw + T_wc[i, 1, 1] * yw + T_wc[i, 1, 2] * zw + T_wc[i, 1, 3]
-            pz = T_wc[i, 2, 0] * xw + T_wc[i, 2, 1] * yw + T_wc[i, 2, 2] * zw + T_wc[i, 2, 3]
-            qx = np.floor(px / s_c)
-            qy = np.floor(py / s_c)
-            qz = np.floor(pz / s_c)
-            out_P[base, 0] = px
-            out_P[base, 1] = py
-            out_P[base, 2] = pz
-            out_w[base] = om
-            if rp:
-                dz = z - nz0
-                out_pr[base] = om / (na + nb * (dz * dz))
-            cnt += 1
-            if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
-                flags[base] = 1
-                key = (
-                    ((np.int64(qx) + off) << (2 * bits)) | ((np.int64(qy) + off) << bits) | (np.int64(qz) + off)
-                )  # eq. (23)'s coarse cell, packed as in ash.py
-                if key != last_key:
-                    if run_n > 0:
-                        runs[rb + nr] = last_key
-                        r_lo[rb + nr] = run_lo
-                        r_hi[rb + nr] = run_hi
-                        r_n[rb + nr] = run_n
-                        nr += 1
-                    last_key = key
-                    run_lo = u
-                    run_n = 0
-                run_hi = u
-                run_n += 1
-            else:
-                flags[base] = 2
-                n_oor += 1
-        if run_n > 0:
-            runs[rb + nr] = last_key
-            r_lo[rb + nr] = run_lo
-            r_hi[rb + nr] = run_hi
-            r_n[rb + nr] = run_n
-            nr += 1
-        row_info[row, 0] = cnt
-        row_info[row, 1] = n_oor
-        row_info[row, 2] = nr
+                    _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm, tau,
+                           zjs, idx, ius, ivs, dv, xq, yq, ag, vo, mx, my, mz, md)  # fmt: skip
+            t00, t01, t02, t03 = T_wc[i, 0, 0], T_wc[i, 0, 1], T_wc[i, 0, 2], T_wc[i, 0, 3]
+            t10, t11, t12, t13 = T_wc[i, 1, 0], T_wc[i, 1, 1], T_wc[i, 1, 2], T_wc[i, 1, 3]
+            t20, t21, t22, t23 = T_wc[i, 2, 0], T_wc[i, 2, 1], T_wc[i, 2, 2], T_wc[i, 2, 3]
+            cnt = 0
+            n_oor = 0
+            nr = 0
+            last_key = np.int64(-1)
+            run_lo = 0
+            run_hi = 0
+            run_n = 0
+            for t in range(nc):  # eq. (21)-(22), the world point and its cell, vectorised
+                c = cw[t]
+                x = cx_[t]
+                y = cy_[t]
+                z = cz_[t]
+                wg = c
+                xw, yw, zw = x, y, z  # the point written out (multi-view mean when mv)
+                if use_cvgc:
+                    wg = (_F(ag[t]) / _F(vo[t])) if vo[t] > 0 else c  # eq. (21)
+                    if mv:
+                        xw = x + mx[t] / md[t]
+                        yw = y + my[t] / md[t]
+                        zw = z + mz[t] / md[t]
+                oms[t] = two * c * wg / (c + wg + eps)  # eq. (22)
+                px = t00 * xw + t01 * yw + t02 * zw + t03
+                py = t10 * xw + t11 * yw + t12 * zw + t13
+                pz = t20 * xw + t21 * yw + t22 * zw + t23
+                pwx[t] = px
+                pwy[t] = py
+                pwz[t] = pz
+                qxs[t] = np.floor(px / s_c)
+                qys[t] = np.floor(py / s_c)
+                qzs[t] = np.floor(pz / s_c)
+            for t in range(nc):
+                om = oms[t]
+                if not om >= min_w:
+                    continue
+                u = cu[t]
+                base = rb + u
+                z = cz_[t]
+                px, py, pz = pwx[t], pwy[t], pwz[t]
+                qx, qy, qz = qxs[t], qys[t], qzs[t]
+                out_P[base, 0] = px
+                out_P[base, 1] = py
+                out_P[base, 2] = pz
+                out_w[base] = om
+                if rp:
+                    dz = z - nz0
+                    out_pr[base] = om / (na + nb * (dz * dz))
+                cnt += 1
+                if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
+                    flags[base] = 1
+                    key = (
+                        ((np.int64(qx) + off) << (2 * bits)) | ((np.int64(qy) + off) << bits) | (np.int64(qz) + off)
+                    )  # eq. (23)'s coarse cell, packed as in ash.py
+                    if key != last_key:
+                        if run_n > 0:
+                            runs[rb + nr] = last_key
+                            r_lo[rb + nr] = run_lo
+                            r_hi[rb + nr] = run_hi
+                            r_n[rb + nr] = run_n
+                            nr += 1
+                        last_key = key
+                        run_lo = u
+                        run_n = 0
+                    run_hi = u
+                    run_n += 1
+                else:
+                    flags[base] = 2
+                    n_oor += 1
+            if run_n > 0:
+                runs[rb + nr] = last_key
+                r_lo[rb + nr] = run_lo
+                r_hi[rb + nr] = run_hi
+                r_n[rb + nr] = run_n
+                nr += 1
+            row_info[row, 0] = cnt
+            row_info[row, 1] = n_oor
+            row_info[row, 2] = nr
 
 
 @njit(cache=True, error_model="numpy")
@@ -525,15 +700,22 @@ def _cells(runs, r_n, row_info, w):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _scatter(flags, runs, r_lo, r_hi, row_info, w, members):
-    """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``)."""
+def _scatter(flags, runs, r_lo, r_hi, row_info, w, P, members, Pm):
+    """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``), and
+    Pm[slot] = its point P[pixel]: P is read in pixel order here (the scattered side is the
+    write), so that ``_fine_pass`` reads the points of a cell in order instead of gathering
+    them by pixel index (a cache miss at every run of a cell)."""
     for row in prange(row_info.shape[0]):
         rb = row * w
         for r in range(row_info[row, 2]):
             k = runs[rb + r]
             for u in range(r_lo[rb + r], r_hi[rb + r] + 1):
-                if flags[rb + u] == 1:
-                    members[k] = rb + u
+                p = rb + u
+                if flags[p] == 1:
+                    members[k] = p
+                    Pm[k, 0] = P[p, 0]
+                    Pm[k, 1] = P[p, 1]
+                    Pm[k, 2] = P[p, 2]
                     k += 1
 
 
@@ -553,12 +735,18 @@ def _chunks(start, n_chunks):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
-               cell_fine_n):  # fmt: skip
-    """Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
+               cell_fine_n, om, rank, copy_rank, hw, Pc, omc, rkc, camc):  # fmt: skip
+    """P: the points of members_in, in its order (``_scatter``'s Pm).
+
+    Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
     chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
-    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead."""
+    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead.
+    With ``reorder`` also the point, weight and ranking value of each slot, in slot order:
+    Pc, omc, camc (the camera, p // hw) and rkc (only when ``copy_rank``: without
+    range_priority the ranking value is omega and the selection reads omc), so that the
+    selection reads them in order instead of gathering them by pixel index."""
     s_c, s0, s_min, s_max, eps, adaptive, fixed = (
         prm.s_c,
         prm.s0,
@@ -571,6 +759,9 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
     s_c3 = prm.s_c3
     bits, off = prm.bits, prm.offset
     bmask = (np.int64(1) << bits) - 1
+    inv_hw = 1.0 / np.float64(hw)
+    f0 = _F(0.0)
+    f127 = _F(127.0)
     tcap = 16
     while tcap < 2 * largest + 1:
         tcap *= 2
@@ -578,7 +769,9 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
         gid = np.empty(largest, dtype=np.int64)
         gstart = np.empty(largest + 1, dtype=np.int64)
         tk = np.empty(tcap, dtype=np.int64)
-        tv = np.empty(tcap, dtype=np.int64)
+        tx = np.empty(largest, dtype=np.float32)
+        ty = np.empty(largest, dtype=np.float32)
+        tz = np.empty(largest, dtype=np.float32)
         for c in range(chunks[ch], chunks[ch + 1]):
             a = start[c]
             b = start[c + 1]
@@ -599,8 +792,12 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             oz = _F((key & bmask) - off) * s_c
             # fine keys grouped by first appearance through a small open-addressing table
             # (an O(n) counting sort, stable: input order kept inside a fine cell)
+            # room for twice the distinct fine keys: at most n, and at most nf^3 with nf fine
+            # cells per axis (eq. 25's clamp keeps the indices in 0 .. 127)
+            nf = min(np.int64(s_c / sf) + 2, 128) if adaptive else 1
+            nk = min(n, nf * nf * nf)
             tsize = 16
-            while tsize < 2 * n + 1:
+            while tsize < 2 * nk + 1:
                 tsize *= 2
             tmask = tsize - 1
             for e in range(tsize):
@@ -608,30 +805,39 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             ng = 0
             last_k = np.int64(-1)
             last_g = 0
-            for t in range(n):
-                p = members_in[a + t]
-                k3 = np.int64(0)
-                if adaptive:
-                    fxi = np.int64(np.floor((P[p, 0] - ox) / sf))  # eq. (25)
-                    fyi = np.int64(np.floor((P[p, 1] - oy) / sf))
-                    fzi = np.int64(np.floor((P[p, 2] - oz) / sf))
-                    fxi = min(max(fxi, 0), 127)
-                    fyi = min(max(fyi, 0), 127)
-                    fzi = min(max(fzi, 0), 127)
-                    k3 = (((fxi << 7) | fyi) << 7) | fzi
+            for t in range(n):  # the cell's points (P in slot order, _scatter)
+                tx[t] = P[a + t, 0]
+                ty[t] = P[a + t, 1]
+                tz[t] = P[a + t, 2]
+            if adaptive:
+                for t in range(n):  # eq. (25), a branch-free loop that vectorises
+                    # clamped to 0..127 as floats, then converted (the same integers as
+                    # converting first; int32 conversions vectorise, int64 ones do not on AVX2)
+                    fx = np.floor((tx[t] - ox) / sf)
+                    fy = np.floor((ty[t] - oy) / sf)
+                    fz = np.floor((tz[t] - oz) / sf)
+                    fxi = np.int32(min(max(fx, f0), f127))
+                    fyi = np.int32(min(max(fy, f0), f127))
+                    fzi = np.int32(min(max(fz, f0), f127))
+                    gid[t] = (((fxi << 7) | fyi) << 7) | fzi
+            else:
+                for t in range(n):
+                    gid[t] = 0
+            for t in range(n):  # fine key -> fine group, in place
+                k3 = gid[t]
                 if k3 == last_k:
                     gid[t] = last_g
                     continue
                 slot = ((k3 * np.int64(-7046029254386353131)) >> 24) & tmask
-                while True:
-                    if tk[slot] == k3:
-                        g = tv[slot]
-                        break
-                    if tk[slot] == -1:
-                        tk[slot] = k3
-                        tv[slot] = ng
+                while True:  # entries: key << 32 | group (keys < 2^21), -1 = empty
+                    e = tk[slot]
+                    if e == -1:
+                        tk[slot] = (k3 << 32) | ng
                         g = ng
                         ng += 1
+                        break
+                    if (e >> 32) == k3:
+                        g = e & 0xFFFFFFFF
                         break
                     slot = (slot + 1) & tmask
                 gid[t] = g
@@ -651,8 +857,17 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             if reorder:
                 for t in range(n):  # gstart[g] is now the next free slot of group g
                     g = gid[t]
-                    members[a + gstart[g]] = members_in[a + t]
-                    fkey[a + gstart[g]] = g
+                    p = members_in[a + t]
+                    q = a + gstart[g]
+                    members[q] = p
+                    fkey[q] = g
+                    Pc[q, 0] = tx[t]
+                    Pc[q, 1] = ty[t]
+                    Pc[q, 2] = tz[t]
+                    omc[q] = om[p]
+                    camc[q] = _cam_of(p, hw, inv_hw)
+                    if copy_rank:
+                        rkc[q] = rank[p]
                     gstart[g] += 1
             cell_rho_sum[c] = rsum
             cell_fine_n[c] = ng
@@ -694,19 +909,19 @@ def _count(start, gsize, csize, fine_n, prm, cell_count):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
+def _select(Pc, rkc, omc, camc, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
             stage_src, stage_sup, cell_nsel):  # fmt: skip
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
     cons.on) rps.consensus for the representatives of that fine cell while it is in cache.
-    rank: the ranking value (omega, or omega / sigma(z) with range_priority); only compared.
+    Pc, omc, rkc: point, omega and ranking value (omega, or omega / sigma(z) with
+    range_priority; only compared) per slot (``_fine_pass``); members: the pixel of each slot.
     fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm:
     SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
-    go to stage_src[start[c] + j] (point index) and, with consensus, stage_sup (supporting
-    cameras) while P of each representative is replaced by its moved position once its fine
+    go to stage_src[start[c] + j] (their slot) and, with consensus, stage_sup (supporting
+    cameras) while Pc of each representative is replaced by its moved position once its fine
     cell is done (nothing reads it later); cell_nsel[c] = how many."""
     on, gate, na, nb, nz0 = cons.on, cons.gate, cons.noise_a, cons.noise_b, cons.noise_z0
     n_cam = T_wc.shape[0]
-    inv_hw = 1.0 / np.float64(hw)
     for ch in prange(chunks.shape[0] - 1):
         d2 = np.empty(largest, dtype=np.float32)
         sel = np.zeros(largest, dtype=np.bool_)
@@ -732,52 +947,55 @@ def _select(P, rank, om, start, members, fkey, csize, fine_n, prm, chunks, large
                 # first pick: highest rank, ties -> first in input order
                 best = t0
                 for t in range(t0 + 1, t1):
-                    if rank[members[t]] > rank[members[best]]:
+                    if rkc[t] > rkc[best]:
                         best = t
-                for t in range(n):
-                    sel[t] = False
-                    d2[t] = np.inf
-                sel[best - t0] = True
-                last = members[best]
-                for _r in range(1, k):
-                    bs = _F(0.0)
-                    bt = -1
-                    for t in range(t0, t1):
-                        if sel[t - t0]:
-                            continue
-                        p = members[t]
-                        dx = P[p, 0] - P[last, 0]
-                        dy = P[p, 1] - P[last, 1]
-                        dz = P[p, 2] - P[last, 2]
-                        dd = dx * dx + dy * dy + dz * dz
-                        if dd < d2[t - t0]:
-                            d2[t - t0] = dd
-                        sc = np.sqrt(d2[t - t0]) * rank[p]  # eq. (28)
-                        if sc > bs:
-                            bs = sc
-                            bt = t
-                    if bt < 0:
-                        break
-                    last = members[bt]
-                    sel[bt - t0] = True
+                if k > 1:
+                    for t in range(n):
+                        sel[t] = False
+                        d2[t] = np.inf
+                    sel[best - t0] = True
+                    last = best
+                    for _r in range(1, k):
+                        bs = _F(0.0)
+                        bt = -1
+                        lx, ly, lz = Pc[last, 0], Pc[last, 1], Pc[last, 2]
+                        for t in range(t0, t1):
+                            if sel[t - t0]:
+                                continue
+                            dx = Pc[t, 0] - lx
+                            dy = Pc[t, 1] - ly
+                            dz = Pc[t, 2] - lz
+                            dd = dx * dx + dy * dy + dz * dz
+                            if dd < d2[t - t0]:
+                                d2[t - t0] = dd
+                            sc = np.sqrt(d2[t - t0]) * rkc[t]  # eq. (28)
+                            if sc > bs:
+                                bs = sc
+                                bt = t
+                        if bt < 0:
+                            break
+                        last = bt
+                        sel[bt - t0] = True
                 n0 = ns_c
                 for ts in range(t0, t1):
-                    if not sel[ts - t0]:
+                    if k > 1:
+                        if not sel[ts - t0]:
+                            continue
+                    elif ts != best:
                         continue
-                    s = members[ts]
-                    stage_src[a + ns_c] = s
+                    stage_src[a + ns_c] = ts
                     if on:
-                        i = _cam_of(s, hw, inv_hw)
+                        i = camc[ts]
                         tick += 1
-                        _consensus_point(P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0,
+                        _consensus_point(Pc, omc, camc, t0, t1, ts, i, T_wc, T_cw, gate, na, nb, nz0,
                                          stamp, tick, moved, stage_sup, ns_c - n0, a + ns_c)  # fmt: skip
                     ns_c += 1
                 if on:  # the cell's representatives move only after all of them were computed
                     for e in range(ns_c - n0):
                         s = stage_src[a + n0 + e]
-                        P[s, 0] = moved[e, 0]
-                        P[s, 1] = moved[e, 1]
-                        P[s, 2] = moved[e, 2]
+                        Pc[s, 0] = moved[e, 0]
+                        Pc[s, 1] = moved[e, 1]
+                        Pc[s, 2] = moved[e, 2]
                 t0 = t1
             cell_nsel[c] = ns_c
 
@@ -795,36 +1013,33 @@ def _cam_of(p, hw, inv_hw):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _consensus_point(
-    P, om, members, t0, t1, s, i, T_wc, T_cw, hw, inv_hw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks
-):
-    """rps.consensus for representative s of camera i in the fine cell members[t0:t1]: out_P[k]
-    = s moved along its ray to the omega-weighted mean of the cell's candidates within ``gate``
-    sigma(z) of it, out_sup[ks] = their distinct cameras. Same arithmetic as the reference:
-    float32 geometry, float64 sums, members in fine-cell order."""
+def _consensus_point(Pc, omc, camc, t0, t1, s, i, T_wc, T_cw, gate, na, nb, nz0, stamp, tick, out_P, out_sup, k, ks):
+    """rps.consensus for the representative in slot s (camera i) of the fine cell of slots
+    t0 .. t1 - 1: out_P[k] = it moved along its ray to the omega-weighted mean of the cell's
+    candidates within ``gate`` sigma(z) of it, out_sup[ks] = their distinct cameras. Same
+    arithmetic as the reference: float32 geometry, float64 sums, members in fine-cell order."""
     cx, cy, cz = T_wc[i, 0, 3], T_wc[i, 1, 3], T_wc[i, 2, 3]
-    dx = P[s, 0] - cx
-    dy = P[s, 1] - cy
-    dz = P[s, 2] - cz
+    dx = Pc[s, 0] - cx
+    dy = Pc[s, 1] - cy
+    dz = Pc[s, 2] - cz
     t_s = np.sqrt(dx * dx + dy * dy + dz * dz)
     ux = dx / t_s
     uy = dy / t_s
     uz = dz / t_s
-    zs = T_cw[i, 2, 0] * P[s, 0] + T_cw[i, 2, 1] * P[s, 1] + T_cw[i, 2, 2] * P[s, 2] + T_cw[i, 2, 3]
+    zs = T_cw[i, 2, 0] * Pc[s, 0] + T_cw[i, 2, 1] * Pc[s, 1] + T_cw[i, 2, 2] * Pc[s, 2] + T_cw[i, 2, 3]
     dn = zs - nz0
     lim = gate * (na + nb * (dn * dn))
     num = 0.0
     den = 0.0
     ns = 0
     for t in range(t0, t1):
-        q = members[t]
-        tq = (P[q, 0] - cx) * ux + (P[q, 1] - cy) * uy + (P[q, 2] - cz) * uz
+        tq = (Pc[t, 0] - cx) * ux + (Pc[t, 1] - cy) * uy + (Pc[t, 2] - cz) * uz
         if not abs(tq - t_s) < lim:
             continue
-        wq = np.float64(om[q])
+        wq = np.float64(omc[t])
         num += wq * np.float64(tq)
         den += wq
-        cq = _cam_of(q, hw, inv_hw)
+        cq = camc[t]
         if stamp[cq] != tick:
             stamp[cq] = tick
             ns += 1
@@ -839,27 +1054,27 @@ def _consensus_point(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, P, om, color, rig_index, hw,
+def _emit(start, cell_nsel, cell_out, stage_src, stage_sup, use_stage, members, Pc, omc, camc, color, rig_index,
           xyz, rgb, wgt, src, sup):  # fmt: skip
     """The output cloud in one parallel pass over the coarse cells: representative j of cell c
     goes to row cell_out[c] + j (cells in order, fine-cell order inside)."""
-    inv_hw = 1.0 / np.float64(hw)
     for c in prange(start.shape[0] - 1):
         a = start[c]
         o = cell_out[c]
         for j in range(cell_nsel[c]):
-            p = stage_src[a + j]
+            q = stage_src[a + j]  # the slot
+            p = members[q]
             k = o + j
             if use_stage:
                 sup[k] = stage_sup[a + j]
-            xyz[k, 0] = P[p, 0]
-            xyz[k, 1] = P[p, 1]
-            xyz[k, 2] = P[p, 2]
-            wgt[k] = om[p]
+            xyz[k, 0] = Pc[q, 0]
+            xyz[k, 1] = Pc[q, 1]
+            xyz[k, 2] = Pc[q, 2]
+            wgt[k] = omc[q]
             rgb[k, 0] = color[p, 0]  # p is the flat (camera, row, column) pixel index
             rgb[k, 1] = color[p, 1]
             rgb[k, 2] = color[p, 2]
-            src[k] = rig_index[_cam_of(p, hw, inv_hw)]
+            src[k] = rig_index[camc[q]]
 
 
 # --- orchestration ------------------------------------------------------------------------
@@ -893,6 +1108,8 @@ class _Workspace:
         self.shape = (n, h, w)
         self.flags = np.empty(npx, dtype=np.int8)
         self.P = np.empty((npx, 3), dtype=np.float32)
+        self.Pm = np.empty((npx, 3), dtype=np.float32)  # P by coarse cell (_scatter); then P holds Pc
+        self.camc = np.empty(npx, dtype=np.int16)  # camera of each slot
         self.om = np.empty(npx, dtype=np.float32)
         self.pr = np.empty(1, dtype=np.float32)
         self.runs = np.empty(npx, dtype=np.int64)
@@ -901,7 +1118,7 @@ class _Workspace:
         self.members_in = np.empty(npx, dtype=idx)
         self.members = np.empty(npx, dtype=idx)
         self.fkey = np.empty(npx, dtype=np.int32)
-        self.stage_src = np.empty(npx, dtype=idx)
+        self.stage_src = self.members_in  # free once _fine_pass has sorted members_in into members
         self.stage_sup = np.empty(npx, dtype=np.int16)
 
     def rank(self, on: bool) -> np.ndarray:
@@ -925,7 +1142,7 @@ def _workspace(n: int, h: int, w: int) -> _Workspace:
 class _Cells(NamedTuple):
     """Stage 1-2 output: candidates at their pixel index, grouped by coarse cell."""
 
-    P: np.ndarray  # (N H W, 3) float32 world points (valid at candidate pixels)
+    P: np.ndarray  # (M, 3) float32 world points of the members, in members' order (_scatter)
     om: np.ndarray  # (N H W,) float32 joint weight, eq. (22)
     rank: np.ndarray  # ranking value of eq. (28) (om itself without range_priority)
     start: np.ndarray  # (C + 1,) int64 slots of each coarse cell
@@ -959,10 +1176,12 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     m = int(start[-1])
     members = ws.members_in[:m]
     with numba.parallel_chunksize(8):
-        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, members)
+        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, ws.P, members, ws.Pm)
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
-    return _Cells(ws.P, ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
+    return _Cells(
+        ws.Pm[:m], ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor
+    )
 
 
 class _Selection(NamedTuple):
@@ -984,9 +1203,16 @@ def _select_points(
     csize = np.empty(n_cells, dtype=np.float32)
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
+    # slot-ordered copies of point, omega and rank (read by _select and _emit); the coarse
+    # runs' buffer, free after _scatter, holds omega and the rank as float32
+    # Pc in P's buffer: the points in pixel order are not read after _scatter
+    Pc, camc = ws.P[:m], ws.camc[:m]
+    spare = ws.runs.view(np.float32)
+    omc, rkc = spare[:m], spare[m : 2 * m]
+    copy_rank = c.rank is not c.om
     with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
         _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, not count_only, members, fkey,
-                   csize, rho_sum, fine_n)  # fmt: skip
+                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, hw, Pc, omc, rkc, camc)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
@@ -996,8 +1222,8 @@ def _select_points(
         _count(c.start, fkey, csize, fine_n, sel_prm, nsel)
         return _Selection(c.start, nsel, int(nsel.sum()))
     with numba.parallel_chunksize(1):
-        _select(c.P, c.rank, c.om, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest, cons, T_wc, T_cw,
-                hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
+        _select(Pc, rkc if copy_rank else omc, omc, camc, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest,
+                cons, T_wc, T_cw, hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
     return _Selection(c.start, nsel, int(nsel.sum()))
 
 
@@ -1036,9 +1262,9 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     sup = np.empty(k if cons.on else 0, dtype=np.int16)
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
-    with numba.parallel_chunksize(256):
-        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, c.P, c.om, color, rig_index,
-              hw, xyz, rgb, wgt, src, sup)  # fmt: skip
+    with numba.parallel_chunksize(4):  # a few hundred coarse cells of very different sizes
+        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.P,
+              ws.runs.view(np.float32), ws.camc, color, rig_index, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
         torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
