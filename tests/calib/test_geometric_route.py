@@ -88,3 +88,37 @@ def test_calibrate_warns_that_a_tree_edge_is_unchecked(textureless):
     T = cal.T_cam_world
     rot, trans = relative_error(T["cam01"] @ invert_rigid(T["cam00"]), T_true[1] @ invert_rigid(T_true[0]))
     assert rot < 0.5 and trans < 0.015, (rot, trans)
+
+
+def _mutual_reference(fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
+    """Brute force: (i, j) with j the first nearest of i in b and i the first nearest of j in a."""
+    import torch
+
+    D = torch.cdist(torch.from_numpy(fa), torch.from_numpy(fb)).numpy()
+    ab, ba = D.argmin(axis=1), D.argmin(axis=0)
+    i = np.flatnonzero(ba[ab] == np.arange(len(fa)))
+    return np.stack([i, ab[i]], axis=1)
+
+
+def test_mutual_matches_equal_brute_force_with_ties_and_chunks():
+    """``_mutual_matches`` (chunked, numpy reductions) against one full distance matrix: rows
+    over two chunks (> 4096) and many exact ties (duplicate descriptors), both argument orders."""
+    from fuseflow.calib.geometric import _mutual_matches
+
+    rng = np.random.default_rng(0)
+    for fa, fb in [
+        (rng.normal(size=(5000, 8)).astype(np.float32), rng.normal(size=(700, 8)).astype(np.float32)),
+        (rng.integers(0, 2, (5000, 4)).astype(np.float32), rng.integers(0, 2, (300, 4)).astype(np.float32)),
+    ]:
+        for a, b in ((fa, fb), (fb, fa)):
+            ref = _mutual_reference(a, b)
+            assert len(ref) > 0
+            np.testing.assert_array_equal(_mutual_matches(a, b), ref)
+
+
+def test_point_plane_jacobian_is_cross_then_normal():
+    from fuseflow.calib.geometric import _point_plane_jacobian
+
+    rng = np.random.default_rng(1)
+    q, n = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    np.testing.assert_array_equal(_point_plane_jacobian(q, n), np.c_[np.cross(q, n), n])
