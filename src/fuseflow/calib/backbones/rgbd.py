@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from fuseflow.calib.backbones.base import BackboneResult
+from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.geometric import kabsch
@@ -264,6 +265,12 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
         else RGBDConfig(matcher=getattr(config, "matcher", "sift"), seed=getattr(config, "seed", 0))
     )
     frames = _check_frames(frames, rig)
+    with one_blas_thread():  # thin (M, 3) products: BLAS threads only cost (calib.blas)
+        return _rgbd_backbone(frames, rig, cfg)
+
+
+def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneResult:
+    """``rgbd_backbone`` on checked frames (the module docstring's outline)."""
     t0 = time.perf_counter()
     n = len(rig)
     order = sorted(range(n), key=lambda k: rig.cameras[k].id)  # canonical: by id
