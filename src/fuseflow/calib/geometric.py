@@ -36,8 +36,10 @@ from fuseflow.types import invert_rigid
 __all__ = [
     "CloudFeatures",
     "PoseCluster",
+    "RansacStarts",
     "cloud_features",
     "geometric_candidates",
+    "ransac_starts",
     "kabsch",
     "pose_clusters",
 ]
@@ -285,11 +287,27 @@ def pose_clusters(poses: list[np.ndarray], deg: float = 1.0, m: float = 0.02) ->
     return [(T, k) for T, k in sorted(out, key=lambda c: -c[1])]
 
 
-def geometric_candidates(
+@dataclass(frozen=True)
+class RansacStarts:
+    """The cheap first half of ``geometric_candidates``: the mutual FPFH matches (``X_a``,
+    ``X_b`` (K, 3) metres) and the distinct RANSAC hypotheses ICP starts from, best first
+    (``hypotheses``: [(T_ba (4, 4), inliers)]). ``consensus``: the best one's inliers (0: none);
+    it orders route (c)'s pairs, it never accepts one."""
+
+    X_a: np.ndarray
+    X_b: np.ndarray
+    hypotheses: list
+
+    @property
+    def consensus(self) -> int:
+        return int(self.hypotheses[0][1]) if self.hypotheses else 0
+
+
+def ransac_starts(
     a: CloudFeatures, b: CloudFeatures, starts: int = 20, iterations: int = 20000, seed: int = 0
-) -> list[PoseCluster]:
-    """Clusters of ICP-refined FPFH-RANSAC poses from camera a to camera b (module docstring),
-    largest first. Empty when either cloud has too few points or no 3 matches agree."""
+) -> RansacStarts:
+    """Mutual FPFH matches of camera a and b and the ``starts`` best distinct RANSAC hypotheses
+    on them (step 2 of the module docstring, before any ICP)."""
     # descriptors of at most MATCH_POINTS regularly spaced points per cloud are matched (the
     # distance matrix is the cost); ICP and the checks use every point
     ia = np.arange(0, len(a.fpfh), max(1, len(a.fpfh) // MATCH_POINTS))
@@ -297,10 +315,27 @@ def geometric_candidates(
     m = _mutual_matches(a.fpfh[ia], b.fpfh[ib])
     m = np.c_[ia[m[:, 0]], ib[m[:, 1]]]
     if len(m) < 3:
-        return []
+        return RansacStarts(np.zeros((0, 3)), np.zeros((0, 3)), [])
     Xa, Xb = a.points[m[:, 0]], b.points[m[:, 1]]
+    return RansacStarts(Xa, Xb, _ransac_hypotheses(Xa, Xb, 1.5 * a.voxel, iterations, starts, seed))
+
+
+def geometric_candidates(
+    a: CloudFeatures,
+    b: CloudFeatures,
+    starts: int = 20,
+    iterations: int = 20000,
+    seed: int = 0,
+    prepared: RansacStarts | None = None,
+) -> list[PoseCluster]:
+    """Clusters of ICP-refined FPFH-RANSAC poses from camera a to camera b (module docstring),
+    largest first. Empty when either cloud has too few points or no 3 matches agree.
+    ``prepared``: ``ransac_starts(a, b, starts, iterations, seed)``, if already computed."""
+    rs = prepared if prepared is not None else ransac_starts(a, b, starts, iterations, seed)
+    if len(rs.X_a) < 3:
+        return []
+    Xa, Xb, hyps = rs.X_a, rs.X_b, rs.hypotheses
     thr = 1.5 * a.voxel
-    hyps = _ransac_hypotheses(Xa, Xb, thr, iterations, starts, seed)
     # every start converges on a 2x coarser source cloud (3 and 1.5 voxels); the basins are
     # counted there (2 deg / 4 cm), and only one pose per basin is refined at 0.75 voxel
     from scipy.spatial import cKDTree
