@@ -18,6 +18,7 @@ the last bits of a few reductions (the metric scale check moved by 6e-16).
 from __future__ import annotations
 
 import ctypes
+import os
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -47,7 +48,7 @@ def _openblas() -> list[tuple[object, object]]:
     out = []
     for p in paths:
         try:
-            lib = ctypes.CDLL(p, mode=getattr(ctypes, "RTLD_NOLOAD", 0) | ctypes.RTLD_LOCAL)
+            lib = ctypes.CDLL(p, mode=getattr(os, "RTLD_NOLOAD", 0) | ctypes.RTLD_LOCAL)  # already loaded
         except OSError:
             continue
         for g, s in _SYMBOLS:
