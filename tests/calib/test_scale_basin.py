@@ -101,3 +101,23 @@ def test_refinement_rejected_when_matches_say_worse(scene5, backbone_builder):
     assert rr["check"]["match_misfit_after_mm"] >= rr["check"]["match_misfit_before_mm"]
     for cid in frame.camera_ids:
         np.testing.assert_allclose(ref.T_cam_world[cid], plain.T_cam_world[cid], atol=1e-12)
+
+
+def test_consistent_counts_equal_one_count_per_scale(studio8):
+    """The coarse search's batched count (``consistent_counts``) against its slow reference, one
+    ``consistent_count`` per scale, on every directed pair of the ring: the same integers, also
+    with the informative mask and with points behind camera j (tiny scales)."""
+    from fuseflow.calib.correspondences import consistent_count, consistent_counts, informative_mask
+
+    frame, rig, T = studio8
+    depth = frame.depth.numpy()
+    K = np.stack([c.K for c in rig])
+    cams = prepare_cameras(depth, K, np.array([c.depth_range for c in rig]), 500)
+    scales = np.r_[np.logspace(-2, 2, 24), 1.0]
+    for i, j in [(0, 1), (1, 0), (0, 4), (3, 6)]:
+        g = edge_geometry(T, i, j)
+        for mask in (None, informative_mask(g, cams[i], 0.25)):
+            for tau in (0.05, 0.015):
+                ref = [consistent_count(g, cams[i], cams[j], s, tau, mask) for s in scales]
+                np.testing.assert_array_equal(consistent_counts(g, cams[i], cams[j], scales, tau, mask), ref)
+    assert max(ref) > 0  # the test compares real overlap, not only zeros

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.config import CalibConfig
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.placement import (
@@ -126,14 +127,15 @@ def calibrate(
         depth, K, drange = check_inputs(f, rig)
         check_depth_coverage(f, depth, drange)
     depth, K, drange = check_inputs(frames[0], rig)
-    if config.backbone == "auto" and backbone_result is None:
-        from fuseflow.calib.auto import auto_place
+    with one_blas_thread():  # thin (M, 3) / (M, 6) products: BLAS threads only cost (calib.blas)
+        if config.backbone == "auto" and backbone_result is None:
+            from fuseflow.calib.auto import auto_place
 
-        pl = auto_place(frames, rig, depth, K, drange, config)
-    else:
-        pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
-    if config.joint_refine and len(pl.T) >= 2:
-        refine_jointly(pl, frames, rig, config)
+            pl = auto_place(frames, rig, depth, K, drange, config)
+        else:
+            pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
+        if config.joint_refine and len(pl.T) >= 2:
+            refine_jointly(pl, frames, rig, config)
     pl.timings["total"] = time.perf_counter() - t_start
     return Calibration(pl.T, finish_report(pl, frames[0].camera_ids, config))
 

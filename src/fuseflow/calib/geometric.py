@@ -36,8 +36,10 @@ from fuseflow.types import invert_rigid
 __all__ = [
     "CloudFeatures",
     "PoseCluster",
+    "RansacStarts",
     "cloud_features",
     "geometric_candidates",
+    "ransac_starts",
     "kabsch",
     "pose_clusters",
 ]
@@ -95,26 +97,42 @@ def kabsch(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def _mutual_matches(fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """(K, 2) index pairs that are each other's nearest neighbour in descriptor space (exact,
-    by chunked distance matrices: a k-d tree in 33 dimensions is slower)."""
+    by chunked distance matrices: a k-d tree in 33 dimensions is slower). Ties go to the lower
+    index on both sides. The distances are torch's ``cdist``; the reductions are numpy's
+    (torch's column-wise ``min(dim=0)`` on a (4096, |B|) matrix was 8x slower than the whole
+    numpy path: docs/gmac.md, "Where the time goes")."""
     import torch
 
     if len(fa) == 0 or len(fb) == 0:
         return np.zeros((0, 2), dtype=np.int64)
     A = torch.from_numpy(np.ascontiguousarray(fa, dtype=np.float32))
     B = torch.from_numpy(np.ascontiguousarray(fb, dtype=np.float32))
-    best_b = torch.empty(len(A), dtype=torch.int64)
-    best_a_d = torch.full((len(B),), float("inf"))
-    best_a = torch.zeros(len(B), dtype=torch.int64)
+    best_b = np.empty(len(A), dtype=np.int64)
+    best_a_d = np.full(len(B), np.inf, dtype=np.float32)
+    best_a = np.zeros(len(B), dtype=np.int64)
     for s in range(0, len(A), 4096):
-        D = torch.cdist(A[s : s + 4096], B)  # (chunk, |B|)
-        best_b[s : s + 4096] = D.argmin(dim=1)
-        d, i = D.min(dim=0)
-        better = d < best_a_d
-        best_a_d = torch.where(better, d, best_a_d)
-        best_a = torch.where(better, i + s, best_a)
-    i = torch.arange(len(A))
+        D = torch.cdist(A[s : s + 4096], B).numpy()  # (chunk, |B|)
+        best_b[s : s + 4096] = D.argmin(axis=1)
+        d = D.min(axis=0)
+        i = _first_rows(D == d[None]) + s
+        better = d < best_a_d  # an earlier chunk keeps a tie
+        best_a_d = np.where(better, d, best_a_d)
+        best_a = np.where(better, i, best_a)
+    i = np.arange(len(A))
     keep = best_a[best_b] == i
-    return torch.stack([i[keep], best_b[keep]], dim=1).numpy().astype(np.int64)
+    return np.stack([i[keep], best_b[keep]], axis=1).astype(np.int64)
+
+
+def _first_rows(E: np.ndarray) -> np.ndarray:
+    """(C,) the first row of each column of the bool matrix E (R, C) that is True (-1: none);
+    ``E.argmax(axis=0)`` but from the few True entries (numpy reduces along axis 0 by copying)."""
+    r, c = np.divmod(np.flatnonzero(E), E.shape[1])
+    out = np.full(E.shape[1], -1, dtype=np.int64)
+    o = np.lexsort((r, c))
+    r, c = r[o], c[o]
+    first = np.r_[True, c[1:] != c[:-1]] if len(c) else np.zeros(0, dtype=bool)
+    out[c[first]] = r[first]
+    return out
 
 
 def _ransac_hypotheses(
@@ -183,9 +201,10 @@ def _icp(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dists: tuple[float, ...
             ok = np.isfinite(dist)
             if ok.sum() < 6:
                 return T
-            q, n, p = q[ok], b.normals[j[ok]], b.points[j[ok]]
+            jj = j[ok]
+            q, n, p = q[ok], b.normals[jj], b.points[jj]
             r = np.sum(n * (q - p), axis=1)
-            J = np.c_[np.cross(q, n), n]  # d r / d (w, t) for q -> exp(w) q + t
+            J = _point_plane_jacobian(q, n)
             w = 1.0 / np.maximum(1.0, np.abs(r) / (0.5 * dm))
             H = (J * w[:, None]).T @ J
             if np.linalg.cond(H) > 1e10:
@@ -195,6 +214,20 @@ def _icp(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dists: tuple[float, ...
             if np.abs(x).max() < 1e-7:
                 break
     return T
+
+
+def _point_plane_jacobian(q: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(P, 6) d r / d (w, t) of r = n . (q - p) for q -> exp(w) q + t: [q x n, n]. The cross
+    product written out (the same products and differences as ``np.cross``, without its
+    overhead: this runs ~40 times per ICP start)."""
+    J = np.empty((len(q), 6))
+    q0, q1, q2 = q[:, 0], q[:, 1], q[:, 2]
+    n0, n1, n2 = n[:, 0], n[:, 1], n[:, 2]
+    J[:, 0] = q1 * n2 - q2 * n1
+    J[:, 1] = q2 * n0 - q0 * n2
+    J[:, 2] = q0 * n1 - q1 * n0
+    J[:, 3:] = n
+    return J
 
 
 def _support(a: np.ndarray, b: CloudFeatures, T: np.ndarray, dm: float, tree, most: int = 400):
@@ -254,11 +287,27 @@ def pose_clusters(poses: list[np.ndarray], deg: float = 1.0, m: float = 0.02) ->
     return [(T, k) for T, k in sorted(out, key=lambda c: -c[1])]
 
 
-def geometric_candidates(
+@dataclass(frozen=True)
+class RansacStarts:
+    """The cheap first half of ``geometric_candidates``: the mutual FPFH matches (``X_a``,
+    ``X_b`` (K, 3) metres) and the distinct RANSAC hypotheses ICP starts from, best first
+    (``hypotheses``: [(T_ba (4, 4), inliers)]). ``consensus``: the best one's inliers (0: none);
+    it orders route (c)'s pairs, it never accepts one."""
+
+    X_a: np.ndarray
+    X_b: np.ndarray
+    hypotheses: list
+
+    @property
+    def consensus(self) -> int:
+        return int(self.hypotheses[0][1]) if self.hypotheses else 0
+
+
+def ransac_starts(
     a: CloudFeatures, b: CloudFeatures, starts: int = 20, iterations: int = 20000, seed: int = 0
-) -> list[PoseCluster]:
-    """Clusters of ICP-refined FPFH-RANSAC poses from camera a to camera b (module docstring),
-    largest first. Empty when either cloud has too few points or no 3 matches agree."""
+) -> RansacStarts:
+    """Mutual FPFH matches of camera a and b and the ``starts`` best distinct RANSAC hypotheses
+    on them (step 2 of the module docstring, before any ICP)."""
     # descriptors of at most MATCH_POINTS regularly spaced points per cloud are matched (the
     # distance matrix is the cost); ICP and the checks use every point
     ia = np.arange(0, len(a.fpfh), max(1, len(a.fpfh) // MATCH_POINTS))
@@ -266,10 +315,27 @@ def geometric_candidates(
     m = _mutual_matches(a.fpfh[ia], b.fpfh[ib])
     m = np.c_[ia[m[:, 0]], ib[m[:, 1]]]
     if len(m) < 3:
-        return []
+        return RansacStarts(np.zeros((0, 3)), np.zeros((0, 3)), [])
     Xa, Xb = a.points[m[:, 0]], b.points[m[:, 1]]
+    return RansacStarts(Xa, Xb, _ransac_hypotheses(Xa, Xb, 1.5 * a.voxel, iterations, starts, seed))
+
+
+def geometric_candidates(
+    a: CloudFeatures,
+    b: CloudFeatures,
+    starts: int = 20,
+    iterations: int = 20000,
+    seed: int = 0,
+    prepared: RansacStarts | None = None,
+) -> list[PoseCluster]:
+    """Clusters of ICP-refined FPFH-RANSAC poses from camera a to camera b (module docstring),
+    largest first. Empty when either cloud has too few points or no 3 matches agree.
+    ``prepared``: ``ransac_starts(a, b, starts, iterations, seed)``, if already computed."""
+    rs = prepared if prepared is not None else ransac_starts(a, b, starts, iterations, seed)
+    if len(rs.X_a) < 3:
+        return []
+    Xa, Xb, hyps = rs.X_a, rs.X_b, rs.hypotheses
     thr = 1.5 * a.voxel
-    hyps = _ransac_hypotheses(Xa, Xb, thr, iterations, starts, seed)
     # every start converges on a 2x coarser source cloud (3 and 1.5 voxels); the basins are
     # counted there (2 deg / 4 cm), and only one pose per basin is refined at 0.75 voxel
     from scipy.spatial import cKDTree

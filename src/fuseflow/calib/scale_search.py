@@ -28,7 +28,7 @@ from fuseflow.calib.correspondences import (
     CameraData,
     EdgeGeometry,
     build_correspondences,
-    consistent_count,
+    consistent_counts,
     informative_mask,
 )
 from fuseflow.calib.errors import CalibrationError
@@ -95,9 +95,10 @@ def coarse_scale_search(
     masks = [informative_mask(g, cams[g.i], config.informative_cos) for g in geoms]
 
     def counts(grid: np.ndarray, tau: float) -> np.ndarray:
-        return np.array(
-            [sum(consistent_count(g, cams[g.i], cams[g.j], s, tau, m) for g, m in zip(geoms, masks)) for s in grid]
-        )
+        out = np.zeros(len(grid), dtype=np.int64)
+        for g, m in zip(geoms, masks):
+            out += consistent_counts(g, cams[g.i], cams[g.j], grid, tau, m)
+        return out
 
     grid = s0 * np.logspace(-np.log10(config.scale_span), np.log10(config.scale_span), config.scale_grid)
     c = counts(grid, config.depth_tau)

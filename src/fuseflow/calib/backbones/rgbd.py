@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from fuseflow.calib.backbones.base import BackboneResult
+from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.geometric import kabsch
@@ -175,6 +176,16 @@ class RGBDConfig:
     (and twice as many as to any other pose that passes the verification). Measured on
     hocap-8rs, 30 starts: right poses 7-28, wrong ones 1-4 (``calib.geometric`` docstring)."""
 
+    geometric_edges_per_camera: int = 1
+    """Route (c) candidates an unplaced camera gets per round, at most: its pairs with a placed
+    camera are tried in order of descriptor consensus (the best FPFH-RANSAC hypothesis's
+    inliers: it orders the work, never accepts a pose) until this many are proposed. The ICP
+    stage is ~1.2 s a pair; on hocap-8rs each up-looking camera has 6 such pairs, one gives a
+    candidate, and it ranks first (48 and 36 inliers against 5-30). Default 1: hocap-8rs 28 ->
+    ~17 s with the same edges (docs/gmac.md, "Where the time goes"); the cost, a camera held by
+    one route (c) edge closes no cycle with it (it is flagged as unchecked, as on hocap-8rs
+    before). A number >= the cameras tries every pair (session 7's behaviour)."""
+
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
 
@@ -264,6 +275,12 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
         else RGBDConfig(matcher=getattr(config, "matcher", "sift"), seed=getattr(config, "seed", 0))
     )
     frames = _check_frames(frames, rig)
+    with one_blas_thread():  # thin (M, 3) products: BLAS threads only cost (calib.blas)
+        return _rgbd_backbone(frames, rig, cfg)
+
+
+def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneResult:
+    """``rgbd_backbone`` on checked frames (the module docstring's outline)."""
     t0 = time.perf_counter()
     n = len(rig)
     order = sorted(range(n), key=lambda k: rig.cameras[k].id)  # canonical: by id
@@ -746,40 +763,45 @@ def _geometric_edges(
     other passing pose. Candidates become edges in rounds, from the placed cameras outwards
     (pairs of two unplaced cameras wait while anything is placed, so that their pose can be
     judged against every placed view, ``_better``); after each round the poses are re-solved.
-    Returns (new edges, per-pair info, (kept, dropped, untested, T, placed, refine info) of the
+    Within a round, an unplaced camera's pairs are run in order of descriptor consensus
+    (``RansacStarts.consensus``) until it has ``geometric_edges_per_camera`` candidates; the
+    rest wait in case it is still unplaced after the round. Returns (new edges, per-pair info, (kept, dropped, untested, T, placed, refine info) of the
     last solve, or None when nothing was added)."""
-    from fuseflow.calib.geometric import geometric_candidates
+    from fuseflow.calib.geometric import RansacStarts, ransac_starts
 
     feat = _cloud_cache(cams, cfg)
     n = len(cams)
+    todo = [(i, j) for i in range(n) for j in range(i + 1, n) if not (placed[i] and placed[j]) and (i, j) not in edges]
     cands: dict[tuple[int, int], tuple] = {}
+    starts: dict[tuple[int, int], RansacStarts] = {}
     info = []
-    for i in range(n):
-        for j in range(i + 1, n):
-            if (placed[i] and placed[j]) or (i, j) in edges:
-                continue
-            a, b = cams[i], cams[j]
-            clusters = geometric_candidates(feat(i), feat(j), cfg.geometric_starts, seed=cfg.seed + 2)
-            rows, passing = [], []
-            for c in clusters:
-                chk = verify_pose(a, b, c.T_ba, cfg.tau)
-                ok = chk.passes(cfg)
-                rows.append({"route": "geometric", "inliers": int(len(c.X_a)), "starts": c.starts, "ok": ok,
-                             **_round(chk), "T_ji": np.round(c.T_ba, 6).tolist()})  # fmt: skip
-                if ok:
-                    passing.append((c, chk))
-            entry = {"pair": [i, j], "stage": "geometric", "candidates": rows, "edge": None}
-            info.append(entry)
-            if passing:
-                c, chk = passing[0]  # clusters come largest first
-                runner_up = passing[1][0].starts if len(passing) > 1 else 0
-                if c.starts >= cfg.geometric_min_starts and c.starts >= 2 * runner_up and len(c.X_a) >= 3:
-                    cands[(i, j)] = (c, chk, entry)
     out: dict[tuple[int, int], Edge] = {}
     solved = None
     while True:
+        # a pair's candidates are computed when a round first considers it: a pair of two
+        # unplaced cameras waits while anything is placed, and is never needed when both are
+        # placed in the same round (hocap-8rs: 12 of its 13 pairs were needed)
+        due = [e for e in todo if not (placed.any() and placed[e[0]] == placed[e[1]])]
+        cap = cfg.geometric_edges_per_camera if placed.any() and cfg.geometric_edges_per_camera < n else None
+        if cap is not None:  # most consensus first; a camera with `cap` candidates skips the rest
+            for e in due:
+                if e not in starts:
+                    starts[e] = ransac_starts(feat(e[0]), feat(e[1]), cfg.geometric_starts, seed=cfg.seed + 2)
+            due = sorted(due, key=lambda e: (-starts[e].consensus, e))
+        found: dict[int, int] = {}
+        for i, j in due:
+            u = j if placed[i] else i  # the unplaced camera of the pair
+            if cap is not None and found.get(u, 0) >= cap:
+                continue  # stays in todo: needed again only if u is unplaced after this round
+            todo.remove((i, j))
+            entry, cand = _geometric_pair(cams, i, j, feat, cfg, starts.get((i, j)))
+            info.append(entry)
+            if cand is not None:
+                cands[(i, j)] = cand
+                found[u] = found.get(u, 0) + 1
         new = {}
-        for (i, j), (c, chk, entry) in cands.items():
+        for i, j in sorted(cands):
+            c, chk, entry = cands[(i, j)]
             if (i, j) in out or (placed.any() and placed[i] == placed[j]):
                 continue
             a, b = cams[i], cams[j]
@@ -802,6 +824,34 @@ def _geometric_edges(
         kept, dropped, untested = prune_cycles({**edges, **out}, cfg.cycle_rot_deg, cfg.cycle_trans_m)
         T, placed, refine_info = _global_poses(n, kept, cfg)
         solved = (kept, dropped, untested, T, placed, refine_info)
+
+
+def _geometric_pair(
+    cams: list[CameraEvidence], i: int, j: int, feat, cfg: RGBDConfig, prepared=None
+) -> tuple[dict, tuple | None]:
+    """Route (c) on the pair (i, j): its info entry (every pose cluster with its verification)
+    and its candidate (cluster, check, entry), or None: the passing cluster with the most starts
+    when at least ``geometric_min_starts`` and twice as many as any other passing cluster
+    reached it. ``prepared``: the pair's ``geometric.ransac_starts``, if already computed."""
+    from fuseflow.calib.geometric import geometric_candidates
+
+    a, b = cams[i], cams[j]
+    clusters = geometric_candidates(feat(i), feat(j), cfg.geometric_starts, seed=cfg.seed + 2, prepared=prepared)
+    rows, passing = [], []
+    for c in clusters:
+        chk = verify_pose(a, b, c.T_ba, cfg.tau)
+        ok = chk.passes(cfg)
+        rows.append({"route": "geometric", "inliers": int(len(c.X_a)), "starts": c.starts, "ok": ok,
+                     **_round(chk), "T_ji": np.round(c.T_ba, 6).tolist()})  # fmt: skip
+        if ok:
+            passing.append((c, chk))
+    entry = {"pair": [i, j], "stage": "geometric", "candidates": rows, "edge": None}
+    if passing:
+        c, chk = passing[0]  # clusters come largest first
+        runner_up = passing[1][0].starts if len(passing) > 1 else 0
+        if c.starts >= cfg.geometric_min_starts and c.starts >= 2 * runner_up and len(c.X_a) >= 3:
+            return entry, (c, chk, entry)
+    return entry, None
 
 
 def _better(cams, T: np.ndarray, placed: np.ndarray, i: int, j: int, T_new, T_old, cfg: RGBDConfig) -> bool:
