@@ -15,6 +15,7 @@ same frame with two measures the calibration does not optimise jointly:
   can. Exposure differences between real cameras add a constant to both pose sets.
 
     python benchmarks/calib_reference_check.py /tmp/fuseflow-calib-wide/icl8_every26 hocap
+    python benchmarks/calib_reference_check.py hocap --per-camera
 """
 
 from __future__ import annotations
@@ -47,8 +48,9 @@ def _load(name: str):
     return rec[0], Rig(tuple(c.with_extrinsics(None) for c in rec.rig)), {c.id: c.T_cam_world for c in rec.rig}
 
 
-def depth_fit(frame, rig, T: dict) -> tuple[float, float]:
-    """(mean share within 1 cm, median |point-to-plane| mm) over the overlapping pairs."""
+def depth_fit(frame, rig, T: dict, only: str | None = None) -> tuple[float, float]:
+    """(mean share within 1 cm, median |point-to-plane| mm) over the overlapping pairs (``only``:
+    the pairs of that camera, both directions)."""
     ids = [c for c in frame.camera_ids if c in T]
     depth = frame.depth.numpy()
     views = [jr._view(depth[frame.camera_ids.index(c)], rig[c].K, rig[c].depth_range, jr.SAMPLES) for c in ids]
@@ -56,7 +58,9 @@ def depth_fit(frame, rig, T: dict) -> tuple[float, float]:
     res, shares = [], []
     for i in range(len(ids)):
         for j in range(len(ids)):
-            a = None if i == j else jr._associate(views[i], views[j], W[i], W[j], 3 * jr.CHECK_M)
+            if i == j or (only is not None and only not in (ids[i], ids[j])):
+                continue
+            a = jr._associate(views[i], views[j], W[i], W[j], 3 * jr.CHECK_M)
             if a is None or len(a[0]) < 50:
                 continue
             r = np.abs(np.sum(a[2] * (a[0] - a[1]), axis=1))
@@ -73,7 +77,7 @@ def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
             + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])  # fmt: skip
 
 
-def colour_fit(frame, rig, T: dict) -> float:
+def colour_fit(frame, rig, T: dict, only: str | None = None) -> float:
     ids = [c for c in frame.camera_ids if c in T]
     depth, col = frame.depth.numpy(), frame.color.numpy()
     grey = {
@@ -93,7 +97,7 @@ def colour_fit(frame, rig, T: dict) -> float:
         zz = z[v, u].astype(np.float64)
         P = np.stack([(u - K[0, 2]) / K[0, 0] * zz, (v - K[1, 2]) / K[1, 1] * zz, zz], 1)
         for cj in ids:
-            if cj == ci:
+            if cj == ci or (only is not None and only not in (ci, cj)):
                 continue
             M = T[cj] @ invert_rigid(T[ci])
             X = P @ M[:3, :3].T + M[:3, 3]
@@ -114,10 +118,52 @@ def colour_fit(frame, rig, T: dict) -> float:
     return float(np.median(out))
 
 
+def into_reference(T: dict, T_ref: dict, cam: str) -> np.ndarray:
+    """Camera ``cam``'s calibrated pose moved into the reference's world by the rigid transform
+    that best maps the calibration's world onto the reference's over the *other* cameras
+    (A_j = inv(T_ref_j) T_j, rotations averaged by SVD, translations by the mean)."""
+    A = [np.linalg.inv(T_ref[j]) @ T[j] for j in T if j != cam]
+    u, _, vt = np.linalg.svd(sum(a[:3, :3] for a in A))
+    M = np.eye(4)
+    M[:3, :3] = u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
+    M[:3, 3] = np.mean([a[:3, 3] for a in A], axis=0)
+    return T[cam] @ np.linalg.inv(M)
+
+
+def per_camera(name: str) -> None:
+    """Per camera c: the reference's other cameras with c at the reference's pose against c at
+    the calibration's pose (moved into the reference's world over the other cameras): which
+    pose of c fits the reference's other cameras better, by depth and by colour."""
+    frame, rig, T_ref = _load(name)
+    T = dict(calibrate(frame, rig).T_cam_world)
+    print(
+        "| camera | c vs reference deg / mm | share within 1 cm: calib c / ref c | median residual mm: calib c / ref c | colour diff: calib c / ref c |"
+    )
+    print("|---|---|---|---|---|")
+    for c in T:
+        hyb = {j: T_ref[j] for j in T}
+        hyb[c] = into_reference(T, T_ref, c)
+        ref = {j: T_ref[j] for j in T}
+        d = hyb[c] @ np.linalg.inv(ref[c])
+        deg = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+        mm = 1000 * np.linalg.norm(invert_rigid(hyb[c])[:3, 3] - invert_rigid(ref[c])[:3, 3])
+        (s_h, m_h), (s_r, m_r) = depth_fit(frame, rig, hyb, only=c), depth_fit(frame, rig, ref, only=c)
+        p_h, p_r = colour_fit(frame, rig, hyb, only=c), colour_fit(frame, rig, ref, only=c)
+        print(
+            f"| {c} | {deg:.2f} / {mm:.1f} | {s_h:.3f} / {s_r:.3f} | {m_h:.2f} / {m_r:.2f} | {p_h:.2f} / {p_r:.2f} |",
+            flush=True,
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", nargs="+")
+    ap.add_argument("--per-camera", action="store_true", help="score each camera's pose against the reference's others")
     args = ap.parse_args()
+    if args.per_camera:
+        for name in args.data:
+            per_camera(name)
+        return
     print(
         "| data | placed | calibration vs reference deg / mm | share within 1 cm: calib / ref | median residual mm: calib / ref | colour diff: calib / ref |"
     )
