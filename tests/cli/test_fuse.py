@@ -79,7 +79,7 @@ def test_fuse_errors_are_one_line(rec, tmp_path):
         (("--frames", "x:y"), "--frames expects A:B"),
         (("--frames", "5:9"), "selects no frame"),
         (("--device", "tpu"), "--device must be cpu or cuda"),
-        (("--preset", "fast"), "no FUSE preset 'fast'"),
+        (("--preset", "fastest"), "no FUSE preset 'fastest'"),
         (("--calib", tmp_path / "missing.json"), "missing.json"),
     ):
         res = _invoke("fuse", rec, "--out", tmp_path / "o", *args)

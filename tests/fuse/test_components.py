@@ -34,7 +34,8 @@ def test_config_presets_and_validation():
     assert PRESETS["paper"].range_priority is False  # eq. (28) ranks by omega alone
     assert PRESETS["paper"].lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
     assert PRESETS["paper"].multiview_mean is False  # candidates are the pixels' own points
-    assert PRESETS["quality"] == replace(FuseConfig(), k_neighbours=7, s0=5.0)
+    assert PRESETS["quality"] == FuseConfig() and (FuseConfig().k_neighbours, FuseConfig().s0) == (7, 5.0)
+    assert PRESETS["fast"] == replace(FuseConfig(), k_neighbours=4, s0=6.3)
     with pytest.raises(ValidationError, match="noise_sigma"):
         FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
     with pytest.raises(ValidationError, match="noise_sigma"):

@@ -16,7 +16,9 @@ def command(
     calib: Path = typer.Option(None, "--calib", help="Extrinsics to use (calib.json); default: rig.json's."),
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (cpu runs the compiled numba path)."),
-    preset: str = typer.Option("default", "--preset", help="FUSE preset: default, paper, 'w/o CVGC', ..."),
+    preset: str = typer.Option(
+        "default", "--preset", help="FUSE preset: default (= quality), fast, paper, 'w/o CVGC', ..."
+    ),
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
     ),
