@@ -457,10 +457,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     candidate beyond the hash's range), out_P[p] (world point), out_w[p] (omega, eq. 22) and,
     when prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority). Also the
     row's *runs*: maximal stretches of in-range candidates (flags 1 and 3) of one coarse cell,
-    runs[row, r] = the cell key, r_n[row, r] = its candidates, for r < runs.shape[1] (the
-    capacity; the caller reruns with more when a row has more runs); row_info[row] =
-    (candidates, beyond range, runs). Runs are stored per row, not per pixel: a row holds a few
-    dozen, and a pixel-sized buffer was resident in full (every page holds a row's start).
+    runs[row, r] = the cell key, r_n[row, r] = its candidates (both (N H, W), in buffers that
+    are free until ``_scatter``); row_info[row] = (candidates, beyond range, runs).
 
     Each row runs in passes over row-sized scratch: MCM and eq. (27)'s test (``_mcm_row``) ->
     the row's candidates and their camera-frame points -> CVGC one neighbour at a time over all
@@ -578,7 +576,6 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             nr = 0
             last_key = np.int64(-1)
             run_n = 0
-            cap = runs.shape[1]
             for t in range(nc):  # eq. (21)-(22), the world point and its cell, vectorised
                 c = cw[t]
                 x = cx_[t]
@@ -625,9 +622,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                     )  # eq. (23)'s coarse cell, packed as in ash.py
                     if key != last_key:
                         if run_n > 0:
-                            if nr < cap:
-                                runs[row, nr] = last_key
-                                r_n[row, nr] = run_n
+                            runs[row, nr] = last_key
+                            r_n[row, nr] = run_n
                             nr += 1
                         last_key = key
                         run_n = 0
@@ -639,9 +635,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                     flags[base] = 2
                     n_oor += 1
             if run_n > 0:
-                if nr < cap:
-                    runs[row, nr] = last_key
-                    r_n[row, nr] = run_n
+                runs[row, nr] = last_key
+                r_n[row, nr] = run_n
                 nr += 1
             row_info[row, 0] = cnt
             row_info[row, 1] = n_oor
@@ -649,23 +644,25 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
 
 
 @njit(cache=True, error_model="numpy")
-def _cells(runs, r_n, row_info):
+def _cells(runs, r_n, row_info, run_slot):
     """Coarse cells of the runs (serial, one hash lookup per run, not per point): cell ids in
-    first-appearance order (input order), each run's key in ``runs[row, r]`` replaced by the first
-    slot of its points in the cell-grouped order. Returns (start (C+1,): each cell's slots,
-    cell_key (C,): its packed key, the largest cell's size)."""
+    first-appearance order (input order); run_slot[roff[row] + r] = the first slot of run r of
+    the row in the cell-grouped order (runs compacted: ``runs`` and ``r_n`` live in buffers that
+    ``_scatter`` overwrites). The hash table and the per-cell arrays grow with the cells, not
+    with the runs (the simulated ring has ~1.5 k cells but ~10^5-10^6 runs). Returns (start
+    (C+1,): each cell's slots, cell_key (C,): its packed key, the largest cell's size, roff
+    (rows + 1,): each row's first run)."""
     n_rows = row_info.shape[0]
-    n_runs = 0
+    roff = np.empty(n_rows + 1, dtype=np.int64)
+    roff[0] = 0
     for row in range(n_rows):
-        n_runs += row_info[row, 2]
-    size = 16
-    while size < 2 * n_runs + 16:
-        size *= 2
+        roff[row + 1] = roff[row] + row_info[row, 2]
+    size = 1024
     mask = size - 1
     tkeys = np.full(size, -1, dtype=np.int64)
     tvals = np.empty(size, dtype=np.int64)
-    cell_key = np.empty(n_runs, dtype=np.int64)
-    counts = np.zeros(n_runs + 1, dtype=np.int64)
+    cell_key = np.empty(size // 2, dtype=np.int64)
+    counts = np.zeros(size // 2 + 1, dtype=np.int64)
     n_cells = 0
     for row in range(n_rows):
         for r in range(row_info[row, 2]):
@@ -677,6 +674,28 @@ def _cells(runs, r_n, row_info):
                     cid = tvals[slot]
                     break
                 if tk == -1:
+                    if 2 * (n_cells + 1) > size:  # keep the load <= 1/2: twice the room, rehash
+                        size *= 2
+                        mask = size - 1
+                        nk = np.full(size, -1, dtype=np.int64)
+                        nv = np.empty(size, dtype=np.int64)
+                        for e in range(size // 2):
+                            if tkeys[e] != -1:
+                                s2 = ((tkeys[e] * np.int64(-7046029254386353131)) >> 20) & mask
+                                while nk[s2] != -1:
+                                    s2 = (s2 + 1) & mask
+                                nk[s2] = tkeys[e]
+                                nv[s2] = tvals[e]
+                        tkeys = nk
+                        tvals = nv
+                        ck = np.empty(size // 2, dtype=np.int64)
+                        ck[:n_cells] = cell_key[:n_cells]
+                        cell_key = ck
+                        cn = np.zeros(size // 2 + 1, dtype=np.int64)
+                        cn[: n_cells + 1] = counts[: n_cells + 1]
+                        counts = cn
+                        slot = ((key * np.int64(-7046029254386353131)) >> 20) & mask
+                        continue  # probe the new table
                     tkeys[slot] = key
                     tvals[slot] = n_cells
                     cell_key[n_cells] = key
@@ -694,25 +713,27 @@ def _cells(runs, r_n, row_info):
     start = counts[: n_cells + 1].copy()
     fill = counts[:n_cells]
     for row in range(n_rows):  # stable: runs in input order, so points keep input order in a cell
+        o = roff[row]
         for r in range(row_info[row, 2]):
             cid = runs[row, r]
-            runs[row, r] = fill[cid]
+            run_slot[o + r] = fill[cid]
             fill[cid] += r_n[row, r]
-    return start, cell_key[:n_cells].copy(), largest
+    return start, cell_key[:n_cells].copy(), largest, roff
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _scatter(flags, runs, row_info, w, P, members, Pm):
+def _scatter(flags, run_slot, roff, row_info, w, P, members, Pm):
     """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``), and
     Pm[slot] = its point P[pixel]: P is read in pixel order here (the scattered side is the
     write), so that ``_fine_pass`` reads the points of a cell in order instead of gathering
     them by pixel index (a cache miss at every run of a cell). The row's in-range candidates
-    (flags 1 and 3) in column order, a new run at each flag 3 (runs[row, r] = its first slot)."""
+    (flags 1 and 3) in column order, a new run at each flag 3 (run_slot[roff[row] + r] = its
+    first slot)."""
     for row in prange(row_info.shape[0]):
         if row_info[row, 2] == 0:
             continue
         rb = row * w
-        r = -1
+        r = roff[row] - 1
         k = 0
         for u in range(w):
             p = rb + u
@@ -720,7 +741,7 @@ def _scatter(flags, runs, row_info, w, P, members, Pm):
             if f & 1:
                 if f == 3:
                     r += 1
-                    k = runs[row, r]
+                    k = run_slot[r]
                 members[k] = p
                 Pm[k, 0] = P[p, 0]
                 Pm[k, 1] = P[p, 1]
@@ -1118,25 +1139,30 @@ class _Workspace:
     arrays per frame cost as much in page faults as some kernels (the kernel zero-fills every
     new page). Buffers hold no result; the cloud is built from new arrays.
 
-    33 bytes per pixel (ICL, 8 x 640 x 480: 77 MiB), by reusing buffers whose lifetimes do not
-    overlap (stages: 1 ``_gate`` / ``_pixels``, 2 ``_cells``, 3 ``_scatter``, 4 ``_fine_pass``,
-    5 ``_select``, 6 ``_emit``):
+    33 bytes per pixel (ICL, 8 x 640 x 480: 77 MiB; 53 before), by reusing buffers whose
+    lifetimes do not overlap (stages: 1 ``_gate`` / ``_pixels``, 2 ``_cells``, 3 ``_scatter``,
+    4 ``_fine_pass``, 5 ``_select``, 6 ``_emit``):
 
-    - ``Pc`` (12 B): the gated depth (1; ``gate_depth``), then the points by coarse cell (3),
-      sorted into slot order in place (4), moved by the consensus (5).
+    - ``pbuf`` (12 B): the gated depth (its first 4 B per pixel, 1; ``gate_depth``) and the
+      rows' coarse runs (key, 8 B per pixel's room, 1-2); then ``Pc``, the points by coarse
+      cell (3), sorted into slot order in place (4), moved by the consensus (5).
     - ``buf`` (12 B): the points by pixel (``P``, 1-3); once ``_scatter`` has read them, fkey
       (4 B), omega and camera by slot (4 + 2 B) and the representatives' support (2 B).
-    - ``members`` (4 B): pixel index per slot (3-6). ``om`` (4 B): omega by pixel (1-4), then
-      ``stage_src`` (5-6). ``flags`` (1 B, 1-3).
-    - runs (``runs``, ``run_n``): per row, ``cap`` of them (grown when a row has more).
-    - with ``range_priority`` only: ``pr`` (omega / sigma by pixel) and ``rkc`` (by slot), 8 B."""
+    - ``members`` (4 B): the runs' sizes (1-2), then the pixel index per slot (3-6).
+    - ``om`` (4 B): omega by pixel (1-4), then ``stage_src`` (5-6). ``flags`` (1 B, 1-3).
+    - with ``range_priority`` only: ``pr`` (omega / sigma by pixel) and ``rkc`` (by slot), 8 B.
+
+    The only per-frame arrays besides the cloud are sized by cells or runs (``_cells``)."""
 
     def __init__(self, n: int, h: int, w: int) -> None:
         npx = n * h * w
         self.shape = (n, h, w)
         idx = np.int32 if npx < 2**31 else np.int64  # pixel indices
         self.flags = np.empty(npx, dtype=np.int8)
-        self.Pc = np.empty((npx, 3), dtype=np.float32)
+        self.pbuf = np.empty(12 * npx + 8, dtype=np.uint8)
+        self.Pc = self.pbuf[: 12 * npx].view(np.float32).reshape(npx, 3)
+        o = (4 * npx + 7) // 8 * 8  # 8-aligned, after the gated depth
+        self.runs = self.pbuf[o : o + 8 * npx].view(np.int64).reshape(n * h, w)
         self.buf = np.empty(12 * npx, dtype=np.uint8)
         self.P = self.buf.view(np.float32).reshape(npx, 3)
         self.fkey = self.buf[: 4 * npx].view(np.int32)
@@ -1144,18 +1170,13 @@ class _Workspace:
         self.camc = self.buf[8 * npx : 10 * npx].view(np.int16)  # camera of each slot
         self.stage_sup = self.buf[10 * npx :].view(np.int16)
         self.members = np.empty(npx, dtype=idx)
+        self.run_n = self.members.reshape(n * h, w)
         self.om = np.empty(npx, dtype=np.float32)
         # the representatives' slots: omega by pixel is not read after _fine_pass
         self.stage_src = self.om.view(np.int32) if idx is np.int32 else np.empty(npx, dtype=idx)
         self.pr = np.empty(1, dtype=np.float32)
         self.rkc = np.empty(1, dtype=np.float32)
         self.row_info = np.empty((n * h, 3), dtype=np.int64)
-        self.set_run_cap(64)
-
-    def set_run_cap(self, cap: int) -> None:
-        """Room for ``cap`` coarse runs per image row (ICL: at most 56, 22 on average)."""
-        self.runs = np.empty((self.row_info.shape[0], cap), dtype=np.int64)
-        self.run_n = np.empty((self.row_info.shape[0], cap), dtype=np.int32)
 
     def depth(self) -> np.ndarray:
         """The gated depth's buffer (N, H, W) float32: the first third of Pc, which nothing
@@ -1217,22 +1238,17 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     nbr = p.graph.index.numpy().astype(np.int64)
     present = p.present.numpy().astype(np.bool_)
     rank = ws.rank(prm.range_priority)
-    while True:
-        with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
-            _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, ws.run_n,
-                    ws.row_info)  # fmt: skip
-        most = int(ws.row_info[:, 2].max()) if ws.row_info.shape[0] else 0
-        if most <= ws.runs.shape[1]:
-            break
-        # a row with more coarse runs than the room per row (rare; kept for later frames):
-        # the same pass again with room for them (the gated depth is not overwritten before _scatter)
-        ws.set_run_cap(1 << (most - 1).bit_length())
-    start, cell_key, largest = _cells(ws.runs, ws.run_n, ws.row_info)
+    with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
+        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, ws.run_n,
+                ws.row_info)  # fmt: skip
+    run_slot = np.empty(int(ws.row_info[:, 2].sum()), dtype=ws.members.dtype)
+    start, cell_key, largest, roff = _cells(ws.runs, ws.run_n, ws.row_info, run_slot)
     m = int(start[-1])
     members = ws.members[:m]
     Pc = ws.Pc[:m]
     with numba.parallel_chunksize(8):
-        _scatter(ws.flags, ws.runs, ws.row_info, w, ws.P, members, Pc)
+        _scatter(ws.flags, run_slot, roff, ws.row_info, w, ws.P, members, Pc)
+    del run_slot
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
     return _Cells(Pc, ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
