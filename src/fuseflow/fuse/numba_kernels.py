@@ -26,6 +26,7 @@ numba is imported here only; ``import fuseflow`` does not load it.
 
 from __future__ import annotations
 
+import math
 import threading
 from typing import NamedTuple
 
@@ -451,12 +452,13 @@ def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
-def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_n, row_info):
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, runs, r_n, row_info):
     """Stage 1, parallel over blocks of camera rows. Writes, at the pixel's own index
-    p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 3 candidate that starts a run, 2
-    candidate beyond the hash's range), out_P[p] (world point), out_w[p] (omega, eq. 22) and,
-    when prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority). Also the
-    row's *runs*: maximal stretches of in-range candidates (flags 1 and 3) of one coarse cell,
+    p = (i H + v) W + u: out_P[p] (world point of a candidate), out_w[p] (omega, eq. 22, of an
+    in-range candidate, negated (sign bit set, also for 0) for the first of a run; NaN for every
+    other pixel: a dropped pixel or a candidate beyond the hash's range) and, when
+    prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority). Also the
+    row's *runs*: maximal stretches of in-range candidates of one coarse cell,
     runs[row, r] = the cell key, r_n[row, r] = its candidates (both (N H, W), in buffers that
     are free until ``_scatter``); row_info[row] = (candidates, beyond range, runs).
 
@@ -474,6 +476,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     mv = prm.mv_mean
     zero = _F(0.0)
     two = _F(2.0)
+    nan = _F(np.nan)
     dflat = depth.reshape(n * h * w)
     xt, yt, skew0 = _ray_tables(Kf, h, w)
     # the neighbours that vote (in the graph and present) first, in graph order
@@ -522,7 +525,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             v = row - i * h
             rb = row * w
             for u in range(w):
-                flags[rb + u] = 0
+                out_w[rb + u] = nan
             # MCM and eq. (27): the row's candidates
             nc = 0
             if use_mcm:
@@ -611,7 +614,6 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 out_P[base, 0] = px
                 out_P[base, 1] = py
                 out_P[base, 2] = pz
-                out_w[base] = om
                 if rp:
                     dz = z - nz0
                     out_pr[base] = om / (na + nb * (dz * dz))
@@ -627,12 +629,11 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                             nr += 1
                         last_key = key
                         run_n = 0
-                        flags[base] = 3
+                        out_w[base] = -om  # a run's first point (exact: _fine_pass takes abs)
                     else:
-                        flags[base] = 1
+                        out_w[base] = om
                     run_n += 1
                 else:
-                    flags[base] = 2
                     n_oor += 1
             if run_n > 0:
                 runs[row, nr] = last_key
@@ -722,13 +723,13 @@ def _cells(runs, r_n, row_info, run_slot):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _scatter(flags, run_slot, roff, row_info, w, P, members, Pm):
+def _scatter(om, run_slot, roff, row_info, w, P, members, Pm):
     """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``), and
     Pm[slot] = its point P[pixel]: P is read in pixel order here (the scattered side is the
     write), so that ``_fine_pass`` reads the points of a cell in order instead of gathering
     them by pixel index (a cache miss at every run of a cell). The row's in-range candidates
-    (flags 1 and 3) in column order, a new run at each flag 3 (run_slot[roff[row] + r] = its
-    first slot)."""
+    (om not NaN, ``_pixels``) in column order, a new run at each om with the sign bit set
+    (run_slot[roff[row] + r] = its first slot)."""
     for row in prange(row_info.shape[0]):
         if row_info[row, 2] == 0:
             continue
@@ -737,9 +738,9 @@ def _scatter(flags, run_slot, roff, row_info, w, P, members, Pm):
         k = 0
         for u in range(w):
             p = rb + u
-            f = flags[p]
-            if f & 1:
-                if f == 3:
+            f = om[p]
+            if f == f:
+                if math.copysign(1.0, f) < 0.0:
                     r += 1
                     k = run_slot[r]
                 members[k] = p
@@ -900,7 +901,7 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
                     Pc[q, 0] = tx[t]
                     Pc[q, 1] = ty[t]
                     Pc[q, 2] = tz[t]
-                    omc[q] = om[p]
+                    omc[q] = abs(om[p])  # the sign marks a run's first point (_pixels)
                     camc[q] = _cam_of(p, hw, inv_hw)
                     if copy_rank:
                         rkc[q] = rank[p]
@@ -1139,7 +1140,7 @@ class _Workspace:
     arrays per frame cost as much in page faults as some kernels (the kernel zero-fills every
     new page). Buffers hold no result; the cloud is built from new arrays.
 
-    33 bytes per pixel (ICL, 8 x 640 x 480: 77 MiB; 53 before), by reusing buffers whose
+    32 bytes per pixel (ICL, 8 x 640 x 480: 75 MiB; 53 before), by reusing buffers whose
     lifetimes do not overlap (stages: 1 ``_gate`` / ``_pixels``, 2 ``_cells``, 3 ``_scatter``,
     4 ``_fine_pass``, 5 ``_select``, 6 ``_emit``):
 
@@ -1149,7 +1150,8 @@ class _Workspace:
     - ``buf`` (12 B): the points by pixel (``P``, 1-3); once ``_scatter`` has read them, fkey
       (4 B), omega and camera by slot (4 + 2 B) and the representatives' support (2 B).
     - ``members`` (4 B): the runs' sizes (1-2), then the pixel index per slot (3-6).
-    - ``om`` (4 B): omega by pixel (1-4), then ``stage_src`` (5-6). ``flags`` (1 B, 1-3).
+    - ``om`` (4 B): omega by pixel (1-4; NaN = no in-range candidate, sign = a run's first
+      point, so no flags), then ``stage_src`` (5-6).
     - with ``range_priority`` only: ``pr`` (omega / sigma by pixel) and ``rkc`` (by slot), 8 B.
 
     The only per-frame arrays besides the cloud are sized by cells or runs (``_cells``)."""
@@ -1158,7 +1160,6 @@ class _Workspace:
         npx = n * h * w
         self.shape = (n, h, w)
         idx = np.int32 if npx < 2**31 else np.int64  # pixel indices
-        self.flags = np.empty(npx, dtype=np.int8)
         self.pbuf = np.empty(12 * npx + 8, dtype=np.uint8)
         self.Pc = self.pbuf[: 12 * npx].view(np.float32).reshape(npx, 3)
         o = (4 * npx + 7) // 8 * 8  # 8-aligned, after the gated depth
@@ -1239,7 +1240,7 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     present = p.present.numpy().astype(np.bool_)
     rank = ws.rank(prm.range_priority)
     with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
-        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, ws.run_n,
+        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.P, ws.om, rank, ws.runs, ws.run_n,
                 ws.row_info)  # fmt: skip
     run_slot = np.empty(int(ws.row_info[:, 2].sum()), dtype=ws.members.dtype)
     start, cell_key, largest, roff = _cells(ws.runs, ws.run_n, ws.row_info, run_slot)
@@ -1247,7 +1248,7 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     members = ws.members[:m]
     Pc = ws.Pc[:m]
     with numba.parallel_chunksize(8):
-        _scatter(ws.flags, run_slot, roff, ws.row_info, w, ws.P, members, Pc)
+        _scatter(ws.om, run_slot, roff, ws.row_info, w, ws.P, members, Pc)
     del run_slot
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
