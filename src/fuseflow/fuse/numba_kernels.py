@@ -799,8 +799,8 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
     while tcap < 2 * largest + 1:
         tcap *= 2
     for ch in prange(chunks.shape[0] - 1):
-        gid = np.empty(largest, dtype=np.int64)
-        gstart = np.empty(largest + 1, dtype=np.int64)
+        gid = np.empty(largest, dtype=np.int32)  # fine keys < 2^21, then groups < largest
+        gstart = np.empty(largest + 1, dtype=np.int32)
         tk = np.empty(tcap, dtype=np.int64)
         tx = np.empty(largest, dtype=np.float32)
         ty = np.empty(largest, dtype=np.float32)
@@ -861,7 +861,7 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
                 for t in range(n):
                     gid[t] = 0
             for t in range(n):  # fine key -> fine group, in place
-                k3 = gid[t]
+                k3 = np.int64(gid[t])
                 if k3 == last_k:
                     gid[t] = last_g
                     continue
