@@ -284,7 +284,9 @@ def test_numba_equals_torch_with_skewed_intrinsics():
 
 
 def _arrays(cloud) -> list:
-    return [t.numpy().copy() for t in (cloud.xyz, cloud.rgb, cloud.weight, cloud.camera, cloud.support) if t is not None]
+    return [
+        t.numpy().copy() for t in (cloud.xyz, cloud.rgb, cloud.weight, cloud.camera, cloud.support) if t is not None
+    ]
 
 
 def test_numba_workspace_reuse_across_shapes():
