@@ -281,3 +281,72 @@ def test_numba_equals_torch_with_skewed_intrinsics():
     for cfg in (FuseConfig(), FuseConfig(multiview_mean=False)):
         rt, _ = both(frame, rig, cfg)
         assert len(rt.cloud) > 100
+
+
+def _arrays(cloud) -> list:
+    return [
+        t.numpy().copy() for t in (cloud.xyz, cloud.rgb, cloud.weight, cloud.camera, cloud.support) if t is not None
+    ]
+
+
+def test_numba_workspace_reuse_across_shapes():
+    """The per-thread workspace (and the gated depth, which lives in it) is kept between frames
+    of one shape and replaced when the shape changes: the same frame gives the same cloud,
+    bit for bit, whatever was fused before it."""
+    from fuseflow.fuse import numba_kernels as nk
+    from fuseflow.synth import SimConfig, Simulator
+
+    rig_a = make_rig([(-0.5, 0.0, 0.0), (0.0, 0.2, 0.1), (0.5, 0.0, 0.0)])
+    frame_a = render(rig_a, [Rect(PLANE_Z), Rect(1.5, -0.2, 0.2, -0.2, 0.2)], noise=0.003, seed=2)
+    sim = Simulator(SimConfig(cameras=6, resolution=(48, 36), frames=1))
+    frame_b, rig_b = sim.render(0).frame, sim.rig
+    cfg = FuseConfig(backend="numba")
+    nk.release_workspace()
+    a0 = _arrays(fuse_with_report(frame_a, rig_a, cfg).cloud)
+    shape_a = nk._LOCAL.ws.shape
+    b0 = _arrays(fuse_with_report(frame_b, rig_b, cfg).cloud)
+    assert nk._LOCAL.ws.shape != shape_a
+    a1 = _arrays(fuse_with_report(frame_a, rig_a, cfg).cloud)
+    a2 = _arrays(fuse_with_report(frame_a, rig_a, replace(cfg, consensus=False)).cloud)
+    a3 = _arrays(fuse_with_report(frame_a, rig_a, cfg).cloud)
+    nk.release_workspace()
+    b1 = _arrays(fuse_with_report(frame_b, rig_b, cfg).cloud)
+    assert len(a0[0]) > 100 and len(b0[0]) > 100 and len(a2) == len(a0) - 1
+    for x, y in ((a0, a1), (a0, a3), (b0, b1)):
+        assert len(x) == len(y) and all(np.array_equal(p, q) for p, q in zip(x, y))
+
+
+def test_cells_table_grows_with_the_cells():
+    """_cells' hash table starts small and is rehashed as cells appear: cell ids in order of
+    first appearance, run slots grouped by cell, as a dict gives them."""
+    from fuseflow.fuse.numba_kernels import _cells
+
+    rng = np.random.default_rng(0)
+    n_rows, w = 40, 200
+    row_info = np.zeros((n_rows, 3), dtype=np.int64)
+    runs = np.zeros((n_rows, w), dtype=np.int64)
+    r_n = np.zeros((n_rows, w), dtype=np.int32)
+    keys = rng.integers(0, 2**40, size=5000)
+    for row in range(n_rows):
+        nr = int(rng.integers(0, w))
+        row_info[row, 2] = nr
+        runs[row, :nr] = keys[rng.integers(0, len(keys), size=nr)]
+        r_n[row, :nr] = rng.integers(1, 9, size=nr)
+    ref_runs = [(int(runs[row, r]), int(r_n[row, r])) for row in range(n_rows) for r in range(row_info[row, 2])]
+    order = list(dict.fromkeys(k for k, _ in ref_runs))
+    cid = {k: i for i, k in enumerate(order)}
+    sizes = np.zeros(len(order), dtype=np.int64)
+    for k, c in ref_runs:
+        sizes[cid[k]] += c
+    ref_start = np.concatenate([[0], np.cumsum(sizes)])
+    fill = ref_start[:-1].copy()
+    ref_slot = []
+    for k, c in ref_runs:
+        ref_slot.append(fill[cid[k]])
+        fill[cid[k]] += c
+    run_slot = np.empty(len(ref_runs), dtype=np.int32)
+    start, cell_key, largest, roff = _cells(runs, r_n, row_info, run_slot)
+    assert len(order) > 2000  # past several doublings of the 1024-entry table
+    assert np.array_equal(start, ref_start) and np.array_equal(cell_key, np.array(order, dtype=np.int64))
+    assert largest == sizes.max() and np.array_equal(run_slot, np.array(ref_slot))
+    assert np.array_equal(roff, np.concatenate([[0], np.cumsum(row_info[:, 2])]))

@@ -26,6 +26,7 @@ numba is imported here only; ``import fuseflow`` does not load it.
 
 from __future__ import annotations
 
+import math
 import threading
 from typing import NamedTuple
 
@@ -205,10 +206,14 @@ def _gate(depth, lo, hi, present, out, row_count):
 
 def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present: torch.Tensor):
     """(gated depth (N, H, W) float32 tensor, valid pixels per view): what api._prepare computes
-    with torch (valid_depth, then zero for absent views), as one compiled pass."""
+    with torch (valid_depth, then zero for absent views), as one compiled pass. The tensor is
+    a view of this thread's FUSE workspace: the next ``fuse_numba`` call overwrites it after
+    reading it (api._prepare's depth is read only by that call)."""
     d = depth.contiguous().numpy()
     n, h, w = d.shape
-    out = np.empty_like(d)
+    # in this thread's workspace (fuse_numba reads it in _pixels, then the buffer holds the
+    # points): valid until the next fuse_numba of this thread
+    out = _workspace(n, h, w).depth()
     rows = np.empty(n * h, dtype=np.int64)
     _gate(d, lo.numpy(), hi.numpy(), present.numpy().astype(np.bool_), out, rows)
     return torch.from_numpy(out), tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
@@ -447,13 +452,15 @@ def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
-def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_pr, runs, r_lo, r_hi, r_n, row_info):
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, runs, r_n, row_info):
     """Stage 1, parallel over blocks of camera rows. Writes, at the pixel's own index
-    p = (i H + v) W + u: flags[p] (0 dropped, 1 candidate, 2 candidate beyond the hash's range),
-    out_P[p] (world point), out_w[p] (omega, eq. 22) and, when prm.range_priority, out_pr[p]
-    (omega / sigma(z), rps.selection_priority). Also the row's *runs*: maximal stretches of
-    candidates (flag 1) of one coarse cell, runs[row W + r] = the cell key, r_lo / r_hi / r_n
-    [row W + r] = its first u, last u, candidates; row_info[row] = (candidates, beyond range, runs).
+    p = (i H + v) W + u: out_P[p] (world point of a candidate), out_w[p] (omega, eq. 22, of an
+    in-range candidate, negated (sign bit set, also for 0) for the first of a run; NaN for every
+    other pixel: a dropped pixel or a candidate beyond the hash's range) and, when
+    prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority). Also the
+    row's *runs*: maximal stretches of in-range candidates of one coarse cell,
+    runs[row, r] = the cell key, r_n[row, r] = its candidates (both (N H, W), in buffers that
+    are free until ``_scatter``); row_info[row] = (candidates, beyond range, runs).
 
     Each row runs in passes over row-sized scratch: MCM and eq. (27)'s test (``_mcm_row``) ->
     the row's candidates and their camera-frame points -> CVGC one neighbour at a time over all
@@ -469,6 +476,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
     mv = prm.mv_mean
     zero = _F(0.0)
     two = _F(2.0)
+    nan = _F(np.nan)
     dflat = depth.reshape(n * h * w)
     xt, yt, skew0 = _ray_tables(Kf, h, w)
     # the neighbours that vote (in the graph and present) first, in graph order
@@ -517,7 +525,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             v = row - i * h
             rb = row * w
             for u in range(w):
-                flags[rb + u] = 0
+                out_w[rb + u] = nan
             # MCM and eq. (27): the row's candidates
             nc = 0
             if use_mcm:
@@ -570,8 +578,6 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
             n_oor = 0
             nr = 0
             last_key = np.int64(-1)
-            run_lo = 0
-            run_hi = 0
             run_n = 0
             for t in range(nc):  # eq. (21)-(22), the world point and its cell, vectorised
                 c = cw[t]
@@ -608,36 +614,30 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
                 out_P[base, 0] = px
                 out_P[base, 1] = py
                 out_P[base, 2] = pz
-                out_w[base] = om
                 if rp:
                     dz = z - nz0
                     out_pr[base] = om / (na + nb * (dz * dz))
                 cnt += 1
                 if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
-                    flags[base] = 1
                     key = (
                         ((np.int64(qx) + off) << (2 * bits)) | ((np.int64(qy) + off) << bits) | (np.int64(qz) + off)
                     )  # eq. (23)'s coarse cell, packed as in ash.py
                     if key != last_key:
                         if run_n > 0:
-                            runs[rb + nr] = last_key
-                            r_lo[rb + nr] = run_lo
-                            r_hi[rb + nr] = run_hi
-                            r_n[rb + nr] = run_n
+                            runs[row, nr] = last_key
+                            r_n[row, nr] = run_n
                             nr += 1
                         last_key = key
-                        run_lo = u
                         run_n = 0
-                    run_hi = u
+                        out_w[base] = -om  # a run's first point (exact: _fine_pass takes abs)
+                    else:
+                        out_w[base] = om
                     run_n += 1
                 else:
-                    flags[base] = 2
                     n_oor += 1
             if run_n > 0:
-                runs[rb + nr] = last_key
-                r_lo[rb + nr] = run_lo
-                r_hi[rb + nr] = run_hi
-                r_n[rb + nr] = run_n
+                runs[row, nr] = last_key
+                r_n[row, nr] = run_n
                 nr += 1
             row_info[row, 0] = cnt
             row_info[row, 1] = n_oor
@@ -645,28 +645,29 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, flags, out_P, out_w, out_
 
 
 @njit(cache=True, error_model="numpy")
-def _cells(runs, r_n, row_info, w):
+def _cells(runs, r_n, row_info, run_slot):
     """Coarse cells of the runs (serial, one hash lookup per run, not per point): cell ids in
-    first-appearance order (input order), each run's key in ``runs`` replaced by the first
-    slot of its points in the cell-grouped order. Returns (start (C+1,): each cell's slots,
-    cell_key (C,): its packed key, the largest cell's size)."""
+    first-appearance order (input order); run_slot[roff[row] + r] = the first slot of run r of
+    the row in the cell-grouped order (runs compacted: ``runs`` and ``r_n`` live in buffers that
+    ``_scatter`` overwrites). The hash table and the per-cell arrays grow with the cells, not
+    with the runs (the simulated ring has ~1.5 k cells but ~10^5-10^6 runs). Returns (start
+    (C+1,): each cell's slots, cell_key (C,): its packed key, the largest cell's size, roff
+    (rows + 1,): each row's first run)."""
     n_rows = row_info.shape[0]
-    n_runs = 0
+    roff = np.empty(n_rows + 1, dtype=np.int64)
+    roff[0] = 0
     for row in range(n_rows):
-        n_runs += row_info[row, 2]
-    size = 16
-    while size < 2 * n_runs + 16:
-        size *= 2
+        roff[row + 1] = roff[row] + row_info[row, 2]
+    size = 1024
     mask = size - 1
     tkeys = np.full(size, -1, dtype=np.int64)
     tvals = np.empty(size, dtype=np.int64)
-    cell_key = np.empty(n_runs, dtype=np.int64)
-    counts = np.zeros(n_runs + 1, dtype=np.int64)
+    cell_key = np.empty(size // 2, dtype=np.int64)
+    counts = np.zeros(size // 2 + 1, dtype=np.int64)
     n_cells = 0
     for row in range(n_rows):
-        rb = row * w
         for r in range(row_info[row, 2]):
-            key = runs[rb + r]
+            key = runs[row, r]
             slot = ((key * np.int64(-7046029254386353131)) >> 20) & mask
             while True:
                 tk = tkeys[slot]
@@ -674,6 +675,28 @@ def _cells(runs, r_n, row_info, w):
                     cid = tvals[slot]
                     break
                 if tk == -1:
+                    if 2 * (n_cells + 1) > size:  # keep the load <= 1/2: twice the room, rehash
+                        size *= 2
+                        mask = size - 1
+                        nk = np.full(size, -1, dtype=np.int64)
+                        nv = np.empty(size, dtype=np.int64)
+                        for e in range(size // 2):
+                            if tkeys[e] != -1:
+                                s2 = ((tkeys[e] * np.int64(-7046029254386353131)) >> 20) & mask
+                                while nk[s2] != -1:
+                                    s2 = (s2 + 1) & mask
+                                nk[s2] = tkeys[e]
+                                nv[s2] = tvals[e]
+                        tkeys = nk
+                        tvals = nv
+                        ck = np.empty(size // 2, dtype=np.int64)
+                        ck[:n_cells] = cell_key[:n_cells]
+                        cell_key = ck
+                        cn = np.zeros(size // 2 + 1, dtype=np.int64)
+                        cn[: n_cells + 1] = counts[: n_cells + 1]
+                        counts = cn
+                        slot = ((key * np.int64(-7046029254386353131)) >> 20) & mask
+                        continue  # probe the new table
                     tkeys[slot] = key
                     tvals[slot] = n_cells
                     cell_key[n_cells] = key
@@ -681,8 +704,8 @@ def _cells(runs, r_n, row_info, w):
                     n_cells += 1
                     break
                 slot = (slot + 1) & mask
-            runs[rb + r] = cid
-            counts[cid + 1] += r_n[rb + r]
+            runs[row, r] = cid
+            counts[cid + 1] += r_n[row, r]
     largest = 0
     for c in range(n_cells):
         if counts[c + 1] > largest:
@@ -691,32 +714,40 @@ def _cells(runs, r_n, row_info, w):
     start = counts[: n_cells + 1].copy()
     fill = counts[:n_cells]
     for row in range(n_rows):  # stable: runs in input order, so points keep input order in a cell
-        rb = row * w
+        o = roff[row]
         for r in range(row_info[row, 2]):
-            cid = runs[rb + r]
-            runs[rb + r] = fill[cid]
-            fill[cid] += r_n[rb + r]
-    return start, cell_key[:n_cells].copy(), largest
+            cid = runs[row, r]
+            run_slot[o + r] = fill[cid]
+            fill[cid] += r_n[row, r]
+    return start, cell_key[:n_cells].copy(), largest, roff
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _scatter(flags, runs, r_lo, r_hi, row_info, w, P, members, Pm):
+def _scatter(om, run_slot, roff, row_info, w, P, members, Pm):
     """members[slot] = pixel index of every candidate, grouped by coarse cell (``_cells``), and
     Pm[slot] = its point P[pixel]: P is read in pixel order here (the scattered side is the
     write), so that ``_fine_pass`` reads the points of a cell in order instead of gathering
-    them by pixel index (a cache miss at every run of a cell)."""
+    them by pixel index (a cache miss at every run of a cell). The row's in-range candidates
+    (om not NaN, ``_pixels``) in column order, a new run at each om with the sign bit set
+    (run_slot[roff[row] + r] = its first slot)."""
     for row in prange(row_info.shape[0]):
+        if row_info[row, 2] == 0:
+            continue
         rb = row * w
-        for r in range(row_info[row, 2]):
-            k = runs[rb + r]
-            for u in range(r_lo[rb + r], r_hi[rb + r] + 1):
-                p = rb + u
-                if flags[p] == 1:
-                    members[k] = p
-                    Pm[k, 0] = P[p, 0]
-                    Pm[k, 1] = P[p, 1]
-                    Pm[k, 2] = P[p, 2]
-                    k += 1
+        r = roff[row] - 1
+        k = 0
+        for u in range(w):
+            p = rb + u
+            f = om[p]
+            if f == f:
+                if math.copysign(1.0, f) < 0.0:
+                    r += 1
+                    k = run_slot[r]
+                members[k] = p
+                Pm[k, 0] = P[p, 0]
+                Pm[k, 1] = P[p, 1]
+                Pm[k, 2] = P[p, 2]
+                k += 1
 
 
 @njit(cache=True, error_model="numpy")
@@ -734,17 +765,19 @@ def _chunks(start, n_chunks):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum,
-               cell_fine_n, om, rank, copy_rank, hw, Pc, omc, rkc, camc):  # fmt: skip
-    """P: the points of members_in, in its order (``_scatter``'s Pm).
+def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum, cell_fine_n,
+               om, rank, copy_rank, hw, omc, rkc, camc):  # fmt: skip
+    """Pc, members: the points and pixel indices of the candidates grouped by coarse cell
+    (``_scatter``); with ``reorder`` both are sorted into slot order **in place** (a cell's
+    range is copied to the chunk's scratch first), so no second point buffer is needed.
 
     Eq. (23)-(25) per coarse cell (parallel over chunks of cells, scratch allocated once per
-    chunk): fine keys, stable local counting sort of members_in into members, fkey = fine
+    chunk): fine keys, stable local counting sort of members (and Pc), fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
-    density control): members untouched, fkey[start[c] + g] = size of fine cell g instead.
-    With ``reorder`` also the point, weight and ranking value of each slot, in slot order:
-    Pc, omc, camc (the camera, p // hw) and rkc (only when ``copy_rank``: without
+    density control): Pc and members untouched, fkey[start[c] + g] = size of fine cell g instead.
+    With ``reorder`` also the weight and ranking value of each slot, in slot order:
+    omc, camc (the camera, p // hw) and rkc (only when ``copy_rank``: without
     range_priority the ranking value is omega and the selection reads omc), so that the
     selection reads them in order instead of gathering them by pixel index."""
     s_c, s0, s_min, s_max, eps, adaptive, fixed = (
@@ -766,12 +799,13 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
     while tcap < 2 * largest + 1:
         tcap *= 2
     for ch in prange(chunks.shape[0] - 1):
-        gid = np.empty(largest, dtype=np.int64)
-        gstart = np.empty(largest + 1, dtype=np.int64)
+        gid = np.empty(largest, dtype=np.int32)  # fine keys < 2^21, then groups < largest
+        gstart = np.empty(largest + 1, dtype=np.int32)
         tk = np.empty(tcap, dtype=np.int64)
         tx = np.empty(largest, dtype=np.float32)
         ty = np.empty(largest, dtype=np.float32)
         tz = np.empty(largest, dtype=np.float32)
+        tm = np.empty(largest if reorder else 0, dtype=members.dtype)
         for c in range(chunks[ch], chunks[ch + 1]):
             a = start[c]
             b = start[c + 1]
@@ -805,10 +839,13 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             ng = 0
             last_k = np.int64(-1)
             last_g = 0
-            for t in range(n):  # the cell's points (P in slot order, _scatter)
-                tx[t] = P[a + t, 0]
-                ty[t] = P[a + t, 1]
-                tz[t] = P[a + t, 2]
+            for t in range(n):  # the cell's points (in _scatter's order)
+                tx[t] = Pc[a + t, 0]
+                ty[t] = Pc[a + t, 1]
+                tz[t] = Pc[a + t, 2]
+            if reorder:
+                for t in range(n):
+                    tm[t] = members[a + t]
             if adaptive:
                 for t in range(n):  # eq. (25), a branch-free loop that vectorises
                     # clamped to 0..127 as floats, then converted (the same integers as
@@ -824,7 +861,7 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
                 for t in range(n):
                     gid[t] = 0
             for t in range(n):  # fine key -> fine group, in place
-                k3 = gid[t]
+                k3 = np.int64(gid[t])
                 if k3 == last_k:
                     gid[t] = last_g
                     continue
@@ -857,14 +894,14 @@ def _fine_pass(P, start, cell_key, members_in, prm, chunks, largest, reorder, me
             if reorder:
                 for t in range(n):  # gstart[g] is now the next free slot of group g
                     g = gid[t]
-                    p = members_in[a + t]
+                    p = tm[t]
                     q = a + gstart[g]
                     members[q] = p
                     fkey[q] = g
                     Pc[q, 0] = tx[t]
                     Pc[q, 1] = ty[t]
                     Pc[q, 2] = tz[t]
-                    omc[q] = om[p]
+                    omc[q] = abs(om[p])  # the sign marks a run's first point (_pixels)
                     camc[q] = _cam_of(p, hw, inv_hw)
                     if copy_rank:
                         rkc[q] = rank[p]
@@ -1101,30 +1138,58 @@ def consensus_params(cfg: FuseConfig, on: bool | None = None) -> ConsensusParams
 class _Workspace:
     """Per-thread buffers of one frame shape, reused from frame to frame: a fresh 100+ MB of
     arrays per frame cost as much in page faults as some kernels (the kernel zero-fills every
-    new page). Buffers hold no result; the cloud is built from new arrays."""
+    new page). Buffers hold no result; the cloud is built from new arrays.
+
+    32 bytes per pixel (ICL, 8 x 640 x 480: 75 MiB; 53 before), by reusing buffers whose
+    lifetimes do not overlap (stages: 1 ``_gate`` / ``_pixels``, 2 ``_cells``, 3 ``_scatter``,
+    4 ``_fine_pass``, 5 ``_select``, 6 ``_emit``):
+
+    - ``pbuf`` (12 B): the gated depth (its first 4 B per pixel, 1; ``gate_depth``) and the
+      rows' coarse runs (key, 8 B per pixel's room, 1-2); then ``Pc``, the points by coarse
+      cell (3), sorted into slot order in place (4), moved by the consensus (5).
+    - ``buf`` (12 B): the points by pixel (``P``, 1-3); once ``_scatter`` has read them, fkey
+      (4 B), omega and camera by slot (4 + 2 B) and the representatives' support (2 B).
+    - ``members`` (4 B): the runs' sizes (1-2), then the pixel index per slot (3-6).
+    - ``om`` (4 B): omega by pixel (1-4; NaN = no in-range candidate, sign = a run's first
+      point, so no flags), then ``stage_src`` (5-6).
+    - with ``range_priority`` only: ``pr`` (omega / sigma by pixel) and ``rkc`` (by slot), 8 B.
+
+    The only per-frame arrays besides the cloud are sized by cells or runs (``_cells``)."""
 
     def __init__(self, n: int, h: int, w: int) -> None:
         npx = n * h * w
         self.shape = (n, h, w)
-        self.flags = np.empty(npx, dtype=np.int8)
-        self.P = np.empty((npx, 3), dtype=np.float32)
-        self.Pm = np.empty((npx, 3), dtype=np.float32)  # P by coarse cell (_scatter); then P holds Pc
-        self.camc = np.empty(npx, dtype=np.int16)  # camera of each slot
-        self.om = np.empty(npx, dtype=np.float32)
-        self.pr = np.empty(1, dtype=np.float32)
-        self.runs = np.empty(npx, dtype=np.int64)
-        self.row_info = np.empty((n * h, 3), dtype=np.int64)
         idx = np.int32 if npx < 2**31 else np.int64  # pixel indices
-        self.members_in = np.empty(npx, dtype=idx)
+        self.pbuf = np.empty(12 * npx + 8, dtype=np.uint8)
+        self.Pc = self.pbuf[: 12 * npx].view(np.float32).reshape(npx, 3)
+        o = (4 * npx + 7) // 8 * 8  # 8-aligned, after the gated depth
+        self.runs = self.pbuf[o : o + 8 * npx].view(np.int64).reshape(n * h, w)
+        self.buf = np.empty(12 * npx, dtype=np.uint8)
+        self.P = self.buf.view(np.float32).reshape(npx, 3)
+        self.fkey = self.buf[: 4 * npx].view(np.int32)
+        self.omc = self.buf[4 * npx : 8 * npx].view(np.float32)
+        self.camc = self.buf[8 * npx : 10 * npx].view(np.int16)  # camera of each slot
+        self.stage_sup = self.buf[10 * npx :].view(np.int16)
         self.members = np.empty(npx, dtype=idx)
-        self.fkey = np.empty(npx, dtype=np.int32)
-        self.stage_src = self.members_in  # free once _fine_pass has sorted members_in into members
-        self.stage_sup = np.empty(npx, dtype=np.int16)
+        self.run_n = self.members.reshape(n * h, w)
+        self.om = np.empty(npx, dtype=np.float32)
+        # the representatives' slots: omega by pixel is not read after _fine_pass
+        self.stage_src = self.om.view(np.int32) if idx is np.int32 else np.empty(npx, dtype=idx)
+        self.pr = np.empty(1, dtype=np.float32)
+        self.rkc = np.empty(1, dtype=np.float32)
+        self.row_info = np.empty((n * h, 3), dtype=np.int64)
+
+    def depth(self) -> np.ndarray:
+        """The gated depth's buffer (N, H, W) float32: the first third of Pc, which nothing
+        writes before ``_scatter``, i.e. after ``_pixels`` has read the depth."""
+        n, h, w = self.shape
+        return self.Pc.reshape(-1)[: n * h * w].reshape(n, h, w)
 
     def rank(self, on: bool) -> np.ndarray:
         """The buffer for the range-aware ranking value (length 1 when unused)."""
         if on and self.pr.shape[0] != self.om.shape[0]:
             self.pr = np.empty(self.om.shape[0], dtype=np.float32)
+            self.rkc = np.empty(self.om.shape[0], dtype=np.float32)
         return self.pr
 
 
@@ -1132,11 +1197,18 @@ _LOCAL = threading.local()
 
 
 def _workspace(n: int, h: int, w: int) -> _Workspace:
+    """This thread's workspace for frames of shape (n, h, w); another shape replaces it (the
+    old buffers are released first)."""
     ws = getattr(_LOCAL, "ws", None)
     if ws is None or ws.shape != (n, h, w):
         _LOCAL.ws = ws = None  # drop the old buffers before allocating new ones
         _LOCAL.ws = ws = _Workspace(n, h, w)
     return ws
+
+
+def release_workspace() -> None:
+    """Free this thread's workspace (it is otherwise kept for the next frame of the same shape)."""
+    _LOCAL.ws = None
 
 
 class _Cells(NamedTuple):
@@ -1168,20 +1240,19 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     present = p.present.numpy().astype(np.bool_)
     rank = ws.rank(prm.range_priority)
     with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
-        # a run's first u, last u and size live in three buffers that stages 3-4 use later
-        r_lo, r_hi, r_n = ws.members, ws.fkey, ws.stage_src
-        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.flags, ws.P, ws.om, rank, ws.runs, r_lo, r_hi, r_n,
+        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.P, ws.om, rank, ws.runs, ws.run_n,
                 ws.row_info)  # fmt: skip
-    start, cell_key, largest = _cells(ws.runs, r_n, ws.row_info, w)
+    run_slot = np.empty(int(ws.row_info[:, 2].sum()), dtype=ws.members.dtype)
+    start, cell_key, largest, roff = _cells(ws.runs, ws.run_n, ws.row_info, run_slot)
     m = int(start[-1])
-    members = ws.members_in[:m]
+    members = ws.members[:m]
+    Pc = ws.Pc[:m]
     with numba.parallel_chunksize(8):
-        _scatter(ws.flags, ws.runs, r_lo, r_hi, ws.row_info, w, ws.P, members, ws.Pm)
+        _scatter(ws.om, run_slot, roff, ws.row_info, w, ws.P, members, Pc)
+    del run_slot
     cand = int(ws.row_info[:, 0].sum())
     oor = int(ws.row_info[:, 1].sum())
-    return _Cells(
-        ws.Pm[:m], ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor
-    )
+    return _Cells(Pc, ws.om, rank if prm.range_priority else ws.om, start, cell_key, members, int(largest), cand, oor)
 
 
 class _Selection(NamedTuple):
@@ -1199,20 +1270,19 @@ def _select_points(
     n_cells = c.start.shape[0] - 1
     m = c.members.shape[0]
     chunks = _chunks(c.start, min(max(n_cells, 1), 16 * numba.get_num_threads()))
-    members, fkey = ws.members[:m], ws.fkey[:m]
+    members, fkey = c.members, ws.fkey[:m]
     csize = np.empty(n_cells, dtype=np.float32)
     rho_sum = np.empty(n_cells, dtype=np.float64)
     fine_n = np.empty(n_cells, dtype=np.int64)
-    # slot-ordered copies of point, omega and rank (read by _select and _emit); the coarse
-    # runs' buffer, free after _scatter, holds omega and the rank as float32
-    # Pc in P's buffer: the points in pixel order are not read after _scatter
-    Pc, camc = ws.P[:m], ws.camc[:m]
-    spare = ws.runs.view(np.float32)
-    omc, rkc = spare[:m], spare[m : 2 * m]
+    # slot-ordered omega, camera and rank (read by _select and _emit): fkey, omc and camc in
+    # the buffer of the points by pixel, which nothing reads after _scatter; Pc and members
+    # sorted in place
+    Pc, camc, omc = c.P, ws.camc[:m], ws.omc[:m]
     copy_rank = c.rank is not c.om
+    rkc = ws.rkc[:m] if copy_rank else omc
     with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
-        _fine_pass(c.P, c.start, c.cell_key, c.members, prm.cell, chunks, c.largest, not count_only, members, fkey,
-                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, hw, Pc, omc, rkc, camc)  # fmt: skip
+        _fine_pass(Pc, c.start, c.cell_key, prm.cell, chunks, c.largest, not count_only, members, fkey,
+                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, hw, omc, rkc, camc)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
@@ -1263,8 +1333,8 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     color = p.color.contiguous().reshape(n * h * w, 3).numpy()
     rig_index = p.rig_index.numpy().astype(np.int16)
     with numba.parallel_chunksize(4):  # a few hundred coarse cells of very different sizes
-        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.P,
-              ws.runs.view(np.float32), ws.camc, color, rig_index, xyz, rgb, wgt, src, sup)  # fmt: skip
+        _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.Pc,
+              ws.omc, ws.camc, color, rig_index, xyz, rgb, wgt, src, sup)  # fmt: skip
     support = torch.from_numpy(sup) if cons.on else None
     cloud = FusedCloud(
         torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
