@@ -298,7 +298,7 @@ def test_numba_workspace_reuse_across_shapes():
 
     rig_a = make_rig([(-0.5, 0.0, 0.0), (0.0, 0.2, 0.1), (0.5, 0.0, 0.0)])
     frame_a = render(rig_a, [Rect(PLANE_Z), Rect(1.5, -0.2, 0.2, -0.2, 0.2)], noise=0.003, seed=2)
-    sim = Simulator(SimConfig(cameras=6, resolution=(48, 36), frames=1))
+    sim = Simulator(SimConfig(cameras=6, resolution=(64, 48), frames=1))
     frame_b, rig_b = sim.render(0).frame, sim.rig
     cfg = FuseConfig(backend="numba")
     nk.release_workspace()
