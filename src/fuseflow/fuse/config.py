@@ -123,7 +123,7 @@ class FuseConfig:
     With ``multiview_mean`` more neighbours average more measurements: 7 (on an 8-camera ring
     every other camera) took accuracy from 7.8-8.0 to 7.1-7.2 mm and F @ 1 cm from 0.63-0.64 to
     0.66-0.67 on the simulated 8-camera studio (docs/fuse.md, Quality). It cost +37 % time on
-    the ICL 8-view frame with session 8's kernels and costs +11 % with session 9's (137 vs
+    the ICL 8-view frame with session 8's kernels and costs +11-16 % with session 9's (137 vs
     123 ms, quiet machine), so 7 became the default in session 9 (was 4: ``PRESETS["fast"]``)."""
     min_overlap: float = 0.05
     """Overlap floor: a camera j is a neighbour of i only when at least this share of i's
