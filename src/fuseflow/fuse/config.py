@@ -9,7 +9,7 @@ its derivation written next to it (DESIGN.md section 2). Presets:
   depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
 * ``PRESETS["quality"]``: the default since session 9 (``k_neighbours = 7``, ``s0 = 5``), kept
   under its old name.
-* ``PRESETS["fast"]``: the default before session 9 (``k_neighbours = 4``, ``s0 = 6.3``): ~10 %
+* ``PRESETS["fast"]``: the default before session 9 (``k_neighbours = 4``, ``s0 = 6.3``): 10-15 %
   less time and ~25 % fewer points, 0.7 mm less accurate on the simulated 8-camera studio
   (docs/fuse.md, Quality).
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
