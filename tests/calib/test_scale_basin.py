@@ -105,9 +105,15 @@ def test_refinement_rejected_when_matches_say_worse(scene5, backbone_builder):
 
 def test_consistent_counts_equal_one_count_per_scale(studio8):
     """The coarse search's batched count (``consistent_counts``) against its slow reference, one
-    ``consistent_count`` per scale, on every directed pair of the ring: the same integers, also
-    with the informative mask and with points behind camera j (tiny scales)."""
-    from fuseflow.calib.correspondences import consistent_count, consistent_counts, informative_mask
+    ``reproject`` and depth test per scale, on every directed pair of the ring: the same
+    integers, also with the informative mask and with points behind camera j (tiny scales)."""
+    from fuseflow.calib.correspondences import consistent_counts, informative_mask, reproject
+
+    def consistent_count(g, cam_i, cam_j, s, tau, mask):
+        X = cam_i.X if mask is None else cam_i.X[mask]
+        _, Xj, _, d, _, ok, _ = reproject(g, cam_j, X, s)
+        z = Xj[:, 2]
+        return int(np.count_nonzero(ok & (d > 0) & (np.abs(d - z) < tau * np.maximum(z, 1e-6))))
 
     frame, rig, T = studio8
     depth = frame.depth.numpy()

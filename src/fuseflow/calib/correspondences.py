@@ -292,11 +292,8 @@ def consistent_count(
     g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, tau: float, mask: np.ndarray | None = None
 ) -> int:
     """Number of camera-i samples (those in ``mask`` when given) whose reprojection at scale s is
-    depth-consistent in j."""
-    X = cam_i.X if mask is None else cam_i.X[mask]
-    _, Xj, _, d, _, ok, _ = reproject(g, cam_j, X, s)
-    z = Xj[:, 2]
-    return int(np.count_nonzero(ok & (d > 0) & (np.abs(d - z) < tau * np.maximum(z, 1e-6))))
+    depth-consistent in j (``consistent_counts`` at one scale)."""
+    return int(consistent_counts(g, cam_i, cam_j, np.array([s], dtype=np.float64), tau, mask)[0])
 
 
 def consistent_counts(
@@ -307,10 +304,11 @@ def consistent_counts(
     tau: float,
     mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``consistent_count`` at every scale of ``scales`` (G,) at once: (G,) int64.
+    """Camera-i samples (those in ``mask`` when given) whose reprojection is depth-consistent in
+    j, at every scale of ``scales`` (G,) at once: (G,) int64.
 
-    The same test per point and scale (X_ij = R X + s t, projection, nearest pixel, depth gate)
-    on (G, M) arrays, without what the count does not use (validity, normals), and with the
+    ``reproject``'s test per point and scale (X_ij = R X + s t, projection, nearest pixel, depth
+    gate) on (G, M) arrays, without what the count does not use (validity, normals), and with the
     projection written out instead of a (G M, 3) x (3, 3) matrix product (OpenBLAS threads that
     product, 15-20x slower than one thread on a loaded 2-core machine). The coarse scale search
     evaluates ~220 scales per edge; one ``consistent_count`` call per scale was the largest part
