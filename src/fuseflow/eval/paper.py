@@ -467,9 +467,14 @@ def _samples(dataset: str, n: int, seed: int, pc: PaperConfig, icl_dir: Path | N
 
 
 def _gmac_cell(dataset: str, backbone: str, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> dict:
+    """Table I/III rows of one data set and seed: the backbone's GMAC rows, or for backbone
+    "default" the row ``DEFAULT_ROW``, the product's default ``calibrate`` on the same frame."""
     pc = pc.for_calibration()
     s = _samples(dataset, pc.calib_cameras, seed, pc, icl_dir)[0]
-    cals = calibrations(s, backbone, seed, GMAC_ROWS)
+    if backbone == "default":
+        cals = {DEFAULT_ROW: default_calibration(s, seed)}
+    else:
+        cals = calibrations(s, backbone, seed, GMAC_ROWS)
     rows = {}
     for name, c in cals.items():
         err = pose_row(c.get("T"), s.rig)
@@ -477,18 +482,6 @@ def _gmac_cell(dataset: str, backbone: str, seed: int, pc: PaperConfig, icl_dir:
         rows[name] = {**(err or {}), "seconds": c.get("seconds"), "failed": err is None, "error": c.get("error"),
                       "placed": placed}  # fmt: skip
     return {"rows": rows, "label": s.label}
-
-
-def _gmac_default_cell(dataset: str, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> dict:
-    """Table I/III row ``DEFAULT_ROW``: the product's default ``calibrate`` on the same frame as
-    the backbone cells of this data set and seed."""
-    pc = pc.for_calibration()
-    s = _samples(dataset, pc.calib_cameras, seed, pc, icl_dir)[0]
-    c = default_calibration(s, seed)
-    err = pose_row(c.get("T"), s.rig)
-    row = {**(err or {}), "seconds": c.get("seconds"), "failed": err is None, "error": c.get("error"),
-           "placed": len(c.get("T") or {})}  # fmt: skip
-    return {"rows": {DEFAULT_ROW: row}, "label": s.label}
 
 
 def _extrinsics_cell(dataset: str, source: str, seed: int, pc: PaperConfig, icl_dir: Path | None = None) -> dict:
@@ -561,7 +554,7 @@ def plan(
                             dataset=ds, backbone=b, seed=sd)  # fmt: skip
                 if pc.default_calib_row:
                     for sd in range(pc.calib_seeds):
-                        add(table, f"{ds}-default-s{sd}", lambda ds=ds, sd=sd: _gmac_default_cell(ds, sd, pc, icl_dir),
+                        add(table, f"{ds}-default-s{sd}", lambda ds=ds, sd=sd: _gmac_cell(ds, "default", sd, pc, icl_dir),
                             dataset=ds, backbone="default", seed=sd)  # fmt: skip
         elif table in ("static", "dynamic"):
             sets = static_sets if table == "static" else ["sim-studio-dyn"]
