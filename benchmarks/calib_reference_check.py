@@ -30,6 +30,7 @@ import numpy as np
 
 import fuseflow.calib.joint_refine as jr
 from fuseflow.calib import calibrate
+from fuseflow.calib.posegraph import rotation_angle_deg
 from fuseflow.eval.metrics import pose_errors
 from fuseflow.types import Rig, invert_rigid
 
@@ -145,7 +146,7 @@ def per_camera(name: str) -> None:
         hyb[c] = into_reference(T, T_ref, c)
         ref = {j: T_ref[j] for j in T}
         d = hyb[c] @ np.linalg.inv(ref[c])
-        deg = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+        deg = rotation_angle_deg(d[:3, :3])
         mm = 1000 * np.linalg.norm(invert_rigid(hyb[c])[:3, 3] - invert_rigid(ref[c])[:3, 3])
         (s_h, m_h), (s_r, m_r) = depth_fit(frame, rig, hyb, only=c), depth_fit(frame, rig, ref, only=c)
         p_h, p_r = colour_fit(frame, rig, hyb, only=c), colour_fit(frame, rig, ref, only=c)
