@@ -64,6 +64,8 @@ def _methods():
     for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells
         if lone != FuseConfig().lone_cell_mean:
             rows[f"FUSE lone_cell_mean={lone:g}"] = f(replace(FuseConfig(), lone_cell_mean=lone))
+    for stride, s0 in ((2, 5.0), (2, 3.5)):  # beyond the paper: candidates on a pixel grid
+        rows[f"FUSE pixel_stride={stride} s0={s0:g}"] = f(replace(FuseConfig(), pixel_stride=stride, s0=s0))
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
     rows["naive"] = naive_fusion
     rows["naive + voxel 1 cm"] = lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)

@@ -114,6 +114,42 @@ def test_numba_equals_torch_multiview_mean(sim_frame):
     assert (cKDTree(b).query(a)[0] > 1e-4).mean() > 0.1
 
 
+@pytest.mark.parametrize("stride", [2, 3])
+def test_numba_equals_torch_with_pixel_stride(sim_frame, stride):
+    """FuseConfig.pixel_stride: both backends take the same grid of candidates (with and
+    without MCM, whose stride-1 path starts at column 1), about 1 / stride^2 of them, each
+    on the grid, and every output point comes from a grid pixel's measurement."""
+    frame, rig = sim_frame
+    full, _ = both(frame, rig, FuseConfig())
+    rt, rn = both(frame, rig, replace(FuseConfig(), pixel_stride=stride))
+    both(frame, rig, replace(FuseConfig(), pixel_stride=stride, use_mcm=False))
+    both(frame, rig, replace(FuseConfig(), pixel_stride=stride, consensus=False, multiview_mean=False))
+    assert rt.report.valid_pixels == full.report.valid_pixels  # the gate is unchanged
+    share = rt.report.candidates / full.report.candidates
+    assert 0.6 / stride**2 < share < 1.4 / stride**2, share
+    assert 0 < len(rt.cloud) < len(full.cloud)
+    # without averaging every output point is a grid pixel's own back-projection
+    plain = fuse_with_report(frame, rig, replace(FuseConfig(), pixel_stride=stride, consensus=False,
+                                                multiview_mean=False, backend="numba")).cloud  # fmt: skip
+    for k in range(len(rig.cameras)):
+        cam = rig.cameras[k]
+        mine = plain.camera.numpy() == rig.index(cam.id)
+        X = plain.xyz.numpy()[mine].astype(np.float64)
+        Xc = X @ cam.T_cam_world[:3, :3].T + cam.T_cam_world[:3, 3]
+        u = cam.K[0, 0] * Xc[:, 0] / Xc[:, 2] + cam.K[0, 1] * Xc[:, 1] / Xc[:, 2] + cam.K[0, 2]
+        v = cam.K[1, 1] * Xc[:, 1] / Xc[:, 2] + cam.K[1, 2]
+        assert np.abs(u - np.round(u)).max() < 1e-2 and np.abs(v - np.round(v)).max() < 1e-2
+        assert (np.round(u).astype(int) % stride == 0).all() and (np.round(v).astype(int) % stride == 0).all()
+
+
+def test_pixel_stride_is_validated():
+    from fuseflow.errors import ValidationError
+
+    for bad in (0, 9, 1.5, True):
+        with pytest.raises(ValidationError, match="pixel_stride"):
+            FuseConfig(pixel_stride=bad)
+
+
 @pytest.fixture(scope="module")
 def sim_frame():
     from fuseflow.synth import SimConfig, Simulator

@@ -170,6 +170,11 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     c = confidence(depth, cfg.alpha, cfg.beta, cfg.window, cfg.eps, cfg.use_mcm, ns, cfg.mcm_max_missing)  # (16)-(18)
     valid_pixels = int((depth > 0).sum())
     cand = (c > cfg.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
+    if cfg.pixel_stride > 1:  # every s-th pixel of every s-th row (FuseConfig.pixel_stride)
+        s = cfg.pixel_stride
+        on_grid = torch.zeros((h, w), dtype=torch.bool, device=dev)
+        on_grid[::s, ::s] = True
+        cand = cand & on_grid
     xn, yn = pixel_rays(p.K, h, w)
     z = depth[cand]
     X = torch.stack([xn[cand] * z, yn[cand] * z, z], dim=1)

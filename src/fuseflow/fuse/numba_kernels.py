@@ -97,6 +97,8 @@ class PixelParams(NamedTuple):
     """Multi-view depth averaging (FuseConfig.multiview_mean; cvgc.multiview_mean)."""
     mv_gate2: np.float32
     """FuseConfig.multiview_gate squared."""
+    stride: int
+    """FuseConfig.pixel_stride: candidates only at u % stride == 0 of rows v % stride == 0."""
     offset: int
     """Offset added to each cell index before packing (ash.COARSE_OFFSET or FIXED_OFFSET)."""
     bits: int
@@ -164,7 +166,8 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
         visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
         noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise),
         mcm_max_missing=int(cfg.mcm_max_missing), mv_mean=bool(cfg.multiview_mean and cfg.use_cvgc),
-        mv_gate2=_F(cfg.multiview_gate * cfg.multiview_gate), offset=offset, bits=bits,
+        mv_gate2=_F(cfg.multiview_gate * cfg.multiview_gate), stride=int(cfg.pixel_stride), offset=offset,
+        bits=bits,
     )  # fmt: skip
     cell = CellParams(
         s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
@@ -473,7 +476,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
     use_mcm, use_cvgc = prm.use_mcm, prm.use_cvgc
     qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
-    mv = prm.mv_mean
+    mv, stride = prm.mv_mean, prm.stride
     zero = _F(0.0)
     two = _F(2.0)
     nan = _F(np.nan)
@@ -528,6 +531,11 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
                 out_w[rb + u] = nan
             # MCM and eq. (27): the row's candidates
             nc = 0
+            if stride > 1 and v % stride != 0:  # FuseConfig.pixel_stride: not a candidate row
+                row_info[row, 0] = 0
+                row_info[row, 1] = 0
+                row_info[row, 2] = 0
+                continue
             if use_mcm:
                 if v == 0 or v == h - 1:  # a window pixel outside the image -> c = 0
                     row_info[row, 0] = 0
@@ -535,14 +543,15 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
                     row_info[row, 2] = 0
                     continue
                 _mcm_row(dflat, rb, w, prm, gq, vr, cc)
-                for u in range(1, w - 1):
+                u0 = 1 if stride == 1 else stride  # the first column u >= 1 with u % stride == 0
+                for u in range(u0, w - 1, stride):
                     c = cc[u]
                     if c >= zero and c > r_c:  # -1: no depth or a failed window
                         cu[nc] = u
                         cw[nc] = c
                         nc += 1
             elif _F(1.0) > r_c:
-                for u in range(w):
+                for u in range(0, w, stride):
                     if dflat[rb + u] > 0:
                         cu[nc] = u
                         cw[nc] = _F(1.0)
