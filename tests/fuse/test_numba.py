@@ -178,14 +178,32 @@ def test_numba_equals_torch_with_range_priority(sim_frame, k_max):
 
 
 @pytest.mark.parametrize("lone", [2.0, 4.0])
-def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone):
+@pytest.mark.parametrize("keep", [0, 1, 2])
+def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone, keep):
     frame, rig = sim_frame
-    rt, _ = both(frame, rig, replace(FuseConfig(), lone_cell_mean=lone))
-    off = fuse_with_report(frame, rig, replace(FuseConfig(), lone_cell_mean=0.0, backend="torch"))
+    cfg = replace(FuseConfig(), lone_cell_mean=lone, lone_cell_keep=keep, consensus=False)
+    rt, _ = both(frame, rig, cfg)
+    off = fuse_with_report(frame, rig, replace(cfg, lone_cell_mean=0.0, backend="torch"))
     # it only removes points (lone ones), never adds or moves one
     a, b = rt.cloud.xyz.numpy().astype(np.float64), off.cloud.xyz.numpy().astype(np.float64)
     assert len(a) < len(b)
     assert (cKDTree(b).query(a)[0] <= 1e-7).all()
+    if keep:  # sparing the confirmed lone points keeps more, and no fewer with a lower bar
+        fewer = fuse_with_report(frame, rig, replace(cfg, lone_cell_keep=keep + 1, backend="torch"))
+        drop_all = fuse_with_report(frame, rig, replace(cfg, lone_cell_keep=0, backend="torch"))
+        assert len(drop_all.cloud) <= len(fewer.cloud) <= len(rt.cloud)
+        if keep == 1:  # every sampled configuration has confirmed lone points
+            assert len(drop_all.cloud) < len(rt.cloud)
+
+
+def test_lone_cell_keep_needs_the_multiview_support(sim_frame):
+    """Without the multi-view mean no point counts as confirmed: lone_cell_keep changes nothing."""
+    frame, rig = sim_frame
+    base = replace(FuseConfig(), multiview_mean=False, consensus=False)
+    for backend in ("torch", "numba"):
+        a = fuse_with_report(frame, rig, replace(base, lone_cell_keep=0, backend=backend)).cloud
+        b = fuse_with_report(frame, rig, replace(base, lone_cell_keep=3, backend=backend)).cloud
+        assert torch.equal(a.xyz, b.xyz)
 
 
 def test_numba_select_prefers_the_near_point_like_torch():
@@ -221,6 +239,7 @@ def test_numba_select_prefers_the_near_point_like_torch():
             src,
             np.zeros(2, dtype=np.int16),
             nsel,
+            np.zeros(2, dtype=np.uint8),  # confirming neighbours per pixel (lone_cell_keep)
         )
         assert nsel[0] == 1 and src[0] == (0 if z[0] < z[1] else 1)  # the chosen slot
 

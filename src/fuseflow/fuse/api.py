@@ -192,9 +192,12 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     keep = omega >= cfg.min_weight
     X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
     z_s = X[:, 2]  # the pixel's own depth ranks it (range_priority), before any averaging
+    kept = None  # points the lone-cell rule spares (FuseConfig.lone_cell_keep)
     if cfg.multiview_mean and cfg.use_cvgc:
-        X = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.multiview_gate,
-                           cfg.noise_sigma, cfg.eps)  # fmt: skip
+        X, support = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.multiview_gate,
+                                    cfg.noise_sigma, cfg.eps, with_support=True)  # fmt: skip
+        if cfg.lone_cell_keep > 0:
+            kept = support >= cfg.lone_cell_keep
     P = _to_world(X, cam, p.T_world_cam)
     if cfg.use_ash:
         cells = adaptive_hash(P, cfg.coarse_size, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps)  # eq. (23)-(25)
@@ -204,11 +207,12 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     out_of_range = int((~cells.keep).sum())
     if out_of_range:
         P, cam, pix, omega, z_s = P[cells.keep], cam[cells.keep], pix[cells.keep], omega[cells.keep], z_s[cells.keep]
+        kept = None if kept is None else kept[cells.keep]
         key, size = cells.key[cells.keep], cells.cell_size[cells.keep]
     else:
         key, size = cells.key, cells.cell_size
     if cfg.use_rps and cfg.use_ash:
-        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, True, 0, cfg.lone_cell_mean)  # eq. (26)
+        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, True, 0, cfg.lone_cell_mean, kept)  # eq. (26)
     elif cfg.use_rps:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
         k_const = int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
         inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, k_const)

@@ -97,7 +97,8 @@ def multiview_mean(
     gate: float,
     noise_sigma: tuple[float, float, float],
     eps: float = 1e-6,
-) -> torch.Tensor:
+    with_support: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """Multi-view depth averaging (beyond the paper, ``FuseConfig.multiview_mean``).
 
     Each point X of camera i becomes X + sum_j r_j (Q_j - X) / (1 + sum_j r_j) over its present
@@ -110,13 +111,16 @@ def multiview_mean(
 
     Returns:
         (M, 3) float32 averaged points in each point's own camera frame. Same float32
-        operations in the same order as the compiled kernel (numba_kernels._pixels).
+        operations in the same order as the compiled kernel (numba_kernels._pixels). With
+        ``with_support`` also (M,) int32 ``support``: how many neighbours passed the gate
+        (FuseConfig.lone_cell_keep).
     """
     M_all = relative_transforms(T_cam_world).tolist()
     index = graph.index.tolist()
     pres = present.detach().cpu().tolist()
     Kl = K.tolist()
     out = X.clone()
+    support = torch.zeros(X.shape[0], dtype=torch.int32, device=X.device)
     g2 = torch.tensor(gate * gate, dtype=torch.float32, device=X.device)
     one = torch.ones((), dtype=torch.float32, device=X.device)
     for i in range(depth.shape[0]):
@@ -139,8 +143,9 @@ def multiview_mean(
             r = torch.where(ok, v0 / vd, torch.zeros_like(vd))
             num = num + r[:, None] * (Q - Xi)
             den = den + r
+            support.index_add_(0, sel, ok.to(torch.int32))
         out[sel] = Xi + num / den[:, None]
-    return out
+    return (out, support) if with_support else out
 
 
 def omega_geo(agree: torch.Tensor, votes: torch.Tensor, c: torch.Tensor) -> torch.Tensor:

@@ -142,6 +142,9 @@ class SelectParams(NamedTuple):
     k_const: int
     lone_cell_mean: float
     """FuseConfig.lone_cell_mean (0 = off)."""
+    lone_keep: int
+    """FuseConfig.lone_cell_keep: a lone point confirmed by at least this many neighbours is kept
+    (0 = never; also 0 without the multi-view mean, which counts the confirmations)."""
 
 
 class KernelParams(NamedTuple):
@@ -182,6 +185,7 @@ def kernel_params(cfg: FuseConfig) -> KernelParams:
     select = SelectParams(
         k0=_F(cfg.k0), ratio=_F(cfg.ratio), k_max=int(cfg.k_max), rho_bar=_F(1.0), fixed_k=fixed_k,
         k_const=k_const, lone_cell_mean=float(cfg.lone_cell_mean),
+        lone_keep=int(cfg.lone_cell_keep) if (cfg.multiview_mean and cfg.use_cvgc) else 0,
     )  # fmt: skip
     return KernelParams(pixel, cell, select)
 
@@ -298,14 +302,15 @@ def _ray_x(Kf, xt, j, u, yn, skew0):
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, tau, zjs, idx, ius, ivs, dv, xq, yq,
-           ag, vo, mx, my, mz, md):  # fmt: skip
+def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, zjs, idx, ius, ivs, dv, xq, yq,
+           ag, vo, mx, my, mz, md, ns):  # fmt: skip
     """CVGC (eq. 19-21) and the multi-view mean (cvgc.multiview_mean) of neighbour j for the nc
     candidates (X, Y, Z: camera-i points; v0: their sigma(z)^2) of one row: adds to the vote
-    counts ag / vo and the mean's sums mx, my, mz, md. Three loops: projection (eq. 19) into a
+    counts ag / vo, the mean's sums mx, my, mz, md and its count of agreeing neighbours ns
+    (cvgc.multiview_mean's ``support``). Three loops: projection (eq. 19) into a
     pixel index, the depth lookup, then the votes, so that the first and last are branch-free
     and vectorise; per point the float32 operations are those of cvgc.py / agreement.py."""
-    eps, vis, mv, mv_g2 = prm.eps, prm.visibility_aware, prm.mv_mean, prm.mv_gate2
+    eps, vis, mv, mv_g2, tau = prm.eps, prm.visibility_aware, prm.mv_mean, prm.mv_gate2, prm.tau
     na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
     half = _F(0.5)
     zero = _F(0.0)
@@ -381,6 +386,7 @@ def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, ta
             my[t] = (my[t] + rw * (ay - Y[t])) if gate else my[t]
             mz[t] = (mz[t] + rw * (az - Z[t])) if gate else mz[t]
             md[t] = (md[t] + rw) if gate else md[t]
+            ns[t] += np.int32(gate)
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -455,12 +461,14 @@ def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
 
 
 @njit(cache=True, parallel=True, fastmath=False, error_model="numpy")
-def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, runs, r_n, row_info):
+def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out_sup, runs, r_n, row_info):
     """Stage 1, parallel over blocks of camera rows. Writes, at the pixel's own index
     p = (i H + v) W + u: out_P[p] (world point of a candidate), out_w[p] (omega, eq. 22, of an
     in-range candidate, negated (sign bit set, also for 0) for the first of a run; NaN for every
     other pixel: a dropped pixel or a candidate beyond the hash's range) and, when
-    prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority). Also the
+    prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority) and, with the
+    multi-view mean, out_sup[p] (how many neighbours agree within its gate, at most 255;
+    FuseConfig.lone_cell_keep). Also the
     row's *runs*: maximal stretches of in-range candidates of one coarse cell,
     runs[row, r] = the cell key, r_n[row, r] = its candidates (both (N H, W), in buffers that
     are free until ``_scatter``); row_info[row] = (candidates, beyond range, runs).
@@ -472,7 +480,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
     and their order are those of the single-pass form (votes in graph order), so the results
     are bit-identical to it."""
     n, h, w = depth.shape
-    eps, r_c, tau, min_w, s_c = prm.eps, prm.r_c, prm.tau, prm.min_weight, prm.cell
+    eps, r_c, min_w, s_c = prm.eps, prm.r_c, prm.min_weight, prm.cell
     use_mcm, use_cvgc = prm.use_mcm, prm.use_cvgc
     qlim, off, bits = prm.qlim, prm.offset, prm.bits
     rp, na, nb, nz0 = prm.range_priority, prm.noise_a, prm.noise_b, prm.noise_z0
@@ -523,6 +531,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
         my = np.empty(w, dtype=np.float32)
         mz = np.empty(w, dtype=np.float32)
         md = np.empty(w, dtype=np.float32)
+        ns = np.empty(w, dtype=np.int32)
         for row in range(blk * rows_per, min((blk + 1) * rows_per, n * h)):
             i = row // h
             v = row - i * h
@@ -572,14 +581,15 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
                     my[t] = zero
                     mz[t] = zero
                     md[t] = _F(1.0)
+                    ns[t] = 0
                     if mv:
                         z = cz_[t]
                         dz0 = z - nz0
                         s0 = na + nb * (dz0 * dz0)
                         v0[t] = s0 * s0
                 for kk in range(nbr_n[i]):
-                    _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm, tau,
-                           zjs, idx, ius, ivs, dv, xq, yq, ag, vo, mx, my, mz, md)  # fmt: skip
+                    _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm,
+                           zjs, idx, ius, ivs, dv, xq, yq, ag, vo, mx, my, mz, md, ns)  # fmt: skip
             t00, t01, t02, t03 = T_wc[i, 0, 0], T_wc[i, 0, 1], T_wc[i, 0, 2], T_wc[i, 0, 3]
             t10, t11, t12, t13 = T_wc[i, 1, 0], T_wc[i, 1, 1], T_wc[i, 1, 2], T_wc[i, 1, 3]
             t20, t21, t22, t23 = T_wc[i, 2, 0], T_wc[i, 2, 1], T_wc[i, 2, 2], T_wc[i, 2, 3]
@@ -626,6 +636,8 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, run
                 if rp:
                     dz = z - nz0
                     out_pr[base] = om / (na + nb * (dz * dz))
+                if mv:
+                    out_sup[base] = np.uint8(min(ns[t], 255))
                 cnt += 1
                 if abs(qx) < qlim and abs(qy) < qlim and abs(qz) < qlim:
                     key = (
@@ -775,7 +787,7 @@ def _chunks(start, n_chunks):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey, csize, cell_rho_sum, cell_fine_n,
-               om, rank, copy_rank, hw, omc, rkc, camc):  # fmt: skip
+               om, rank, copy_rank, hw, omc, rkc, camc, sup):  # fmt: skip
     """Pc, members: the points and pixel indices of the candidates grouped by coarse cell
     (``_scatter``); with ``reorder`` both are sorted into slot order **in place** (a cell's
     range is copied to the chunk's scratch first), so no second point buffer is needed.
@@ -784,7 +796,9 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
     chunk): fine keys, stable local counting sort of members (and Pc), fkey = fine
     group of each slot (0, 1, ... per coarse cell), the per-cell sum of fine-cell densities
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
-    density control): Pc and members untouched, fkey[start[c] + g] = size of fine cell g instead.
+    density control): Pc and members untouched, fkey[start[c] + g] = size of fine cell g instead
+    and camc[start[c] + g] = sup (per pixel, _pixels' out_sup) of its last point (of its only
+    point for a lone cell: the count's FuseConfig.lone_cell_keep test).
     With ``reorder`` also the weight and ranking value of each slot, in slot order:
     omc, camc (the camera, p // hw) and rkc (only when ``copy_rank``: without
     range_priority the ranking value is omega and the selection reads omc), so that the
@@ -889,6 +903,8 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
                 gid[t] = g
                 last_k = k3
                 last_g = g
+                if not reorder:
+                    camc[a + g] = sup[members[a + t]]
             for g in range(ng + 1):
                 gstart[g] = 0
             for t in range(n):
@@ -920,14 +936,16 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _cell_k(n, n_coarse, fine_cells, sf3, prm):
+def _cell_k(n, n_coarse, fine_cells, sf3, prm, sup1):
     """k of a fine cell of n points: eq. (26) (or the fixed k), 0 for a lone point in a densely
-    sampled coarse cell of n_coarse points in fine_cells occupied fine cells (lone_cell_mean).
+    sampled coarse cell of n_coarse points in fine_cells occupied fine cells (lone_cell_mean)
+    unless sup1, the neighbours confirming that point, reaches prm.lone_keep (> 0).
     prm: SelectParams."""
     if prm.fixed_k:
         return prm.k_const
     if prm.lone_cell_mean > 0 and n == 1 and float(n_coarse) >= prm.lone_cell_mean * float(fine_cells):
-        return 0
+        if prm.lone_keep == 0 or sup1 < prm.lone_keep:
+            return 0
     rho = _F(n) / sf3
     kf = np.ceil(_F(prm.k0) * (rho / prm.rho_bar) * _F(prm.ratio))  # eq. (26)
     k = int(kf)
@@ -939,9 +957,9 @@ def _cell_k(n, n_coarse, fine_cells, sf3, prm):
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def _count(start, gsize, csize, fine_n, prm, cell_count):
+def _count(start, gsize, gsup, csize, fine_n, prm, cell_count):
     """Points that selection keeps per coarse cell, from the fine-cell sizes alone (``_fine_pass``
-    with reorder False): min(k, n) per fine cell, which the FPS of eq. (28) picks unless points
+    with reorder False; gsup: its lone points' support): min(k, n) per fine cell, which the FPS of eq. (28) picks unless points
     of the cell coincide (it stops early then): the density search's count."""
     for c in prange(start.shape[0] - 1):
         a = start[c]
@@ -950,18 +968,19 @@ def _count(start, gsize, csize, fine_n, prm, cell_count):
         cnt = 0
         for g in range(fine_n[c]):
             n = gsize[a + g]
-            cnt += min(_cell_k(n, start[c + 1] - a, fine_n[c], sf3, prm), n)
+            cnt += min(_cell_k(n, start[c + 1] - a, fine_n[c], sf3, prm, np.int64(gsup[a + g])), n)
         cell_count[c] = cnt
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _select(Pc, rkc, omc, camc, start, members, fkey, csize, fine_n, prm, chunks, largest, cons, T_wc, T_cw, hw,
-            stage_src, stage_sup, cell_nsel):  # fmt: skip
+            stage_src, stage_sup, cell_nsel, sup):  # fmt: skip
     """Eq. (26) and the confidence-weighted FPS of eq. (28) inside every fine cell, then (when
     cons.on) rps.consensus for the representatives of that fine cell while it is in cache.
     Pc, omc, rkc: point, omega and ranking value (omega, or omega / sigma(z) with
     range_priority; only compared) per slot (``_fine_pass``); members: the pixel of each slot.
-    fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off). prm:
+    fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off); sup: the
+    confirming neighbours per pixel (prm.lone_keep). prm:
     SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
     go to stage_src[start[c] + j] (their slot) and, with consensus, stage_sup (supporting
     cameras) while Pc of each representative is replaced by its moved position once its fine
@@ -986,7 +1005,7 @@ def _select(Pc, rkc, omc, camc, start, members, fkey, csize, fine_n, prm, chunks
                 while t1 < b and fkey[t1] == fkey[t0]:
                     t1 += 1
                 n = t1 - t0
-                k = _cell_k(n, b - a, fine_n[c], sf3, prm)
+                k = _cell_k(n, b - a, fine_n[c], sf3, prm, np.int64(sup[members[t0]]))
                 if k == 0:  # a lone point in a densely sampled coarse cell (lone_cell_mean)
                     t0 = t1
                     continue
@@ -1149,7 +1168,7 @@ class _Workspace:
     arrays per frame cost as much in page faults as some kernels (the kernel zero-fills every
     new page). Buffers hold no result; the cloud is built from new arrays.
 
-    32 bytes per pixel (ICL, 8 x 640 x 480: 75 MiB; 53 before), by reusing buffers whose
+    33 bytes per pixel (ICL, 8 x 640 x 480: 77 MiB; 53 before session 9), by reusing buffers whose
     lifetimes do not overlap (stages: 1 ``_gate`` / ``_pixels``, 2 ``_cells``, 3 ``_scatter``,
     4 ``_fine_pass``, 5 ``_select``, 6 ``_emit``):
 
@@ -1161,6 +1180,8 @@ class _Workspace:
     - ``members`` (4 B): the runs' sizes (1-2), then the pixel index per slot (3-6).
     - ``om`` (4 B): omega by pixel (1-4; NaN = no in-range candidate, sign = a run's first
       point, so no flags), then ``stage_src`` (5-6).
+    - ``sup`` (1 B): the neighbours confirming each candidate within the multi-view mean's
+      gate (1-5; FuseConfig.lone_cell_keep).
     - with ``range_priority`` only: ``pr`` (omega / sigma by pixel) and ``rkc`` (by slot), 8 B.
 
     The only per-frame arrays besides the cloud are sized by cells or runs (``_cells``)."""
@@ -1182,6 +1203,7 @@ class _Workspace:
         self.members = np.empty(npx, dtype=idx)
         self.run_n = self.members.reshape(n * h, w)
         self.om = np.empty(npx, dtype=np.float32)
+        self.sup = np.empty(npx, dtype=np.uint8)  # confirming neighbours by pixel (lone_cell_keep)
         # the representatives' slots: omega by pixel is not read after _fine_pass
         self.stage_src = self.om.view(np.int32) if idx is np.int32 else np.empty(npx, dtype=idx)
         self.pr = np.empty(1, dtype=np.float32)
@@ -1249,7 +1271,7 @@ def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     present = p.present.numpy().astype(np.bool_)
     rank = ws.rank(prm.range_priority)
     with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
-        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.P, ws.om, rank, ws.runs, ws.run_n,
+        _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.P, ws.om, rank, ws.sup, ws.runs, ws.run_n,
                 ws.row_info)  # fmt: skip
     run_slot = np.empty(int(ws.row_info[:, 2].sum()), dtype=ws.members.dtype)
     start, cell_key, largest, roff = _cells(ws.runs, ws.run_n, ws.row_info, run_slot)
@@ -1291,18 +1313,18 @@ def _select_points(
     rkc = ws.rkc[:m] if copy_rank else omc
     with numba.parallel_chunksize(1):  # chunks handed out as threads free up (a shared core may stall)
         _fine_pass(Pc, c.start, c.cell_key, prm.cell, chunks, c.largest, not count_only, members, fkey,
-                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, hw, omc, rkc, camc)  # fmt: skip
+                   csize, rho_sum, fine_n, c.om, c.rank, copy_rank, hw, omc, rkc, camc, ws.sup)  # fmt: skip
     sel_prm = prm.select
     if not sel_prm.fixed_k:  # eq. (26)'s rho_bar: mean density over the occupied fine cells
         total = int(fine_n.sum())
         sel_prm = sel_prm._replace(rho_bar=_F(rho_sum.sum() / max(total, 1)))
     nsel = np.empty(n_cells, dtype=np.int64)
     if count_only:
-        _count(c.start, fkey, csize, fine_n, sel_prm, nsel)
+        _count(c.start, fkey, camc, csize, fine_n, sel_prm, nsel)
         return _Selection(c.start, nsel, int(nsel.sum()))
     with numba.parallel_chunksize(1):
         _select(Pc, rkc if copy_rank else omc, omc, camc, c.start, members, fkey, csize, fine_n, sel_prm, chunks, c.largest,
-                cons, T_wc, T_cw, hw, ws.stage_src, ws.stage_sup, nsel)  # fmt: skip
+                cons, T_wc, T_cw, hw, ws.stage_src, ws.stage_sup, nsel, ws.sup)  # fmt: skip
     return _Selection(c.start, nsel, int(nsel.sum()))
 
 

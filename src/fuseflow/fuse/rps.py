@@ -36,6 +36,7 @@ def cell_counts(
     density_adaptive: bool,
     k_fixed: int,
     lone_cell_mean: float = 0.0,
+    kept: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Group points by key and apply eq. (26).
 
@@ -45,6 +46,7 @@ def cell_counts(
             (the "w/o RPS" ablation) or, when k_fixed is None-like (0), with rho_bar (w/o ASH).
         lone_cell_mean: FuseConfig.lone_cell_mean (adaptive keys only): k = 0 for a one-point fine
             cell whose coarse cell averages at least this many points per occupied fine cell.
+        kept: (M,) bool or None: points the lone-cell rule spares (FuseConfig.lone_cell_keep).
 
     Returns:
         inverse (M,) int64 cell index of each point, counts (C,) int64, k (C,) int64.
@@ -65,6 +67,9 @@ def cell_counts(
         )
         cnf = torch.bincount(cinv).to(torch.float64)
         lone = (counts == 1) & (csum[cinv] >= lone_cell_mean * cnf[cinv])
+        if kept is not None:  # a lone cell's flag is its one point's
+            spared = torch.zeros(counts.shape[0], dtype=torch.bool, device=key.device).scatter_(0, inv, kept)
+            lone = lone & ~spared
         k = torch.where(lone, torch.zeros_like(k), k)
     return inv, counts, k
 
