@@ -12,6 +12,9 @@ its derivation written next to it (DESIGN.md section 2). Presets:
 * ``PRESETS["fast"]``: the default before session 9 (``k_neighbours = 4``, ``s0 = 6.3``): 10-15 %
   less time and ~25 % fewer points, 0.7 mm less accurate on the simulated 8-camera studio
   (docs/fuse.md, Quality).
+* ``PRESETS["live"]``: the default with ``pixel_stride = 2`` and ``s0 = 3.5``: candidates on
+  every 2nd pixel of every 2nd row, for live rates on full real frames (about 2.5x faster on
+  the ICL 8-view frame, a quarter to a third of the points; docs/fuse.md, "Pixel stride").
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
 """
@@ -400,6 +403,9 @@ PRESETS: dict[str, FuseConfig] = {
     ),
     "quality": _DEFAULT,
     "fast": replace(_DEFAULT, k_neighbours=4, s0=6.3),
+    # candidates on every 2nd pixel of every 2nd row: about 4x fewer, s0 lowered so that fine
+    # cells keep holding several of them (docs/fuse.md, "Pixel stride")
+    "live": replace(_DEFAULT, pixel_stride=2, s0=3.5),
     **ABLATIONS,
 }
 

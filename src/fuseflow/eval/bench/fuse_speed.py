@@ -75,7 +75,7 @@ METHODS = {
     "fuse_torch": "FUSE, PyTorch reference backend (eager)",
     "fuse_quality": "FUSE, PRESETS['quality'] (k_neighbours = 7, s0 = 5; the default since session 9)",
     "fuse_fast": "FUSE, PRESETS['fast'] (k_neighbours = 4, s0 = 6.3; the default before session 9)",
-    "fuse_stride2": "FUSE, the default with pixel_stride = 2 (every 2nd pixel of every 2nd row)",
+    "fuse_live": "FUSE, PRESETS['live'] (pixel_stride = 2: every 2nd pixel of every 2nd row; s0 = 3.5)",
     "vbg": "Open3D tensor VoxelBlockGrid TSDF, 1 cm, integrate + extract_point_cloud",
     "naive_voxel": "naive back-projection + Open3D voxel_down_sample 1 cm",
 }
@@ -176,7 +176,7 @@ def _render(work: Path, cameras: int, frames: int, resolution: tuple[int, int], 
 
 def _method_fn(method: str, dev: Any, points: int | None = None) -> Callable:
     """``fn(frame, rig) -> FusedCloud`` for a key of :data:`METHODS`."""
-    if method in ("fuse", "fuse_torch", "fuse_quality", "fuse_fast", "fuse_stride2"):
+    if method in ("fuse", "fuse_torch", "fuse_quality", "fuse_fast", "fuse_live"):
         from dataclasses import replace
 
         from fuseflow.fuse import PRESETS, FuseConfig, fuse
@@ -184,7 +184,7 @@ def _method_fn(method: str, dev: Any, points: int | None = None) -> Callable:
         base = {
             "fuse_quality": PRESETS["quality"],
             "fuse_fast": PRESETS["fast"],
-            "fuse_stride2": replace(FuseConfig(), pixel_stride=2),
+            "fuse_live": PRESETS["live"],
         }.get(method, FuseConfig())
         cfg = replace(base, backend="torch" if method == "fuse_torch" else "auto", target_points=points)
         return lambda frame, rig: fuse(frame.to(dev), rig, cfg)
