@@ -64,8 +64,10 @@ def _methods():
     for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells
         if lone != FuseConfig().lone_cell_mean:
             rows[f"FUSE lone_cell_mean={lone:g}"] = f(replace(FuseConfig(), lone_cell_mean=lone))
-    for stride, s0 in ((2, 5.0), (2, 3.5)):  # beyond the paper: candidates on a pixel grid
-        rows[f"FUSE pixel_stride={stride} s0={s0:g}"] = f(replace(FuseConfig(), pixel_stride=stride, s0=s0))
+    # beyond the paper: candidates on a pixel grid (the live preset: stride 2, s0 3.5)
+    rows["FUSE live preset"] = f(PRESETS["live"])
+    rows["FUSE pixel_stride=2 s0=5"] = f(replace(FuseConfig(), pixel_stride=2))
+    rows["FUSE lone_cell_keep=0"] = f(replace(FuseConfig(), lone_cell_keep=0))  # session 9's lone-point rule
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
     rows["naive"] = naive_fusion
     rows["naive + voxel 1 cm"] = lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)
