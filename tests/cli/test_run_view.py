@@ -42,3 +42,18 @@ def test_run_argument_errors_are_one_line(static_rec, tmp_path):
     assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr
     res = _invoke("run", static_rec, "--out", tmp_path / "o", "--device", "tpu")
     assert res.exit_code == 2 and "--device" in res.output
+    res = _invoke("run", static_rec, "--out", tmp_path / "o", "--use-rig", "--preset", "nope")
+    assert res.exit_code == 2 and "no FUSE preset 'nope'" in res.output
+
+
+def test_run_with_the_live_preset_fuses_fewer_points_and_will_not_resume_another_preset(static_rec, tmp_path):
+    out, live = tmp_path / "default", tmp_path / "live"
+    assert _invoke("run", static_rec, "--out", out, "--use-rig", "--frames", "0:2").exit_code == 0
+    res = _invoke("run", static_rec, "--out", live, "--use-rig", "--frames", "0:2", "--preset", "live")
+    assert res.exit_code == 0, res.output
+    full = json.loads((out / "summary.json").read_text())["points_per_frame"]["mean"]
+    fewer = json.loads((live / "summary.json").read_text())["points_per_frame"]["mean"]
+    assert 0 < fewer < 0.6 * full
+    # the preset is part of the run's settings: the default cannot resume the live run's output
+    res = _invoke("run", static_rec, "--out", live, "--use-rig", "--frames", "0:2")
+    assert res.exit_code == 2 and "settings" in res.output

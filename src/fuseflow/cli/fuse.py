@@ -17,7 +17,9 @@ def command(
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (cpu runs the compiled numba path)."),
     preset: str = typer.Option(
-        "default", "--preset", help="FUSE preset: default (= quality), fast, paper, 'w/o CVGC', ..."
+        "default",
+        "--preset",
+        help="FUSE preset: default (= quality), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
     ),
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."

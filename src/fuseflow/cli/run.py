@@ -41,6 +41,9 @@ def command(
     ),
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
+    preset: str = typer.Option(
+        "default", "--preset", help="FUSE preset: default (= quality), live (every 2nd pixel), fast, paper, ..."
+    ),
     recalibrate: str = typer.Option("off", "--recalibrate", help="off | auto: re-run GMAC when a camera is bumped."),
     ray: bool = typer.Option(False, "--ray", help="Fuse frames as Ray tasks (pip install 'fuseflow[ray]')."),
     ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local Ray)."),
@@ -56,10 +59,13 @@ def command(
     ),
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
+    from fuseflow.fuse import PRESETS
     from fuseflow.io import open_recording, read_calibration
     from fuseflow.pipeline import PipelineConfig, RayOptions, run
 
     check_device(device)
+    if preset not in PRESETS:
+        fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
     if calib is not None and use_rig:
         fail("--calib and --use-rig both choose the extrinsics; pass one")
     recording = open_recording(rec)
@@ -67,7 +73,7 @@ def command(
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None
     if sync_offsets == "auto" and ray_opts is not None:
         fail("--sync-offsets auto re-times views in this process; use check or off with --ray")
-    cfg = PipelineConfig(device=device, recalibrate=recalibrate, sync=sync_offsets)
+    cfg = PipelineConfig(device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=PRESETS[preset])
     positions = parse_range(frames, len(recording))
     with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))
