@@ -13,8 +13,8 @@ its derivation written next to it (DESIGN.md section 2). Presets:
   less time and ~25 % fewer points, 0.7 mm less accurate on the simulated 8-camera studio
   (docs/fuse.md, Quality).
 * ``PRESETS["live"]``: the default with ``pixel_stride = 2`` and ``s0 = 3.5``: candidates on
-  every 2nd pixel of every 2nd row, for live rates on full real frames (about 2.5x faster on
-  the ICL 8-view frame, a quarter to a third of the points; docs/fuse.md, "Pixel stride").
+  every 2nd pixel of every 2nd row, for live rates on full real frames (about 3x faster on
+  the ICL 8-view frame, a third to a half of the points; docs/fuse.md, Speed, "Session 10").
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
 """
@@ -277,7 +277,7 @@ class FuseConfig:
     multi-view mean still read the full-resolution depth maps, so each candidate is measured
     as at stride 1; there are only s^2 times fewer of them, and every stage after the depth
     gate costs per candidate (on the ICL 8-view frame 4x fewer output points saved 3 % of the
-    time, 4x fewer candidates ~70 %: docs/fuse.md, "Pixel stride"). The speed / density knob
+    time, 4x fewer candidates ~65 %: docs/fuse.md, Speed, "Session 10"). The speed / density knob
     for rigs whose views overlap heavily (real full frames). 1 = every pixel (default,
     ``paper``). 1..8."""
 
@@ -404,7 +404,7 @@ PRESETS: dict[str, FuseConfig] = {
     "quality": _DEFAULT,
     "fast": replace(_DEFAULT, k_neighbours=4, s0=6.3),
     # candidates on every 2nd pixel of every 2nd row: about 4x fewer, s0 lowered so that fine
-    # cells keep holding several of them (docs/fuse.md, "Pixel stride")
+    # cells keep holding several of them (docs/fuse.md, Speed, "Session 10")
     "live": replace(_DEFAULT, pixel_stride=2, s0=3.5),
     **ABLATIONS,
 }
