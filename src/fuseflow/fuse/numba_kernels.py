@@ -468,8 +468,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out
     other pixel: a dropped pixel or a candidate beyond the hash's range) and, when
     prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority) and, with the
     multi-view mean, out_sup[p] (how many neighbours agree within its gate, at most 255;
-    FuseConfig.lone_cell_keep). Also the
-    row's *runs*: maximal stretches of in-range candidates of one coarse cell,
+    FuseConfig.lone_cell_keep). Also the row's *runs*: maximal stretches of in-range candidates of one coarse cell,
     runs[row, r] = the cell key, r_n[row, r] = its candidates (both (N H, W), in buffers that
     are free until ``_scatter``); row_info[row] = (candidates, beyond range, runs).
 
@@ -959,8 +958,9 @@ def _cell_k(n, n_coarse, fine_cells, sf3, prm, sup1):
 @njit(cache=True, parallel=True, error_model="numpy")
 def _count(start, gsize, gsup, csize, fine_n, prm, cell_count):
     """Points that selection keeps per coarse cell, from the fine-cell sizes alone (``_fine_pass``
-    with reorder False; gsup: its lone points' support): min(k, n) per fine cell, which the FPS of eq. (28) picks unless points
-    of the cell coincide (it stops early then): the density search's count."""
+    with reorder False; gsup: the confirming neighbours of each lone cell's point): min(k, n)
+    per fine cell, which the FPS of eq. (28) picks unless points of the cell coincide (it stops
+    early then): the density search's count."""
     for c in prange(start.shape[0] - 1):
         a = start[c]
         sf = csize[c]
@@ -980,8 +980,7 @@ def _select(Pc, rkc, omc, camc, start, members, fkey, csize, fine_n, prm, chunks
     Pc, omc, rkc: point, omega and ranking value (omega, or omega / sigma(z) with
     range_priority; only compared) per slot (``_fine_pass``); members: the pixel of each slot.
     fine_n: occupied fine cells per coarse cell (for prm.lone_cell_mean, 0 = off); sup: the
-    confirming neighbours per pixel (prm.lone_keep). prm:
-    SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
+    confirming neighbours per pixel (prm.lone_keep). prm: SelectParams. cons: ConsensusParams. The representatives of coarse cell c, in slot order,
     go to stage_src[start[c] + j] (their slot) and, with consensus, stage_sup (supporting
     cameras) while Pc of each representative is replaced by its moved position once its fine
     cell is done (nothing reads it later); cell_nsel[c] = how many."""
