@@ -263,11 +263,12 @@ def _drop(frame: Frame, i: int, present: bool) -> Frame:
     return Frame(frame.index, frame.camera_ids, frame.color, depth, pres)
 
 
-def test_numba_equals_torch_degraded_cases():
+@pytest.mark.parametrize("name", ["default", "live"])
+def test_numba_equals_torch_degraded_cases(name):
     eyes = [(-0.5, 0.0, 0.0), (0.0, 0.0, 0.1), (0.5, 0.0, 0.0)]
     rig = make_rig(eyes)
     frame = render(rig, [Rect(PLANE_Z)], noise=0.002)
-    cfg = FuseConfig()
+    cfg = PRESETS[name]
     # a missing camera
     rt, _ = both(_drop(frame, 1, present=False), rig, cfg)
     assert rt.report.missing == ("cam1",) and len(rt.cloud) > 0
