@@ -320,28 +320,22 @@ class FuseConfig:
             bad("z_max", f"> delta ({self.delta})")
         if not isinstance(self.window, int) or self.window % 2 == 0 or not 3 <= self.window <= 7:
             bad("window", "an odd integer in 3..7")
-        if (
-            not isinstance(self.mcm_max_missing, int)
-            or isinstance(self.mcm_max_missing, bool)
-            or not (0 <= self.mcm_max_missing <= 8)
+        for name, lo, hi, note in (
+            ("mcm_max_missing", 0, 8, ""),
+            ("pixel_stride", 1, 8, ""),
+            ("k_neighbours", 1, 16, ""),
+            ("k_max", 1, 16, ""),
+            ("lone_cell_keep", 0, 16, " (0 = drop every lone point)"),
         ):
-            bad("mcm_max_missing", "an integer in 0..8")
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:  # a bool is an int
+                bad(name, f"an integer in {lo}..{hi}{note}")
         if self.mcm_max_missing > 0 and self.window != 3:
             bad("mcm_max_missing", f"0 with window = {self.window} (the gap-tolerant window is 3x3)")
-        if (
-            not isinstance(self.pixel_stride, int)
-            or isinstance(self.pixel_stride, bool)
-            or not (1 <= self.pixel_stride <= 8)
-        ):
-            bad("pixel_stride", "an integer in 1..8")
-        if not isinstance(self.k_neighbours, int) or not 1 <= self.k_neighbours <= 16:
-            bad("k_neighbours", "an integer in 1..16")
         if not 0 <= self.min_overlap <= 1:
             bad("min_overlap", "a number in [0, 1]")
         if self.r_c >= 1 or self.min_weight >= 1:
             bad("r_c" if self.r_c >= 1 else "min_weight", "a number < 1")
-        if not isinstance(self.k_max, int) or not 1 <= self.k_max <= 16:
-            bad("k_max", "an integer in 1..16")
         if not isinstance(self.k_fixed, int) or not 1 <= self.k_fixed <= self.k_max:
             bad("k_fixed", f"an integer in 1..k_max ({self.k_max})")
         if self.s_min > self.s_max or self.s_max > self.coarse_size:
@@ -359,12 +353,6 @@ class FuseConfig:
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
         if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
             bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        if (
-            not isinstance(self.lone_cell_keep, int)
-            or isinstance(self.lone_cell_keep, bool)
-            or not 0 <= self.lone_cell_keep <= 16
-        ):
-            bad("lone_cell_keep", "an integer in 0..16 (0 = drop every lone point)")
         for name in ("range_priority", "mcm_noise", "consensus", "multiview_mean"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "a bool")
