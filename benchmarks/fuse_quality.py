@@ -68,6 +68,8 @@ def _methods():
     rows["FUSE live preset"] = f(PRESETS["live"])
     rows["FUSE pixel_stride=2 s0=5"] = f(replace(FuseConfig(), pixel_stride=2))
     rows["FUSE lone_cell_keep=0"] = f(replace(FuseConfig(), lone_cell_keep=0))  # session 9's lone-point rule
+    for s_max in (0.01, 0.02):  # the fine cell's upper clip (eq. 24), 5 cm by default
+        rows[f"FUSE s_max={s_max:g}"] = f(replace(FuseConfig(), s_max=s_max))
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
     rows["naive"] = naive_fusion
     rows["naive + voxel 1 cm"] = lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)
