@@ -217,10 +217,11 @@ class FuseConfig:
     (the multi-view mean's test; without ``multiview_mean`` no point counts as confirmed).
     0 = drop every lone point of a dense coarse cell (session 9). Of the lone points the rule
     dropped on the simulated 8-camera studio, those no neighbour confirms lay beyond 2 cm for
-    32 % (the tail the rule is for), the confirmed ones for 3 %: keeping them (1) took
-    completeness from 12.20 / 12.10 / 11.50 to 11.74 / 11.63 / 11.11 mm (seed 11 static,
-    dynamic, seed 61) for accuracy 7.16 -> 7.54 mm and beyond 2 cm 0.75 -> 1.16 %, F @ 1 cm
-    unchanged (docs/fuse.md, Quality, "Lone points"). 0..16."""
+    32 % (the tail the rule is for), the confirmed ones for 3 %. Keeping them (1), on six
+    seeds x static and dynamic 8-rings at 640x480 (benchmarks/fuse_quality.py), took
+    completeness from 11.45-12.24 to 11.03-11.79 mm, accuracy from 7.10-7.17 to 7.45-7.56 mm,
+    beyond 2 cm from 0.66-0.77 to 1.07-1.17 %, F @ 1 cm unchanged (0.69-0.70): issue 17's four
+    quality targets met on 12 of 12 runs (docs/fuse.md, Quality, "Lone points"). 0..16."""
     multiview_mean: bool = True
     """Beyond the paper: multi-view depth averaging inside CVGC (cvgc.multiview_mean). For each
     candidate of camera i, every neighbour j whose depth D_j at the projection x_ij (eq. 19)
