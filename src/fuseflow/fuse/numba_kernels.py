@@ -539,17 +539,14 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out
                 out_w[rb + u] = nan
             # MCM and eq. (27): the row's candidates
             nc = 0
-            if stride > 1 and v % stride != 0:  # FuseConfig.pixel_stride: not a candidate row
+            # no candidate in the row: off the pixel_stride grid, or (MCM) a window pixel
+            # outside the image -> c = 0
+            if (stride > 1 and v % stride != 0) or (use_mcm and (v == 0 or v == h - 1)):
                 row_info[row, 0] = 0
                 row_info[row, 1] = 0
                 row_info[row, 2] = 0
                 continue
             if use_mcm:
-                if v == 0 or v == h - 1:  # a window pixel outside the image -> c = 0
-                    row_info[row, 0] = 0
-                    row_info[row, 1] = 0
-                    row_info[row, 2] = 0
-                    continue
                 _mcm_row(dflat, rb, w, prm, gq, vr, cc)
                 u0 = 1 if stride == 1 else stride  # the first column u >= 1 with u % stride == 0
                 for u in range(u0, w - 1, stride):
