@@ -62,7 +62,7 @@ _F = np.float32
 
 
 class PixelParams(NamedTuple):
-    """Scalars of stage 1 (``_pixels``, ``_compact``): MCM, eq. (27), CVGC, eq. (22), the hash."""
+    """Scalars of stage 1 (``_pixels``): MCM, eq. (27), CVGC, eq. (22), the coarse hash key."""
 
     alpha: np.float32
     """alpha of eq. (18)."""
@@ -1250,10 +1250,6 @@ class _Cells(NamedTuple):
     largest: int  # points in the largest coarse cell
     candidates: int
     out_of_range: int
-
-
-def _parallel_chunk() -> int:
-    return max(1, 4 * numba.get_num_threads())
 
 
 def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
