@@ -52,6 +52,9 @@ __all__ = [
 ]
 
 _F = np.float32
+#: Multiplier of the open-addressing hash tables of ``_cells`` and ``_fine_pass`` (Fibonacci
+#: hashing: 2^64 / golden ratio, as a signed int64); the slot is the product's high bits.
+_HASH_MUL = np.int64(-7046029254386353131)
 
 
 # --- named kernel parameters --------------------------------------------------------------
@@ -685,7 +688,7 @@ def _cells(runs, r_n, row_info, run_slot):
     for row in range(n_rows):
         for r in range(row_info[row, 2]):
             key = runs[row, r]
-            slot = ((key * np.int64(-7046029254386353131)) >> 20) & mask
+            slot = ((key * _HASH_MUL) >> 20) & mask
             while True:
                 tk = tkeys[slot]
                 if tk == key:
@@ -699,7 +702,7 @@ def _cells(runs, r_n, row_info, run_slot):
                         nv = np.empty(size, dtype=np.int64)
                         for e in range(size // 2):
                             if tkeys[e] != -1:
-                                s2 = ((tkeys[e] * np.int64(-7046029254386353131)) >> 20) & mask
+                                s2 = ((tkeys[e] * _HASH_MUL) >> 20) & mask
                                 while nk[s2] != -1:
                                     s2 = (s2 + 1) & mask
                                 nk[s2] = tkeys[e]
@@ -712,7 +715,7 @@ def _cells(runs, r_n, row_info, run_slot):
                         cn = np.zeros(size // 2 + 1, dtype=np.int64)
                         cn[: n_cells + 1] = counts[: n_cells + 1]
                         counts = cn
-                        slot = ((key * np.int64(-7046029254386353131)) >> 20) & mask
+                        slot = ((key * _HASH_MUL) >> 20) & mask
                         continue  # probe the new table
                     tkeys[slot] = key
                     tvals[slot] = n_cells
@@ -884,7 +887,7 @@ def _fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey
                 if k3 == last_k:
                     gid[t] = last_g
                     continue
-                slot = ((k3 * np.int64(-7046029254386353131)) >> 24) & tmask
+                slot = ((k3 * _HASH_MUL) >> 24) & tmask
                 while True:  # entries: key << 32 | group (keys < 2^21), -1 = empty
                     e = tk[slot]
                     if e == -1:
