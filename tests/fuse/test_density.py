@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from fuseflow.errors import ValidationError
-from fuseflow.fuse import FuseConfig, fuse
-from fuseflow.fuse.density import search_s0, with_s0
+from fuseflow.fuse import FuseConfig, fuse, fuse_with_report
+from fuseflow.fuse.density import budget_stride, search_s0, with_s0
 from fuseflow.io import open_recording
 
 
@@ -33,6 +33,50 @@ def test_reference_path_follows_the_target_too(frame_and_rig):
     # whole passes, at most 4 more: on this 200x150 frame the count moves in steps (13 % off
     # measured); the numba path searches the same s0 on the selection stage alone
     assert abs(got - target) <= 0.15 * target, (base, target, got)
+
+
+def test_budget_stride_rule():
+    """The largest stride s <= 3 with target <= 0.6 V / s^2, never below the configured one."""
+    v = 1_000_000
+    assert budget_stride(1, 600_000, v) == 1
+    assert budget_stride(1, 150_000, v) == 2 and budget_stride(1, 150_001, v) == 1
+    assert budget_stride(1, 66_666, v) == 3 and budget_stride(1, 66_667, v) == 2
+    assert budget_stride(1, 10, v) == 3  # the cap
+    assert budget_stride(2, 500_000, v) == 2 and budget_stride(5, 10, v) == 5  # the configured grid
+    assert budget_stride(1, 10, 0) == 1  # an empty frame
+    with pytest.raises(ValueError):
+        budget_stride(1, 0, v)
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_small_budget_takes_a_coarser_grid(frame_and_rig, backend):
+    """A budget of 0.1 point per valid pixel is met on a coarser grid (the report says which),
+    within 10 % (the reference, which searches with whole passes, within 15 % as above);
+    budget_stride=False keeps every pixel and meets it too."""
+    frame, rig = frame_and_rig
+    tol = 0.1 if backend == "numba" else 0.15
+    valid = fuse_with_report(frame, rig, FuseConfig(backend=backend)).report.valid_pixels
+    target = int(0.1 * valid)
+    auto = fuse_with_report(frame, rig, FuseConfig(backend=backend, target_points=target)).report
+    assert auto.pixel_stride == 2 and abs(auto.points - target) <= tol * target, (target, auto)
+    off = fuse_with_report(frame, rig, FuseConfig(backend=backend, target_points=target, budget_stride=False)).report
+    assert off.pixel_stride == 1 and abs(off.points - target) <= tol * target, (target, off)
+
+
+def test_budget_stride_falls_back_when_the_grid_falls_short(frame_and_rig, monkeypatch):
+    """A grid that cannot give the budget (here forced: stride 3 for half a point per valid
+    pixel) is replaced by pixel_stride's grid, and the budget is still met."""
+    import sys
+
+    frame, rig = frame_and_rig
+    valid = fuse_with_report(frame, rig).report.valid_pixels
+    target = int(0.3 * valid)
+    monkeypatch.setattr(sys.modules["fuseflow.fuse.density"], "BUDGET_FILL", 100.0)
+    rep = fuse_with_report(frame, rig, FuseConfig(target_points=target)).report
+    assert rep.pixel_stride == 1 and abs(rep.points - target) <= 0.1 * target, (target, rep)
+    assert FuseConfig(budget_stride=True).budget_stride
+    with pytest.raises(ValidationError, match="budget_stride"):
+        FuseConfig(budget_stride=1)
 
 
 def test_search_s0_on_a_known_power_law():

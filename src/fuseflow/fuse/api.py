@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -45,6 +45,8 @@ class FuseReport:
         valid_pixels: pixels with depth in range. candidates: points passing eq. (27) and the
             minimum joint weight. out_of_range: candidates beyond the hash's addressable range.
         points: output points. ms: wall time of the call.
+        pixel_stride: the pixel grid the candidates were taken on (FuseConfig.pixel_stride, or
+            the coarser one FuseConfig.budget_stride picked for target_points).
         warnings: human-readable lines about degraded inputs (also logged).
     """
 
@@ -60,6 +62,7 @@ class FuseReport:
     points: int = 0
     ms: float = 0.0
     warnings: tuple[str, ...] = field(default=())
+    pixel_stride: int = 1
 
 
 @dataclass(frozen=True)
@@ -234,7 +237,7 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
 
 
 def _report(
-    p: _Prepared, index: int, backend: str, points: int, valid: int, cand: int, oor: int, ms: float
+    p: _Prepared, index: int, backend: str, points: int, valid: int, cand: int, oor: int, ms: float, stride: int
 ) -> FuseReport:
     """The FuseReport of one fused frame: degraded views from the prepared inputs, counts, time."""
     pres = p.present.tolist()
@@ -267,10 +270,11 @@ def _report(
         points=points,
         ms=ms,
         warnings=tuple(notes),
+        pixel_stride=stride,
     )
 
 
-def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int]:
+def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int]:
     """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference.
     With ``target_points`` the numba path searches s0 on its candidates (fuse/density.py); the
     reference, which is not split into stages, searches with whole passes (at most 4 more)."""
@@ -285,6 +289,23 @@ def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCl
     first = _fuse_torch(p, with_s0(cfg, cfg.s0))
     s0, _ = search_s0(lambda s: len(_fuse_torch(p, with_s0(cfg, s))[0]), cfg.s0, cfg.target_points, len(first[0]))
     return first if s0 == cfg.s0 else _fuse_torch(p, with_s0(cfg, s0))
+
+
+def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int, int]:
+    """``_fuse_at`` on the pixel grid FuseConfig.budget_stride picks for target_points (its cloud
+    is kept unless it ends more than density.BUDGET_SHORT below the budget: then the frame is
+    fused again on pixel_stride's grid); the stride used is the last item."""
+    if cfg.target_points is not None and cfg.budget_stride:
+        from fuseflow.fuse.density import BUDGET_SHORT, budget_stride
+
+        s = budget_stride(cfg.pixel_stride, cfg.target_points, sum(p.valid_per_view))
+        if s > cfg.pixel_stride:
+            out = _fuse_at(p, replace(cfg, pixel_stride=s), backend)
+            if len(out[0]) >= (1.0 - BUDGET_SHORT) * cfg.target_points:
+                return (*out, s)
+            log.info("pixel_stride %d gave %d points for a budget of %d; fused on stride %d", s, len(out[0]),
+                     cfg.target_points, cfg.pixel_stride)  # fmt: skip
+    return (*_fuse_at(p, cfg, backend), cfg.pixel_stride)
 
 
 def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FuseResult:
@@ -308,11 +329,11 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
         raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
     backend = resolve_backend(cfg, frame.depth.device) if isinstance(cfg, FuseConfig) else "torch"
     p = _prepare(frame, rig, cfg, backend)
-    cloud, valid, cand, oor = _fuse_prepared(p, cfg, backend)
+    cloud, valid, cand, oor, stride = _fuse_prepared(p, cfg, backend)
     if p.depth.device.type == "cuda":
         torch.cuda.synchronize(p.depth.device)
     ms = (time.perf_counter() - t0) * 1000.0
-    report = _report(p, frame.index, backend, len(cloud), valid, cand, oor, ms)
+    report = _report(p, frame.index, backend, len(cloud), valid, cand, oor, ms, stride)
     return FuseResult(cloud, report)
 
 
