@@ -111,5 +111,8 @@ def test_cli_points(static_rec, tmp_path):
         app, ["fuse", str(static_rec), "--out", str(tmp_path / "o"), "--points", "6000", "--frames", "0:1"]
     )
     assert res.exit_code == 0, res.output
-    pts = json.loads((tmp_path / "o" / "summary.json").read_text())["points_per_frame"]["mean"]
-    assert abs(pts - 6000) <= 600
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert abs(summary["points_per_frame"]["mean"] - 6000) <= 600
+    rec = open_recording(static_rec)  # the grid the budget picked is recorded
+    stride = fuse_with_report(rec[0], rec.rig, FuseConfig(target_points=6000)).report.pixel_stride
+    assert summary["pixel_strides"] == [stride]

@@ -10,6 +10,13 @@ import typer
 from fuseflow.cli.app import check_device, fail, parse_range, print_table, progress, warn
 
 
+def _grid(strides: list[int]) -> str:
+    """The table's note on the pixel grids used, when any is coarser than every pixel."""
+    if not strides or strides == [1]:
+        return ""
+    return f"; candidates on every {'/'.join(map(str, strides))}-th pixel (point budget or preset)"
+
+
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (fuseflow format, Open3D/ICL or TUM layout)."),
     out: Path = typer.Option(..., "--out", help="Output directory: clouds/<frame>.ply, calib.json, summary.json."),
@@ -60,7 +67,7 @@ def command(
                 "frames",
                 f"{s.frames} ({s.cameras} cameras, preset {preset}; {s.frames_resumed} kept from an earlier call)",
             ),
-            ("points per frame", f"{ppf['mean']:.0f} (min {ppf['min']}, max {ppf['max']})"),
+            ("points per frame", f"{ppf['mean']:.0f} (min {ppf['min']}, max {ppf['max']}){_grid(s.pixel_strides)}"),
             (
                 "fusion",
                 f"{ms['median']:.1f} ms per frame median ({ms['mean']:.1f} mean) on {device} ({s.backend} backend)",

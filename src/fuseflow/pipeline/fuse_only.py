@@ -58,6 +58,9 @@ class FuseRunSummary:
     """Cameras of the recording the calibration does not place (not fused)."""
     frames_resumed: int = 0
     """Frames whose cloud an earlier call with the same manifest had written (not fused again)."""
+    pixel_strides: list[int] = field(default_factory=list)
+    """The pixel grids the frames fused in this call took their candidates on
+    (FuseReport.pixel_stride: FuseConfig.pixel_stride, or a coarser one a point budget picked)."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -120,6 +123,7 @@ class _Fused:
     warnings: dict[str, list[int]] = field(default_factory=dict)
     backend: str = ""
     resumed: int = 0
+    strides: set[int] = field(default_factory=set)
 
 
 def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, cfg, device: str, on_frame) -> _Fused:
@@ -142,6 +146,7 @@ def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, c
             done.counts.append(len(cloud))
             done.fuse_ms.append(res.report.ms)
             done.backend = res.report.backend
+            done.strides.add(res.report.pixel_stride)
             for kind in _warning_kinds(res.report):
                 done.warnings.setdefault(kind, []).append(rec.frame_numbers[t])
         if on_frame:
@@ -209,6 +214,7 @@ def fuse_recording(
         warnings={f"{kind} at frames {_frame_list(nums)}": len(nums) for kind, nums in done.warnings.items()},
         left_out=[c for c in rec.rig.ids if c not in rig.ids],
         frames_resumed=done.resumed,
+        pixel_strides=sorted(done.strides),
     )
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary
