@@ -67,7 +67,7 @@ def _methods():
     # beyond the paper: candidates on a pixel grid (the live preset: stride 2, s0 1)
     rows["FUSE live preset"] = f(PRESETS["live"])
     rows["FUSE pixel_stride=2 s0=5"] = f(replace(FuseConfig(), pixel_stride=2))
-    for npt in (100_000, 250_000):  # a point budget, on the grid budget_stride picks and on every pixel
+    for npt in (100_000, 200_000):  # a point budget, on the grid budget_stride picks and on every pixel
         rows[f"FUSE points={npt}"] = f(replace(FuseConfig(), target_points=npt))
         rows[f"FUSE points={npt} budget_stride=False"] = f(replace(FuseConfig(), target_points=npt, budget_stride=False))
     rows["FUSE lone_cell_keep=0"] = f(replace(FuseConfig(), lone_cell_keep=0))  # session 9's lone-point rule

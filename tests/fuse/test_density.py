@@ -36,11 +36,11 @@ def test_reference_path_follows_the_target_too(frame_and_rig):
 
 
 def test_budget_stride_rule():
-    """The largest stride s <= 3 with target <= 0.6 V / s^2, never below the configured one."""
+    """The largest stride s <= 3 with target <= 0.75 V / s^2, never below the configured one."""
     v = 1_000_000
     assert budget_stride(1, 600_000, v) == 1
-    assert budget_stride(1, 150_000, v) == 2 and budget_stride(1, 150_001, v) == 1
-    assert budget_stride(1, 66_666, v) == 3 and budget_stride(1, 66_667, v) == 2
+    assert budget_stride(1, 187_500, v) == 2 and budget_stride(1, 187_501, v) == 1
+    assert budget_stride(1, 83_333, v) == 3 and budget_stride(1, 83_334, v) == 2
     assert budget_stride(1, 10, v) == 3  # the cap
     assert budget_stride(2, 500_000, v) == 2 and budget_stride(5, 10, v) == 5  # the configured grid
     assert budget_stride(1, 10, 0) == 1  # an empty frame

@@ -288,11 +288,11 @@ class FuseConfig:
     budget_stride: bool = True
     """Beyond the paper, with ``target_points`` only: a small budget takes its candidates on a
     coarser pixel grid, the largest stride s <= 3 (and >= ``pixel_stride``) with
-    target_points <= 0.6 V / s^2, V the frame's valid depth pixels (fuse/density.py,
+    target_points <= 0.75 V / s^2, V the frame's valid depth pixels (fuse/density.py,
     ``budget_stride``). At an equal point count on the simulated 8-ring, the coarser grid with a
     finer s_0 beat every pixel with a coarser s_0 on Chamfer, accuracy, completeness and
     F-score, in a third to a half of the time (docs/fuse.md, "A point budget picks the pixel
-    grid"). 0.6 leaves room below the most a grid gives (0.87-0.98 V / s^2 on ICL, hocap-8rs and
+    grid"). 0.75 leaves room below the most a grid gives (0.87-0.98 V / s^2 on ICL, hocap-8rs and
     the ring); should the coarser grid still end more than 10 % short, the frame is fused again
     on ``pixel_stride``'s grid. False = ``pixel_stride`` whatever the budget."""
 

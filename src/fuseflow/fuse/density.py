@@ -24,8 +24,11 @@ __all__ = ["search_s0", "with_s0", "budget_stride", "BUDGET_FILL", "BUDGET_MAX_S
 
 #: budget_stride takes a grid of stride s only for a budget of at most this many points per
 #: valid pixel on it (target <= BUDGET_FILL V / s^2). The most a grid gives (every candidate
-#: kept, s_0 -> 0) measured 0.87-0.98 V / s^2 on ICL, hocap-8rs and the simulated ring.
-BUDGET_FILL = 0.6
+#: kept, s_0 -> 0) measured 0.87-0.98 V / s^2 on ICL, hocap-8rs and the simulated ring; 0.75
+#: leaves the search a 15 % margin below the least of them. At 0.76 V / 4 the stride-2 grid still
+#: met the budget (-2 %) and beat every pixel on the simulated ring; at 1.07 V / 4 it ended
+#: 12-16 % short (docs/fuse.md, "A point budget picks the pixel grid").
+BUDGET_FILL = 0.75
 #: The coarsest grid budget_stride picks (stride 3 was the coarsest measured for quality).
 BUDGET_MAX_STRIDE = 3
 #: A coarser grid whose cloud ends this far below the budget is replaced by pixel_stride's.
