@@ -64,7 +64,7 @@ def _methods():
     for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells
         if lone != FuseConfig().lone_cell_mean:
             rows[f"FUSE lone_cell_mean={lone:g}"] = f(replace(FuseConfig(), lone_cell_mean=lone))
-    # beyond the paper: candidates on a pixel grid (the live preset: stride 2, s0 1)
+    # beyond the paper: candidates on a pixel grid (the live preset: stride 2, s0 1, mcm_max_missing 4)
     rows["FUSE live preset"] = f(PRESETS["live"])
     rows["FUSE pixel_stride=2 s0=5"] = f(replace(FuseConfig(), pixel_stride=2))
     for npt in (100_000, 200_000):  # a point budget, on the grid budget_stride picks and on every pixel
