@@ -3,7 +3,7 @@ VoxelBlockGrid TSDF and naive fusion; plus FUSE's density / quality / time trade
 
     flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_quality.py --json docs/data/fuse_quality.json
 
-Data: two simulated 8-camera rings at 640x480 (fuseflow.synth, scene "studio", Kinect-class
+Data: two simulated 8-camera rings (``--cameras``) at 640x480 (fuseflow.synth, scene "studio", Kinect-class
 noise with flying pixels, lateral noise, quantisation and dropout; GT extrinsics): one static,
 one dynamic (walking figure, bouncing box, rolling sphere). ``--frames`` frames of each.
 
@@ -176,10 +176,12 @@ def _tail_cells(sf, rig, gt, cfg) -> dict:
     }
 
 
-def _run_rig(name: str, dynamic: bool, methods: dict, frames: int, seed: int, res: tuple[int, int]) -> list[dict]:
+def _run_rig(
+    name: str, dynamic: bool, methods: dict, frames: int, seed: int, res: tuple[int, int], cameras: int = 8
+) -> list[dict]:
     from fuseflow.synth import SimConfig, Simulator
 
-    sim = Simulator(SimConfig(cameras=8, frames=frames, resolution=res, dynamic=dynamic, seed=seed, rig="ring"))
+    sim = Simulator(SimConfig(cameras=cameras, frames=frames, resolution=res, dynamic=dynamic, seed=seed, rig="ring"))
     per: dict[str, list[dict]] = {m: [] for m in methods}
     ms: dict[str, list[float]] = {m: [] for m in methods}
     warm = set()
@@ -217,6 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--density-frames", type=int, default=1, help="frames of the density rows")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--resolution", default="640x480")
+    ap.add_argument("--cameras", type=int, default=8, help="cameras of the ring (default 8, issue 17's rigs)")
     ap.add_argument("--no-density", action="store_true", help="skip the density / quality trade-off rows")
     ap.add_argument("--only", default=None, help="comma-separated method names (default: all rows)")
     ap.add_argument(
@@ -246,8 +249,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"unknown methods {unknown}; methods are {sorted(methods)}")
         methods = {m: methods[m] for m in want}
     rows = []
-    rows += _run_rig("static", False, methods, args.frames, args.seed, (w, h))
-    rows += _run_rig("dynamic", True, methods, args.frames, args.seed, (w, h))
+    rows += _run_rig("static", False, methods, args.frames, args.seed, (w, h), args.cameras)
+    rows += _run_rig("dynamic", True, methods, args.frames, args.seed, (w, h), args.cameras)
     density = []
     if not args.no_density:
         density = _run_rig("static", False, _density_methods(), args.density_frames, args.seed, (w, h))
@@ -256,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
 
         meta = {
             "command": "benchmarks/fuse_quality.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-            "rigs": "8-camera ring, studio scene, Kinect-class noise, GT extrinsics; static and dynamic",
+            "rigs": f"{args.cameras}-camera ring, studio scene, Kinect-class noise, GT extrinsics; static and dynamic",
             "resolution": [w, h],
             "frames": args.frames,
             "seed": args.seed,

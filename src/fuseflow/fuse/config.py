@@ -17,7 +17,9 @@ its derivation written next to it (DESIGN.md section 2). Presets:
   kept, and MCM's window tolerating one more missing neighbour (a grid pixel stands for four,
   so losing those beside holes costs four times the surface). 2.6x faster than the default on
   the ICL 8-view frame with three quarters of the points; on the simulated 8-ring it meets all
-  four of issue 17's quality targets on 12 of 12 runs (docs/fuse.md, Speed, "Session 11").
+  four of issue 17's quality targets on 12 of 12 runs (docs/fuse.md, Speed, "Session 11"). For
+  full frames from ~8-camera rigs: at 320x240, and on 3-4 camera rings (0.5-0.7 mm less
+  accurate, 1.7-1.9x the points beyond 2 cm), the default is better.
   Session 10's ``s0 = 3.5`` kept a third of the points at the same speed and missed F-score and
   completeness.
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
