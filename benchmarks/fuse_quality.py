@@ -69,7 +69,9 @@ def _methods():
     rows["FUSE pixel_stride=2 s0=5"] = f(replace(FuseConfig(), pixel_stride=2))
     for npt in (100_000, 200_000):  # a point budget, on the grid budget_stride picks and on every pixel
         rows[f"FUSE points={npt}"] = f(replace(FuseConfig(), target_points=npt))
-        rows[f"FUSE points={npt} budget_stride=False"] = f(replace(FuseConfig(), target_points=npt, budget_stride=False))
+        rows[f"FUSE points={npt} budget_stride=False"] = f(
+            replace(FuseConfig(), target_points=npt, budget_stride=False)
+        )
     rows["FUSE lone_cell_keep=0"] = f(replace(FuseConfig(), lone_cell_keep=0))  # session 9's lone-point rule
     for s_max in (0.01, 0.02):  # the fine cell's upper clip (eq. 24), 5 cm by default
         rows[f"FUSE s_max={s_max:g}"] = f(replace(FuseConfig(), s_max=s_max))

@@ -14,7 +14,7 @@ def _grid(strides: list[int]) -> str:
     """The table's note on the pixel grids used, when any is coarser than every pixel."""
     if not strides or strides == [1]:
         return ""
-    return f"; candidates on every {'/'.join(map(str, strides))}-th pixel (point budget or preset)"
+    return f"; candidates on a pixel grid of stride {'/'.join(map(str, strides))} (point budget or preset)"
 
 
 def command(
