@@ -57,3 +57,17 @@ def test_run_with_the_live_preset_fuses_fewer_points_and_will_not_resume_another
     # the preset is part of the run's settings: the default cannot resume the live run's output
     res = _invoke("run", static_rec, "--out", live, "--use-rig", "--frames", "0:2")
     assert res.exit_code == 2 and "settings" in res.output
+
+
+def test_run_points_sets_the_density_and_the_run_settings(static_rec, tmp_path):
+    """`fuseflow run --points N`: about N points per frame (within 10 %); the budget is part of the
+    run's settings, so another budget does not resume it; a budget below 1 is a one-line error."""
+    out = tmp_path / "o"
+    res = _invoke("run", static_rec, "--out", out, "--use-rig", "--frames", "0:2", "--points", "5000")
+    assert res.exit_code == 0, res.output
+    ppf = json.loads((out / "summary.json").read_text())["points_per_frame"]
+    assert abs(ppf["min"] - 5000) <= 500 and abs(ppf["max"] - 5000) <= 500, ppf
+    res = _invoke("run", static_rec, "--out", out, "--use-rig", "--frames", "0:2", "--points", "8000")
+    assert res.exit_code == 2 and "settings" in res.output
+    res = _invoke("run", static_rec, "--out", tmp_path / "p", "--use-rig", "--points", "0")
+    assert res.exit_code == 2 and "--points" in res.output

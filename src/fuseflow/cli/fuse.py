@@ -32,7 +32,9 @@ def command(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
     ),
     points: int = typer.Option(
-        None, "--points", help="Target points per frame: s0 is chosen per frame (one extra pass at most)."
+        None,
+        "--points",
+        help="About N points per frame: s0 is searched per frame; a small budget also takes a coarser pixel grid.",
     ),
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
