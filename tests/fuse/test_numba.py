@@ -93,7 +93,7 @@ def test_numba_equals_torch_gap_tolerant_mcm(sim_frame):
     window, and tolerating missing neighbours adds candidates (the simulator drops pixels)."""
     frame, rig = sim_frame
     on = FuseConfig()
-    assert on.mcm_max_missing == 3
+    assert on.mcm_max_missing == 4
     rt, _ = both(frame, rig, on)
     strict, _ = both(frame, rig, replace(on, mcm_max_missing=0))
     assert rt.report.candidates > strict.report.candidates
