@@ -13,9 +13,9 @@ its derivation written next to it (DESIGN.md section 2). Presets:
   less time and ~25 % fewer points, 0.7 mm less accurate on the simulated 8-camera studio
   (docs/fuse.md, Quality).
 * ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``s0 = 1`` and
-  ``mcm_max_missing = 4``: candidates on every 2nd pixel of every 2nd row, nearly all of them
-  kept, and MCM's window tolerating one more missing neighbour (a grid pixel stands for four,
-  so losing those beside holes costs four times the surface). 2.6x faster than the default on
+  ``mcm_max_missing = 4`` (the default's value too since session 11; it was chosen for
+  ``live`` first: a grid pixel stands for four, so losing those beside holes costs four times
+  the surface): candidates on every 2nd pixel of every 2nd row, nearly all of them kept. 2.6x faster than the default on
   the ICL 8-view frame with three quarters of the points; on the simulated 8-ring it meets all
   four of issue 17's quality targets on 12 of 12 runs (docs/fuse.md, Speed, "Session 11"). For
   full frames from ~8-camera rigs: at 320x240, and on 3-4 camera rings (0.5-0.7 mm less
@@ -115,7 +115,7 @@ class FuseConfig:
     preset). Default 4 since session 11: against 3, on six seeds x static / dynamic of the
     simulated 8-ring (640x480), completeness -0.42 to -0.69 mm on all 12 runs, accuracy +-0.01
     mm, F @ 1 cm +0.002-0.003, > 2 cm +0-0.03 points; on the real rigs it is nearly a no-op
-    (hocap-8rs +0.22 % points, ICL +0.004 %, the share of points several cameras support
+    (hocap-8rs +0.18 % points, ICL +0.003 %, the share of points several cameras support
     unchanged), which answers session 7's worry about shadows beside edges on real sensors
     (docs/fuse.md, Quality, "Gap-tolerant window: 4 since session 11"). Session 7 had chosen 3:
     on the simulated 8-camera studio (640x480, seed 11, frame 0) 37.8 % of the floor pixels at
