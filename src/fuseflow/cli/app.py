@@ -103,6 +103,20 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
     return wrapper
 
 
+#: Help of `fuse` and `run`'s --points.
+POINTS_HELP = "About N points per frame: s0 is searched per frame; a small budget also takes a coarser pixel grid."
+
+
+def check_fuse_options(preset: str, points: int | None) -> None:
+    """`fuse` and `run`'s --preset (a name of fuseflow.fuse.PRESETS) and --points (>= 1)."""
+    from fuseflow.fuse import PRESETS
+
+    if points is not None and points < 1:
+        fail(f"--points must be a positive integer, got {points}")
+    if preset not in PRESETS:
+        fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
+
+
 def check_device(device: str) -> str:
     """``--device``: cpu, cuda or cuda:N, and CUDA only where torch sees a GPU."""
     if device not in ("cpu", "cuda") and not device.startswith("cuda:"):

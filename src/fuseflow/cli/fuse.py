@@ -7,7 +7,16 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import check_device, fail, parse_range, print_table, progress, warn
+from fuseflow.cli.app import (
+    POINTS_HELP,
+    check_device,
+    check_fuse_options,
+    fail,
+    parse_range,
+    print_table,
+    progress,
+    warn,
+)
 
 
 def _grid(strides: list[int]) -> str:
@@ -31,22 +40,14 @@ def command(
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
     ),
-    points: int = typer.Option(
-        None,
-        "--points",
-        help="About N points per frame: s0 is searched per frame; a small budget also takes a coarser pixel grid.",
-    ),
+    points: int = typer.Option(None, "--points", help=POINTS_HELP),
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
-    from fuseflow.fuse import PRESETS
     from fuseflow.io import open_recording, read_calibration
     from fuseflow.pipeline import fuse_recording
 
     check_device(device)
-    if points is not None and points < 1:
-        fail(f"--points must be a positive integer, got {points}")
-    if preset not in PRESETS:
-        fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
+    check_fuse_options(preset, points)
     recording = open_recording(rec)
     calibration = read_calibration(calib) if calib is not None else None
     positions = parse_range(frames, len(recording))

@@ -6,7 +6,16 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import check_device, fail, parse_range, print_table, progress, warn
+from fuseflow.cli.app import (
+    POINTS_HELP,
+    check_device,
+    check_fuse_options,
+    fail,
+    parse_range,
+    print_table,
+    progress,
+    warn,
+)
 
 
 def _print_summary(s) -> None:
@@ -44,11 +53,7 @@ def command(
     preset: str = typer.Option(
         "default", "--preset", help="FUSE preset: default (= quality), live (every 2nd pixel), fast, paper, ..."
     ),
-    points: int = typer.Option(
-        None,
-        "--points",
-        help="About N points per frame: s0 is searched per frame; a small budget also takes a coarser pixel grid.",
-    ),
+    points: int = typer.Option(None, "--points", help=POINTS_HELP),
     recalibrate: str = typer.Option("off", "--recalibrate", help="off | auto: re-run GMAC when a camera is bumped."),
     ray: bool = typer.Option(False, "--ray", help="Fuse frames as Ray tasks (pip install 'fuseflow[ray]')."),
     ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local Ray)."),
@@ -64,17 +69,12 @@ def command(
     ),
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
-    from dataclasses import replace
-
-    from fuseflow.fuse import PRESETS
+    from fuseflow.fuse.config import preset_config
     from fuseflow.io import open_recording, read_calibration
     from fuseflow.pipeline import PipelineConfig, RayOptions, run
 
     check_device(device)
-    if preset not in PRESETS:
-        fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
-    if points is not None and points < 1:
-        fail(f"--points must be a positive integer, got {points}")
+    check_fuse_options(preset, points)
     if calib is not None and use_rig:
         fail("--calib and --use-rig both choose the extrinsics; pass one")
     recording = open_recording(rec)
@@ -82,8 +82,7 @@ def command(
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None
     if sync_offsets == "auto" and ray_opts is not None:
         fail("--sync-offsets auto re-times views in this process; use check or off with --ray")
-    fuse_cfg = PRESETS[preset] if points is None else replace(PRESETS[preset], target_points=points)
-    cfg = PipelineConfig(device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=fuse_cfg)
+    cfg = PipelineConfig(device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=preset_config(preset, points))
     positions = parse_range(frames, len(recording))
     with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))

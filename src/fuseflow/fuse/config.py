@@ -426,6 +426,14 @@ PRESETS: dict[str, FuseConfig] = {
 }
 
 
+def preset_config(name: str, target_points: int | None = None) -> FuseConfig:
+    """``PRESETS[name]``, with ``target_points`` when given (the `fuse` / `run` commands' --preset
+    and --points); ValidationError naming the presets for an unknown name."""
+    if name not in PRESETS:
+        raise ValidationError(f"no FUSE preset {name!r}; presets are {sorted(PRESETS)}")
+    return PRESETS[name] if target_points is None else replace(PRESETS[name], target_points=target_points)
+
+
 def preset(name: str) -> FuseConfig:
     """The named preset (``PRESETS`` keys); ValidationError listing the names otherwise."""
     try:

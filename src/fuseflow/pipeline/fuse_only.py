@@ -10,7 +10,7 @@ from __future__ import annotations
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -180,12 +180,10 @@ def fuse_recording(
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
     """
-    from fuseflow.fuse import PRESETS
+    from fuseflow.fuse.config import preset_config
 
-    if preset not in PRESETS:
-        raise ValidationError(f"no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
+    cfg = preset_config(preset, points)
     rec = rec if isinstance(rec, Recording) else open_recording(rec)
-    cfg = PRESETS[preset] if points is None else replace(PRESETS[preset], target_points=points)
     rig = rig_for_fusion(rec, calibration)
     positions = list(frames if frames is not None else range(len(rec)))
     if not positions:
