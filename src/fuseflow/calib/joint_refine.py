@@ -43,14 +43,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuseflow.geometry.noise import SENSOR_NOISE, sigma
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = ["JointRefineResult", "joint_refine", "SIGMA_A", "SIGMA_B"]
 
-#: Axial depth noise sigma(z) = SIGMA_A + SIGMA_B (z - 0.4)^2 (metres), the Kinect-class model of
-#: Nguyen, Izadi and Lovell 2012; used as a relative weight between near and far samples.
-SIGMA_A = 0.0012
-SIGMA_B = 0.0019
+#: Axial depth noise sigma(z) = SIGMA_A + SIGMA_B (z - SIGMA_Z0)^2 (metres): the Kinect v1 row of
+#: fuseflow.geometry.noise.SENSOR_NOISE, used as a relative weight between near and far samples.
+SIGMA_A, SIGMA_B, SIGMA_Z0 = SENSOR_NOISE["kinect_v1"]
 #: Samples per camera, split over the frames used (a regular pixel grid over the valid depth).
 SAMPLES = 12000
 #: Association gates (metres) per iteration; an iteration's gate is never below 3 sigma(z).
@@ -141,7 +141,7 @@ class _View:
 
 def sigma_z(z: np.ndarray) -> np.ndarray:
     """Axial depth noise (metres) at depth z (metres), the relative weighting model."""
-    return SIGMA_A + SIGMA_B * (z - 0.4) ** 2
+    return sigma(z, SIGMA_A, SIGMA_B, SIGMA_Z0)
 
 
 def _point_map(depth: np.ndarray, K: np.ndarray) -> np.ndarray:

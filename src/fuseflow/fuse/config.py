@@ -23,6 +23,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Literal
 
 from fuseflow.errors import ValidationError
+from fuseflow.geometry.noise import DEFAULT_SENSOR, SENSOR_NOISE, sensor_noise
 
 __all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "NOISE_SIGMA", "preset"]
 
@@ -67,15 +68,11 @@ Backend = Literal["auto", "torch", "numba"]
 MCM_ALPHA = 20.0
 MCM_BETA = 6000.0
 
-#: Axial noise sigma(z) = a + b (z - z0)^2 (metres) of the simulator's sensor presets
-#: (synth/config.py):
-#: Kinect v1 class, Nguyen et al. 2012 (synth NGUYEN_2012 without the incidence-angle term);
-#: RealSense D435 class, active stereo z^2 s / (f B) with s = 0.08 px, f = 385 px, B = 0.05 m
-#: (synth D400_STEREO / REALSENSE_D435) -> b = 0.08 / (385 * 0.05) = 0.00416, plus a 0.1 mm
-#: floor (a > 0 keeps sigma positive near z = 0).
+#: Axial noise sigma(z) = a + b (z - z0)^2 (metres) by the simulator's sensor names, as plain
+#: (a, b, z0) tuples of the one table, ``fuseflow.geometry.noise.SENSOR_NOISE``.
 NOISE_SIGMA: dict[str, tuple[float, float, float]] = {
-    "kinect": (0.0012, 0.0019, 0.4),
-    "realsense": (0.0001, 0.08 / (385.0 * 0.05), 0.0),
+    "kinect": tuple(sensor_noise("kinect")),
+    "realsense": tuple(sensor_noise("realsense")),
 }
 
 
@@ -197,10 +194,10 @@ class FuseConfig:
     """Agreement gate of ``consensus`` in units of the sensor's sigma(z) at the
     representative's depth: 3 sigma keeps 99.7 % of the same surface's Gaussian noise and
     rejects a second surface more than 3 sigma away (Kinect: 18 mm at 2 m, 42 mm at 3 m). > 0."""
-    noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
+    noise_sigma: tuple[float, float, float] = tuple(SENSOR_NOISE[DEFAULT_SENSOR])
     """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by ``mcm_noise``,
-    ``range_priority``, ``multiview_mean`` and ``consensus``; ``NOISE_SIGMA`` holds the presets.
-    Default: Kinect-class structured light (Nguyen et al. 2012). a > 0, b >= 0."""
+    ``range_priority``, ``multiview_mean`` and ``consensus`` (fuseflow.geometry.noise). Default:
+    the Kinect v1 row of ``SENSOR_NOISE`` (structured light). a > 0, b >= 0."""
 
     target_points: int | None = None
     """Density control (beyond the paper): ``s0`` is searched per frame for about this many output

@@ -32,6 +32,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from fuseflow.geometry.noise import sigma_torch
+
 __all__ = ["valid_depth", "confidence", "gradient_and_variance", "noise_sigma_of", "tolerant_gradient_and_variance"]
 
 
@@ -48,9 +50,7 @@ def valid_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torc
 def noise_sigma_of(z: torch.Tensor, noise_sigma: tuple[float, float, float]) -> torch.Tensor:
     """sigma(z) = a + b (z - z0)^2 (metres) for depth z (metres, any shape, float32); the same
     float32 operations as the compiled kernel."""
-    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
-    dz = z - z0
-    return a + b * (dz * dz)
+    return sigma_torch(z, noise_sigma)
 
 
 def gradient_and_variance(

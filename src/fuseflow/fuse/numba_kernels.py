@@ -38,7 +38,11 @@ from numba import njit, prange
 from fuseflow.fuse.ash import COARSE_BITS, COARSE_OFFSET, FIXED_BITS, FIXED_OFFSET
 from fuseflow.fuse.config import FuseConfig
 from fuseflow.geometry.camera import relative_transforms
+from fuseflow.geometry.noise import compiled_sigma
 from fuseflow.types import FusedCloud
+
+#: sigma(z) = a + b (z - z0)^2 of fuseflow.geometry.noise, compiled and inlined into the kernels.
+_sigma = compiled_sigma()
 
 __all__ = [
     "fuse_numba",
@@ -372,10 +376,8 @@ def _votes(dflat, Kf, M_rel, xt, yt, skew0, i, j, h, w, nc, X, Y, Z, v0, prm, zj
         for t in range(nc):  # cvgc.multiview_mean: j's measured point, inverse-variance weighted
             d = dv[t]
             zj = zjs[t]
-            dzj = zj - nz0
-            szj = na + nb * (dzj * dzj)
-            dd = d - nz0
-            sd = na + nb * (dd * dd)
+            szj = _sigma(zj, na, nb, nz0)
+            sd = _sigma(d, na, nb, nz0)
             vd = sd * sd
             e = zj - d
             gate = (d > zero) & (e * e < mv_g2 * (szj * szj + vd))
@@ -442,8 +444,7 @@ def _mcm_row(dflat, rb, w, prm, gq, vr, cc):
         na, nb, nz0 = prm.noise_a, prm.noise_b, prm.noise_z0
         for u in range(1, w - 1):
             z = dflat[rb + u]
-            dzn = z - nz0
-            sg = na + nb * (dzn * dzn)
+            sg = _sigma(z, na, nb, nz0)
             s2 = sg * sg
             gsq = gq[u] - s2
             if gsq < zero:
@@ -583,8 +584,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out
                     ns[t] = 0
                     if mv:
                         z = cz_[t]
-                        dz0 = z - nz0
-                        s0 = na + nb * (dz0 * dz0)
+                        s0 = _sigma(z, na, nb, nz0)
                         v0[t] = s0 * s0
                 for kk in range(nbr_n[i]):
                     _votes(dflat, Kf, M_rel, xt, yt, skew0, i, vn[i, kk], h, w, nc, cx_, cy_, cz_, v0, prm,
@@ -633,8 +633,7 @@ def _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out
                 out_P[base, 1] = py
                 out_P[base, 2] = pz
                 if rp:
-                    dz = z - nz0
-                    out_pr[base] = om / (na + nb * (dz * dz))
+                    out_pr[base] = om / _sigma(z, na, nb, nz0)
                 if mv:
                     out_sup[base] = np.uint8(min(ns[t], 255))
                 cnt += 1
@@ -1091,8 +1090,7 @@ def _consensus_point(Pc, omc, camc, t0, t1, s, i, T_wc, T_cw, gate, na, nb, nz0,
     uy = dy / t_s
     uz = dz / t_s
     zs = T_cw[i, 2, 0] * Pc[s, 0] + T_cw[i, 2, 1] * Pc[s, 1] + T_cw[i, 2, 2] * Pc[s, 2] + T_cw[i, 2, 3]
-    dn = zs - nz0
-    lim = gate * (na + nb * (dn * dn))
+    lim = gate * _sigma(zs, na, nb, nz0)
     num = 0.0
     den = 0.0
     ns = 0

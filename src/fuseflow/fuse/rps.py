@@ -23,6 +23,7 @@ import math
 import torch
 
 from fuseflow.fuse.ash import FINE_BITS
+from fuseflow.geometry.noise import sigma_torch
 
 __all__ = ["cell_counts", "select_representatives", "selection_priority", "consensus"]
 
@@ -84,9 +85,7 @@ def selection_priority(omega: torch.Tensor, z: torch.Tensor, noise_sigma: tuple[
     Returns:
         (M,) float32; same float32 operations as the compiled kernel (numba_kernels._pixels).
     """
-    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
-    dz = z - z0
-    return omega / (a + b * (dz * dz))
+    return omega / sigma_torch(z, noise_sigma)
 
 
 def select_representatives(
@@ -204,9 +203,7 @@ def consensus(
     u = d / t_s[:, None]
     r2 = T_cam_world[cs][:, 2]  # (S, 4) depth row
     z_s = r2[:, 0] * Ps[:, 0] + r2[:, 1] * Ps[:, 1] + r2[:, 2] * Ps[:, 2] + r2[:, 3]
-    a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=dev) for v in noise_sigma)
-    dz = z_s - z0
-    lim = torch.tensor(gate, dtype=torch.float32, device=dev) * (a + b * (dz * dz))
+    lim = torch.tensor(gate, dtype=torch.float32, device=dev) * sigma_torch(z_s, noise_sigma)
     dq = P[q] - C[rep]
     ur = u[rep]
     t_q = dq[:, 0] * ur[:, 0] + dq[:, 1] * ur[:, 1] + dq[:, 2] * ur[:, 2]

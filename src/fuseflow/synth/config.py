@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fuseflow.errors import ValidationError
+from fuseflow.geometry.noise import SENSOR_NOISE
 
 __all__ = [
     "SimConfig", "SensorModel", "AxialNoise", "NGUYEN_2012", "D400_STEREO", "KINECT_V1", "REALSENSE_D435",
@@ -49,9 +50,9 @@ class AxialNoise(NamedTuple):
     """s, the stereo matching RMS subpixel error (px) of the disparity term z^2 s / (f B)."""
 
 
-#: Structured light, Kinect v1 class: Nguyen, Izadi, Lovell 2012, sigma_z = 0.0012 + 0.0019 (z - 0.4)^2
-#: + 0.0001 / sqrt(z) theta^2 / (pi/2 - theta)^2 m.
-NGUYEN_2012 = AxialNoise(a=0.0012, b=0.0019, z0=0.4, c=0.0001)
+#: Structured light, Kinect v1 class: Nguyen, Izadi, Lovell 2012: the ``kinect_v1`` row of
+#: fuseflow.geometry.noise.SENSOR_NOISE plus the incidence term 0.0001 / sqrt(z) theta^2 / (pi/2 - theta)^2 m.
+NGUYEN_2012 = AxialNoise(*SENSOR_NOISE["kinect_v1"], c=0.0001)
 #: Active stereo, RealSense D400 class: RMS = z^2 s / (f B) with s = 0.08 px (Intel 'Tuning depth
 #: cameras for best performance', Grunnet-Jepsen et al. 2018: 0.08 px typical on a well-textured target).
 D400_STEREO = AxialNoise(stereo_rms=0.08)

@@ -40,6 +40,7 @@ from fuseflow.calib.api import check_inputs
 from fuseflow.calib.correspondences import prepare_cameras
 from fuseflow.errors import ValidationError
 from fuseflow.eval.metrics import pose_errors
+from fuseflow.geometry.noise import SENSOR_NOISE, sigma
 
 __all__ = [
     "DATA_SETS",
@@ -127,9 +128,9 @@ def _room_frame(n: int, seed: int, size=(640, 480)):
         P = o + d * depth[:, None]
         s = np.sin(P @ freqs.T + phase)
         col = 0.5 + 0.5 * np.tanh(2.0 * (s @ amp) / np.sqrt(48))
-        # Kinect axial noise sigma(z) = 1.2 mm + 1.9 mm (z - 0.4)^2 (Nguyen et al. 2012), 1 mm steps
+        # Kinect v1 axial noise (fuseflow.geometry.noise), 1 mm steps
         z = depth.reshape(H, W)
-        z = z + rng.normal(size=z.shape) * (0.0012 + 0.0019 * (z - 0.4) ** 2)
+        z = z + rng.normal(size=z.shape) * sigma(z, *SENSOR_NOISE["kinect_v1"])
         z = np.round(z * 1000) / 1000
         z[rng.random(z.shape) < 0.02] = 0  # dropouts
         Ts.append(T)
@@ -315,12 +316,12 @@ def run_seed(frame, rig, ref, seed, rows, robust, backbone="colmap", noise=(0.3,
         except fuseflow.FuseFlowError as exc:
             rows.setdefault(name, []).append({"failed": True, "error": str(exc)})
             continue
-        extra = {"pruned": len(cal.report["pruned_edges"]), "suspect": len(cal.report.get("suspect_cameras", []))}
+        extra = {"pruned": len(cal.report.pruned_edges), "suspect": len(cal.report.suspect_cameras)}
         add(name, cal.T_cam_world, t_bb + time.perf_counter() - t, extra)
         if cal0 is None or name.startswith("GMAC point"):
             cal0 = cal
-    if cal0 is not None and cal0.report["scale_naive_median_depth_ratio"]:
-        add("backbone + naive median depth ratio", scaled(bb, ids, cal0.report["scale_naive_median_depth_ratio"]), t_bb)
+    if cal0 is not None and cal0.report.scale_naive_median_depth_ratio:
+        add("backbone + naive median depth ratio", scaled(bb, ids, cal0.report.scale_naive_median_depth_ratio), t_bb)
     add("backbone + oracle scale (lower bound)", scaled(bb, ids, oracle_scale(bb, ids, ref)), t_bb)
     t = time.perf_counter()
     try:
