@@ -109,7 +109,7 @@ class CalibReport(Mapping[str, Any]):
     are absent. Empty in reports written before it existed."""
     camera_verdicts: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Camera -> {"verdict": "good" | "check it" | "unplaced", "reason", "placed_by", "routes",
-    "pairs", "pairs_agreeing", "cycles", "floor", "checks", "depth_agreement", "accuracy_deg",
+    "pairs", "pairs_agreeing", "cycles", "floor", "floor_ok", "checks", "depth_agreement", "accuracy_deg",
     "accuracy_mm", "accuracy_from", "disagreeing"} (:func:`fuseflow.calib.verdicts.camera_verdicts`
     says how each is measured). Empty in reports written before it existed."""
     reference: dict[str, Any] | None = None

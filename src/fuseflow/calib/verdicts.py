@@ -4,24 +4,30 @@ and one word for a user: "good", "check it" or "unplaced" (with the reason).
 Evidence read from the report and the final extrinsics (nothing is re-measured but the floor):
 
 - **route**: the source that placed the camera (``placed_by``) and, for the metric ``rgbd``
-  backbone, the routes of the pair poses that link it ("floor", "keypoints", "geometric", ...).
+  backbone, the routes of the pair poses that link it ("floor": top-down floor texture; "image":
+  image keypoints lifted by depth; "image+floor": both; "geometric": shape alone).
 - **pairs**: the measured pair poses (edges) that link the camera. Each is compared with the
-  relative pose of the final extrinsics; it *agrees* within ``AGREE_DEG`` / ``AGREE_MM``.
+  relative pose of the final extrinsics; it *agrees* within ``AGREE_DEG`` / ``AGREE_MM`` (wide
+  enough for the noise of real pair poses, which the pose graph and the joint refinement
+  average out: on hocap-8rs correct cameras' pairs are up to 3.9 deg / 38 mm off; far too
+  narrow for a symmetric alias, tens of degrees).
 - **cycles**: triangles of agreeing edges through the camera (each closes a loop: an
   independent check of its pose). Scale-free backbones (colmap, ...): the kept triangles of the
   scale stage's cycle check.
 - **floor**: the camera's own floor plane, carried into the world by its pose, against the
-  median of every floor-seeing camera's (tilt within ``FLOOR_DEG``, height within ``FLOOR_MM``).
-- **accuracy**: ``rgbd``: the RMS disagreement (deg, mm) of the camera's measured pair poses
-  with the final extrinsics, when at least two pairs link it (with one pair the pose fits it
-  exactly and nothing can be estimated). Scale-free backbones: the RMS cycle residual (mm) of
-  its triangles / sqrt(3) (a translation misclosure shared by three edges); no angle.
+  median of every floor-seeing camera's: a check when within ``FLOOR_DEG`` / ``FLOOR_MM``. A
+  camera whose dominant plane is another surface (a table top) simply has no floor check.
+- **accuracy**: ``rgbd``: RMS / sqrt(n) of the disagreement (deg, mm) of the camera's n >= 2
+  measured pair poses with the final extrinsics (each pair an independent measurement of the
+  pose; with one pair the pose fits it exactly and nothing can be estimated). Scale-free
+  backbones: the position error the standard error of s* causes at the camera's distance from
+  the world camera (the scale part only; no angle).
 - **plausibility**: two camera centres closer than ``STACKED_M`` (a device's width) cannot both
   be right.
 
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
-first failing reason: stacked, depth agreement below the threshold, a pair that disagrees, no
-independent check, expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
+first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
+agree, no independent check, expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
 """
 
 from __future__ import annotations
@@ -48,16 +54,17 @@ __all__ = [
     "STACKED_M",
 ]
 
-#: A measured pair pose agrees with the final extrinsics within these (the rgbd cycle check's 2 deg / 8 cm).
-AGREE_DEG, AGREE_MM = 2.0, 80.0
-#: Expected accuracy within these reads "good" (the issue's 1 deg / 3 cm target).
-GOOD_DEG, GOOD_MM = 1.0, 30.0
+#: A measured pair pose agrees with the final extrinsics within these (module docstring).
+AGREE_DEG, AGREE_MM = 5.0, 100.0
+#: Expected accuracy within these reads "good" (the estimate runs 2-5x above the error measured
+#: against hocap-8rs's reference: docs/gmac.md, "Reading the verdict table").
+GOOD_DEG, GOOD_MM = 2.0, 50.0
 #: The floor check: tilt and height of a camera's floor against the rig's median floor.
 FLOOR_DEG, FLOOR_MM = 2.0, 50.0
 #: Two camera centres closer than this (metres; a depth camera is 10-25 cm wide) are stacked.
 STACKED_M = 0.10
 
-ROUTE_NAMES = {"floor": "floor texture", "sift4": "keypoints+floor", "sift3d": "keypoints", "geometric": "geometric"}
+ROUTE_NAMES = {"floor": "floor", "sift4": "image+floor", "sift3d": "image", "geometric": "geometric"}
 
 
 def _angle_deg(R: np.ndarray) -> float:
@@ -153,14 +160,16 @@ def _evidence_rgbd(c: str, edges, T) -> dict[str, Any]:
     }
     if len(res) >= 2:
         r = np.array(list(res.values()))
-        ev["accuracy_deg"] = round(float(np.sqrt(np.mean(r[:, 0] ** 2))), 3)
-        ev["accuracy_mm"] = round(float(np.sqrt(np.mean(r[:, 1] ** 2))), 1)
-        ev["accuracy_from"] = f"RMS disagreement of its {len(res)} measured pair poses with the final extrinsics"
+        n = len(res)
+        ev["accuracy_deg"] = round(float(np.sqrt(np.mean(r[:, 0] ** 2) / n)), 3)
+        ev["accuracy_mm"] = round(float(np.sqrt(np.mean(r[:, 1] ** 2) / n)), 1)
+        ev["accuracy_from"] = f"RMS / sqrt({n}) of its {n} measured pair poses' disagreement with the result"
     return ev
 
 
 def _evidence_scale_free(c: str, report, T) -> dict[str, Any]:
-    """Pairs and cycles of a camera placed by a scale-free backbone (the scale stage's kept edges)."""
+    """Pairs and cycles of a camera placed by a scale-free backbone (the scale stage's kept
+    edges); position accuracy from s*'s standard error at its distance from the world camera."""
     kept = [e.split("-") for e in report.kept_edges]
     mine = [e for e in kept if c in e and all(x in T for x in e)]
     tris = {k: v for k, v in report.cycle_residuals_mm.items() if c in k.split("-")}
@@ -172,12 +181,12 @@ def _evidence_scale_free(c: str, report, T) -> dict[str, Any]:
         "disagreeing": {},
         "accuracy_deg": None,
         "accuracy_mm": None,
-        "accuracy_from": "no cycle through it: nothing to estimate from",
+        "accuracy_from": "no scale error estimate",
     }
-    if tris:
-        mm = np.array(list(tris.values()), dtype=np.float64) / np.sqrt(3)
-        ev["accuracy_mm"] = round(float(np.sqrt(np.mean(mm**2))), 1)
-        ev["accuracy_from"] = f"RMS cycle residual of its {len(tris)} triangles / sqrt(3) (position only)"
+    if report.scale and report.scale_std_error is not None and report.world_anchor in T:
+        dist = np.linalg.norm(invert_rigid(T[c])[:3, 3] - invert_rigid(T[report.world_anchor])[:3, 3])
+        ev["accuracy_mm"] = round(float(report.scale_std_error / report.scale * dist * 1000), 1)
+        ev["accuracy_from"] = "standard error of s* at its distance from the world camera (scale part only)"
     return ev
 
 
@@ -193,8 +202,8 @@ def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[
     """Camera id (rig order ``ids``) -> its verdict and evidence (module docstring), plain JSON.
 
     Keys: "verdict" ("good" | "check it" | "unplaced"), "reason", "placed_by", "routes", "pairs",
-    "pairs_agreeing", "cycles", "floor" ([tilt deg, height mm] or None), "checks" (cycles + a
-    passing floor check), "depth_agreement", "accuracy_deg", "accuracy_mm" (None: unknown),
+    "pairs_agreeing", "cycles", "floor" ([tilt deg, height mm] against the rig's floor, or None),
+    "floor_ok" (within FLOOR_DEG / FLOOR_MM), "checks" (cycles + a passing floor check), "depth_agreement", "accuracy_deg", "accuracy_mm" (None: unknown),
     "accuracy_from", "disagreeing" (edge -> [deg, mm] of pairs beyond AGREE_DEG / AGREE_MM).
     """
     T = dict(T_cam_world)
@@ -209,10 +218,12 @@ def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[
             out[c] = {"verdict": "unplaced", "reason": _unplaced_reason(c, report), "placed_by": None}
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
-        ev = _evidence_rgbd(c, edges, T) if src == "rgbd" and info else _evidence_scale_free(c, report, T)
-        if src != "rgbd" and report.backbone == "auto":  # the report's scale stage is rgbd's check
-            ev = {**ev, "pairs": 0, "pairs_agreeing": 0, "cycles": 0, "accuracy_mm": None,
-                  "accuracy_from": f"{src} records no pair or cycle residuals here"}  # fmt: skip
+        if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
+            ev = _evidence_rgbd(c, edges, T)
+        elif report.backbone != "auto":
+            ev = _evidence_scale_free(c, report, T)
+        else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera
+            ev = {**_evidence_scale_free(c, report, {}), "accuracy_from": f"{src} records no pair poses for it"}
         fl = floor.get(c)
         floor_ok = fl is not None and fl[0] <= FLOOR_DEG and fl[1] <= FLOOR_MM
         agreement = (report.depth_agreement or {}).get(c)
@@ -223,6 +234,7 @@ def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[
             "checks": ev["cycles"] + int(floor_ok),
             "depth_agreement": None if agreement is None else round(float(agreement), 3),
         }
+        entry["floor_ok"] = floor_ok
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
@@ -238,17 +250,23 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
     a = e["depth_agreement"]
     if a is not None and a < limit:
         return "check it", f"its neighbours confirm only {a:.2f} of its depth (below {limit:.2f})"
-    if e["disagreeing"]:
+    if e["disagreeing"] and 2 * e["pairs_agreeing"] < e["pairs"]:
         edge, (d, mm) = next(iter(e["disagreeing"].items()))
-        return "check it", f"the measured pose of pair {edge} disagrees with the result by {d:.1f} deg / {mm:.0f} mm"
-    if fl is not None and (fl[0] > FLOOR_DEG or fl[1] > FLOOR_MM):
-        return "check it", f"its floor is {fl[0]:.1f} deg / {fl[1]:.0f} mm off the rig's floor"
+        return "check it", (
+            f"{e['pairs'] - e['pairs_agreeing']} of its {e['pairs']} measured pair poses disagree with the result "
+            f"(pair {edge} by {d:.1f} deg / {mm:.0f} mm)"
+        )
+    if e["checks"] == 0 and e["pairs"] == 0:
+        return "check it", f"no independent check: {e['accuracy_from']}, no floor check"
     if e["checks"] == 0:
-        return "check it", "no independent check: it closes no cycle and has no floor check"
+        return "check it", (
+            f"no independent check: placed by {e['pairs']} pair pose{'s' * (e['pairs'] != 1)}, closes no cycle, "
+            "no floor check (add a camera that sees it and its neighbours, or more frames)"
+        )
     deg, mm = e["accuracy_deg"], e["accuracy_mm"]
     if (deg is not None and deg > GOOD_DEG) or (mm is not None and mm > GOOD_MM):
         return "check it", f"expected accuracy {_acc(deg, mm)} is beyond {GOOD_DEG:g} deg / {GOOD_MM:g} mm"
-    checks = [f"{e['cycles']} cycle{'s' * (e['cycles'] != 1)}"] + (["floor"] if fl is not None else [])
+    checks = [f"{e['cycles']} cycle{'s' * (e['cycles'] != 1)}"] + (["floor"] if e["floor_ok"] else [])
     return "good", f"checked by {' + '.join(checks)}; expected accuracy {_acc(deg, mm)}"
 
 
