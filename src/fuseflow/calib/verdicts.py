@@ -18,7 +18,7 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
   median of every floor-seeing camera's: a check when within ``FLOOR_DEG`` / ``FLOOR_MM``. A
   camera whose dominant plane is another surface (a table top) simply has no floor check.
 - **accuracy**: ``rgbd``: RMS / sqrt(n) of the disagreement (deg, mm) of the camera's n >= 2
-  measured pair poses with the final extrinsics (each pair an independent measurement of the
+  agreeing pair poses with the final extrinsics (each pair an independent measurement of the
   pose; with one pair the pose fits it exactly and nothing can be estimated). Scale-free
   backbones: the position error the standard error of s* causes at the camera's distance from
   the world camera (the scale part only; no angle).
@@ -27,7 +27,8 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
 
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
 first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
-agree, no independent check, expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
+agree, no cycle through it (a floor check alone leaves its heading and horizontal position
+unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
 """
 
 from __future__ import annotations
@@ -156,14 +157,14 @@ def _evidence_rgbd(c: str, edges, T) -> dict[str, Any]:
         },
         "accuracy_deg": None,
         "accuracy_mm": None,
-        "accuracy_from": "one pair places it: nothing to estimate from",
+        "accuracy_from": "fewer than two agreeing pair poses: nothing to estimate from",
     }
-    if len(res) >= 2:
-        r = np.array(list(res.values()))
-        n = len(res)
+    if len(agree) >= 2:  # a disagreeing pair is an outlier (reported in "disagreeing"), not noise
+        r = np.array([res[e] for e in agree])
+        n = len(r)
         ev["accuracy_deg"] = round(float(np.sqrt(np.mean(r[:, 0] ** 2) / n)), 3)
         ev["accuracy_mm"] = round(float(np.sqrt(np.mean(r[:, 1] ** 2) / n)), 1)
-        ev["accuracy_from"] = f"RMS / sqrt({n}) of its {n} measured pair poses' disagreement with the result"
+        ev["accuracy_from"] = f"RMS / sqrt({n}) of its {n} agreeing pair poses' disagreement with the result"
     return ev
 
 
@@ -256,12 +257,13 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
             f"{e['pairs'] - e['pairs_agreeing']} of its {e['pairs']} measured pair poses disagree with the result "
             f"(pair {edge} by {d:.1f} deg / {mm:.0f} mm)"
         )
-    if e["checks"] == 0 and e["pairs"] == 0:
-        return "check it", f"no independent check: {e['accuracy_from']}, no floor check"
-    if e["checks"] == 0:
+    if e["cycles"] == 0:
+        floor = "only its floor (tilt and height) agrees" if e["floor_ok"] else "no floor check"
+        if e["pairs"] == 0:
+            return "check it", f"no independent check: {e['accuracy_from']}; {floor}"
         return "check it", (
-            f"no independent check: placed by {e['pairs']} pair pose{'s' * (e['pairs'] != 1)}, closes no cycle, "
-            "no floor check (add a camera that sees it and its neighbours, or more frames)"
+            f"no independent check of its whole pose: placed by {e['pairs']} pair pose{'s' * (e['pairs'] != 1)} "
+            f"that close{'s' * (e['pairs'] == 1)} no cycle; {floor} (add a camera that sees it and its neighbours, or more frames)"
         )
     deg, mm = e["accuracy_deg"], e["accuracy_mm"]
     if (deg is not None and deg > GOOD_DEG) or (mm is not None and mm > GOOD_MM):

@@ -115,31 +115,35 @@ def _draw_map(img, box, frame, rig, T, verdicts, report, stride) -> None:
         grey = (255 - 215 * dens**0.7).astype(np.uint8)
         img[y0 : y0 + size, x0 : x0 + size] = grey[..., None]
     _scale_bar(img, x0 + 15, y0 + size - 20, scale)
-    L = 0.12 * size
+    taken: list[tuple[int, int, int, int]] = []
     for c in T:
-        label = (
-            c if len(c) <= 6 else str(list(verdicts).index(c) if c in verdicts else "?")
-        )  # long ids: the legend's number
+        label = c if len(c) <= 6 else str(frame.camera_ids.index(c))  # long ids: the legend's number
         colour = GREEN if verdicts.get(c, {}).get("verdict") == "good" else RED
-        cx, cy = px(B @ C[c])
-        W = invert_rigid(T[c])
-        K = rig[c].K
-        half = np.arctan2(rig[c].width / 2, K[0, 0])
-        for a in (-half, half):  # the field-of-view wedge: rays at the image's left and right edges
-            ray = W[:3, :3] @ np.array([np.tan(a), 0.0, 1.0])
-            d = B @ ray
-            d = d / max(np.linalg.norm(d), 1e-9)
-            cv2.line(img, (int(cx), int(cy)), (int(cx + L * d[0]), int(cy + L * d[1])), colour, 1, cv2.LINE_AA)
-        d = B @ W[:3, 2]
+        _draw_camera(img, px(B @ C[c]), T[c], rig[c], B, 0.12 * size, label, colour, taken)
+
+
+def _draw_camera(img, centre, T: np.ndarray, cam, B: np.ndarray, L: float, label: str, colour, taken: list) -> None:
+    """One camera on the map: dot, viewing arrow, field-of-view wedge, label behind it (moved
+    down while it would overlap a label in ``taken``, which it joins)."""
+    cx, cy = centre
+    W = invert_rigid(T)
+    half = np.arctan2(cam.width / 2, cam.K[0, 0])
+    for a in (-half, half):  # the field-of-view wedge: rays at the image's left and right edges
+        d = B @ (W[:3, :3] @ np.array([np.tan(a), 0.0, 1.0]))
         d = d / max(np.linalg.norm(d), 1e-9)
-        cv2.arrowedLine(
-            img, (int(cx), int(cy)), (int(cx + L * d[0]), int(cy + L * d[1])), colour, 2, cv2.LINE_AA, tipLength=0.25
-        )
-        cv2.circle(img, (int(cx), int(cy)), 7, colour, -1, cv2.LINE_AA)
-        (tw, th), _ = cv2.getTextSize(label, FONT, 0.55, 2)
-        back = 14 + abs(d[0]) * tw / 2 + abs(d[1]) * th / 2  # behind the camera, clear of the dot
-        lx, ly = cx - back * d[0], cy - back * d[1]
-        cv2.putText(img, label, (int(lx - tw / 2), int(ly + th / 2)), FONT, 0.55, colour, 2, cv2.LINE_AA)
+        cv2.line(img, (int(cx), int(cy)), (int(cx + L * d[0]), int(cy + L * d[1])), colour, 1, cv2.LINE_AA)
+    d = B @ W[:3, 2]
+    d = d / max(np.linalg.norm(d), 1e-9)
+    tip = (int(cx + L * d[0]), int(cy + L * d[1]))
+    cv2.arrowedLine(img, (int(cx), int(cy)), tip, colour, 2, cv2.LINE_AA, tipLength=0.25)
+    cv2.circle(img, (int(cx), int(cy)), 7, colour, -1, cv2.LINE_AA)
+    (tw, th), _ = cv2.getTextSize(label, FONT, 0.55, 2)
+    back = 14 + abs(d[0]) * tw / 2 + abs(d[1]) * th / 2  # behind the camera, clear of the dot
+    x, y = int(cx - back * d[0] - tw / 2), int(cy - back * d[1] + th / 2)
+    while any(x < r[2] and r[0] < x + tw and y - th < r[3] and r[1] < y for r in taken):
+        y += th + 6
+    taken.append((x, y - th, x + tw, y))
+    cv2.putText(img, label, (x, y), FONT, 0.55, colour, 2, cv2.LINE_AA)
 
 
 def _scale_bar(img, x: int, y: int, px_per_m: float) -> None:

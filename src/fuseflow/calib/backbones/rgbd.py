@@ -298,6 +298,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     geo_info: list[dict] = []
     t1 = time.perf_counter()
     if cfg.geometric and not placed_int.all():
+        progress.report("rgbd: geometric route")
         with one_torch_thread():
             geo_edges, geo_info, solved = _geometric_edges(cams, T_int, placed_int, edges, cfg)
         if solved is not None:
