@@ -985,8 +985,12 @@ def _camera_info(cams, ids, kept, untested, placed) -> dict:
             "placed": bool(placed[k]),
             "floor": None
             if c.plane is None
-            else {"height_m": round(c.plane.height, 4), "inliers": c.plane.inliers, "rms_m": round(c.plane.rms, 4),
-                  "normal": np.round(c.plane.normal, 6).tolist()},  # fmt: skip
+            else {
+                "height_m": round(c.plane.height, 4),
+                "inliers": c.plane.inliers,
+                "rms_m": round(c.plane.rms, 4),
+                "normal": np.round(c.plane.normal, 6).tolist(),
+            },
             "topdown_keypoints": int(len(c.td_xy)),
             "edges": [ids[b] if a == k else ids[a] for a, b in mine],
             # a camera held by edges none of which closes a cycle has had no independent check
