@@ -152,7 +152,7 @@ def print_verdicts(verdicts: dict) -> None:
         if v["verdict"] == "unplaced":
             t.add_row(escape(c), "[red]unplaced[/]", "-", "-", "-", "-")
             continue
-        routes = f": {', '.join(v['routes'])}" if v.get("routes") else ""
+        routes = f": {', '.join(v['routes'])}" if v.get("routes") and v["placed_by"] == "rgbd" else ""
         checks = f"{v['cycles']} cycle{'s' * (v['cycles'] != 1)}" + (" + floor" if v.get("floor_ok") else "")
         deg, mm = v.get("accuracy_deg"), v.get("accuracy_mm")
         acc = ("?" if deg is None else f"{deg:.2f} deg") + " / " + ("?" if mm is None else f"{mm:.0f} mm")
