@@ -16,6 +16,7 @@ not overlap; camera ids in red where the verdict is not "good".
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -194,18 +195,33 @@ def _draw_matrix(img, box, ids, pairs: Mapping[str, float], verdicts) -> None:
 
 
 def _draw_reasons(img, x0: int, y0: int, width: int, ids, verdicts) -> None:
-    """ "k id: reason" of every camera whose verdict is not "good", wrapped to ``width`` pixels."""
-    y = y0
-    chars = max(20, width // 9)
-    for k, c in enumerate(ids):
-        v = verdicts.get(c, {})
-        if v.get("verdict", "good") == "good":
-            continue
-        text = f"{k} {c} {v['verdict']}: {v.get('reason', '')}"
-        while text and y < img.shape[0] - 30:
-            cut = text[:chars] if len(text) <= chars else text[:chars].rsplit(" ", 1)[0]
-            cv2.putText(img, cut, (x0, y), FONT, 0.45, RED, 1, cv2.LINE_AA)
-            text, y = text[len(cut) :].lstrip(), y + 20
+    """ "k id verdict: reason" of every camera whose verdict is not "good", wrapped to ``width``
+    pixels, without a trailing parenthesis (advice the printed table gives); what does not fit
+    ends in "... N more (calib.json's camera_verdicts)"."""
+    flagged = [(k, c, verdicts[c]) for k, c in enumerate(ids) if verdicts.get(c, {}).get("verdict", "good") != "good"]
+    chars, bottom, y = max(20, width // 9), img.shape[0] - 16, y0
+    for n, (k, c, v) in enumerate(flagged):
+        reason = re.sub(r"\s*\([^()]*\)$", "", v.get("reason", ""))
+        lines, text = [], f"{k} {c} {v['verdict']}: {reason}"
+        while text:
+            cut = text if len(text) <= chars else text[:chars].rsplit(" ", 1)[0]
+            lines.append(cut)
+            text = text[len(cut) :].lstrip()
+        if y + 20 * len(lines) > bottom - (20 if n < len(flagged) - 1 else 0):
+            cv2.putText(
+                img,
+                f"... {len(flagged) - n} more (calib.json's camera_verdicts)",
+                (x0, y),
+                FONT,
+                0.45,
+                RED,
+                1,
+                cv2.LINE_AA,
+            )
+            return
+        for line in lines:
+            cv2.putText(img, line, (x0, y), FONT, 0.45, RED, 1, cv2.LINE_AA)
+            y += 20
         y += 6
 
 
