@@ -134,3 +134,21 @@ def test_picture_has_its_size_the_rig_and_red_for_a_flagged_camera(run, tmp_path
     img = cv2.imread(str(calibration_picture(tmp_path / "d.png", frame, rig, cal.T_cam_world, report)))
     red = (img[..., 2] > 180) & (img[..., 1] < 60) & (img[..., 0] < 60)
     assert red.sum() > 100
+
+
+def test_end_to_end_a_camera_turned_40_deg_is_check_it(scene5):
+    """A metric backbone whose pose of c2 is turned 40 deg about its centre: calibrate keeps
+    the pose (no auto to drop it) and the verdict flags it; the others stay good."""
+    from fuseflow.calib.backbones import BackboneResult
+
+    frame, rig, T = scene5
+    T0 = T.copy()
+    R = Rotation.from_rotvec([0, np.radians(40.0), 0]).as_matrix()
+    C = -T0[2, :3, :3].T @ T0[2, :3, 3]
+    T0[2, :3, :3] = R @ T0[2, :3, :3]
+    T0[2, :3, 3] = -T0[2, :3, :3] @ C
+    bb = BackboneResult(T0, np.ones(len(T0), bool), name="metric-test", metric=True)
+    cal = calibrate(frame, rig, CalibConfig(joint_refine=False), backbone_result=bb)
+    v = cal.report.camera_verdicts
+    assert v["c2"]["verdict"] == "check it" and "confirm only" in v["c2"]["reason"], v["c2"]
+    assert "c2" in cal.T_cam_world
