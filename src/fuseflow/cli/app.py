@@ -163,6 +163,9 @@ class StageProgress:
     def __call__(self, stage: str, done: int, total: int) -> None:
         if self.live is not None:
             if stage not in self.tasks:
+                for t in self.live.tasks:  # a new stage ends the open-ended ones before it
+                    if t.total is None:
+                        self.live.update(t.id, total=1, completed=1)
                 self.tasks[stage] = self.live.add_task(escape(self.prefix + stage), total=total or None)
             self.live.update(self.tasks[stage], completed=done, total=total or None)
             return
