@@ -123,7 +123,8 @@ def _write_picture(out: Path, frame, rig, calib) -> Path | None:
     from fuseflow.viz.calib_picture import calibration_picture
 
     try:
-        return calibration_picture(out.with_suffix(".png"), frame, rig, calib.T_cam_world, calib.report)
+        png = out.with_suffix(".png") if out.suffix != ".png" else out.with_name(out.stem + ".report.png")
+        return calibration_picture(png, frame, rig, calib.T_cam_world, calib.report)
     except FuseFlowError as exc:
         warn(str(exc))
         return None
