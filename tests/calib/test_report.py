@@ -50,6 +50,9 @@ REPORT_KEYS = [
     "placed_by",  # issue 15: which source placed each camera
     "unplaced_reasons",  # issue 15: auto, why a camera is not placed
     "joint_refinement",  # issue 15 item 4: the depth-aware joint refinement's summary
+    "pair_agreement",  # issue 27: per-pair depth agreement under the result
+    "camera_verdicts",  # issue 27: good / check it / unplaced per camera, with the evidence
+    "reference",  # issue 27: calibrate --reference's per-camera differences
 ]
 
 

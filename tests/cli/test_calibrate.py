@@ -38,3 +38,87 @@ def test_bad_frames_spec_fails_in_one_line(static_rec, tmp_path):
         res = CliRunner().invoke(cli_app, ["calibrate", str(static_rec), "--out", str(out), "--frames", spec])
         assert res.exit_code == 2 and msg in res.output, (spec, res.output)
     assert not out.exists()
+
+
+def test_calibrate_prints_verdicts_progress_reference_and_writes_the_picture(ring_rec, tmp_path):
+    """Piped (CliRunner): progress as plain lines; the verdict table; --reference rig.json (the
+    simulator's truth) as a per-camera table stored in the report; <stem>.png beside calib.json."""
+    import cv2
+
+    from fuseflow.viz.calib_picture import PICTURE_SIZE
+
+    out = tmp_path / "c.json"
+    args = [
+        "calibrate",
+        str(ring_rec),
+        "--out",
+        str(out),
+        "--backbone",
+        "rgbd",
+        "--reference",
+        str(ring_rec / "rig.json"),
+    ]
+    res = CliRunner().invoke(cli_app, args)
+    assert res.exit_code == 0, res.output
+    assert "calibrate: rgbd: cameras: 3/3" in res.output and "calibrate: rgbd: pairs: 3/3" in res.output
+    assert "calibrate: report" in res.output
+    assert "verdicts: 3 good, 0 check it, 0 unplaced" in res.output, res.output
+    r = fuseflow.read_calibration(out).report
+    assert set(r["camera_verdicts"]) == {"cam00", "cam01", "cam02"}
+    assert all(v["verdict"] == "good" and v["cycles"] == 1 for v in r["camera_verdicts"].values())
+    ref = r["reference"]
+    assert ref["source"] == str(ring_rec / "rig.json") and set(ref["cameras"]) == {"cam00", "cam01", "cam02"}
+    assert ref["max_rotation_deg"] < 1.0 and ref["max_position_mm"] < 30.0, ref  # the truth, aligned
+    assert "difference to the reference" in res.output and "position (mm)" in res.output
+    png = out.with_suffix(".png")
+    assert f"wrote {out} and {png}" in res.output.replace("\n", "")
+    img = cv2.imread(str(png))
+    assert img.shape[:2] == (PICTURE_SIZE[1], PICTURE_SIZE[0]) and img.std() > 20
+
+
+def _write_ref(path, T, fingerprint_rig=None):
+    fuseflow.write_calibration(path, fuseflow.Calibration(T, {}), rig=fingerprint_rig)
+    return path
+
+
+@pytest.mark.parametrize(
+    "case", ["absent", "not-json", "other-format", "other-rig", "missing", "intrinsics", "no-extrinsics"]
+)
+def test_bad_reference_fails_in_one_line_before_gmac(static_rec, tmp_path, case):
+    import dataclasses
+    import json
+
+    import numpy as np
+
+    rig = fuseflow.read_rig(static_rec / "rig.json")
+    T = {c.id: c.T_cam_world for c in rig.cameras}
+    ref = tmp_path / "ref.json"
+    if case == "not-json":
+        ref.write_text("{not json")
+    elif case == "other-format":
+        ref.write_text(json.dumps({"format": "vendor/2", "cameras": {}}))
+    elif case == "other-rig":
+        _write_ref(ref, {f"x{k}": np.eye(4) for k in range(3)})
+    elif case == "missing":
+        _write_ref(ref, {c: T[c] for c in list(T)[:2]})
+    elif case == "intrinsics":
+        scaled = np.diag([1.2, 1.2, 1.0])  # another camera model: fx, fy, cx, cy 20 % off
+        cams = tuple(dataclasses.replace(c, K=scaled @ c.K) for c in rig.cameras)
+        _write_ref(ref, T, fuseflow.Rig(cams))
+    elif case == "no-extrinsics":
+        fuseflow.write_rig(tmp_path, fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rig.cameras)))
+        ref = tmp_path / "rig.json"
+    out = tmp_path / "c.json"
+    res = CliRunner().invoke(cli_app, ["calibrate", str(static_rec), "--out", str(out), "--reference", str(ref)])
+    expect = {
+        "absent": "ref.json",
+        "not-json": "invalid JSON",
+        "other-format": "not a calibration",
+        "other-rig": "another rig",
+        "missing": "missing from it",
+        "intrinsics": "made for another rig",
+        "no-extrinsics": "no 'T_cam_world'",
+    }[case]
+    assert res.exit_code == 2 and expect in res.output, res.output
+    assert "Traceback" not in res.output and "calibrate: " not in res.output  # before GMAC started
+    assert not out.exists()

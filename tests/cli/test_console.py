@@ -44,3 +44,33 @@ def test_native_stderr_goes_to_the_log_not_the_terminal(tmp_path):
     env["FUSEFLOW_VERBOSE"] = "1"
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
     assert "libpng warning" in proc.stderr and "error: /nonexistent-recording" in proc.stderr
+
+
+def test_stage_progress_plain_lines_when_piped_and_a_bar_on_a_terminal(monkeypatch):
+    import importlib
+    import io
+
+    from rich.console import Console
+
+    app_mod = importlib.import_module("fuseflow.cli.app")
+
+    def feed(cb):
+        cb("rgbd: backbone", 0, 0)
+        for k in range(1, 21):
+            cb("rgbd: pairs", k, 20)
+        cb("report", 0, 0)
+
+    piped = io.StringIO()
+    monkeypatch.setattr(app_mod, "console", Console(file=piped, width=100))
+    with app_mod.StageProgress("calibrate: ") as cb:
+        feed(cb)
+    lines = piped.getvalue().splitlines()
+    assert lines[0] == "calibrate: rgbd: backbone" and lines[-1] == "calibrate: report"
+    pairs = [x for x in lines if "pairs" in x]
+    assert pairs[0] == "calibrate: rgbd: pairs: 0/20" and pairs[-1] == "calibrate: rgbd: pairs: 20/20"
+    assert len(pairs) <= 12  # about every 10 %, not one line per pair
+    tty = io.StringIO()
+    monkeypatch.setattr(app_mod, "console", Console(file=tty, width=100, force_terminal=True))
+    with app_mod.StageProgress("calibrate: ") as cb:
+        feed(cb)
+    assert "\x1b[" in tty.getvalue() and "calibrate: rgbd: pairs: 0/20\n" not in tty.getvalue()

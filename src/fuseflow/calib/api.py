@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from fuseflow.calib import progress as progress_events
 from fuseflow.calib.backbones import BackboneResult
 from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.config import CalibConfig
@@ -29,6 +30,7 @@ from fuseflow.calib.placement import (
     refine_jointly,
 )
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
+from fuseflow.calib.verdicts import camera_verdicts, pair_agreements
 from fuseflow.errors import ValidationError
 from fuseflow.types import Calibration, Frame, Rig
 
@@ -93,6 +95,7 @@ def calibrate(
     rig: Rig,
     config: CalibConfig | None = None,
     backbone_result: BackboneResult | None = None,
+    progress: progress_events.ProgressCallback | None = None,
 ) -> Calibration:
     """Metric extrinsics of every camera from one (or several) multi-view RGB-D frames, no target.
 
@@ -105,6 +108,8 @@ def calibrate(
         config: :class:`CalibConfig` (default preset: auto backbone, point-to-plane, CC, no refinement).
         backbone_result: skip the backbone and use these poses (e.g. to rerun GMAC variants on
             one backbone run).
+        progress: ``callback(stage, done, total)`` called as the stages and camera pairs finish
+            (:mod:`fuseflow.calib.progress`); the library itself prints nothing.
 
     Returns:
         :class:`fuseflow.Calibration`: camera-from-world 4x4 in metres for every placed camera
@@ -113,6 +118,7 @@ def calibrate(
         cameras, warnings, timings). With a metric backbone (``BackboneResult.metric``) the
         poses are used as they are (s* = 1) and GMAC's closed-form scale is reported as a check
         (``scale_check``, a warning when it is more than ``METRIC_SCALE_TOLERANCE`` from 1).
+        ``report.camera_verdicts`` judges every camera (:mod:`fuseflow.calib.verdicts`).
 
     Raises:
         ValidationError: fewer than two cameras, cameras not in the rig, mismatched resolution,
@@ -120,7 +126,12 @@ def calibrate(
         CalibrationError: fewer than two present views, a camera without depth, textureless
             images, no overlapping pair.
     """
-    config = config or CalibConfig()
+    with progress_events.reporting(progress):
+        return _calibrate(frame, rig, config or CalibConfig(), backbone_result)
+
+
+def _calibrate(frame, rig: Rig, config: CalibConfig, backbone_result: BackboneResult | None) -> Calibration:
+    """``calibrate`` with its progress callback set."""
     t_start = time.perf_counter()
     frames = as_frames(frame)
     for f in frames:
@@ -136,8 +147,14 @@ def calibrate(
             pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
         if config.joint_refine and len(pl.T) >= 2:
             refine_jointly(pl, frames, rig, config)
+        progress_events.report("report")
+        t = time.perf_counter()
+        report = finish_report(pl, frames[0].camera_ids, config)
+        report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
+        report.camera_verdicts = camera_verdicts(report, pl.T, frames[0].camera_ids)
+        pl.timings["report"] = time.perf_counter() - t
     pl.timings["total"] = time.perf_counter() - t_start
-    return Calibration(pl.T, finish_report(pl, frames[0].camera_ids, config))
+    return Calibration(pl.T, report)
 
 
 def check_depth_coverage(frame: Frame, depth: np.ndarray, drange: np.ndarray) -> None:

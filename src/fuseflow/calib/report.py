@@ -90,7 +90,7 @@ class CalibReport(Mapping[str, Any]):
     camera in rig order (``api.anchor_world``). None in reports written before it existed."""
     scale_check: float | None = None
     """Metric backbones (``rgbd``): GMAC's closed-form s* on their poses, a check (``scale`` is
-    then 1; a warning when this is more than 2 % from 1). None for scale-free backbones, when the
+    then 1; a warning when this is more than ``METRIC_SCALE_TOLERANCE`` (15 %) from 1). None for scale-free backbones, when the
     check could not run, and in reports written before it existed."""
     placed_by: dict[str, str] = field(default_factory=dict)
     """Camera -> the backbone whose pose placed it ("colmap", "rgbd", ...; with ``auto`` the
@@ -103,6 +103,18 @@ class CalibReport(Mapping[str, Any]):
     and why not, iterations, overlapping pairs, per camera the share of samples within 1 cm of
     its neighbours' surfaces before / after and how far it moved (deg, mm). None when off and in
     reports written before it existed."""
+    pair_agreement: dict[str, float] = field(default_factory=dict)
+    """Edge "a-b" -> share of the pair's overlapping depth that agrees under the calibrated
+    extrinsics (tau 5 %; :func:`fuseflow.calib.verdicts.pair_agreements`); pairs without overlap
+    are absent. Empty in reports written before it existed."""
+    camera_verdicts: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Camera -> {"verdict": "good" | "check it" | "unplaced", "reason", "placed_by", "routes",
+    "pairs", "pairs_agreeing", "cycles", "floor", "floor_ok", "checks", "depth_agreement", "accuracy_deg",
+    "accuracy_mm", "accuracy_from", "disagreeing"} (:func:`fuseflow.calib.verdicts.camera_verdicts`
+    says how each is measured). Empty in reports written before it existed."""
+    reference: dict[str, Any] | None = None
+    """``calibrate --reference``: the per-camera differences to a reference calibration after
+    aligning the two worlds (:func:`fuseflow.calib.reference.compare_to_reference`). None otherwise."""
 
     # -- JSON -----------------------------------------------------------------------------------
 

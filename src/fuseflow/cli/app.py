@@ -137,3 +137,44 @@ def progress(description: str):
         "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
         "eta", TimeRemainingColumn(), console=console, transient=True,
     )  # fmt: skip
+
+
+class StageProgress:
+    """``callback(stage, done, total)`` for a library's progress (e.g. ``fuseflow.calib.calibrate(...,
+    progress=)``): on a terminal a transient rich bar per stage; piped, plain lines (a stage's
+    start, then about every 10 % of its steps and its end). Use as a context manager."""
+
+    def __init__(self, prefix: str = ""):
+        self.prefix = prefix
+        self.live = None
+        self.tasks: dict[str, int] = {}
+        self.shown: dict[str, int] = {}
+
+    def __enter__(self) -> StageProgress:
+        if console.is_terminal:
+            self.live = progress("")
+            self.live.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.live is not None:
+            self.live.stop()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.live is not None:
+            if stage not in self.tasks:
+                for t in self.live.tasks:  # a new stage ends the open-ended ones before it
+                    if t.total is None:
+                        self.live.update(t.id, total=1, completed=1)
+                self.tasks[stage] = self.live.add_task(escape(self.prefix + stage), total=total or None)
+            self.live.update(self.tasks[stage], completed=done, total=total or None)
+            return
+        if stage not in self.shown:
+            self.shown[stage] = -1
+            if total == 0 or done < total:
+                say(f"{self.prefix}{stage}" + (f": 0/{total}" if total else ""))
+        if total:
+            tenth = done * 10 // total
+            if tenth > self.shown[stage]:
+                self.shown[stage] = tenth
+                say(f"{self.prefix}{stage}: {done}/{total}")

@@ -1,14 +1,16 @@
-"""`fuseflow calibrate REC --out calib.json`: GMAC on one frame (``--frame``) or several
-frames (``--frames A:B[:step]``) of a recording."""
+"""`fuseflow calibrate REC --out calib.json [--reference REF.json]`: GMAC on one frame (``--frame``)
+or several frames (``--frames A:B[:step]``) of a recording; prints the per-camera verdicts (and
+the differences to a reference) and writes the report picture beside calib.json."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
-from fuseflow.cli.app import console, fail, say, warn
+from fuseflow.cli.app import StageProgress, console, fail, say, warn
 
 MATCHER_OPTION = typer.Option(
     "sift",
@@ -18,9 +20,17 @@ MATCHER_OPTION = typer.Option(
 )
 
 
+REFERENCE_OPTION = typer.Option(
+    None,
+    "--reference",
+    help="A reference calibration (calib.json, or a rig.json with extrinsics) of the same rig: print and store "
+    "each camera's rotation (deg) and position (mm) difference to it after aligning the two worlds.",
+)
+
+
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (any layout `fuseflow info` reads)."),
-    out: Path = typer.Option(..., "--out", "-o", help="calib.json to write."),
+    out: Path = typer.Option(..., "--out", "-o", help="calib.json to write (and the report picture, same stem, .png)."),
     frame: int = typer.Option(0, "--frame", "-t", help="Frame index to calibrate from."),
     frames: str = typer.Option(
         None,
@@ -39,6 +49,7 @@ def command(
         None, "--refine/--no-refine", help="Override the preset's ICP + pose-graph refinement."
     ),
     matcher: str = MATCHER_OPTION,
+    reference: Path = REFERENCE_OPTION,
 ) -> None:
     """Target-free metric extrinsics (GMAC) from one multi-view RGB-D frame."""
     import fuseflow
@@ -51,8 +62,33 @@ def command(
     if not 0 <= indices[0] < len(recording):
         fail(f"--frame {frame} is out of range: the recording has {len(recording)} frames")
     config = _config(preset, backbone, backbone_path, refine, matcher)
+    ref = _read_reference(reference, recording.rig) if reference is not None else None  # before minutes of GMAC
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
     views = [recording[t] for t in indices]
+    _check_views(views)
+    with StageProgress("calibrate: ") as on_progress:
+        calib = run_gmac(views, rig, config, progress=on_progress)
+    r = calib.report
+    if ref is not None:
+        from fuseflow.calib.reference import compare_to_reference
+
+        r.reference = compare_to_reference(calib.T_cam_world, ref.T_cam_world, rig.ids, str(reference))
+    fuseflow.write_calibration(out, calib, rig=recording.rig)  # its fingerprint guards reuse on another rig
+    picture = _write_picture(out, views[0], rig, calib)
+    say(
+        f"GMAC {rec} {_frames_text(indices)}: backbone {r.backbone}, {len(calib.T_cam_world)}/{len(rig)} cameras "
+        f"placed, {r.timings_s['total']:.1f} s"
+    )
+    _print_scale(r)
+    print_verdicts(r.camera_verdicts)
+    if r.reference is not None:
+        print_reference(r.reference)
+    for w in r.warnings:
+        warn(w)
+    say(f"wrote {out}" + (f" and {picture}" if picture else ""))
+
+
+def _check_views(views) -> None:
     if all(v.missing and int(v.present.sum()) < 2 for v in views):  # not GMAC blaming absent views' texture
         fail(
             "; ".join(
@@ -62,37 +98,96 @@ def command(
             )
             + "; GMAC needs two or more: pick another --frame"
         )
-    calib = run_gmac(views, rig, config)
-    fuseflow.write_calibration(out, calib, rig=recording.rig)  # its fingerprint guards reuse on another rig
-    r = calib.report
-    say(
-        f"GMAC {rec} {_frames_text(indices)}: backbone {r['backbone']}, s* = {r['scale']:.6g} "
-        f"(naive median ratio {r['scale_naive_median_depth_ratio']}), {len(calib.T_cam_world)}/{len(rig)} cameras placed, "
-        f"{r['timings_s']['total']:.1f} s"
-    )
-    t = Table("edge", "scale", "corr.", "status", box=None)  # camera ids and numbers: no markup
-    for e, s in r["edge_scales"].items():
-        status = "pruned" if e in r["pruned_edges"] else ("kept, gives s*" if e in r["scale_edges"] else "kept")
-        t.add_row(e, f"{s:.5g}", str(r["correspondence_counts"][e]), status)
-    console.print(t)
+
+
+def _read_reference(path: Path, rig):
+    """The reference's extrinsics, checked against the recording's rig before GMAC runs: a
+    FuseFlowError (one line, exit 2) for an unreadable file, another rig, missing cameras."""
+    from fuseflow.calib.reference import check_reference
+    from fuseflow.errors import FuseFlowError
+    from fuseflow.io.calibration import read_reference
+    from fuseflow.pipeline import placed_rig
+
+    ref = read_reference(path)
+    check_reference(ref.T_cam_world, rig.ids, str(path))
+    try:
+        placed_rig(rig, ref)  # its rig fingerprint (intrinsics, resolution), when it records one
+    except FuseFlowError as exc:
+        raise FuseFlowError(f"--reference {path}: {exc}") from None
+    return ref
+
+
+def _write_picture(out: Path, frame, rig, calib) -> Path | None:
+    """``<stem>.png`` beside calib.json; a failure to draw it is a warning, not a lost calibration."""
+    from fuseflow.errors import FuseFlowError
+    from fuseflow.viz.calib_picture import calibration_picture
+
+    try:
+        png = out.with_suffix(".png") if out.suffix != ".png" else out.with_name(out.stem + ".report.png")
+        return calibration_picture(png, frame, rig, calib.T_cam_world, calib.report)
+    except FuseFlowError as exc:
+        warn(str(exc))
+        return None
+
+
+def _print_scale(r) -> None:
+    """The scale: s* and the per-edge table for scale-free backbones; the check (information) for metric ones."""
     if r.scale_check is not None:
-        say(f"metric backbone: poses used at scale 1; GMAC's closed-form scale on them (check): {r.scale_check:.4f}")
-    if len(set(r.placed_by.values())) > 1:
-        say("placed by: " + ", ".join(f"{c} {s}" for c, s in r.placed_by.items()))
-    for c, why in r.unplaced_reasons.items():
-        warn(f"{c} not placed: {why}")
-    say(f"cycle check: {r['cycle_mode']}; pruned edges: {r['pruned_edges'] or 'none'}")
-    agree = {c: a for c, a in r["depth_agreement"].items() if a is not None}
-    if agree:
-        worst = min(agree, key=agree.get)
-        say(
-            f"depth agreement with neighbours: lowest {agree[worst]:.2f} ({worst}), suspect: {r['suspect_cameras'] or 'none'}"
-        )
-    if r["unconnected_cameras"]:
-        warn(f"unconnected (not placed): {r['unconnected_cameras']}")
-    for w in r["warnings"]:
-        warn(w)
-    say(f"wrote {out}")
+        say(f"scale: metric poses used at 1; GMAC's closed-form scale on them (check) {r.scale_check:.4f}")
+        return
+    if r.scale_check is None and r.scale == 1.0 and not r.edge_scales:
+        return
+    say(f"s* = {r.scale:.6g} (naive median ratio {r.scale_naive_median_depth_ratio}); cycle check: {r.cycle_mode}")
+    t = Table("edge", "scale", "corr.", "status", box=None)  # camera ids and numbers: no markup
+    for e, s in r.edge_scales.items():
+        status = "pruned" if e in r.pruned_edges else ("kept, gives s*" if e in r.scale_edges else "kept")
+        t.add_row(e, f"{s:.5g}", str(r.correspondence_counts[e]), status)
+    console.print(t)
+
+
+def print_verdicts(verdicts: dict) -> None:
+    """The per-camera verdict table, the reason of every camera not "good", and a one-line
+    summary (docs/gmac.md, "Reading the verdict table")."""
+    t = Table("camera", "verdict", "placed by", "checks", "accuracy", "agree", box=None)
+    for c, v in verdicts.items():
+        if v["verdict"] == "unplaced":
+            t.add_row(escape(c), "[red]unplaced[/]", "-", "-", "-", "-")
+            continue
+        routes = f": {', '.join(v['routes'])}" if v.get("routes") and v["placed_by"] == "rgbd" else ""
+        checks = f"{v['cycles']} cycle{'s' * (v['cycles'] != 1)}" + (" + floor" if v.get("floor_ok") else "")
+        deg, mm = v.get("accuracy_deg"), v.get("accuracy_mm")
+        acc = ("?" if deg is None else f"{deg:.2f} deg") + " / " + ("?" if mm is None else f"{mm:.0f} mm")
+        a = v.get("depth_agreement")
+        style = "green" if v["verdict"] == "good" else "yellow"
+        t.add_row(escape(c), f"[{style}]{v['verdict']}[/]", escape(f"{v['placed_by']}{routes}"), checks, acc,
+                  "-" if a is None else f"{a:.2f}")  # fmt: skip
+    console.print(t)
+    for c, v in verdicts.items():
+        if v["verdict"] != "good":
+            say(f"{c} {v['verdict']}: {v['reason']}")
+    n = {k: sum(v["verdict"] == k for v in verdicts.values()) for k in ("good", "check it", "unplaced")}
+    say(f"verdicts: {n['good']} good, {n['check it']} check it, {n['unplaced']} unplaced")
+
+
+def print_reference(ref: dict) -> None:
+    """The per-camera differences to the reference calibration."""
+    how = (
+        f"worlds aligned by a robust rigid fit over {len(ref['common'])} cameras"
+        if len(ref["common"]) > 1
+        else ref["alignment"]
+    )
+    say(f"difference to the reference {ref['source']} ({how}):")
+    t = Table("camera", "rotation (deg)", "position (mm)", box=None)
+    for c, d in ref["cameras"].items():
+        if d.get("unplaced"):
+            t.add_row(escape(c), "unplaced", "-")
+        else:
+            t.add_row(escape(c), f"{d['rotation_deg']:.2f}", f"{d['position_mm']:.1f}")
+    console.print(t)
+    say(
+        f"reference: median {ref['median_rotation_deg']:.2f} deg / {ref['median_position_mm']:.1f} mm, "
+        f"max {ref['max_rotation_deg']:.2f} deg / {ref['max_position_mm']:.1f} mm"
+    )
 
 
 def _config(preset: str, backbone: str | None, backbone_path: str | None, refine: bool | None, matcher: str):

@@ -26,7 +26,7 @@ import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
 from fuseflow.io.files import load_json, write_json_atomic
-from fuseflow.io.recording import parse_matrix
+from fuseflow.io.recording import RIG_FORMAT, parse_matrix, rig_from_json
 from fuseflow.types import Calibration, Rig
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "write_calibration",
     "calibration_to_json",
     "rig_fingerprint",
+    "read_reference",
 ]
 
 CALIB_FORMAT = "fuseflow-calib/1"
@@ -130,3 +131,31 @@ def read_calibration(path: str | Path) -> Calibration:
         return Calibration(T, report)
     except ValidationError as exc:
         raise FormatError(f"{path}: {exc}") from None
+
+
+def read_reference(path: str | Path) -> Calibration:
+    """Extrinsics to compare a calibration with: calib.json (``fuseflow-calib/1``) or rig.json
+    (``fuseflow-rig/1``; a recording directory reads its rig.json) whose cameras have
+    ``T_cam_world``. A rig.json's intrinsics become the calibration's ``rig_fingerprint``.
+
+    Raises:
+        RecordingError / FormatError: unreadable, not JSON, another format, a rig.json without
+            extrinsics.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "rig.json"
+    doc = load_json(path)
+    fmt = doc.get("format") if isinstance(doc, dict) else None
+    if fmt == CALIB_FORMAT:
+        return read_calibration(path)
+    if fmt != RIG_FORMAT:
+        raise FormatError(
+            f"{path}: not a calibration: field 'format' must be {CALIB_FORMAT!r} (calib.json) or "
+            f"{RIG_FORMAT!r} (rig.json), got {fmt!r}"
+        )
+    rig = rig_from_json(doc, str(path))
+    without = [c.id for c in rig.cameras if c.T_cam_world is None]
+    if without:
+        raise FormatError(f"{path}: cameras {without} have no 'T_cam_world': a rig.json reference needs extrinsics")
+    return Calibration({c.id: c.T_cam_world for c in rig.cameras}, {FINGERPRINT_KEY: rig_fingerprint(rig)})

@@ -36,6 +36,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from fuseflow.calib import progress
 from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.errors import CalibrationError
@@ -284,7 +285,10 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     t0 = time.perf_counter()
     n = len(rig)
     order = sorted(range(n), key=lambda k: rig.cameras[k].id)  # canonical: by id
-    cams = [prepare_camera(frames, rig, k, cfg) for k in order]
+    cams = []
+    for k in order:
+        cams.append(prepare_camera(frames, rig, k, cfg))
+        progress.report("rgbd: cameras", len(cams), n)
     t_prep = time.perf_counter() - t0
     with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
         edges, pairs_info = _pair_edges(cams, cfg)
@@ -294,6 +298,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     geo_info: list[dict] = []
     t1 = time.perf_counter()
     if cfg.geometric and not placed_int.all():
+        progress.report("rgbd: geometric route")
         with one_torch_thread():
             geo_edges, geo_info, solved = _geometric_edges(cams, T_int, placed_int, edges, cfg)
         if solved is not None:
@@ -738,6 +743,7 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple
                     if best is None or fine > best[2]:
                         best = (c, chk, fine)
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
+            progress.report("rgbd: pairs", len(info) + 1, len(cams) * (len(cams) - 1) // 2)
             if best is not None:
                 c, chk, _ = best
                 c, chk = _refit(a, b, c, chk, cands, cfg)
@@ -979,7 +985,12 @@ def _camera_info(cams, ids, kept, untested, placed) -> dict:
             "placed": bool(placed[k]),
             "floor": None
             if c.plane is None
-            else {"height_m": round(c.plane.height, 4), "inliers": c.plane.inliers, "rms_m": round(c.plane.rms, 4)},
+            else {
+                "height_m": round(c.plane.height, 4),
+                "inliers": c.plane.inliers,
+                "rms_m": round(c.plane.rms, 4),
+                "normal": np.round(c.plane.normal, 6).tolist(),
+            },
             "topdown_keypoints": int(len(c.td_xy)),
             "edges": [ids[b] if a == k else ids[a] for a, b in mine],
             # a camera held by edges none of which closes a cycle has had no independent check

@@ -1,0 +1,294 @@
+"""Per-camera verdicts: how each camera was placed, what checks it, how accurate it probably is,
+and one word for a user: "good", "check it" or "unplaced" (with the reason).
+
+Evidence read from the report and the final extrinsics (nothing is re-measured but the floor):
+
+- **route**: the source that placed the camera (``placed_by``) and, for the metric ``rgbd``
+  backbone, the routes of the pair poses that link it ("floor": top-down floor texture; "image":
+  image keypoints lifted by depth; "image+floor": both; "geometric": shape alone).
+- **pairs**: the measured pair poses (edges) that link the camera. Each is compared with the
+  relative pose of the final extrinsics; it *agrees* within ``AGREE_DEG`` / ``AGREE_MM`` (wide
+  enough for the noise of real pair poses, which the pose graph and the joint refinement
+  average out: on hocap-8rs correct cameras' pairs are up to 3.9 deg / 38 mm off; far too
+  narrow for a symmetric alias, tens of degrees).
+- **cycles**: triangles of agreeing edges through the camera (each closes a loop: an
+  independent check of its pose). Scale-free backbones (colmap, ...): the kept triangles of the
+  scale stage's cycle check.
+- **floor**: the camera's own floor plane, carried into the world by its pose, against the
+  median of every floor-seeing camera's: a check when within ``FLOOR_DEG`` / ``FLOOR_MM``. A
+  camera whose dominant plane is another surface (a table top) simply has no floor check.
+- **accuracy**: ``rgbd``: RMS / sqrt(n) of the disagreement (deg, mm) of the camera's n >= 2
+  agreeing pair poses with the final extrinsics (each pair an independent measurement of the
+  pose; with one pair the pose fits it exactly and nothing can be estimated). Scale-free
+  backbones: the position error the standard error of s* causes at the camera's distance from
+  the world camera (the scale part only; no angle).
+- **plausibility**: two camera centres closer than ``STACKED_M`` (a device's width) cannot both
+  be right.
+
+The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
+first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
+agree, no cycle through it (a floor check alone leaves its heading and horizontal position
+unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from itertools import combinations
+from typing import Any
+
+import numpy as np
+
+from fuseflow.geometry import pair_agreement
+from fuseflow.types import Frame, Rig, invert_rigid
+
+__all__ = [
+    "camera_verdicts",
+    "pair_agreements",
+    "edge_residual",
+    "AGREE_DEG",
+    "AGREE_MM",
+    "GOOD_DEG",
+    "GOOD_MM",
+    "FLOOR_DEG",
+    "FLOOR_MM",
+    "STACKED_M",
+]
+
+#: A measured pair pose agrees with the final extrinsics within these (module docstring).
+AGREE_DEG, AGREE_MM = 5.0, 100.0
+#: Expected accuracy within these reads "good" (on hocap-8rs the estimate is 1.1-5.4x the rotation
+#: difference to its reference: docs/gmac.md, "Reading the verdict table").
+GOOD_DEG, GOOD_MM = 2.0, 50.0
+#: The floor check: tilt and height of a camera's floor against the rig's median floor.
+FLOOR_DEG, FLOOR_MM = 2.0, 50.0
+#: Two camera centres closer than this (metres; a depth camera is 10-25 cm wide) are stacked.
+STACKED_M = 0.10
+
+ROUTE_NAMES = {"floor": "floor", "sift4": "image+floor", "sift3d": "image", "geometric": "geometric"}
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def edge_residual(T_ba_measured: np.ndarray, T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """(deg, mm) between a measured pair pose (camera b from camera a) and the one the final
+    camera-from-world extrinsics ``T_a``, ``T_b`` give: the rotation of their difference and the
+    distance between where each puts camera a's centre in camera b's frame."""
+    T_final = T_b @ invert_rigid(T_a)
+    D = np.asarray(T_ba_measured) @ invert_rigid(T_final)
+    return _angle_deg(D[:3, :3]), float(np.linalg.norm(np.asarray(T_ba_measured)[:3, 3] - T_final[:3, 3]) * 1000)
+
+
+def _rgbd_info(report) -> dict[str, Any] | None:
+    """The rgbd backbone's info (its own run or the ``auto`` source), None without one."""
+    info = report.backbone_info or {}
+    if report.backbone == "rgbd":
+        return info
+    src = info.get("sources", {}).get("rgbd") if isinstance(info.get("sources"), dict) else None
+    return src if src and "pairs" in src else None
+
+
+def _rgbd_edges(info: Mapping[str, Any]) -> dict[tuple[str, str], tuple[np.ndarray, str]]:
+    """(a, b) -> (measured T_ba (4, 4), route name) of the rgbd edges kept after its cycle check."""
+    cams = info.get("cameras", {})
+    out = {}
+    for p in info.get("pairs", []):
+        e = p.get("edge")
+        if not e or "T_ji" not in e:
+            continue
+        a, b = p["cameras"]
+        if b not in cams.get(a, {}).get("edges", [b]):
+            continue  # dropped by its cycle check
+        route = str(e.get("route", "?")).split("+")[0]
+        out[(a, b)] = (np.asarray(e["T_ji"], dtype=np.float64), ROUTE_NAMES.get(route, route))
+    return out
+
+
+def _floor_check(info: Mapping[str, Any] | None, T: Mapping[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+    """Camera -> (tilt deg, height mm) of its floor against the rig's median floor (>= 2 floors)."""
+    planes = {}
+    for c, ci in (info or {}).get("cameras", {}).items():
+        fl = ci.get("floor")
+        if c in T and fl and "normal" in fl:
+            n = np.asarray(fl["normal"], dtype=np.float64)
+            R, t = T[c][:3, :3], T[c][:3, 3]
+            planes[c] = (R.T @ n, float(n @ t + fl["height_m"]))
+    if len(planes) < 2:
+        return {}
+    n_med = np.median(np.stack([p[0] for p in planes.values()]), axis=0)
+    n_med /= max(np.linalg.norm(n_med), 1e-12)
+    d_med = float(np.median([p[1] for p in planes.values()]))
+    return {
+        c: (float(np.degrees(np.arccos(np.clip(n @ n_med, -1, 1)))), abs(d - d_med) * 1000)
+        for c, (n, d) in planes.items()
+    }
+
+
+def _stacked(T: Mapping[str, np.ndarray]) -> dict[str, tuple[str, float]]:
+    """Camera -> (nearest other camera, distance m) for centres closer than STACKED_M."""
+    C = {c: invert_rigid(M)[:3, 3] for c, M in T.items()}
+    out = {}
+    for a, b in combinations(C, 2):
+        d = float(np.linalg.norm(C[a] - C[b]))
+        if d < STACKED_M:
+            for x, y in ((a, b), (b, a)):
+                if x not in out or d < out[x][1]:
+                    out[x] = (y, d)
+    return out
+
+
+def _evidence_rgbd(c: str, edges, T) -> dict[str, Any]:
+    """Pairs, agreeing pairs, cycles, routes and residual-based accuracy of an rgbd-placed camera."""
+    mine = {(a, b): v for (a, b), v in edges.items() if c in (a, b) and a in T and b in T}
+    res = {e: edge_residual(v[0], T[e[0]], T[e[1]]) for e, v in mine.items()}
+    agree = {e for e, (d, mm) in res.items() if d <= AGREE_DEG and mm <= AGREE_MM}
+    nb = {(b if a == c else a) for a, b in agree}
+    good_edges = {frozenset(e) for e, v in edges.items() if e[0] in T and e[1] in T}
+    cycles = sum(1 for x, y in combinations(sorted(nb), 2) if frozenset((x, y)) in good_edges)
+    ev = {
+        "routes": sorted({v[1] for v in mine.values()}),
+        "pairs": len(mine),
+        "pairs_agreeing": len(agree),
+        "cycles": cycles,
+        "disagreeing": {
+            f"{a}-{b}": [round(d, 2), round(mm, 1)] for (a, b), (d, mm) in res.items() if (a, b) not in agree
+        },
+        "accuracy_deg": None,
+        "accuracy_mm": None,
+        "accuracy_from": "fewer than two agreeing pair poses: nothing to estimate from",
+    }
+    if len(agree) >= 2:  # a disagreeing pair is an outlier (reported in "disagreeing"), not noise
+        r = np.array([res[e] for e in agree])
+        n = len(r)
+        ev["accuracy_deg"] = round(float(np.sqrt(np.mean(r[:, 0] ** 2) / n)), 3)
+        ev["accuracy_mm"] = round(float(np.sqrt(np.mean(r[:, 1] ** 2) / n)), 1)
+        ev["accuracy_from"] = f"RMS / sqrt({n}) of its {n} agreeing pair poses' disagreement with the result"
+    return ev
+
+
+def _evidence_scale_free(c: str, report, T) -> dict[str, Any]:
+    """Pairs and cycles of a camera placed by a scale-free backbone (the scale stage's kept
+    edges); position accuracy from s*'s standard error at its distance from the world camera."""
+    kept = [e.split("-") for e in report.kept_edges]
+    mine = [e for e in kept if c in e and all(x in T for x in e)]
+    tris = {k: v for k, v in report.cycle_residuals_mm.items() if c in k.split("-")}
+    ev = {
+        "routes": [],
+        "pairs": len(mine),
+        "pairs_agreeing": len(mine),
+        "cycles": len(tris),
+        "disagreeing": {},
+        "accuracy_deg": None,
+        "accuracy_mm": None,
+        "accuracy_from": "no scale error estimate",
+    }
+    if report.scale and report.scale_std_error is not None and report.world_anchor in T:
+        dist = np.linalg.norm(invert_rigid(T[c])[:3, 3] - invert_rigid(T[report.world_anchor])[:3, 3])
+        ev["accuracy_mm"] = round(float(report.scale_std_error / report.scale * dist * 1000), 1)
+        ev["accuracy_from"] = "standard error of s* at its distance from the world camera (scale part only)"
+    return ev
+
+
+def _unplaced_reason(c: str, report) -> str:
+    if c in (report.unplaced_reasons or {}):
+        return report.unplaced_reasons[c]
+    if c in report.unregistered_cameras:
+        return "the backbone could not register it"
+    return "no usable pair links it to the other cameras"
+
+
+def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[str, dict[str, Any]]:
+    """Camera id (rig order ``ids``) -> its verdict and evidence (module docstring), plain JSON.
+
+    Keys: "verdict" ("good" | "check it" | "unplaced"), "reason", "placed_by", "routes", "pairs",
+    "pairs_agreeing", "cycles", "floor" ([tilt deg, height mm] against the rig's floor, or None),
+    "floor_ok" (within FLOOR_DEG / FLOOR_MM), "checks" (cycles + a passing floor check), "depth_agreement", "accuracy_deg", "accuracy_mm" (None: unknown),
+    "accuracy_from", "disagreeing" (edge -> [deg, mm] of pairs beyond AGREE_DEG / AGREE_MM).
+    """
+    T = dict(T_cam_world)
+    info = _rgbd_info(report)
+    edges = _rgbd_edges(info) if info else {}
+    floor = _floor_check(info, T)
+    stacked = _stacked(T)
+    limit = float((report.config or {}).get("min_depth_agreement", 0.0))
+    out = {}
+    for c in ids:
+        if c not in T:
+            out[c] = {"verdict": "unplaced", "reason": _unplaced_reason(c, report), "placed_by": None}
+            continue
+        src = (report.placed_by or {}).get(c, report.backbone)
+        if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
+            ev = _evidence_rgbd(c, edges, T)
+        elif report.backbone != "auto":
+            ev = _evidence_scale_free(c, report, T)
+        else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera
+            ev = {**_evidence_scale_free(c, report, {}), "accuracy_from": f"{src} records no pair poses for it"}
+        fl = floor.get(c)
+        floor_ok = fl is not None and fl[0] <= FLOOR_DEG and fl[1] <= FLOOR_MM
+        agreement = (report.depth_agreement or {}).get(c)
+        entry = {
+            "placed_by": src,
+            **ev,
+            "floor": None if fl is None else [round(fl[0], 2), round(fl[1], 1)],
+            "checks": ev["cycles"] + int(floor_ok),
+            "depth_agreement": None if agreement is None else round(float(agreement), 3),
+        }
+        entry["floor_ok"] = floor_ok
+        entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
+        out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
+    return out
+
+
+def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: float) -> tuple[str, str]:
+    """("good" | "check it", reason) of a placed camera's evidence ``e``."""
+    if stacked is not None:
+        return "check it", (
+            f"its centre is {stacked[1] * 100:.0f} cm from {stacked[0]}'s: two cameras cannot share a spot "
+            "(a symmetric scene can fold cameras onto each other)"
+        )
+    a = e["depth_agreement"]
+    if a is not None and a < limit:
+        return "check it", f"its neighbours confirm only {a:.2f} of its depth (below {limit:.2f})"
+    if e["disagreeing"] and 2 * e["pairs_agreeing"] < e["pairs"]:
+        edge, (d, mm) = next(iter(e["disagreeing"].items()))
+        return "check it", (
+            f"{e['pairs'] - e['pairs_agreeing']} of its {e['pairs']} measured pair poses disagree with the result "
+            f"(pair {edge} by {d:.1f} deg / {mm:.0f} mm)"
+        )
+    if e["cycles"] == 0:
+        floor = "only its floor (tilt and height) agrees" if e["floor_ok"] else "no floor check"
+        if e["pairs"] == 0:
+            return "check it", f"no independent check: {e['accuracy_from']}; {floor}"
+        return "check it", (
+            f"no independent check of its whole pose: placed by {e['pairs']} pair pose{'s' * (e['pairs'] != 1)} "
+            f"that close{'s' * (e['pairs'] == 1)} no cycle; {floor} (add a camera that sees it and its neighbours, or more frames)"
+        )
+    deg, mm = e["accuracy_deg"], e["accuracy_mm"]
+    if (deg is not None and deg > GOOD_DEG) or (mm is not None and mm > GOOD_MM):
+        return "check it", f"expected accuracy {_acc(deg, mm)} is beyond {GOOD_DEG:g} deg / {GOOD_MM:g} mm"
+    checks = [f"{e['cycles']} cycle{'s' * (e['cycles'] != 1)}"] + (["floor"] if e["floor_ok"] else [])
+    return "good", f"checked by {' + '.join(checks)}; expected accuracy {_acc(deg, mm)}"
+
+
+def _acc(deg: float | None, mm: float | None) -> str:
+    d = "? deg" if deg is None else f"{deg:.2f} deg"
+    m = "? mm" if mm is None else f"{mm:.0f} mm"
+    return f"{d} / {m}"
+
+
+def pair_agreements(frame: Frame, rig: Rig, T_cam_world: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """Edge "a-b" (frame order) -> share of the pair's overlapping depth that agrees under the
+    extrinsics (``geometry.pair_agreement``, tau 5 %, each camera's 4 most-overlapping
+    neighbours); pairs that cast no vote are left out."""
+    placed = [c for c in frame.camera_ids if c in T_cam_world]
+    if len(placed) < 2:
+        return {}
+    sub = frame.subset([frame.camera_ids.index(c) for c in placed])
+    S = pair_agreement(sub, Rig(tuple(rig[c].with_extrinsics(T_cam_world[c]) for c in placed)))
+    return {
+        f"{placed[i]}-{placed[j]}": round(float(S[i, j]), 4)
+        for i, j in combinations(range(len(placed)), 2)
+        if np.isfinite(S[i, j])
+    }
