@@ -158,7 +158,7 @@ def test_real_fuse_and_rig_checks(dynamic_rec):
     rec = fuseflow.open_recording(dynamic_rec)
     src = ReplaySource(rec, rate=100.0)  # decoding cannot keep up with 100 fps: stale frames go
     s = LiveLoop(src, rec.rig, LiveSettings(preset="live")).run()
-    assert s.frames_in + src.skipped == len(rec) and s.frames_out >= 1 and s.points_mean > 1000
+    assert s.frames_in == len(rec) == s.frames_out + s.dropped and s.frames_out >= 1 and s.points_mean > 1000
     other = fuseflow.Rig((fuseflow.Camera("zz", 200, 150, rec.rig[0].K, T_cam_world=np.eye(4)),))
     with pytest.raises(FuseFlowError, match="does not have"):
         LiveLoop(ReplaySource(rec), other)

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+import torch
 
 from fuseflow.errors import FuseFlowError
 from fuseflow.pipeline.extrinsics import reindex_cameras
@@ -99,6 +100,9 @@ class LiveSettings:
     """Stop after this many frames from the source (None: until the source ends or ``stop``)."""
     duration: float | None = None
     """Stop after this many seconds (None: no limit)."""
+    warmup: bool = True
+    """Fuse one synthetic frame before capture starts, so that loading the compiled kernels does
+    not count against the first live frames."""
     crop: Any = None
     """A capture volume to keep (points outside it are not fused); None keeps everything. Reserved
     for the capture-volume crop of ``fuse`` / ``run``: the loop passes it to FUSE unchanged once
@@ -136,6 +140,7 @@ class LiveStats:
         self.frames_in = 0
         self.frames_out = 0
         self.dropped = 0
+        self.skipped = 0
         self.points = 0
         self.started = time.perf_counter()
         self._out_times: deque[float] = deque()
@@ -161,12 +166,14 @@ class LiveStats:
             for c in missing:
                 self.missing[c] = self.missing.get(c, 0) + 1
 
-    def set_dropped(self, n: int) -> None:
+    def set_dropped(self, n: int, skipped: int = 0) -> None:
+        """``n`` frames never fused so far, ``skipped`` of them let go by the source itself."""
         with self._lock:
             self.dropped = n
+            self.skipped = skipped
 
     def snapshot(self) -> dict[str, Any]:
-        """frames_in, frames_out, dropped, fps (fused frames per second over the last
+        """frames_in (delivered by the source or let go by it), frames_out, dropped, fps (fused frames per second over the last
         ``window_s``), latency_ms_p50 / p95 (capture to sent, over the last frames), points (of
         the last frame), missing views per camera, and what sinks added (``clients``)."""
         now = time.perf_counter()
@@ -175,7 +182,7 @@ class LiveStats:
             fps = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else 0.0
             lat = np.array(self._latency, dtype=np.float64)
             return {
-                "frames_in": self.frames_in,
+                "frames_in": self.frames_in + self.skipped,
                 "frames_out": self.frames_out,
                 "dropped": self.dropped,
                 "fps": round(fps, 2),
@@ -197,6 +204,7 @@ class LiveSummary:
     """The result of a live loop."""
 
     frames_in: int
+    """Frames the source produced: delivered to the loop, or let go by the source (a replay behind)."""
     frames_out: int
     dropped: int
     """Source frames never fused: replaced in the mailbox while fusion was busy, plus frames the
@@ -269,6 +277,20 @@ class LiveLoop:
         res = fuse_with_report(frame.to(self.settings.device), rig, self._cfg)
         return res.cloud.to("cpu"), res.report.ms
 
+    def _warmup(self) -> None:
+        """FUSE a synthetic frame of this rig (random depth within each camera's range)."""
+        w, h = self.rig.resolution
+        n = len(self.rig)
+        rng = np.random.default_rng(0)
+        near = max(c.depth_range[0] for c in self.rig.cameras)
+        far = min(c.depth_range[1] for c in self.rig.cameras)
+        depth = rng.uniform(near, max(near, min(far, near + 2.0)), (n, h, w)).astype(np.float32)
+        frame = Frame(
+            index=-1, camera_ids=self.rig.ids, color=torch.zeros((n, h, w, 3), dtype=torch.uint8),
+            depth=torch.from_numpy(depth), present=torch.ones(n, dtype=torch.bool),
+        )  # fmt: skip
+        self._fuse(frame, self.rig)
+
     def _capture(self) -> None:
         limit = self.settings.frames
         n = 0
@@ -302,7 +324,7 @@ class LiveLoop:
             sink.send(cloud, info)
         self._fuse_ms.append(float(ms))
         self._points.append(len(cloud))
-        self.stats.set_dropped(self._dropped())
+        self.stats.set_dropped(self._dropped(), int(getattr(self.source, "skipped", 0)))
         self.stats.frame_out(time.perf_counter() - item.captured, len(cloud), info.missing)
 
     def _loop(self, t0: float) -> str:
@@ -326,7 +348,10 @@ class LiveLoop:
     def run(self) -> LiveSummary:
         """Run until the source ends, a limit is reached, ``stop`` or Ctrl-C; then stop the
         capture thread, close the source and the sinks, and return the summary."""
+        if self.settings.warmup:
+            self._warmup()
         t0 = time.perf_counter()
+        self.stats.started = t0
         thread = threading.Thread(target=self._capture, name="fuseflow-capture", daemon=True)
         thread.start()
         try:
@@ -337,6 +362,8 @@ class LiveLoop:
             self._stop.set()
             self._slot.close()
             self._shutdown(thread)
+            if self._slot.take(0.0) is not None:  # captured, never fused
+                self._slot.dropped += 1
         return self._summary(stopped_by, time.perf_counter() - t0)
 
     def _shutdown(self, thread: threading.Thread) -> None:
@@ -357,7 +384,7 @@ class LiveLoop:
             for c, n in dropped_views.items()
         ]
         return LiveSummary(
-            frames_in=self.stats.frames_in,
+            frames_in=self.stats.frames_in + int(getattr(self.source, "skipped", 0)),
             frames_out=out,
             dropped=self._dropped(),
             wall_s=round(wall, 3),
