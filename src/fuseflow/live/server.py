@@ -142,6 +142,11 @@ class LiveServer:
         return [self._client_json(c, now) for c in list(self._clients)] + list(self._done)
 
     @property
+    def running(self) -> bool:
+        """True while the server thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
     def clients(self) -> int:
         return len(self._clients)
 
@@ -185,27 +190,37 @@ class LiveServer:
                 "seconds": round(seconds, 2), "mbit_per_s": round(c.bytes_sent * 8 / seconds / 1e6, 3)}  # fmt: skip
 
     async def _handler(self, ws: Any) -> None:
-        from websockets.exceptions import ConnectionClosed
-
         client = _Client(ws, asyncio.Event(), connected=time.perf_counter())
         self._clients.add(client)
+        sender = asyncio.ensure_future(self._send_frames(client))
+        closed = asyncio.ensure_future(ws.wait_closed())
         try:
-            await ws.send(self._rig)
+            await asyncio.wait([sender, closed], return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (sender, closed):
+                task.cancel()
+            self._clients.discard(client)
+            self._done.append(self._client_json(client, time.perf_counter()))
+            del self._done[:-100]
+
+    async def _send_frames(self, client: _Client) -> None:
+        """The rig, then each frame put in the client's slot; ends when the client goes away
+        (mid-frame or not: the others go on) or the server stops."""
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            await client.ws.send(self._rig)
             while not self._stopped.is_set():
                 await client.event.wait()
                 client.event.clear()
                 data, client.pending = client.pending, None
                 if data is None:
                     continue
-                await ws.send(data)
+                await client.ws.send(data)
                 client.sent += 1
                 client.bytes_sent += len(data)
         except ConnectionClosed:
-            pass  # the client went away (mid-frame or not): the others go on
-        finally:
-            self._clients.discard(client)
-            self._done.append(self._client_json(client, time.perf_counter()))
-            del self._done[:-100]
+            pass
 
     def _http(self, connection: Any, request: Any) -> Any:
         from websockets.datastructures import Headers
