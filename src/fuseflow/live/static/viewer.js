@@ -33,25 +33,28 @@
   const posBuf = gl.createBuffer(), colBuf = gl.createBuffer(), lineBuf = gl.createBuffer();
   let count = 0, lo = [0, 0, 0], ext = [1, 1, 1], lineCount = 0, haveView = false;
 
-  // ---- camera (orbit around a target; world is OpenCV-like: y down, so the view up is -y)
-  const view = { target: [0, 0, 0], dist: 4, yaw: 0, pitch: -0.3 };
+  // ---- camera: orbit around a target. "Up" is the cameras' mean up direction (minus their
+  // y axes: image up), so z-up and y-down worlds both look upright; the first view looks the way
+  // the first camera does, from a little above.
+  const view = { target: [0, 0, 0], dist: 4, yaw: 0, pitch: 0.35, up: [0, -1, 0], fwd: [0, 0, 1] };
   function resetView(box) {
     if (box) {
       view.target = [0, 1, 2].map((i) => box[0][i] + box[1][i] / 2);
-      view.dist = Math.max(1.5 * Math.hypot(box[1][0], box[1][1], box[1][2]), 0.5);
+      view.dist = Math.max(0.9 * Math.hypot(box[1][0], box[1][1], box[1][2]), 0.5);
     }
-    view.yaw = 0; view.pitch = -0.3;
+    view.yaw = 0; view.pitch = 0.35;
   }
   function eye() {
-    const cp = Math.cos(view.pitch), t = view.target;
-    return [t[0] + view.dist * cp * Math.sin(view.yaw), t[1] + view.dist * Math.sin(view.pitch), t[2] - view.dist * cp * Math.cos(view.yaw)];
+    const u = view.up, b = norm(sub(view.fwd, u.map((x) => x * dot(view.fwd, u)))), a = cross(u, b);
+    const cp = Math.cos(view.pitch), sp = Math.sin(view.pitch), sy = Math.sin(view.yaw), cy = Math.cos(view.yaw);
+    return [0, 1, 2].map((i) => view.target[i] - view.dist * (cp * (cy * b[i] + sy * a[i]) - sp * u[i]));
   }
   const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
   const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
   const norm = (a) => { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
   const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
   function mvp() {
-    const e = eye(), f = norm(sub(view.target, e)), s = norm(cross(f, [0, -1, 0])), u = cross(s, f);
+    const e = eye(), f = norm(sub(view.target, e)), s = norm(cross(f, view.up)), u = cross(s, f);
     const aspect = canvas.width / Math.max(canvas.height, 1), fov = 1.0, n = 0.02, far = 100;
     const y = 1 / Math.tan(fov / 2), x = y / aspect;
     // projection * lookAt, column-major for WebGL
@@ -74,7 +77,7 @@
     const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
     drag.x = e.clientX; drag.y = e.clientY;
     if (drag.pan) {
-      const e0 = eye(), f = norm(sub(view.target, e0)), s = norm(cross(f, [0, -1, 0])), u = cross(s, f);
+      const e0 = eye(), f = norm(sub(view.target, e0)), s = norm(cross(f, view.up)), u = cross(s, f);
       const k = view.dist * 0.0015;
       for (let i = 0; i < 3; i++) view.target[i] += -dx * k * s[i] + dy * k * u[i];
     } else {
@@ -100,6 +103,14 @@
     gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(lines.flat()), gl.STATIC_DRAW);
     lineCount = lines.length;
     $("cameras").textContent = cams.length;
+    if (cams.length) {
+      const col = (c, k) => [c.T_world_cam[k], c.T_world_cam[4 + k], c.T_world_cam[8 + k]];
+      let up = [0, 0, 0];
+      for (const c of cams) up = sub(up, col(c, 1));
+      if (Math.hypot(up[0], up[1], up[2]) > 1e-6) view.up = norm(up);
+      const f0 = col(cams[0], 2);
+      if (Math.abs(dot(f0, view.up)) < 0.99) view.fwd = f0;
+    }
   }
 
   // ---- frames
