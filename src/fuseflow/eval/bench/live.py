@@ -12,15 +12,19 @@ Cases (``CASES``):
 
 Every case uses ``--preset live`` and ``--preload`` (decoded frames in memory, as cameras deliver
 them: the replay then costs no PNG decoding). The viewer is a Python WebSocket client in this
-process that reads every message as fast as it can.
+process of its own that reads every message as fast as it can. Bandwidth is reported twice: measured (bytes
+the viewer received / seconds: it scales with the fused frames per second this machine reached)
+and at the camera rate (bytes per frame x the replay rate: what the stream needs when fusion keeps
+up); the 200 k target is judged on the latter.
 """
 
 from __future__ import annotations
 
 import json
 import platform
+import subprocess
+import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -49,7 +53,7 @@ CASES = {
 TARGETS = {
     "sim4": "<= 5 % drops and latency p95 <= 250 ms",
     "hocap8": ">= 10 fused frames/s",
-    "hocap8-200k": "<= 20 Mbit/s per client",
+    "hocap8-200k": "<= 20 Mbit/s per client at the camera rate",
 }
 
 
@@ -58,7 +62,7 @@ def _target_met(case: str, row: dict[str, Any]) -> bool:
         return row["drop_rate"] <= 0.05 and (row["latency_ms_p95"] or 1e9) <= 250
     if case == "hocap8":
         return row["fps"] >= 10.0 * 0.98  # sustained: within 2 % of the 10 fps replay
-    return row["mbit_per_s"] <= 20.0
+    return row["mbit_per_s_at_rate"] <= 20.0
 
 
 def _recording(case: str, work: Path, data_dir: Path | None) -> Path:
@@ -78,31 +82,41 @@ def _recording(case: str, work: Path, data_dir: Path | None) -> Path:
     return out
 
 
+_VIEWER = """
+import sys
+from websockets.sync.client import connect
+frames = size = 0
+try:
+    with connect(sys.argv[1], max_size=None, open_timeout=10) as ws:
+        ws.recv(timeout=10)
+        print("ready", flush=True)
+        for message in ws:
+            frames += 1
+            size += len(message)
+except Exception:
+    pass
+print(frames, size, flush=True)
+"""
+
+
 class _Viewer:
-    """A WebSocket client in a thread that reads every message and counts them."""
+    """A WebSocket client in a process of its own (it must not take CPU time from the fusion
+    loop's interpreter) that reads every message and counts frames and bytes."""
 
     def __init__(self, url: str):
         self.url = url.replace("http://", "ws://") + "ws"
         self.frames = 0
         self.bytes = 0
-        self.ready = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="bench-viewer", daemon=True)
-        self.thread.start()
-        if not self.ready.wait(10.0):
+        self.proc = subprocess.Popen([sys.executable, "-c", _VIEWER, self.url], stdout=subprocess.PIPE, text=True)
+        if self.proc.stdout.readline().strip() != "ready":
+            self.proc.kill()
             raise ValidationError(f"bench live: the viewer could not connect to {self.url}")
 
-    def _run(self) -> None:
-        from websockets.sync.client import connect
-
-        try:
-            with connect(self.url, max_size=None, open_timeout=10) as ws:
-                ws.recv(timeout=10)  # the rig
-                self.ready.set()
-                for message in ws:
-                    self.frames += 1
-                    self.bytes += len(message)
-        except Exception:  # noqa: BLE001 - the server closing at the end of the run ends the client
-            self.ready.set()
+    def finish(self) -> None:
+        """Wait for the viewer to see the server close, and read its counts."""
+        out, _ = self.proc.communicate(timeout=30)
+        frames, size = out.split()[-2:]
+        self.frames, self.bytes = int(frames), int(size)
 
 
 def _run_case(case: LiveCase, rec: Path, duration: float) -> dict[str, Any]:
@@ -117,7 +131,7 @@ def _run_case(case: LiveCase, rec: Path, duration: float) -> dict[str, Any]:
     settings = LiveSettings(preset="live", points=case.points, duration=duration)
     res = run_live(source, None, settings, LiveOutputs(serve=("127.0.0.1", 0)),
                    on_start=lambda url, _w: viewers.append(_Viewer(url)))  # fmt: skip
-    viewers[0].thread.join(timeout=5.0)
+    viewers[0].finish()
     s, client = res.summary, (res.clients[0] if res.clients else {})
     row = {
         "case": case.name, "data": case.description, "cameras": len(recording.rig),
@@ -129,6 +143,8 @@ def _run_case(case: LiveCase, rec: Path, duration: float) -> dict[str, Any]:
         "bytes_per_frame": round(viewers[0].bytes / max(viewers[0].frames, 1)),
         "mbit_per_s": round(viewers[0].bytes * 8 / max(s.wall_s, 1e-9) / 1e6, 2),
     }  # fmt: skip
+    # what the stream needs when fusion keeps up with the cameras: bytes per frame x the camera rate
+    row["mbit_per_s_at_rate"] = round(row["bytes_per_frame"] * 8 * case.rate / 1e6, 2)
     row["target"] = TARGETS[case.name]
     row["target_met"] = _target_met(case.name, row)
     return row
@@ -138,7 +154,8 @@ def format_row(r: dict[str, Any]) -> str:
     return (
         f"{r['case']:<12} {r['cameras']} x {r['resolution']} @ {r['rate']:g} fps: {r['fps']:.2f} fused/s, "
         f"drops {r['drop_rate']:.1%}, latency p50 {r['latency_ms_p50']} / p95 {r['latency_ms_p95']} ms, "
-        f"FUSE {r['fuse_ms_median']} ms, {r['points_mean']:.0f} points, {r['mbit_per_s']:.1f} Mbit/s per client "
+        f"FUSE {r['fuse_ms_median']} ms, {r['points_mean']:.0f} points, {r['bytes_per_frame']} B/frame, "
+        f"{r['mbit_per_s']:.1f} Mbit/s per client ({r['mbit_per_s_at_rate']:.1f} at {r['rate']:g} fps) "
         f"[{r['target']}: {'met' if r['target_met'] else 'MISSED'}]"
     )
 
