@@ -85,13 +85,15 @@ def test_replay_lets_stale_frames_go_with_a_fake_clock(tmp_path):
 
 def test_replay_loops_until_closed_and_rejects_bad_rate(tmp_path):
     rec = _tiny_rec(tmp_path, frames=2)
-    src = ReplaySource(rec, rate=200.0, loop=True, preload=True)
+    now = [0.0]
+    src = ReplaySource(rec, rate=200.0, loop=True, preload=True, clock=lambda: now[0],
+                       sleep=lambda s: now.__setitem__(0, now[0] + s))  # fmt: skip
     got = []
     for f in src.frames():
         got.append(f.index)
         if len(got) == 5:
             src.close()
-    assert got == [0, 1, 0, 1, 0]
+    assert got == [0, 1, 0, 1, 0] and now[0] == pytest.approx(4 / 200.0)
     with pytest.raises(ValidationError, match="--rate"):
         ReplaySource(rec, rate=0)
 

@@ -99,7 +99,10 @@ class OrbbecSource:
         ob, cfg = self._ob, self.config
         pipe = ob.Pipeline(device)
         config = ob.Config()
-        for sensor, fmt in ((ob.OBSensorType.COLOR_SENSOR, ob.OBFormat.RGB), (ob.OBSensorType.DEPTH_SENSOR, ob.OBFormat.Y16)):
+        for sensor, fmt in (
+            (ob.OBSensorType.COLOR_SENSOR, ob.OBFormat.RGB),
+            (ob.OBSensorType.DEPTH_SENSOR, ob.OBFormat.Y16),
+        ):
             profiles = pipe.get_stream_profile_list(sensor)
             config.enable_stream(profiles.get_video_stream_profile(cfg.width, cfg.height, fmt, cfg.fps))
         pipe.start(config)

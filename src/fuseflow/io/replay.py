@@ -59,6 +59,9 @@ class ReplaySource:
         self.loop = loop
         self.skipped = 0
         self.delivered = 0
+        self.released: float | None = None
+        """Clock time at which the frame ``frames()`` yielded last was released (when it was due,
+        or when it was decoded if that was later): its capture time, read by the live loop."""
         self._clock = clock
         self._closed = threading.Event()
         self._sleep = sleep or (lambda s: self._closed.wait(s))
@@ -115,6 +118,7 @@ class ReplaySource:
                     self._sleep(due - now)
                 if self._closed.is_set():
                     return
+                self.released = max(due, now)
                 self.delivered += 1
                 yield frame
             if not self.loop:

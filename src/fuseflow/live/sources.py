@@ -69,6 +69,10 @@ class OpenedSource:
         self._temp = temp
 
     @property
+    def released(self) -> float | None:
+        return getattr(self.source, "released", None)
+
+    @property
     def skipped(self) -> int:
         return int(getattr(self.source, "skipped", 0))
 

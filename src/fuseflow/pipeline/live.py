@@ -49,8 +49,9 @@ class Captured:
 
     frame: Frame
     captured: float
-    """Host clock (``time.perf_counter``) when the source delivered the frame; a replay delivers
-    each frame when it is due, so this is its release time."""
+    """Host clock (``time.perf_counter``) when the source delivered the frame; for a replay, the
+    time it released the frame (``ReplaySource.released``: when it was due), which does not move
+    when the capture thread itself runs late."""
     number: int
     """Sequence number of the frame from this source (0, 1, ...; unique across replay loops)."""
 
@@ -299,7 +300,8 @@ class LiveLoop:
                 if self._stop.is_set():
                     break
                 self.stats.frame_in()
-                self._slot.put(Captured(frame, time.perf_counter(), n))
+                released = getattr(self.source, "released", None)  # a replay's release time
+                self._slot.put(Captured(frame, released if released is not None else time.perf_counter(), n))
                 n += 1
                 if limit is not None and n >= limit:
                     break
