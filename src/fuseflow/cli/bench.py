@@ -133,14 +133,18 @@ def bench_live(
     duration: float = typer.Option(20.0, "--duration", help="Seconds each case runs."),
     data_dir: Path = _data_dir_option(),
     json_out: Path = typer.Option(None, "--json", help="Write the rows and the machine here."),
+    stand_in_ms: float = typer.Option(
+        None, "--stand-in-ms", help="Replace FUSE by a sleep of this many ms returning a real cloud (all but FUSE)."
+    ),
 ) -> None:
     """Replays through `fuseflow live --serve` with one viewer: fps, drops, latency, Mbit/s."""
     from fuseflow.eval.bench.live import run_live_bench
 
     command = f"fuseflow bench live --cases {cases} --duration {duration:g}"
     command += f" --json {shlex.quote(str(json_out))}" if json_out is not None else ""
+    command += f" --stand-in-ms {stand_in_ms:g}" if stand_in_ms is not None else ""
     names = [c.strip() for c in cases.split(",") if c.strip()]
-    run_live_bench(names, duration, data_dir, json_out, command=command, log=_echo)
+    run_live_bench(names, duration, data_dir, json_out, command=command, log=_echo, stand_in_ms=stand_in_ms)
 
 
 bench_app = typer.Typer(

@@ -59,9 +59,13 @@ def encode_frame(cloud: FusedCloud, number: int, latency_ms: float, fuse_ms: flo
     m = len(xyz)
     if m:
         lo, hi = xyz.min(0), xyz.max(0)
-        ext = np.maximum(hi - lo, np.float32(1e-6))
-        q = np.rint((xyz - lo) / ext * 65535.0) - 32768.0
-        pos = np.clip(q, -32768, 32767).astype("<i2")
+        scale = (np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-6))).astype(np.float32)
+        q = np.subtract(xyz, lo, dtype=np.float32)  # in place from here: one float32 buffer
+        np.multiply(q, scale, out=q)
+        np.rint(q, out=q)
+        np.subtract(q, np.float32(32768.0), out=q)
+        np.clip(q, -32768.0, 32767.0, out=q)
+        pos = q.astype("<i2")
     else:
         lo = hi = np.zeros(3, np.float32)
         pos = np.zeros((0, 3), "<i2")

@@ -119,7 +119,22 @@ class _Viewer:
         self.frames, self.bytes = int(frames), int(size)
 
 
-def _run_case(case: LiveCase, rec: Path, duration: float) -> dict[str, Any]:
+def _stand_in(recording: Any, points: int | None, ms: float) -> Callable:
+    """A fusion that takes ``ms`` of wall time without using the CPU (a sleep) and returns the
+    real FUSE cloud of the recording's first frame: it measures everything but FUSE itself."""
+    from fuseflow.fuse import fuse
+    from fuseflow.fuse.config import preset_config
+
+    cloud = fuse(recording[0], recording.rig, preset_config("live", points))
+
+    def fuse_fn(frame: Any, rig: Any) -> tuple[Any, float]:
+        time.sleep(ms / 1000.0)
+        return cloud, ms
+
+    return fuse_fn
+
+
+def _run_case(case: LiveCase, rec: Path, duration: float, stand_in_ms: float | None = None) -> dict[str, Any]:
     from fuseflow.io import open_recording
     from fuseflow.io.replay import ReplaySource
     from fuseflow.live import LiveOutputs, run_live
@@ -129,12 +144,14 @@ def _run_case(case: LiveCase, rec: Path, duration: float) -> dict[str, Any]:
     source = ReplaySource(recording, rate=case.rate, loop=True, preload=True)
     viewers: list[_Viewer] = []
     settings = LiveSettings(preset="live", points=case.points, duration=duration)
+    fuse_fn = _stand_in(recording, case.points, stand_in_ms) if stand_in_ms is not None else None
     res = run_live(source, None, settings, LiveOutputs(serve=("127.0.0.1", 0)),
-                   on_start=lambda url, _w: viewers.append(_Viewer(url)))  # fmt: skip
+                   on_start=lambda url, _w: viewers.append(_Viewer(url)), fuse_fn=fuse_fn)  # fmt: skip
     viewers[0].finish()
     s, client = res.summary, (res.clients[0] if res.clients else {})
     row = {
-        "case": case.name, "data": case.description, "cameras": len(recording.rig),
+        "case": case.name, "data": case.description, "fusion": "FUSE" if stand_in_ms is None else
+        f"stand-in: sleeps {stand_in_ms:g} ms, returns frame 0's FUSE cloud", "cameras": len(recording.rig),
         "resolution": "x".join(map(str, recording.rig.resolution)), "rate": case.rate, "preset": "live",
         "points_target": case.points, "duration_s": s.wall_s, "frames_in": s.frames_in, "frames_out": s.frames_out,
         "dropped": s.dropped, "drop_rate": round(s.drop_rate, 4), "fps": s.fps, "latency_ms_p50": s.latency_ms_p50,
@@ -152,7 +169,7 @@ def _run_case(case: LiveCase, rec: Path, duration: float) -> dict[str, Any]:
 
 def format_row(r: dict[str, Any]) -> str:
     return (
-        f"{r['case']:<12} {r['cameras']} x {r['resolution']} @ {r['rate']:g} fps: {r['fps']:.2f} fused/s, "
+        f"{r['case']:<12} {'' if r['fusion'] == 'FUSE' else '(stand-in) '}{r['cameras']} x {r['resolution']} @ {r['rate']:g} fps: {r['fps']:.2f} fused/s, "
         f"drops {r['drop_rate']:.1%}, latency p50 {r['latency_ms_p50']} / p95 {r['latency_ms_p95']} ms, "
         f"FUSE {r['fuse_ms_median']} ms, {r['points_mean']:.0f} points, {r['bytes_per_frame']} B/frame, "
         f"{r['mbit_per_s']:.1f} Mbit/s per client ({r['mbit_per_s_at_rate']:.1f} at {r['rate']:g} fps) "
@@ -166,9 +183,14 @@ def run_live_bench(
     data_dir: Path | None = None,
     json_path: Path | None = None,
     command: str = "",
+    stand_in_ms: float | None = None,
     log: Callable[[str], None] = lambda s: None,
 ) -> list[dict[str, Any]]:
-    """Run each case for ``duration`` seconds; one row per case (also written to ``json_path``)."""
+    """Run each case for ``duration`` seconds; one row per case (also written to ``json_path``).
+
+    ``stand_in_ms``: replace FUSE by a stand-in that sleeps this long and returns a real fused
+    cloud (``_stand_in``): the capture, mailbox, encoding, server and viewer measured with a
+    fusion of known duration and no CPU use, e.g. FUSE's time on a quiet machine."""
     require("websockets", "live", "bench live")
     unknown = [c for c in cases if c not in CASES]
     if unknown:
@@ -179,7 +201,7 @@ def run_live_bench(
     with tempfile.TemporaryDirectory(prefix="bench_live_") as tmp:
         for name in cases:
             rec = _recording(name, Path(tmp), data_dir)
-            row = _run_case(CASES[name], rec, duration)
+            row = _run_case(CASES[name], rec, duration, stand_in_ms)
             log(format_row(row))
             rows.append(row)
     meta = {"command": command, "machine": platform.processor() or platform.machine(), "cpus": torch.get_num_threads(),
