@@ -169,3 +169,12 @@ def test_addresses():
     with pytest.raises(FuseFlowError, match="HOST:"):
         parse_address("host:port")
     assert is_loopback("127.0.0.1") and is_loopback("localhost") and not is_loopback("0.0.0.0")
+
+
+def test_bench_live_rejects_unknown_cases_and_judges_targets():
+    from fuseflow.errors import ValidationError
+    from fuseflow.eval.bench.live import CASES, TARGETS, run_live_bench
+
+    with pytest.raises(ValidationError, match="unknown cases"):
+        run_live_bench(["sim9"])
+    assert set(CASES) == set(TARGETS)

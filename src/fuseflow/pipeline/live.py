@@ -149,7 +149,8 @@ class LiveStats:
         self._latency: deque[float] = deque(maxlen=latencies)
         self.missing: dict[str, int] = {}
         self.extra: dict[str, Any] = {}
-        """Values sinks add (the server sets ``clients``)."""
+        """Values a caller adds to ``snapshot`` (none by default; the server adds its clients to
+        ``/stats`` itself)."""
 
     def frame_in(self) -> None:
         with self._lock:
@@ -176,7 +177,7 @@ class LiveStats:
     def snapshot(self) -> dict[str, Any]:
         """frames_in (delivered by the source or let go by it), frames_out, dropped, fps (fused frames per second over the last
         ``window_s``), latency_ms_p50 / p95 (capture to sent, over the last frames), points (of
-        the last frame), missing views per camera, and what sinks added (``clients``)."""
+        the last frame), missing views per camera, uptime, and ``extra``."""
         now = time.perf_counter()
         with self._lock:
             times = [t for t in self._out_times if now - t <= self._window]
