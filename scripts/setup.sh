@@ -10,6 +10,13 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     echo "installing libusb-1.0-0 (needed by open3d)" >&2
     $SUDO apt-get update -qq >/dev/null && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
 fi
+# The test extra's browser test of the live viewer (tests/live/test_browser.py) drives Debian's
+# headless Chromium through its chromedriver: install both when missing.
+if [ "$extras" = "test" ] && ! { command -v chromium >/dev/null && command -v chromedriver >/dev/null; }; then
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    echo "installing chromium and chromium-driver (the live viewer's browser test)" >&2
+    $SUDO apt-get update -qq >/dev/null && $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
+fi
 # The test extra installs about 4 GB into .venv (open3d 0.9 GB, torch 0.75 GB, rerun 0.5 GB, ray
 # 0.25 GB). pip's wheel cache would hold a second copy of what it downloads, so it is off: one CI
 # run failed with "No space left on device" during this install. Free space is printed for that.

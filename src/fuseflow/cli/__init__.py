@@ -15,7 +15,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, run, simulate, view
+from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, live, run, simulate, view
 from fuseflow.cli.app import app, error, guarded
 from fuseflow.errors import FuseFlowError
 
@@ -28,6 +28,7 @@ COMMANDS = {
     "fuse": fuse,
     "run": run,
     "view": view,
+    "live": live,
 }
 """Command name -> module defining ``command(...)`` (typer parameters)."""
 

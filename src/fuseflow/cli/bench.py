@@ -1,8 +1,8 @@
 """`fuseflow bench ...`: the benchmarks, as calls into fuseflow.eval (no file of the source tree).
 
 ``bench_app`` is the group; its subcommands are registered in the list at the end of this module:
-``fuse`` (fuseflow.eval.bench.fuse_speed), ``calib`` (fuseflow.eval.bench.calib_accuracy) and
-``paper`` (fuseflow.eval.paper).
+``fuse`` (fuseflow.eval.bench.fuse_speed), ``calib`` (fuseflow.eval.bench.calib_accuracy),
+``paper`` (fuseflow.eval.paper) and ``live`` (fuseflow.eval.bench.live).
 """
 
 from __future__ import annotations
@@ -128,8 +128,27 @@ def bench_paper(
         say(f"Fig. 5: {files['fig5']}")
 
 
+def bench_live(
+    cases: str = typer.Option("sim4,hocap8,hocap8-200k", "--cases", help="Comma list of sim4, hocap8, hocap8-200k."),
+    duration: float = typer.Option(20.0, "--duration", help="Seconds each case runs."),
+    data_dir: Path = _data_dir_option(),
+    json_out: Path = typer.Option(None, "--json", help="Write the rows and the machine here."),
+    stand_in_ms: float = typer.Option(
+        None, "--stand-in-ms", help="Replace FUSE by a sleep of this many ms returning a real cloud (all but FUSE)."
+    ),
+) -> None:
+    """Replays through `fuseflow live --serve` with one viewer: fps, drops, latency, Mbit/s."""
+    from fuseflow.eval.bench.live import run_live_bench
+
+    command = f"fuseflow bench live --cases {cases} --duration {duration:g}"
+    command += f" --json {shlex.quote(str(json_out))}" if json_out is not None else ""
+    command += f" --stand-in-ms {stand_in_ms:g}" if stand_in_ms is not None else ""
+    names = [c.strip() for c in cases.split(",") if c.strip()]
+    run_live_bench(names, duration, data_dir, json_out, command=command, log=_echo, stand_in_ms=stand_in_ms)
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
-for _name, _command in (("fuse", bench_fuse), ("calib", bench_calib), ("paper", bench_paper)):
+for _name, _command in (("fuse", bench_fuse), ("calib", bench_calib), ("paper", bench_paper), ("live", bench_live)):
     bench_app.command(_name)(guarded(_command))

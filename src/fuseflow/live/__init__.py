@@ -1,0 +1,30 @@
+"""Live: cameras in, one fused cloud out, as it happens (``fuseflow live``, docs/live.md).
+
+- :mod:`sources`: ``open_source(SOURCE)``: RealSense or Orbbec devices, or a recording replayed as
+  cameras.
+- :mod:`app`: ``run_live``: the live loop (``pipeline.live.LiveLoop``) with its sinks.
+- :mod:`server`: ``LiveServer``: the viewer page at ``/``, frames over a WebSocket at ``/ws``,
+  ``/stats``; the page and its script are package data (``static/``).
+- :mod:`wire`: the binary frame format (``encode_frame`` / ``decode_frame``).
+- :mod:`sinks`: ``WebSink``, ``RerunSink``, ``RecordSink``.
+
+Above pipeline and viz (it composes both), below eval and cli.
+"""
+
+from fuseflow.live.app import LiveOutputs, LiveResult, rig_for_live, run_live
+from fuseflow.live.server import LiveServer, parse_address
+from fuseflow.live.sources import ReplayOptions, open_source
+from fuseflow.live.wire import decode_frame, encode_frame
+
+__all__ = [
+    "LiveOutputs",
+    "LiveResult",
+    "LiveServer",
+    "ReplayOptions",
+    "decode_frame",
+    "encode_frame",
+    "open_source",
+    "parse_address",
+    "rig_for_live",
+    "run_live",
+]

@@ -1,0 +1,104 @@
+"""``run_live``: a source, the live loop and its sinks, composed; what ``fuseflow live`` runs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fuseflow.errors import FuseFlowError
+from fuseflow.live.server import LiveServer, is_loopback
+from fuseflow.live.sinks import RecordSink, RerunSink, WebSink, rig_message
+from fuseflow.pipeline.extrinsics import placed_rig
+from fuseflow.pipeline.live import LiveLoop, LiveSettings, LiveSummary
+from fuseflow.types import Calibration, Rig
+
+__all__ = ["LiveOutputs", "LiveResult", "run_live", "rig_for_live"]
+
+
+@dataclass(frozen=True)
+class LiveOutputs:
+    """Which sinks run (any combination; none is allowed: the loop then only measures)."""
+
+    serve: tuple[str, int] | None = None
+    """(host, port) of the web viewer; None = no server."""
+    rerun: str | None = None
+    """"spawn", a rerun+http:// address, or an .rrd path (``RerunSink``); None = no rerun."""
+    record: Path | None = None
+    """Write clouds here (``RecordSink``); None = no files."""
+
+
+@dataclass
+class LiveResult:
+    summary: LiveSummary
+    url: str | None = None
+    """The viewer's address while it ran."""
+    clients: list[dict[str, Any]] = field(default_factory=list)
+    """Per viewer client: frames sent and dropped, bytes, Mbit/s (``LiveServer.client_stats``)."""
+    warnings: list[str] = field(default_factory=list)
+
+
+def rig_for_live(source_rig: Rig, calibration: Calibration | None) -> Rig:
+    """The cameras to fuse: ``calibration``'s extrinsics (cameras it does not place are left out),
+    or the source rig's own (a replayed rig.json with extrinsics); FuseFlowError otherwise."""
+    if calibration is not None:
+        return placed_rig(source_rig, calibration)
+    placed = [i for i, c in enumerate(source_rig.cameras) if c.is_calibrated]
+    if not placed:
+        raise FuseFlowError("the source has no extrinsics: pass --calib calib.json (fuseflow calibrate makes one)")
+    return source_rig.subset(placed)
+
+
+def _server_warnings(host: str) -> list[str]:
+    if is_loopback(host):
+        return []
+    return [f"serving on {host}: anyone who can reach this machine can watch the stream (no authentication)"]
+
+
+def run_live(
+    source: Any,
+    calibration: Calibration | None,
+    settings: LiveSettings = LiveSettings(),
+    outputs: LiveOutputs = LiveOutputs(),
+    on_start: Callable[[str | None, list[str]], None] | None = None,
+    fuse_fn: Callable | None = None,
+) -> LiveResult:
+    """Fuse ``source`` live into the sinks of ``outputs`` until it ends, a limit, or Ctrl-C.
+
+    The source is closed, the server stopped and every file closed before this returns, also on
+    errors. ``on_start(url, warnings)`` is called once the sinks are up and before the first frame
+    (the CLI prints the address there).
+    """
+    sinks: list[Any] = []
+    server = None
+    warnings: list[str] = []
+    try:
+        rig = rig_for_live(source.rig, calibration)
+        left_out = [c for c in source.rig.ids if c not in rig.ids]
+        if left_out:
+            warnings.append(f"the calibration does not place cameras {left_out}; they are left out of fusion")
+        loop = LiveLoop(source, rig, settings, fuse_fn=fuse_fn)
+        if outputs.serve is not None:
+            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig)).start()
+            warnings += _server_warnings(server.host)
+            sinks.append(WebSink(server))
+        if outputs.rerun is not None:
+            sinks.append(RerunSink(outputs.rerun, rig))
+        if outputs.record is not None:
+            sinks.append(RecordSink(outputs.record, rig, source.rig))
+        loop.sinks = sinks
+        if on_start is not None:
+            on_start(server.url if server else None, warnings)
+        summary = loop.run()  # closes the source and the sinks
+    except BaseException:
+        for s in sinks:
+            s.close()
+        if server is not None:
+            server.close()
+        close = getattr(source, "close", None)
+        if close is not None:
+            close()
+        raise
+    clients = server.client_stats() if server is not None else []
+    return LiveResult(summary, server.url if server else None, clients, warnings)
