@@ -15,6 +15,7 @@ import torch
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.people import (
     BODY_JOINTS,
+    JOINT_DEPTH,
     LANDMARKS,
     MediapipePoseDetector,
     PeopleConfig,
@@ -62,9 +63,10 @@ def _scene(n_cams=3, n_frames=6, px_noise=1.0, depth_noise=0.01, seed=0, extra=N
         depth = np.full((n_cams, H, W), 7.0, np.float32)
         for k, cam in enumerate(rig.cameras):
             uv, z = _project(J, cam.T_cam_world, cam.K)
+            z = z - np.array([JOINT_DEPTH.get(j, 0.0) for j in range(33)])  # the skin facing the camera
             for (u, v), zz in sorted(zip(uv, z), key=lambda p: -p[1]):  # far joints first
                 ui, vi = int(round(u)), int(round(v))
-                depth[k, max(vi - 4, 0) : vi + 5, max(ui - 4, 0) : ui + 5] = zz + rng.normal(0, depth_noise)
+                depth[k, max(vi - 2, 0) : vi + 3, max(ui - 2, 0) : ui + 3] = zz + rng.normal(0, depth_noise)
             color[k, 0, 0, :2] = (k, f)
             uv_n = uv + rng.normal(0, px_noise, uv.shape)
             dets = [PoseDetection(uv_n, np.full(len(LANDMARKS), 0.9))]
@@ -102,24 +104,27 @@ def test_lift_rejects_background_low_visibility_and_outside():
     uv[15] = (300, 20)  # left wrist on the background (6 m)
     vis[16] = 0.2  # right wrist barely visible
     uv[31] = (-10, 5)
-    X = lift_landmarks(PoseDetection(uv, vis), depth, K, PeopleConfig())
+    X = lift_landmarks(PoseDetection(uv, vis), depth, K, PeopleConfig(joint_depth=False))
     ok = np.isfinite(X[:, 0])
     assert not ok[15] and not ok[16] and not ok[31] and not ok[0]  # background, visibility, outside, face
     assert ok.sum() == len(BODY_JOINTS) - 3
     k = BODY_JOINTS[0]
     z = 3.5
     np.testing.assert_allclose(X[k], [(uv[k, 0] - 160) * z / 300, 0.0, z], atol=1e-3)
+    X2 = lift_landmarks(PoseDetection(uv, vis), depth, K, PeopleConfig())  # moved to the joint centre
+    np.testing.assert_allclose(np.linalg.norm(X2[k] - X[k]), JOINT_DEPTH[k], atol=1e-6)
+    np.testing.assert_allclose(np.cross(X2[k], X[k]), 0.0, atol=1e-9)
 
 
 def test_keypoint_pose_from_walking_frames():
     frames, rig, det = _scene()
-    cands, info = person_candidates(frames, rig, [0, 1, 2], None, det, PeopleConfig(icp=False))
+    cands, info = person_candidates(frames, rig, [0, 1, 2], det, PeopleConfig(icp=False))
     assert info["frames_with_person"] == [6, 6, 6]
     assert sorted(cands) == [(0, 1), (0, 2), (1, 2)]
     for (a, b), cs in cands.items():
         assert [c["route"] for c in cs] == ["people"]
         deg, m = _err(cs[0]["T_ba"], _truth(rig, a, b))
-        assert deg < 2.0 and m < 0.08, (a, b, deg, m)
+        assert deg < 2.0 and m < 0.12, (a, b, deg, m)
         assert cs[0]["X_a"].shape == cs[0]["X_b"].shape and len(cs[0]["X_a"]) == cs[0]["inliers"] >= 30
 
 
@@ -129,9 +134,9 @@ def test_most_complete_detection_is_used_and_a_second_person_ignored():
         return [other, dets[0]]
 
     frames, rig, det = _scene(extra=two_people)
-    cands, _ = person_candidates(frames, rig, [0, 1, 2], None, det, PeopleConfig(icp=False))
+    cands, _ = person_candidates(frames, rig, [0, 1, 2], det, PeopleConfig(icp=False))
     deg, m = _err(cands[(0, 1)][0]["T_ba"], _truth(rig, 0, 1))
-    assert deg < 2.0 and m < 0.08
+    assert deg < 2.0 and m < 0.12
 
 
 def test_left_right_labels_are_taken_as_given():
@@ -148,7 +153,7 @@ def test_left_right_labels_are_taken_as_given():
         return [PoseDetection(dets[0].uv[swap], dets[0].visibility)] if k == 2 else None
 
     frames, rig, det = _scene(extra=swapped)
-    cands, _ = person_candidates(frames, rig, [0, 1, 2], None, det, PeopleConfig(icp=False))
+    cands, _ = person_candidates(frames, rig, [0, 1, 2], det, PeopleConfig(icp=False))
     deg, _ = _err(cands[(0, 1)][0]["T_ba"], _truth(rig, 0, 1))
     assert deg < 2.0
     for pair in ((0, 2), (1, 2)):
@@ -158,7 +163,7 @@ def test_left_right_labels_are_taken_as_given():
 
 def test_no_person_gives_no_candidates():
     frames, rig, _ = _scene(n_frames=2)
-    cands, info = person_candidates(frames, rig, [0, 1, 2], None, FakeDetector(), PeopleConfig(icp=False))
+    cands, info = person_candidates(frames, rig, [0, 1, 2], FakeDetector(), PeopleConfig(icp=False))
     assert cands == {} and info["frames_with_person"] == [0, 0, 0]
     assert all(p["common_joints"] == 0 for p in info["pairs"])
 
@@ -182,7 +187,7 @@ def test_icp_refines_a_keypoint_start():
     cfg = PeopleConfig()
     ca = depth_cloud(frame.depth[0].numpy(), rig.cameras[0].K, cfg.icp_voxel)
     cb = depth_cloud(frame.depth[1].numpy(), rig.cameras[1].K, cfg.icp_voxel)
-    T_icp, Xa, Xb = refine_icp(ca, cb, start, cfg)
+    T_icp, Xa, Xb = refine_icp([ca], [cb], start, cfg)
     deg, m = _err(T_icp, T_true)
     assert deg < 1.0 and m < 0.03, (deg, m)
     assert len(Xa) == len(Xb) > 50

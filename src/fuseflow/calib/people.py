@@ -11,6 +11,7 @@ A person in the capture volume is the commonest "target" a studio has. Outline
    window's nearest), rejected when the window has too few depths, when the landmark's visibility
    is below ``visibility``, or when its depth is more than ``body_extent_m`` from the median depth
    of the person's other landmarks (a landmark on the background, e.g. a wrist beside the body).
+   The point is then moved along its ray by the joint's depth below the skin (``JOINT_DEPTH``).
    Only the body joints (``BODY_JOINTS``: shoulders, elbows, wrists, hips, knees, ankles, heels,
    toes) are used: face landmarks seen from behind land on the back of the head.
 3. Per camera pair (``keypoint_pose``): the joints both views lifted in the same frame are 3-D
@@ -20,9 +21,10 @@ A person in the capture volume is the commonest "target" a studio has. Outline
    The landmarks' left / right labels are used as the detector gives them, never swapped to
    gain inliers: a body is nearly mirror-symmetric, so a swapped labelling gets almost as many
    inliers and wins by count on wrong poses (docs/gmac.md, "Person route").
-4. Per pair (``refine_icp``): point-to-plane ICP on the two cameras' full clouds (per-pixel
-   median depth over the frames) from the keypoint pose, coarse to fine: the keypoint pose is
-   accurate to degrees, ICP brings it to the depth's precision when it starts in its basin.
+4. Per pair (``refine_icp``): point-to-plane ICP on the two cameras' full clouds of the frames
+   where both see the person (``icp_frames`` of them, one shared pose, points matched within
+   their own frame), from the keypoint pose, coarse to fine: the keypoint pose is accurate to
+   degrees, ICP brings it to the depth's precision when it starts in its basin.
 
 Each pair yields up to two candidates in the ``rgbd`` backbone's form ({"route", "T_ba",
 "inliers", "X_a", "X_b"}: ``T_ba`` maps camera a's coordinates into camera b's): route
@@ -56,6 +58,7 @@ from fuseflow.types import Frame, Rig
 __all__ = [
     "LANDMARKS",
     "BODY_JOINTS",
+    "JOINT_DEPTH",
     "PoseDetection",
     "PoseDetector",
     "MediapipePoseDetector",
@@ -67,6 +70,7 @@ __all__ = [
     "refine_icp",
     "depth_cloud",
     "person_candidates",
+    "PersonRoute",
 ]
 
 #: The 33 MediaPipe Pose landmarks, in the detector's order.
@@ -80,6 +84,14 @@ LANDMARKS = (
 
 #: Landmarks used as correspondences: the body's joints (no face, no fingers).
 BODY_JOINTS = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32)
+
+#: Depth of each body joint's centre behind the skin that faces a camera, metres (typical adult
+#: half-thicknesses: shoulder 6, elbow 4, wrist 3, hip 9, knee 5, ankle 4, heel / toe 2 cm). A
+#: lifted landmark sits on the surface the camera sees; moved this far along its ray it lands
+#: near the joint from every side (views from opposite sides otherwise disagree by twice it).
+JOINT_DEPTH = dict(
+    zip(BODY_JOINTS, (0.06, 0.06, 0.04, 0.04, 0.03, 0.03, 0.09, 0.09, 0.05, 0.05, 0.04, 0.04, 0.02, 0.02, 0.02, 0.02))
+)
 
 #: The extra that installs the detector.
 EXTRA_HINT = "pip install 'fuseflow[people]' (mediapipe 0.10.21, its pose model ships in the wheel)"
@@ -183,6 +195,8 @@ class PeopleConfig:
     body_extent_m: float = 0.6
     """A landmark whose depth is further than this from the median of the person's landmarks is
     on the background, rejected."""
+    joint_depth: bool = True
+    """Move each lifted landmark along its ray by ``JOINT_DEPTH`` (surface to joint centre)."""
     min_joints: int = 4
     """A view's detection with fewer lifted joints than this is not used."""
     inlier_m: float = 0.2
@@ -197,6 +211,8 @@ class PeopleConfig:
     """Voxel size (metres) the clouds are thinned to for ICP."""
     icp_distances: tuple[float, ...] = (0.3, 0.15, 0.08, 0.04)
     """ICP correspondence distances, coarse to fine, metres."""
+    icp_frames: int = 4
+    """ICP uses the frames (at most this many) in which the two views share the most joints."""
     seed: int = 0
 
 
@@ -225,6 +241,9 @@ def lift_landmarks(det: PoseDetection, depth: np.ndarray, K: np.ndarray, cfg: Pe
     idx = np.flatnonzero(ok)
     uv1 = np.c_[det.uv[idx], np.ones(len(idx))]
     out[idx] = (uv1 @ np.linalg.inv(K).T) * z[idx, None]
+    if cfg.joint_depth:
+        off = np.array([JOINT_DEPTH.get(int(k), 0.0) for k in idx])
+        out[idx] += off[:, None] * out[idx] / np.linalg.norm(out[idx], axis=1, keepdims=True)
     return out
 
 
@@ -305,101 +324,163 @@ def keypoint_pose(Xa: np.ndarray, Xb: np.ndarray, cfg: PeopleConfig) -> tuple[np
     return kabsch(Xa[mask][None], Xb[mask][None])[0], mask
 
 
-def depth_cloud(depth: np.ndarray, K: np.ndarray, voxel: float):
-    """Open3D cloud (camera frame) of a depth image, voxel-thinned, with normals."""
+def depth_cloud(depth: np.ndarray, K: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points (P, 3) and unit normals (P, 3) (camera frame, normals towards the camera) of a depth
+    image (H, W) metres, thinned to one point per ``voxel``."""
     import open3d as o3d
 
-    h, w = depth.shape
-    v, u = np.nonzero(depth > 0)
-    z = depth[v, u].astype(np.float64)
+    v, u = np.nonzero(np.asarray(depth) > 0)
+    z = np.asarray(depth)[v, u].astype(np.float64)
     X = np.c_[(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z]
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X)).voxel_down_sample(voxel)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
     pc.orient_normals_towards_camera_location(np.zeros(3))
-    return pc
+    return np.asarray(pc.points), np.asarray(pc.normals)
 
 
-def refine_icp(cloud_a, cloud_b, T_ba: np.ndarray, cfg: PeopleConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Point-to-plane ICP of camera a's cloud onto camera b's (Open3D clouds, ``depth_cloud``) from
-    T_ba, over ``cfg.icp_distances``. Returns (T_ba refined, X_a (P, 3), X_b (P, 3)): up to 400
+def refine_icp(clouds_a: list, clouds_b: list, T_ba: np.ndarray, cfg: PeopleConfig) -> tuple[np.ndarray, ...]:
+    """Point-to-plane ICP of camera a's clouds onto camera b's from T_ba, the frames' clouds
+    (``depth_cloud`` pairs, same frames in the same order in both lists) sharing one pose and
+    each point matched only within its own frame: the person stands at a new place in every
+    frame, and together the frames constrain the pose where one frame's floor and person alone
+    would let it slide. Correspondence distances ``cfg.icp_distances``, coarse to fine, 10
+    Gauss-Newton steps each. Returns (T_ba refined, X_a (P, 3), X_b (P, 3)): up to 400
     closest-point pairs within the finest distance, the pose's support for the joint solve."""
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    T = np.asarray(T_ba, dtype=np.float64)
-    for d in cfg.icp_distances:
-        T = reg.registration_icp(
-            cloud_a, cloud_b, d, T, reg.TransformationEstimationPointToPlane(),
-            reg.ICPConvergenceCriteria(max_iteration=30),
-        ).transformation  # fmt: skip
-    A = np.asarray(cloud_a.points)
-    Bp = np.asarray(cloud_b.points)
     from scipy.spatial import cKDTree
 
-    q = A @ T[:3, :3].T + T[:3, 3]
-    dist, j = cKDTree(Bp).query(q, distance_upper_bound=cfg.icp_distances[-1])
-    ok = np.flatnonzero(np.isfinite(dist))
-    if len(ok) > 400:
-        ok = ok[np.linspace(0, len(ok) - 1, 400).astype(int)]
-    return T, A[ok], Bp[j[ok]]
+    trees = [cKDTree(b[0]) for b in clouds_b]
+    T = np.asarray(T_ba, dtype=np.float64).copy()
+    for dist in cfg.icp_distances:
+        for _ in range(10):
+            q, n, r = _icp_pairs(clouds_a, clouds_b, trees, T, dist)
+            if len(r) < 6:
+                break
+            J = np.c_[np.cross(q, n), n]
+            x = np.linalg.lstsq(J, -r, rcond=None)[0]
+            T = _exp_se3(x) @ T
+            if np.linalg.norm(x) < 1e-6:
+                break
+    XA, XB = [], []
+    for (A, _), (B, _), tree in zip(clouds_a, clouds_b, trees):
+        d, j = tree.query(A @ T[:3, :3].T + T[:3, 3], distance_upper_bound=cfg.icp_distances[-1])
+        ok = np.isfinite(d)
+        XA.append(A[ok])
+        XB.append(B[j[ok]])
+    XA, XB = np.concatenate(XA), np.concatenate(XB)
+    keep = np.linspace(0, len(XA) - 1, min(len(XA), 400)).astype(int)
+    return T, XA[keep], XB[keep]
+
+
+def _icp_pairs(clouds_a, clouds_b, trees, T, dist):
+    """Stacked point-to-plane correspondences of every frame: transformed points q (M, 3), target
+    normals n (M, 3), residuals n . (q - b) (M,)."""
+    Q, N, R = [], [], []
+    for (A, _), (B, nb), tree in zip(clouds_a, clouds_b, trees):
+        q = A @ T[:3, :3].T + T[:3, 3]
+        d, j = tree.query(q, distance_upper_bound=dist)
+        ok = np.isfinite(d)
+        q, b, n = q[ok], B[j[ok]], nb[j[ok]]
+        Q.append(q)
+        N.append(n)
+        R.append(np.einsum("ij,ij->i", n, q - b))
+    return np.concatenate(Q), np.concatenate(N), np.concatenate(R)
+
+
+def _exp_se3(x: np.ndarray) -> np.ndarray:
+    """(4, 4) rigid transform of the small motion x = (rotation vector (3,), translation (3,))."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+    T[:3, 3] = x[3:]
+    return T
+
+
+class PersonRoute:
+    """The person route over one set of frames, computed lazily: the views are detected and
+    lifted at the first ``pair`` call, each camera's ICP cloud when a pair first needs it.
+
+    Args:
+        frames: Frames of a static rig (colour RGB, depth metres), cameras in rig order.
+        rig: the rig (intrinsics used).
+        order: rig indices of the cameras in the caller's order; pairs are (a, b), positions
+            in ``order``.
+        detector: a ``PoseDetector``.
+        cfg: PeopleConfig (defaults when None).
+    """
+
+    def __init__(self, frames, rig: Rig, order: Sequence[int], detector: PoseDetector, cfg=None):
+        self.frames, self.rig, self.order = list(frames), rig, list(order)
+        self.detector, self.cfg = detector, cfg or PeopleConfig()
+        self._joints: DetectedJoints | None = None
+        self._clouds: dict[tuple[int, int], tuple] = {}
+        self._pairs: list[dict] = []
+        self._time = {"detect": 0.0, "pairs": 0.0}
+
+    def joints(self) -> DetectedJoints:
+        if self._joints is None:
+            t0 = time.perf_counter()
+            self._joints = detect_joints(self.frames, self.rig, self.order, self.detector, self.cfg)
+            self._time["detect"] += time.perf_counter() - t0
+        return self._joints
+
+    def pair(self, a: int, b: int) -> list[dict]:
+        """Candidates of the pair (a, b): [] or {"route": "people" | "people+icp", "T_ba" (4, 4)
+        camera a -> camera b, "inliers" (joints), "X_a", "X_b" (P, 3) supporting points}."""
+        J = self.joints()
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        Xa, Xb = _common(J.points[a], J.points[b])
+        fit = keypoint_pose(Xa, Xb, cfg)
+        self._pairs.append({"pair": [a, b], "common_joints": int(len(Xa)), "inliers": 0 if fit is None else int(fit[1].sum())})  # fmt: skip
+        if fit is None:
+            self._time["pairs"] += time.perf_counter() - t0
+            return []
+        T, mask = fit
+        out = [{"route": "people", "T_ba": T, "inliers": int(mask.sum()), "X_a": Xa[mask], "X_b": Xb[mask]}]
+        if cfg.icp:
+            both = np.isfinite(J.points[a][..., 0]) & np.isfinite(J.points[b][..., 0])
+            use = np.argsort(-both.sum(axis=1), kind="stable")[: cfg.icp_frames]
+            use = sorted(int(f) for f in use if both[f].sum() > 0)
+            T_icp, Pa, Pb = refine_icp([self._cloud(a, f) for f in use], [self._cloud(b, f) for f in use], T, cfg)
+            out.append({"route": "people+icp", "T_ba": T_icp, "inliers": int(mask.sum()), "X_a": Pa, "X_b": Pb})
+        self._time["pairs"] += time.perf_counter() - t0
+        return out
+
+    def _cloud(self, a: int, f: int):
+        if (a, f) not in self._clouds:
+            k = self.order[a]
+            self._clouds[(a, f)] = depth_cloud(
+                self.frames[f].depth[k].numpy(), self.rig.cameras[k].K, self.cfg.icp_voxel
+            )
+        return self._clouds[(a, f)]
+
+    def info(self) -> dict:
+        """The frames each camera saw the person in, the mean detection time per view, seconds
+        spent, and per pair examined its common and inlier joints."""
+        J = self._joints
+        return {
+            "frames_with_person": None if J is None else J.views_with_person,
+            "detect_s_per_view": round(float(np.mean(J.detect_s)), 4) if J is not None and J.detect_s else None,
+            "time_s": {k: round(v, 3) for k, v in self._time.items()},
+            "pairs": list(self._pairs),
+        }
 
 
 def person_candidates(
     frames: Sequence[Frame],
     rig: Rig,
     order: Sequence[int],
-    depths: Sequence[np.ndarray],
     detector: PoseDetector,
     cfg: PeopleConfig | None = None,
 ) -> tuple[dict[tuple[int, int], list[dict]], dict]:
-    """Candidate relative poses of every camera pair from the person in the frames.
-
-    Args:
-        frames: Frames of a static rig (colour RGB, depth metres), cameras in rig order.
-        rig: the rig (intrinsics used).
-        order: rig indices of the cameras in the caller's order; pairs are (a, b), a < b
-            positions in ``order``.
-        depths: per position in ``order``, the (H, W) depth used for ICP (e.g. the per-pixel
-            median over the frames, which drops the walking person: static structure only).
-        detector: a ``PoseDetector``.
-        cfg: PeopleConfig (defaults when None).
-
-    Returns:
-        ({(a, b): [candidate dict, ...]}, info): candidates {"route": "people" | "people+icp",
-        "T_ba" (4, 4), "inliers" (joints), "X_a", "X_b" (P, 3) supporting points}; info has the
-        per-view detection times, the frames each camera saw the person in and per pair the
-        common and inlier joints.
-    """
-    cfg = cfg or PeopleConfig()
-    t0 = time.perf_counter()
-    J = detect_joints(frames, rig, order, detector, cfg)
-    t_detect = time.perf_counter() - t0
-    clouds: dict[int, object] = {}
-    out: dict[tuple[int, int], list[dict]] = {}
-    pairs = []
+    """Candidates of every camera pair (a < b, positions in ``order``) from the person in the
+    frames (``PersonRoute``, same arguments): ({(a, b): [candidate, ...]} for the pairs with
+    any, ``PersonRoute.info()``)."""
+    route = PersonRoute(frames, rig, order, detector, cfg)
+    out = {}
     for a in range(len(order)):
         for b in range(a + 1, len(order)):
-            Xa, Xb = _common(J.points[a], J.points[b])
-            fit = keypoint_pose(Xa, Xb, cfg)
-            pairs.append(
-                {"pair": [a, b], "common_joints": int(len(Xa)), "inliers": 0 if fit is None else int(fit[1].sum())}
-            )
-            if fit is None:
-                continue
-            T, mask = fit
-            cands = [{"route": "people", "T_ba": T, "inliers": int(mask.sum()), "X_a": Xa[mask], "X_b": Xb[mask]}]
-            if cfg.icp:
-                for k in (a, b):
-                    if k not in clouds:
-                        clouds[k] = depth_cloud(np.asarray(depths[k]), rig.cameras[order[k]].K, cfg.icp_voxel)
-                T_icp, Pa, Pb = refine_icp(clouds[a], clouds[b], T, cfg)
-                cands.append({"route": "people+icp", "T_ba": T_icp, "inliers": int(mask.sum()), "X_a": Pa, "X_b": Pb})
-            out[(a, b)] = cands
-    info = {
-        "frames_with_person": J.views_with_person,
-        "detect_s_per_view": round(float(np.mean(J.detect_s)), 4) if J.detect_s else None,
-        "detect_s": round(t_detect, 3),
-        "total_s": round(time.perf_counter() - t0, 3),
-        "pairs": pairs,
-    }
-    return out, info
+            if cands := route.pair(a, b):
+                out[(a, b)] = cands
+    return out, route.info()
