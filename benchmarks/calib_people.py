@@ -42,7 +42,9 @@ def _err(T, T_true):
     return round(rotation_angle_deg(D[:3, :3]), 3), round(float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])), 4)
 
 
-def run_seed(seed: int, cameras: int, n_frames: int, calibrate: bool, joint_depth: bool) -> dict:
+def run_seed(
+    seed: int, cameras: int, n_frames: int, calibrate: bool, joint_depth: bool, normal_cos: float = -1.0
+) -> dict:
     from fuseflow.calib.people import MediapipePoseDetector, PeopleConfig, PersonRoute
     from fuseflow.synth.person import walking_person_sim
     from fuseflow.types import Rig, invert_rigid
@@ -54,7 +56,7 @@ def run_seed(seed: int, cameras: int, n_frames: int, calibrate: bool, joint_dept
     rig = sim.rig
     order = list(range(cameras))
     det = MediapipePoseDetector()
-    route = PersonRoute(frames, rig, order, det, PeopleConfig(joint_depth=joint_depth))
+    route = PersonRoute(frames, rig, order, det, PeopleConfig(joint_depth=joint_depth, icp_normal_cos=normal_cos))
     pairs = []
     for a in range(cameras):
         for b in range(a + 1, cameras):
@@ -65,7 +67,7 @@ def run_seed(seed: int, cameras: int, n_frames: int, calibrate: bool, joint_dept
             pairs.append(row)
     det.close()
     info = route.info()
-    out = {"seed": seed, "cameras": cameras, "frames": n_frames, "joint_depth": joint_depth, "render_s": round(t_render, 1),
+    out = {"seed": seed, "cameras": cameras, "frames": n_frames, "joint_depth": joint_depth, "icp_normal_cos": normal_cos, "render_s": round(t_render, 1),
            "frames_with_person": info["frames_with_person"], "detect_s_per_view": info["detect_s_per_view"],
            "pair_s": info["time_s"]["pairs"], "pairs": pairs}  # fmt: skip
     if calibrate:
@@ -86,8 +88,9 @@ def run_seed(seed: int, cameras: int, n_frames: int, calibrate: bool, joint_dept
 
 def summary(path: Path) -> None:
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    for n, jd in sorted({(r["cameras"], r.get("joint_depth", True)) for r in rows}):
-        rs = [r for r in rows if r["cameras"] == n and r.get("joint_depth", True) == jd]
+    key = lambda r: (r["cameras"], r.get("joint_depth", True), r.get("icp_normal_cos", -1.0))  # noqa: E731
+    for n, jd, nc in sorted({key(r) for r in rows}):
+        rs = [r for r in rows if key(r) == (n, jd, nc)]
         kp = [p["people"] for r in rs for p in r["pairs"] if "people" in p]
         icp = [p["people+icp"] for r in rs for p in r["pairs"] if "people+icp" in p]
         npairs = sum(len(r["pairs"]) for r in rs)
@@ -127,6 +130,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=11)
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     ap.add_argument("--calibrate", action="store_true")
+    ap.add_argument("--icp-normal-cos", type=float, default=-1.0, help="PeopleConfig.icp_normal_cos")
     ap.add_argument("--no-joint-depth", action="store_true", help="PeopleConfig(joint_depth=False)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     a = ap.parse_args()
@@ -134,7 +138,7 @@ def main() -> None:
         summary(a.out)
         return
     for s in a.seeds:
-        row = run_seed(s, a.cameras, a.frames, a.calibrate, not a.no_joint_depth)
+        row = run_seed(s, a.cameras, a.frames, a.calibrate, not a.no_joint_depth, a.icp_normal_cos)
         with a.out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         print(json.dumps(row), flush=True)

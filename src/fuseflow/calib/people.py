@@ -211,6 +211,8 @@ class PeopleConfig:
     """Voxel size (metres) the clouds are thinned to for ICP."""
     icp_distances: tuple[float, ...] = (0.3, 0.15, 0.08, 0.04)
     """ICP correspondence distances, coarse to fine, metres."""
+    icp_normal_cos: float = -1.0
+    """ICP pairs whose normals' cosine is below this are not used (-1: all pairs)."""
     icp_frames: int = 4
     """ICP uses the frames (at most this many) in which the two views share the most joints."""
     seed: int = 0
@@ -352,7 +354,7 @@ def refine_icp(clouds_a: list, clouds_b: list, T_ba: np.ndarray, cfg: PeopleConf
     T = np.asarray(T_ba, dtype=np.float64).copy()
     for dist in cfg.icp_distances:
         for _ in range(10):
-            q, n, r = _icp_pairs(clouds_a, clouds_b, trees, T, dist)
+            q, n, r = _icp_pairs(clouds_a, clouds_b, trees, T, dist, cfg.icp_normal_cos)
             if len(r) < 6:
                 break
             J = np.c_[np.cross(q, n), n]
@@ -371,14 +373,19 @@ def refine_icp(clouds_a: list, clouds_b: list, T_ba: np.ndarray, cfg: PeopleConf
     return T, XA[keep], XB[keep]
 
 
-def _icp_pairs(clouds_a, clouds_b, trees, T, dist):
+def _icp_pairs(clouds_a, clouds_b, trees, T, dist, min_cos: float):
     """Stacked point-to-plane correspondences of every frame: transformed points q (M, 3), target
-    normals n (M, 3), residuals n . (q - b) (M,)."""
+    normals n (M, 3), residuals n . (q - b) (M,). A pair counts only when its two normals agree
+    (cosine >= ``min_cos``; each cloud's normals face its own camera, so a surface both cameras
+    see has agreeing normals): views 120 deg apart see different sides of a person, and nearest
+    points on the wrong side would pull the shells onto each other."""
     Q, N, R = [], [], []
-    for (A, _), (B, nb), tree in zip(clouds_a, clouds_b, trees):
+    for (A, na), (B, nb), tree in zip(clouds_a, clouds_b, trees):
         q = A @ T[:3, :3].T + T[:3, 3]
         d, j = tree.query(q, distance_upper_bound=dist)
-        ok = np.isfinite(d)
+        ok = np.flatnonzero(np.isfinite(d))
+        if min_cos > -1:
+            ok = ok[np.einsum("ij,ij->i", na[ok] @ T[:3, :3].T, nb[j[ok]]) >= min_cos]
         q, b, n = q[ok], B[j[ok]], nb[j[ok]]
         Q.append(q)
         N.append(n)
