@@ -272,8 +272,10 @@ def ring_rig(
     return Rig(tuple(cams))
 
 
-def walking_person_sim(seed: int, cameras: int = 3, frames: int = 11, fps: float = 3.0, **cfg_kw):
-    """A Simulator of ``cameras`` Kinect-v2-like views (512x424, 70.6 deg) 3.5-4 m around a
+def walking_person_sim(
+    seed: int, cameras: int = 3, frames: int = 11, fps: float = 3.0, resolution: tuple[int, int] = (512, 424), **cfg_kw
+):
+    """A Simulator of ``cameras`` Kinect-v2-like views (``resolution``, 70.6 deg) 3.5-4 m around a
     person walking 2.4 m back and forth in a plain room; ``frames`` frames ``1 / fps`` s apart.
     The walk's direction and clothing colours are drawn from ``seed``. Further SimConfig fields
     in ``cfg_kw`` (noise, ambient, ...)."""
@@ -285,11 +287,11 @@ def walking_person_sim(seed: int, cameras: int = 3, frames: int = 11, fps: float
     walk = Walk(start=tuple(-d), end=tuple(d), shirt=tuple(rng.uniform(0.15, 0.85, 3)),
                 trousers=tuple(rng.uniform(0.1, 0.45, 3)))  # fmt: skip
     kw = {"surface_density": 100.0, "ambient": 0.5, **cfg_kw}  # GT surface samples unused: the fewest
-    cfg = SimConfig(cameras=cameras, frames=frames, fps=fps, seed=seed, scene="room", resolution=(512, 424),
+    cfg = SimConfig(cameras=cameras, frames=frames, fps=fps, seed=seed, scene="room", resolution=resolution,
                     hfov_deg=70.6, **kw)  # fmt: skip
     sim = Simulator(replace(cfg, cameras=1))  # a one-camera room, then our scene and rig replace it
     sim.cfg = cfg
     sim.textures = make_textures(seed)
     sim.scene = person_scene(walk, seed=seed)
-    sim.rig = ring_rig(cameras, sim.scene.target, (3.5, 4.0), 1.6, rng)
+    sim.rig = ring_rig(cameras, sim.scene.target, (3.5, 4.0), 1.6, rng, resolution=resolution)
     return sim, walk
