@@ -82,8 +82,24 @@ def run_seed(
         W = (
             invert_rigid(rig.cameras[rig.ids.index(anchor)].T_cam_world) @ T[anchor]
         )  # true world from calibration world
+        rep = cal.report
+        out["suspect"] = list(rep.get("suspect_cameras", []))
+        out["warnings"] = list(rep.get("warnings", []))
+        bb = rep.get("backbone_info", None) or {}
+        out["edges"] = [[p["cameras"], p["edge"]["route"]] for p in _rgbd_pairs(bb) if p.get("edge")]
         out["cameras_err"] = {c.id: (_err(T[c.id], c.T_cam_world @ W) if c.id in T else None) for c in rig.cameras}
     return out
+
+
+def _rgbd_pairs(info) -> list[dict]:
+    """The rgbd backbone's per-pair entries wherever the report nests them."""
+    if isinstance(info, dict):
+        if "pairs" in info and isinstance(info["pairs"], list) and info["pairs"] and "candidates" in info["pairs"][0]:
+            return info["pairs"]
+        for v in info.values():
+            if found := _rgbd_pairs(v):
+                return found
+    return []
 
 
 def summary(path: Path) -> None:
