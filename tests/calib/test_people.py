@@ -184,13 +184,14 @@ def test_icp_refines_a_keypoint_start():
     P[:3, :3] = [[math.cos(d), -math.sin(d), 0], [math.sin(d), math.cos(d), 0], [0, 0, 1]]
     P[:3, 3] = (0.05, -0.04, 0.03)
     start = P @ T_true
-    cfg = PeopleConfig()
-    ca = depth_cloud(frame.depth[0].numpy(), rig.cameras[0].K, cfg.icp_voxel)
-    cb = depth_cloud(frame.depth[1].numpy(), rig.cameras[1].K, cfg.icp_voxel)
-    T_icp, Xa, Xb = refine_icp([ca], [cb], start, cfg)
-    deg, m = _err(T_icp, T_true)
-    assert deg < 1.0 and m < 0.03, (deg, m)
-    assert len(Xa) == len(Xb) > 50
+    for cos in (-1.0, 0.5):  # without and with the normal-compatibility gate
+        cfg = PeopleConfig(icp_normal_cos=cos)
+        ca = depth_cloud(frame.depth[0].numpy(), rig.cameras[0].K, cfg.icp_voxel)
+        cb = depth_cloud(frame.depth[1].numpy(), rig.cameras[1].K, cfg.icp_voxel)
+        T_icp, Xa, Xb = refine_icp([ca], [cb], start, cfg)
+        deg, m = _err(T_icp, T_true)
+        assert deg < 1.0 and m < 0.03, (cos, deg, m)
+        assert len(Xa) == len(Xb) > 50
 
 
 def test_missing_mediapipe_names_the_extra(monkeypatch):

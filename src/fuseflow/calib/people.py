@@ -213,6 +213,8 @@ class PeopleConfig:
     """ICP correspondence distances, coarse to fine, metres."""
     icp_normal_cos: float = -1.0
     """ICP pairs whose normals' cosine is below this are not used (-1: all pairs)."""
+    icp_normal_radius: float = 0.12
+    """Radius (m) of the neighbourhood each ICP point's normal is fitted in."""
     icp_frames: int = 4
     """ICP uses the frames (at most this many) in which the two views share the most joints."""
     seed: int = 0
@@ -326,16 +328,20 @@ def keypoint_pose(Xa: np.ndarray, Xb: np.ndarray, cfg: PeopleConfig) -> tuple[np
     return kabsch(Xa[mask][None], Xb[mask][None])[0], mask
 
 
-def depth_cloud(depth: np.ndarray, K: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+def depth_cloud(
+    depth: np.ndarray, K: np.ndarray, voxel: float, normal_radius: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Points (P, 3) and unit normals (P, 3) (camera frame, normals towards the camera) of a depth
-    image (H, W) metres, thinned to one point per ``voxel``."""
+    image (H, W) metres, thinned to one point per ``voxel``; normals fitted within
+    ``normal_radius`` m (default 4 voxels)."""
     import open3d as o3d
 
     v, u = np.nonzero(np.asarray(depth) > 0)
     z = np.asarray(depth)[v, u].astype(np.float64)
     X = np.c_[(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z]
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(X)).voxel_down_sample(voxel)
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
+    r = 4 * voxel if normal_radius is None else normal_radius
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=r, max_nn=max(30, int(3 * (r / voxel) ** 2))))
     pc.orient_normals_towards_camera_location(np.zeros(3))
     return np.asarray(pc.points), np.asarray(pc.normals)
 
