@@ -16,7 +16,7 @@ calibration's world (the first placed camera's frame), placed or not.
 Rows are JSON lines appended to --out; ``summary`` prints the table.
 
     python benchmarks/calib_people.py pairs --cameras 3 --seeds 0 1 2 3 4 5 6 7 8 9
-    python benchmarks/calib_people.py pairs --cameras 6 --seeds 0 1 2 3 4
+    python benchmarks/calib_people.py pairs --cameras 6 --seeds 0 1 2 --no-icp
     python benchmarks/calib_people.py pairs --cameras 3 --seeds 0 1 2 --calibrate
     python benchmarks/calib_people.py summary
 """
@@ -43,7 +43,13 @@ def _err(T, T_true):
 
 
 def run_seed(
-    seed: int, cameras: int, n_frames: int, calibrate: bool, joint_depth: bool, normal_cos: float = -1.0
+    seed: int,
+    cameras: int,
+    n_frames: int,
+    calibrate: bool,
+    joint_depth: bool,
+    normal_cos: float = -1.0,
+    icp: bool = True,
 ) -> dict:
     from fuseflow.calib.people import MediapipePoseDetector, PeopleConfig, PersonRoute
     from fuseflow.synth.person import walking_person_sim
@@ -56,7 +62,9 @@ def run_seed(
     rig = sim.rig
     order = list(range(cameras))
     det = MediapipePoseDetector()
-    route = PersonRoute(frames, rig, order, det, PeopleConfig(joint_depth=joint_depth, icp_normal_cos=normal_cos))
+    route = PersonRoute(
+        frames, rig, order, det, PeopleConfig(joint_depth=joint_depth, icp_normal_cos=normal_cos, icp=icp)
+    )
     pairs = []
     for a in range(cameras):
         for b in range(a + 1, cameras):
@@ -147,6 +155,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     ap.add_argument("--calibrate", action="store_true")
     ap.add_argument("--icp-normal-cos", type=float, default=-1.0, help="PeopleConfig.icp_normal_cos")
+    ap.add_argument("--no-icp", action="store_true", help="keypoint poses only (PeopleConfig(icp=False))")
     ap.add_argument("--no-joint-depth", action="store_true", help="PeopleConfig(joint_depth=False)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     a = ap.parse_args()
@@ -154,7 +163,7 @@ def main() -> None:
         summary(a.out)
         return
     for s in a.seeds:
-        row = run_seed(s, a.cameras, a.frames, a.calibrate, not a.no_joint_depth, a.icp_normal_cos)
+        row = run_seed(s, a.cameras, a.frames, a.calibrate, not a.no_joint_depth, a.icp_normal_cos, not a.no_icp)
         with a.out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         print(json.dumps(row), flush=True)
