@@ -14,6 +14,9 @@ COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. O
    depth, 6-DoF 3-D RANSAC (Kabsch); ``sift4``: the same 3-D matches, 4-DoF on the floor (two
    correct matches suffice). With a learned matcher, its matches replace SIFT's in ``sift3d`` and
    ``sift4`` (the route names stay).
+   Where the ``people`` extra is installed, ``people`` / ``people+icp`` (route (d),
+   :mod:`fuseflow.calib.people`): the joints of a person both views see, and that pose refined
+   by ICP.
 3. Verification (``verify_pose``): every candidate is scored by depth agreement between the two
    views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
    and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
