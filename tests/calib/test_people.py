@@ -221,3 +221,18 @@ def test_mediapipe_finds_the_simulated_person():
         found += int(vis.sum() >= 8 and np.median(err) < 15)
     det.close()
     assert found >= 2
+
+
+def test_rgbd_backbone_says_why_the_route_is_skipped(monkeypatch):
+    from fuseflow.calib.backbones.rgbd import RGBDConfig, rgbd_backbone
+    from fuseflow.synth.primitives import primitive_views
+
+    frame, rig, _ = primitive_views([0.0, 40.0], resolution=(160, 120))
+    off = rgbd_backbone(frame, rig, RGBDConfig(people=False, geometric=False))
+    assert off.info["people"] == "skipped: RGBDConfig.people is off"
+    monkeypatch.setitem(sys.modules, "mediapipe", None)
+    res = rgbd_backbone(frame, rig, RGBDConfig(geometric=False))
+    assert (
+        res.info["people"].startswith("skipped: mediapipe is not installed")
+        and "fuseflow[people]" in res.info["people"]
+    )
