@@ -14,6 +14,9 @@ COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. O
    depth, 6-DoF 3-D RANSAC (Kabsch); ``sift4``: the same 3-D matches, 4-DoF on the floor (two
    correct matches suffice). With a learned matcher, its matches replace SIFT's in ``sift3d`` and
    ``sift4`` (the route names stay).
+   Where the ``people`` extra is installed, ``people`` / ``people+icp`` (route (d),
+   :mod:`fuseflow.calib.people`): the joints of a person both views see, and that pose refined
+   by ICP.
 3. Verification (``verify_pose``): every candidate is scored by depth agreement between the two
    views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
    and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
@@ -186,6 +189,11 @@ class RGBDConfig:
     ~17 s with the same edges (docs/history.md, 2026-11-24, "calibration time"); the cost, a camera held by
     one route (c) edge closes no cycle with it (it is flagged as unchecked, as on hocap-8rs
     before). A number >= the cameras tries every pair."""
+    people: bool = True
+    """Route (d), person keypoints (:mod:`fuseflow.calib.people`): each pair also gets the
+    pose of the joints of a person both views see, and that pose refined by ICP, verified like
+    every candidate. Runs only where the ``people`` extra (mediapipe) is installed; otherwise
+    ``info["people"]`` says it was skipped and why."""
 
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
@@ -290,8 +298,9 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
         cams.append(prepare_camera(frames, rig, k, cfg))
         progress.report("rgbd: cameras", len(cams), n)
     t_prep = time.perf_counter() - t0
+    people, people_skip = _person_route(frames, rig, order, cfg)
     with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
-        edges, pairs_info = _pair_edges(cams, cfg)
+        edges, pairs_info = _pair_edges(cams, cfg, people)
     t_pairs = time.perf_counter() - t0 - t_prep
     kept, dropped, untested = prune_cycles(edges, cfg.cycle_rot_deg, cfg.cycle_trans_m)
     T_int, placed_int, refine_info = _global_poses(n, kept, cfg)
@@ -321,6 +330,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
         "untested_edges": [[ids[a], ids[b]] for a, b in untested],
         "cameras": _camera_info(cams, ids, kept, untested, placed_int),
         "refine": refine_info,
+        "people": people_skip or people.info(),
         "time_s": {"prepare": t_prep, "pairs": t_pairs, "geometric": t_geo, "total": time.perf_counter() - t0},
     }
     tracks = tuple(
@@ -717,8 +727,24 @@ def merge_repeats(uv: np.ndarray, Xa: np.ndarray, Xb: np.ndarray) -> tuple[np.nd
 RANK_TAU_SHARE = 0.2
 
 
-def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
-    """Candidates, verification and the accepted edge of every camera pair (canonical order)."""
+def _person_route(frames: list[Frame], rig: Rig, order: list[int], cfg: RGBDConfig):
+    """(``people.PersonRoute`` over the frames, None) or (None, the one-line reason it is skipped)."""
+    if not cfg.people:
+        return None, "skipped: RGBDConfig.people is off"
+    from fuseflow.calib.people import MediapipePoseDetector, PeopleConfig, PersonRoute, people_unavailable
+
+    reason = people_unavailable()
+    if reason is not None:
+        return None, f"skipped: {reason}"
+    detector = MediapipePoseDetector()
+    return PersonRoute(frames, rig, order, detector, PeopleConfig(seed=cfg.seed)), None
+
+
+def _pair_edges(
+    cams: list[CameraEvidence], cfg: RGBDConfig, people=None
+) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
+    """Candidates, verification and the accepted edge of every camera pair (canonical order);
+    ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None."""
     edges: dict[tuple[int, int], Edge] = {}
     info = []
     for i in range(len(cams)):
@@ -726,6 +752,7 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig) -> tuple[dict[tuple
             a, b = cams[i], cams[j]
             Xa, Xb = _pooled_matches(a, b, cfg)
             cands = _floor_candidates(a, b, cfg, (Xa, Xb)) + _sift3d_candidates(Xa, Xb, cfg)
+            cands += people.pair(i, j) if people is not None else []
             rows, best = [], None
             for c in cands:
                 chk = verify_pose(a, b, c["T_ba"], cfg.tau)
