@@ -228,10 +228,10 @@ def test_rgbd_backbone_says_why_the_route_is_skipped(monkeypatch):
     from fuseflow.synth.primitives import primitive_views
 
     frame, rig, _ = primitive_views([0.0, 40.0], resolution=(160, 120))
-    off = rgbd_backbone(frame, rig, RGBDConfig(people=False, geometric=False))
+    off = rgbd_backbone(frame, rig, RGBDConfig(geometric=False))
     assert off.info["people"] == "skipped: RGBDConfig.people is off"
     monkeypatch.setitem(sys.modules, "mediapipe", None)
-    res = rgbd_backbone(frame, rig, RGBDConfig(geometric=False))
+    res = rgbd_backbone(frame, rig, RGBDConfig(people=True, geometric=False))
     assert (
         res.info["people"].startswith("skipped: mediapipe is not installed")
         and "fuseflow[people]" in res.info["people"]

@@ -189,10 +189,11 @@ class RGBDConfig:
     ~17 s with the same edges (docs/history.md, 2026-11-24, "calibration time"); the cost, a camera held by
     one route (c) edge closes no cycle with it (it is flagged as unchecked, as on hocap-8rs
     before). A number >= the cameras tries every pair."""
-    people: bool = True
+    people: bool = False
     """Route (d), person keypoints (:mod:`fuseflow.calib.people`): each pair also gets the
-    pose of the joints of a person both views see, and that pose refined by ICP, verified like
-    every candidate. Runs only where the ``people`` extra (mediapipe) is installed; otherwise
+    person's keypoint pose and its depth refinement as candidates. Off by default: on the
+    simulated far-range 3-camera rig its poses were 10-19 cm off yet passed depth verification
+    (docs/gmac.md, "Person route"). Needs the ``people`` extra (mediapipe); where it is missing
     ``info["people"]`` says it was skipped and why."""
 
     def __post_init__(self) -> None:
