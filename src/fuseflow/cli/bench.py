@@ -35,20 +35,29 @@ def bench_fuse(
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     json_out: Path = typer.Option(None, "--json", help="Write one JSON row per (method, N)."),
     no_baselines: bool = typer.Option(False, "--no-baselines", help="Time FUSE only."),
+    methods_opt: str = typer.Option(
+        None, "--methods", help="Comma list of methods (fuse, fuse_auto, fuse_live, vbg, naive_voxel, ...)."
+    ),
+    data: str = typer.Option("sim", "--data", help="Comma list of sim, icl, hocap (real 8-camera rigs, N <= 8)."),
+    data_dir: Path = _data_dir_option(),
 ) -> None:
     """FUSE per-frame time and peak memory against VoxelBlockGrid TSDF and naive + voxel fusion."""
     from fuseflow.eval.bench import BenchmarkFailed
     from fuseflow.eval.bench.fuse_speed import DEFAULT_METHODS, parse_options, run_fuse_speed
 
     cams, resolution = parse_options(cameras, "640x480")
-    command = f"fuseflow bench fuse --cameras {cameras} --frames {frames} --device {device}"
+    command = f"fuseflow bench fuse --cameras {cameras} --frames {frames} --device {device} --data {data}"
     command += (f" --json {shlex.quote(str(json_out))}" if json_out is not None else "") + (
         " --no-baselines" if no_baselines else ""
     )
     methods = ["fuse"] if no_baselines else list(DEFAULT_METHODS)
+    if methods_opt and not no_baselines:
+        methods = [m.strip() for m in methods_opt.split(",") if m.strip()]
+        command += f" --methods {methods_opt}"
+    names = [d.strip() for d in data.split(",") if d.strip()]
     try:
         run_fuse_speed(cams, frames, device=device, methods=methods, resolution=resolution, json_path=json_out,
-                       command=command, log=_echo)  # fmt: skip
+                       command=command, log=_echo, data=names, data_dir=data_dir)  # fmt: skip
     except BenchmarkFailed as exc:
         fail(str(exc), code=1)
 

@@ -19,10 +19,12 @@ comes first in input order (camera, then row-major pixel).
 from __future__ import annotations
 
 import math
-
-import torch
+from typing import TYPE_CHECKING
 
 from fuseflow.fuse.ash import FINE_BITS
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["cell_counts", "select_representatives", "selection_priority", "consensus"]
 
@@ -51,6 +53,8 @@ def cell_counts(
     Returns:
         inverse (M,) int64 cell index of each point, counts (C,) int64, k (C,) int64.
     """
+    import torch
+
     uniq, inv, counts = torch.unique(key, return_inverse=True, return_counts=True)
     if not density_adaptive:
         k = torch.full_like(counts, int(k_fixed))
@@ -84,6 +88,8 @@ def selection_priority(omega: torch.Tensor, z: torch.Tensor, noise_sigma: tuple[
     Returns:
         (M,) float32; same float32 operations as the compiled kernel (numba_kernels._pixels).
     """
+    import torch
+
     a, b, z0 = (torch.tensor(v, dtype=torch.float32, device=z.device) for v in noise_sigma)
     dz = z - z0
     return omega / (a + b * (dz * dz))
@@ -102,6 +108,8 @@ def select_representatives(
     Returns:
         (S,) int64 indices into P of the selected points, ordered by cell then pick round.
     """
+    import torch
+
     m = P.shape[0]
     dev = P.device
     n_cells = int(k.shape[0])
@@ -182,6 +190,8 @@ def consensus(
         xyz (S, 3) float32 moved points, support (S,) int16 number of distinct cameras among
         the agreeing candidates (>= 1). Same float32 / float64 arithmetic as the compiled kernel.
     """
+    import torch
+
     dev = P.device
     ns = int(sel.shape[0])
     if ns == 0:
