@@ -227,9 +227,8 @@ class FuseConfig:
 
     # ---- rig-adaptive grid
     auto_grid: bool = False
-    """Pick the pixel grid per frame from the rig (``auto_config``; ``PRESETS["auto"]``, the CLI's
-    default): ``live``'s grid and cells where pixels are plentiful, these settings otherwise.
-    Ignored with ``target_points`` (the budget picks the grid)."""
+    """Grid and s0 per frame from the rig (``auto_config``; ``PRESETS["auto"]``, the CLI's default);
+    ignored with ``target_points``."""
 
     def __post_init__(self) -> None:
         def bad(name: str, want: str) -> None:
