@@ -137,8 +137,29 @@ def bench_paper(
         say(f"Fig. 5: {files['fig5']}")
 
 
+def bench_fuse_ratio(
+    recordings: list[Path] = typer.Argument(..., help="Recordings (fuseflow format); the first frame of each."),
+    preset: str = typer.Option("auto", "--preset", help="FUSE preset."),
+    rounds: int = typer.Option(5, "--rounds", help="Interleaved FUSE / VBG rounds (median ratio over them)."),
+    json_out: Path = typer.Option(None, "--json", help="Write the rows as JSON."),
+) -> None:
+    """FUSE vs VoxelBlockGrid 1 cm as an interleaved time ratio (robust to a loaded machine)."""
+    import json
+
+    from fuseflow.eval.bench.fuse_ratio import run_fuse_ratio
+
+    rows = run_fuse_ratio(recordings, preset, rounds, log=_echo)
+    if json_out is not None:
+        json_out.write_text(json.dumps(rows, indent=1))
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
-for _name, _command in (("fuse", bench_fuse), ("calib", bench_calib), ("paper", bench_paper)):
+for _name, _command in (
+    ("fuse", bench_fuse),
+    ("fuse-ratio", bench_fuse_ratio),
+    ("calib", bench_calib),
+    ("paper", bench_paper),
+):
     bench_app.command(_name)(guarded(_command))
