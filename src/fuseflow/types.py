@@ -9,21 +9,26 @@ Conventions, used everywhere in the package (docs/conventions.md says the same):
 * Batched tensors put the camera axis first: depth (N, H, W), K (N, 3, 3), T_cam_world (N, 4, 4).
 
 Camera and Rig are small metadata held in float64 numpy arrays (made read-only); Frame and
-FusedCloud carry pixel and point data as torch tensors that move between devices with ``.to``.
+FusedCloud carry pixel and point data as torch tensors that move between devices with ``.to``,
+or as numpy arrays (CPU only: the compiled FUSE path reads them without importing torch;
+``.to(device)`` turns them into tensors). torch is imported only where a tensor is made.
 This module imports nothing else from the package except the exception types.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from fuseflow.errors import ValidationError
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = [
     "Camera",
@@ -268,19 +273,27 @@ class Rig:
             )
         return next(iter(sizes))
 
-    def K(self, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> torch.Tensor:
-        """(N, 3, 3) intrinsics tensor."""
-        return torch.as_tensor(np.stack([c.K for c in self.cameras]), dtype=dtype, device=device)
+    def K(self, device: torch.device | str = "cpu", dtype: torch.dtype | None = None) -> torch.Tensor:
+        """(N, 3, 3) intrinsics tensor (float32 unless ``dtype``)."""
+        import torch
 
-    def T_cam_world(self, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> torch.Tensor:
-        """(N, 4, 4) camera-from-world tensor; ValidationError naming the uncalibrated cameras."""
+        return torch.as_tensor(np.stack([c.K for c in self.cameras]), dtype=dtype or torch.float32, device=device)
+
+    def T_cam_world(self, device: torch.device | str = "cpu", dtype: torch.dtype | None = None) -> torch.Tensor:
+        """(N, 4, 4) camera-from-world tensor (float32 unless ``dtype``); ValidationError naming
+        the uncalibrated cameras."""
+        import torch
+
         missing = [c.id for c in self.cameras if c.T_cam_world is None]
         if missing:
             raise ValidationError(f"cameras without extrinsics (T_cam_world is null): {missing}")
-        return torch.as_tensor(np.stack([c.T_cam_world for c in self.cameras]), dtype=dtype, device=device)
+        T = np.stack([c.T_cam_world for c in self.cameras])
+        return torch.as_tensor(T, dtype=dtype or torch.float32, device=device)
 
     def depth_range(self, device: torch.device | str = "cpu") -> torch.Tensor:
         """(N, 2) float32 [min, max] metres."""
+        import torch
+
         return torch.tensor([c.depth_range for c in self.cameras], dtype=torch.float32, device=device)
 
     def with_extrinsics(self, T_cam_world: Mapping[str, np.ndarray] | Sequence[np.ndarray] | np.ndarray) -> Rig:
@@ -302,15 +315,44 @@ class Rig:
         return Rig(tuple(self.cameras[i] for i in indices))
 
 
-def _check_tensor(t: Any, name: str, dtype: torch.dtype, shape: tuple[int | None, ...]) -> torch.Tensor:
-    if not isinstance(t, torch.Tensor):
-        raise ValidationError(f"{name}: expected a torch.Tensor, got {type(t).__name__}")
-    if t.dtype != dtype:
-        raise ValidationError(f"{name}: expected dtype {dtype}, got {t.dtype}")
-    if t.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):
+def is_tensor(x: Any) -> bool:
+    """Whether ``x`` is a torch tensor (False without importing torch when nothing imported it)."""
+    torch = sys.modules.get("torch")
+    return torch is not None and isinstance(x, torch.Tensor)
+
+
+def to_numpy(x: Any) -> np.ndarray:
+    """A numpy view (or CPU copy) of a tensor or array of Frame / FusedCloud."""
+    return x.detach().cpu().numpy() if is_tensor(x) else np.asarray(x)
+
+
+def as_tensor(x: Any, device: Any = None) -> torch.Tensor:
+    """A torch tensor of ``x`` (a numpy array shares its memory), on ``device`` when given."""
+    import torch
+
+    t = x if isinstance(x, torch.Tensor) else torch.from_numpy(x)
+    return t if device is None else t.to(device)
+
+
+def _check_tensor(t: Any, name: str, dtype: str, shape: tuple[int | None, ...]) -> Any:
+    """``t`` if it is a torch tensor or numpy array of ``dtype`` (a numpy dtype name) and ``shape``."""
+    if isinstance(t, np.ndarray):
+        got, want_dtype = str(t.dtype), dtype
+    elif is_tensor(t):
+        got, want_dtype = str(t.dtype), f"torch.{dtype}"
+    else:
+        raise ValidationError(f"{name}: expected a torch.Tensor or numpy array, got {type(t).__name__}")
+    if got != want_dtype:
+        raise ValidationError(f"{name}: expected dtype {want_dtype}, got {got}")
+    if t.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, t.shape)):
         want = "(" + ", ".join("?" if s is None else str(s) for s in shape) + ")"
         raise ValidationError(f"{name}: expected shape {want}, got {tuple(t.shape)}")
     return t
+
+
+def _device(t: Any) -> Any:
+    """A tensor's device; "cpu" for a numpy array."""
+    return "cpu" if isinstance(t, np.ndarray) else t.device
 
 
 @dataclass(frozen=True)
@@ -331,8 +373,8 @@ class View:
 
     def __post_init__(self) -> None:
         h, w = self.camera.height, self.camera.width
-        _check_tensor(self.color, f"camera {self.camera.id!r} color", torch.uint8, (h, w, 3))
-        _check_tensor(self.depth, f"camera {self.camera.id!r} depth", torch.float32, (h, w))
+        _check_tensor(self.color, f"camera {self.camera.id!r} color", "uint8", (h, w, 3))
+        _check_tensor(self.depth, f"camera {self.camera.id!r} depth", "float32", (h, w))
 
 
 @dataclass(frozen=True)
@@ -363,14 +405,17 @@ class Frame:
         n = len(self.camera_ids)
         if n == 0:
             raise ValidationError("a frame needs at least one view")
-        _check_tensor(self.depth, "frame depth", torch.float32, (n, None, None))
+        _check_tensor(self.depth, "frame depth", "float32", (n, None, None))
         h, w = self.depth.shape[1:]
-        _check_tensor(self.color, "frame color", torch.uint8, (n, h, w, 3))
-        _check_tensor(self.present, "frame present", torch.bool, (n,))
+        _check_tensor(self.color, "frame color", "uint8", (n, h, w, 3))
+        _check_tensor(self.present, "frame present", "bool", (n,))
         if self.invalid_depth is None:
-            object.__setattr__(self, "invalid_depth", torch.zeros(n, dtype=torch.int64))
-        _check_tensor(self.invalid_depth, "frame invalid_depth", torch.int64, (n,))
-        devices = {t.device for t in (self.color, self.depth, self.present)}
+            zeros = np.zeros(n, dtype=np.int64)
+            object.__setattr__(self, "invalid_depth", zeros if self.is_numpy else as_tensor(zeros))
+        _check_tensor(self.invalid_depth, "frame invalid_depth", "int64", (n,))
+        if len({isinstance(t, np.ndarray) for t in (self.color, self.depth, self.present)}) != 1:
+            raise ValidationError("frame color, depth and present mix numpy arrays and torch tensors")
+        devices = {_device(t) for t in (self.color, self.depth, self.present)}
         if len(devices) != 1:
             raise ValidationError(f"frame tensors are on different devices: {sorted(map(str, devices))}")
 
@@ -379,8 +424,14 @@ class Frame:
         return len(self.camera_ids)
 
     @property
-    def device(self) -> torch.device:
-        return self.depth.device
+    def device(self) -> torch.device | str:
+        """The tensors' device; "cpu" when the frame holds numpy arrays."""
+        return _device(self.depth)
+
+    @property
+    def is_numpy(self) -> bool:
+        """Whether the frame holds numpy arrays (CPU) rather than torch tensors."""
+        return isinstance(self.depth, np.ndarray)
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -393,11 +444,13 @@ class Frame:
         return tuple(cid for cid, p in zip(self.camera_ids, self.present.tolist()) if not p)
 
     def to(self, device: torch.device | str) -> Frame:
+        """The frame as torch tensors on ``device`` (numpy arrays are shared, not copied, on CPU)."""
         return replace(
             self,
-            color=self.color.to(device),
-            depth=self.depth.to(device),
-            present=self.present.to(device),
+            color=as_tensor(self.color, device),
+            depth=as_tensor(self.depth, device),
+            present=as_tensor(self.present, device),
+            invalid_depth=as_tensor(self.invalid_depth),
         )
 
     def view(self, i: int, rig: Rig) -> View:
@@ -406,6 +459,18 @@ class Frame:
         return View(cam, self.color[i], self.depth[i], self.timestamp)
 
     def subset(self, indices: Sequence[int]) -> Frame:
+        if self.is_numpy:
+            idx_np = np.asarray(list(indices), dtype=np.int64)
+            return replace(
+                self,
+                camera_ids=tuple(self.camera_ids[i] for i in indices),
+                color=self.color[idx_np],
+                depth=self.depth[idx_np],
+                present=self.present[idx_np],
+                invalid_depth=to_numpy(self.invalid_depth)[idx_np],
+            )
+        import torch
+
         idx = torch.as_tensor(list(indices), dtype=torch.long)
         return replace(
             self,
@@ -413,7 +478,7 @@ class Frame:
             color=self.color[idx.to(self.color.device)],
             depth=self.depth[idx.to(self.depth.device)],
             present=self.present[idx.to(self.present.device)],
-            invalid_depth=self.invalid_depth[idx],
+            invalid_depth=as_tensor(self.invalid_depth)[idx],
         )
 
     @staticmethod
@@ -423,6 +488,17 @@ class Frame:
         sizes = {(v.camera.width, v.camera.height) for v in views}
         if len(sizes) != 1:
             raise ValidationError(f"views have different resolutions {sorted(sizes)}")
+        if all(isinstance(v.depth, np.ndarray) for v in views):
+            return Frame(
+                index,
+                tuple(v.camera.id for v in views),
+                np.stack([to_numpy(v.color) for v in views]),
+                np.stack([v.depth for v in views]),
+                np.ones(len(views), dtype=bool),
+                timestamp=views[0].timestamp,
+            )
+        import torch
+
         return Frame(
             index=index,
             camera_ids=tuple(v.camera.id for v in views),
@@ -453,27 +529,42 @@ class FusedCloud:
     support: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
-        _check_tensor(self.xyz, "cloud xyz", torch.float32, (None, 3))
+        _check_tensor(self.xyz, "cloud xyz", "float32", (None, 3))
         m = self.xyz.shape[0]
-        _check_tensor(self.rgb, "cloud rgb", torch.uint8, (m, 3))
-        _check_tensor(self.weight, "cloud weight", torch.float32, (m,))
-        _check_tensor(self.camera, "cloud camera", torch.int16, (m,))
+        _check_tensor(self.rgb, "cloud rgb", "uint8", (m, 3))
+        _check_tensor(self.weight, "cloud weight", "float32", (m,))
+        _check_tensor(self.camera, "cloud camera", "int16", (m,))
         if self.support is not None:
-            _check_tensor(self.support, "cloud support", torch.int16, (m,))
+            _check_tensor(self.support, "cloud support", "int16", (m,))
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
 
     @property
-    def device(self) -> torch.device:
-        return self.xyz.device
+    def device(self) -> torch.device | str:
+        """The tensors' device; "cpu" when the cloud holds numpy arrays."""
+        return _device(self.xyz)
+
+    @property
+    def is_numpy(self) -> bool:
+        """Whether the cloud holds numpy arrays (CPU) rather than torch tensors."""
+        return isinstance(self.xyz, np.ndarray)
 
     def to(self, device: torch.device | str) -> FusedCloud:
-        sup = None if self.support is None else self.support.to(device)
-        return FusedCloud(self.xyz.to(device), self.rgb.to(device), self.weight.to(device), self.camera.to(device), sup)
+        """The cloud as torch tensors on ``device`` (numpy arrays are shared, not copied, on CPU)."""
+        sup = None if self.support is None else as_tensor(self.support, device)
+        xyz, rgb, w, cam = (as_tensor(a, device) for a in (self.xyz, self.rgb, self.weight, self.camera))
+        return FusedCloud(xyz, rgb, w, cam, sup)
+
+    def numpy(self) -> FusedCloud:
+        """The cloud as numpy arrays (CPU)."""
+        sup = None if self.support is None else to_numpy(self.support)
+        return FusedCloud(*(to_numpy(a) for a in (self.xyz, self.rgb, self.weight, self.camera)), sup)
 
     @staticmethod
     def empty(device: torch.device | str = "cpu") -> FusedCloud:
+        import torch
+
         return FusedCloud(
             torch.zeros((0, 3), dtype=torch.float32, device=device),
             torch.zeros((0, 3), dtype=torch.uint8, device=device),
@@ -485,6 +576,9 @@ class FusedCloud:
     def from_numpy(
         xyz: np.ndarray, rgb: np.ndarray, weight: np.ndarray, camera: np.ndarray, support: np.ndarray | None = None
     ) -> FusedCloud:
+        """A cloud of torch tensors holding copies of the arrays."""
+        import torch
+
         sup = None if support is None else torch.from_numpy(np.array(support, dtype=np.int16, order="C", copy=True))
         return FusedCloud(
             torch.from_numpy(np.array(xyz, dtype=np.float32, order="C", copy=True)),

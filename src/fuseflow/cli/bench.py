@@ -35,20 +35,29 @@ def bench_fuse(
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     json_out: Path = typer.Option(None, "--json", help="Write one JSON row per (method, N)."),
     no_baselines: bool = typer.Option(False, "--no-baselines", help="Time FUSE only."),
+    methods_opt: str = typer.Option(
+        None, "--methods", help="Comma list of methods (fuse, fuse_auto, fuse_live, vbg, naive_voxel, ...)."
+    ),
+    data: str = typer.Option("sim", "--data", help="Comma list of sim, icl, hocap (real 8-camera rigs, N <= 8)."),
+    data_dir: Path = _data_dir_option(),
 ) -> None:
     """FUSE per-frame time and peak memory against VoxelBlockGrid TSDF and naive + voxel fusion."""
     from fuseflow.eval.bench import BenchmarkFailed
     from fuseflow.eval.bench.fuse_speed import DEFAULT_METHODS, parse_options, run_fuse_speed
 
     cams, resolution = parse_options(cameras, "640x480")
-    command = f"fuseflow bench fuse --cameras {cameras} --frames {frames} --device {device}"
+    command = f"fuseflow bench fuse --cameras {cameras} --frames {frames} --device {device} --data {data}"
     command += (f" --json {shlex.quote(str(json_out))}" if json_out is not None else "") + (
         " --no-baselines" if no_baselines else ""
     )
     methods = ["fuse"] if no_baselines else list(DEFAULT_METHODS)
+    if methods_opt and not no_baselines:
+        methods = [m.strip() for m in methods_opt.split(",") if m.strip()]
+        command += f" --methods {methods_opt}"
+    names = [d.strip() for d in data.split(",") if d.strip()]
     try:
         run_fuse_speed(cams, frames, device=device, methods=methods, resolution=resolution, json_path=json_out,
-                       command=command, log=_echo)  # fmt: skip
+                       command=command, log=_echo, data=names, data_dir=data_dir)  # fmt: skip
     except BenchmarkFailed as exc:
         fail(str(exc), code=1)
 
@@ -147,8 +156,30 @@ def bench_live(
     run_live_bench(names, duration, data_dir, json_out, command=command, log=_echo, stand_in_ms=stand_in_ms)
 
 
+def bench_fuse_ratio(
+    recordings: list[Path] = typer.Argument(..., help="Recordings (fuseflow format); the first frame of each."),
+    preset: str = typer.Option("auto", "--preset", help="FUSE preset."),
+    rounds: int = typer.Option(5, "--rounds", help="Interleaved FUSE / VBG rounds (median ratio over them)."),
+    json_out: Path = typer.Option(None, "--json", help="Write the rows as JSON."),
+) -> None:
+    """FUSE vs VoxelBlockGrid 1 cm as an interleaved time ratio (robust to a loaded machine)."""
+    import json
+
+    from fuseflow.eval.bench.fuse_ratio import run_fuse_ratio
+
+    rows = run_fuse_ratio(recordings, preset, rounds, log=_echo)
+    if json_out is not None:
+        json_out.write_text(json.dumps(rows, indent=1))
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
-for _name, _command in (("fuse", bench_fuse), ("calib", bench_calib), ("paper", bench_paper), ("live", bench_live)):
+for _name, _command in (
+    ("fuse", bench_fuse),
+    ("fuse-ratio", bench_fuse_ratio),
+    ("calib", bench_calib),
+    ("paper", bench_paper),
+    ("live", bench_live),
+):
     bench_app.command(_name)(guarded(_command))

@@ -23,7 +23,7 @@ def _grid(strides: list[int]) -> str:
     """The table's note on the pixel grids used, when any is coarser than every pixel."""
     if not strides or strides == [1]:
         return ""
-    return f"; candidates on a pixel grid of stride {'/'.join(map(str, strides))} (point budget or preset)"
+    return f"; candidates on a pixel grid of stride {'/'.join(map(str, strides))} (point budget, preset or auto)"
 
 
 def command(
@@ -33,9 +33,10 @@ def command(
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (cpu runs the compiled numba path)."),
     preset: str = typer.Option(
-        "default",
+        "auto",
         "--preset",
-        help="FUSE preset: default (= quality), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
+        help="FUSE preset: auto (live's grid on frames of >= 6 well-filled views, default's otherwise), "
+        "default (= quality, every pixel), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
     ),
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
@@ -71,6 +72,7 @@ def command(
                 f"{s.frames} ({s.cameras} cameras, preset {preset}; {s.frames_resumed} kept from an earlier call)",
             ),
             ("points per frame", f"{ppf['mean']:.0f} (min {ppf['min']}, max {ppf['max']}){_grid(s.pixel_strides)}"),
+            *(("grid", g) for g in s.grid_choices),
             (
                 "fusion",
                 f"{ms['median']:.1f} ms per frame median ({ms['mean']:.1f} mean) on {device} ({s.backend} backend)",

@@ -51,7 +51,9 @@ def command(
     frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     preset: str = typer.Option(
-        "default", "--preset", help="FUSE preset: default (= quality), live (every 2nd pixel), fast, paper, ..."
+        "auto",
+        "--preset",
+        help="FUSE preset: auto (the grid fits the rig), default (= quality), live (every 2nd pixel), fast, paper, ...",
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
     recalibrate: str = typer.Option("off", "--recalibrate", help="off | auto: re-run GMAC when a camera is bumped."),

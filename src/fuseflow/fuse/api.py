@@ -5,7 +5,8 @@ neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``multiview_mean`` each
 becomes the mean of its agreeing neighbours' measurements) -> joint weight (weights.py, eq. 22) ->
 ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
 (the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
-(numba_kernels.py); ``"auto"`` picks numba for CPU tensors.
+(numba_kernels.py); ``"auto"`` picks numba for CPU tensors. A frame of numpy arrays gives a
+cloud of numpy arrays, and on the numba path torch is never imported.
 """
 
 from __future__ import annotations
@@ -13,20 +14,17 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from fuseflow.errors import ValidationError
-from fuseflow.fuse.ash import adaptive_hash, fixed_hash
 from fuseflow.fuse.config import FuseConfig
-from fuseflow.fuse.cvgc import cvgc_counts, multiview_mean, omega_geo
-from fuseflow.fuse.mcm import confidence, valid_depth
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
-from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
-from fuseflow.fuse.weights import joint_weight
-from fuseflow.geometry.camera import pixel_rays
-from fuseflow.types import Frame, FusedCloud, Rig
+from fuseflow.types import Frame, FusedCloud, Rig, to_numpy
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["fuse", "fuse_with_report", "FuseResult", "FuseReport", "resolve_backend"]
 
@@ -46,7 +44,8 @@ class FuseReport:
             minimum joint weight. out_of_range: candidates beyond the hash's addressable range.
         points: output points. ms: wall time of the call.
         pixel_stride: the pixel grid the candidates were taken on (FuseConfig.pixel_stride, or
-            the coarser one FuseConfig.budget_stride picked for target_points).
+            the coarser one FuseConfig.budget_stride picked for target_points, or auto_grid's).
+        grid: with FuseConfig.auto_grid, what it chose and why (config.auto_config); "" otherwise.
         warnings: human-readable lines about degraded inputs (also logged).
     """
 
@@ -63,6 +62,7 @@ class FuseReport:
     ms: float = 0.0
     warnings: tuple[str, ...] = field(default=())
     pixel_stride: int = 1
+    grid: str = ""
 
 
 @dataclass(frozen=True)
@@ -75,29 +75,32 @@ class FuseResult:
 
 @dataclass(frozen=True)
 class _Prepared:
-    depth: torch.Tensor  # (N, H, W) float32, gated to each view's range, 0 for absent views
-    color: torch.Tensor  # (N, H, W, 3) uint8
-    K: torch.Tensor  # (N, 3, 3) float32
-    T_cam_world: torch.Tensor  # (N, 4, 4) float32
-    T_world_cam: torch.Tensor  # (N, 3, 4) float32
-    rig_index: torch.Tensor  # (N,) int16, rig position of each frame view
-    present: torch.Tensor  # (N,) bool
+    """FUSE's inputs: torch tensors on the frame's device (torch backend) or numpy arrays (numba)."""
+
+    depth: Any  # (N, H, W) float32, gated to each view's range, 0 for absent views
+    color: Any  # (N, H, W, 3) uint8
+    K: Any  # (N, 3, 3) float32
+    T_cam_world: Any  # (N, 4, 4) float32
+    T_world_cam: Any  # (N, 3, 4) float32
+    rig_index: Any  # (N,) int16, rig position of each frame view
+    present: Any  # (N,) bool
     graph: NeighbourGraph  # indices in frame order
     ids: tuple[str, ...]
     valid_per_view: tuple[int, ...]  # pixels with depth in range, per view
 
 
-def resolve_backend(config: FuseConfig, device: torch.device) -> str:
+def resolve_backend(config: FuseConfig, device: torch.device | str) -> str:
     """The backend that ``config.backend`` selects for tensors on ``device``."""
+    on_cpu = (device if isinstance(device, str) else device.type).split(":")[0] == "cpu"
     if config.backend == "torch":
         return "torch"
     if config.backend == "numba":
-        if device.type != "cpu":
+        if not on_cpu:
             raise ValidationError(
                 f"backend 'numba' runs on CPU tensors; the frame is on {device} (use 'torch' or 'auto')"
             )
         return "numba"
-    if device.type != "cpu":
+    if not on_cpu:
         return "torch"
     try:
         import numba  # noqa: F401
@@ -126,39 +129,43 @@ def _prepare(frame: Frame, rig: Rig, config: FuseConfig, backend: str = "torch")
             f"cameras without extrinsics (T_cam_world is null): {missing_T}; FUSE needs a calibrated rig "
             "(run `fuseflow calibrate` or pass a calib.json)"
         )
-    dev = frame.device
-    sub = Rig(tuple(cams))
-    present = frame.present
-    lo = torch.tensor([max(c.depth_range[0], config.delta) for c in cams], dtype=torch.float32, device=dev)
-    hi = torch.tensor([min(c.depth_range[1], config.z_max) for c in cams], dtype=torch.float32, device=dev)
-    if backend == "numba" and frame.depth.dtype == torch.float32:
+    lo = np.array([max(c.depth_range[0], config.delta) for c in cams], dtype=np.float32)
+    hi = np.array([min(c.depth_range[1], config.z_max) for c in cams], dtype=np.float32)
+    arrays = {
+        "K": np.stack([c.K for c in cams]).astype(np.float32),
+        "T_cam_world": np.stack([c.T_cam_world for c in cams]).astype(np.float32),
+        "T_world_cam": np.stack([c.T_world_cam for c in cams])[:, :3, :].astype(np.float32),
+        "rig_index": np.array([rig.index(c.id) for c in cams], dtype=np.int16),
+    }
+    graph = neighbour_graph(Rig(tuple(cams)), config.k_neighbours, config.min_overlap)
+    if backend == "numba":  # numpy arrays throughout (CPU), no torch
         from fuseflow.fuse.numba_kernels import gate_depth
 
-        depth, per_view = gate_depth(frame.depth, lo, hi, present)  # one parallel pass
+        present = to_numpy(frame.present)
+        depth, per_view = gate_depth(to_numpy(frame.depth), lo, hi, present)  # one parallel pass
+        color = np.ascontiguousarray(to_numpy(frame.color))
     else:
-        depth = valid_depth(frame.depth, lo, hi)
-        depth = torch.where(present[:, None, None], depth, torch.zeros_like(depth))
+        import torch
+
+        from fuseflow.fuse.mcm import valid_depth
+
+        frame = frame.to(frame.device)  # torch tensors (a numpy frame is shared, not copied)
+        dev, present, color = frame.depth.device, frame.present, frame.color
+        depth = valid_depth(frame.depth, torch.from_numpy(lo).to(dev), torch.from_numpy(hi).to(dev))
+        depth = torch.where(present[:, None, None], depth, torch.zeros_like(depth)).contiguous()
         per_view = tuple((depth > 0).flatten(1).sum(dim=1).tolist())
-    T = np.stack([c.T_cam_world for c in cams])
-    T_wc = np.stack([c.T_world_cam for c in cams])[:, :3, :]
-    graph = neighbour_graph(sub, config.k_neighbours, config.min_overlap)
+        arrays = {k: torch.from_numpy(v).to(dev) for k, v in arrays.items()}
     return _Prepared(
-        depth=depth.contiguous(),
-        color=frame.color,
-        K=torch.as_tensor(np.stack([c.K for c in cams]), dtype=torch.float32, device=dev),
-        T_cam_world=torch.as_tensor(T, dtype=torch.float32, device=dev),
-        T_world_cam=torch.as_tensor(T_wc, dtype=torch.float32, device=dev),
-        rig_index=torch.tensor([rig.index(c.id) for c in cams], dtype=torch.int16, device=dev),
-        present=present,
-        graph=graph,
-        ids=tuple(frame.camera_ids),
+        depth=depth, color=color, **arrays, present=present, graph=graph, ids=tuple(frame.camera_ids),
         valid_per_view=per_view,
-    )
+    )  # fmt: skip
 
 
 def _to_world(X: torch.Tensor, cam: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
     """X (M, 3) camera-frame points of cameras ``cam`` -> world, elementwise (kernel order)."""
     m = T_wc[cam]  # (M, 3, 4)
+    import torch
+
     x, y, z = X[:, 0], X[:, 1], X[:, 2]
     cols = [m[:, a, 0] * x + m[:, a, 1] * y + m[:, a, 2] * z + m[:, a, 3] for a in range(3)]
     return torch.stack(cols, dim=1)
@@ -166,6 +173,15 @@ def _to_world(X: torch.Tensor, cam: torch.Tensor, T_wc: torch.Tensor) -> torch.T
 
 def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     """The PyTorch reference. Returns (cloud, valid pixels, candidates, out-of-range)."""
+    import torch
+
+    from fuseflow.fuse.ash import adaptive_hash, fixed_hash
+    from fuseflow.fuse.cvgc import cvgc_counts, multiview_mean, omega_geo
+    from fuseflow.fuse.mcm import confidence
+    from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
+    from fuseflow.fuse.weights import joint_weight
+    from fuseflow.geometry.camera import pixel_rays
+
     depth = p.depth
     dev = depth.device
     n, h, w = depth.shape
@@ -259,7 +275,7 @@ def _report(
         notes.append(f"{oor} points beyond the spatial hash's range were dropped")
     return FuseReport(
         backend=backend,
-        device=str(p.depth.device),
+        device="cpu" if isinstance(p.depth, np.ndarray) else str(p.depth.device),
         views=len(p.ids),
         missing=missing,
         empty=empty,
@@ -313,27 +329,38 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
 
     Args:
         frame: the N views of one instant: depth (N, H, W) float32 metres (0 = none), colour
-            (N, H, W, 3) uint8, ``present`` (N,) bool; on any device.
+            (N, H, W, 3) uint8, ``present`` (N,) bool; torch tensors on any device, or numpy
+            arrays (CPU).
         rig: a rig holding every camera of the frame (matched by id) with extrinsics
             (T_cam_world, camera-from-world, metres). Cameras of the rig absent from the frame
             are ignored.
         config: FuseConfig (default: ``FuseConfig()``).
 
     Returns:
-        FuseResult: ``cloud`` (FusedCloud on the frame's device: xyz world metres, rgb, weight
+        FuseResult: ``cloud`` (FusedCloud on the frame's device, numpy arrays for a numpy
+        frame: xyz world metres, rgb, weight
         = eq. 22, camera = rig index of the source camera) and ``report``.
     """
     cfg = FuseConfig() if config is None else config
     t0 = time.perf_counter()
     if not isinstance(frame, Frame):
         raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
-    backend = resolve_backend(cfg, frame.depth.device) if isinstance(cfg, FuseConfig) else "torch"
+    backend = resolve_backend(cfg, frame.device) if isinstance(cfg, FuseConfig) else "torch"
     p = _prepare(frame, rig, cfg, backend)
+    grid = ""
+    if cfg.auto_grid and cfg.target_points is None:
+        from fuseflow.fuse.config import auto_config
+
+        cfg, grid = auto_config(cfg, sum(1 for ok in p.present.tolist() if ok), sum(p.valid_per_view))
     cloud, valid, cand, oor, stride = _fuse_prepared(p, cfg, backend)
-    if p.depth.device.type == "cuda":
-        torch.cuda.synchronize(p.depth.device)
+    if frame.is_numpy != cloud.is_numpy:  # the cloud holds what the frame held
+        cloud = cloud.numpy() if frame.is_numpy else cloud.to("cpu")
+    if not cloud.is_numpy and cloud.device.type == "cuda":
+        import torch
+
+        torch.cuda.synchronize(cloud.device)
     ms = (time.perf_counter() - t0) * 1000.0
-    report = _report(p, frame.index, backend, len(cloud), valid, cand, oor, ms, stride)
+    report = replace(_report(p, frame.index, backend, len(cloud), valid, cand, oor, ms, stride), grid=grid)
     return FuseResult(cloud, report)
 
 

@@ -15,8 +15,11 @@ The "w/o ASH" ablation (Table VII) replaces this by one fixed grid (21 bits per 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import torch
+if TYPE_CHECKING:
+    import torch
+
 
 __all__ = [
     "CellIndex",
@@ -52,6 +55,8 @@ class CellIndex:
 
 
 def _coarse_coords(P: torch.Tensor, s_c: float) -> tuple[torch.Tensor, torch.Tensor]:
+    import torch
+
     q = torch.floor(P / s_c)
     keep = (q.abs() < COARSE_OFFSET - 1).all(dim=1)
     return q.to(torch.int64), keep
@@ -59,6 +64,8 @@ def _coarse_coords(P: torch.Tensor, s_c: float) -> tuple[torch.Tensor, torch.Ten
 
 def adaptive_hash(P: torch.Tensor, s_c: float, s0: float, s_min: float, s_max: float, eps: float = 1e-6) -> CellIndex:
     """Eq. (23)-(25) for points P (M, 3) float32 world metres."""
+    import torch
+
     q, keep = _coarse_coords(P, s_c)
     qo = q + COARSE_OFFSET
     ckey = (qo[:, 0] << (2 * COARSE_BITS)) | (qo[:, 1] << COARSE_BITS) | qo[:, 2]
@@ -76,6 +83,8 @@ def adaptive_hash(P: torch.Tensor, s_c: float, s0: float, s_min: float, s_max: f
 
 def fixed_hash(P: torch.Tensor, size: float) -> CellIndex:
     """One fixed grid of cell ``size`` (the "w/o ASH" ablation)."""
+    import torch
+
     q = torch.floor(P / size)
     keep = (q.abs() < FIXED_OFFSET - 1).all(dim=1)
     qo = q.to(torch.int64) + FIXED_OFFSET

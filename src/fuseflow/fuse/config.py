@@ -25,7 +25,7 @@ from typing import Literal
 from fuseflow.errors import ValidationError
 from fuseflow.geometry.noise import DEFAULT_SENSOR, SENSOR_NOISE, sensor_noise
 
-__all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "NOISE_SIGMA", "preset"]
+__all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "NOISE_SIGMA", "preset", "auto_config"]
 
 Backend = Literal["auto", "torch", "numba"]
 
@@ -222,6 +222,11 @@ class FuseConfig:
     eps: float = 1e-6
     """epsilon of eq. (16), (17), (20), (22), (24). > 0."""
 
+    # ---- rig-adaptive grid
+    auto_grid: bool = False
+    """Grid and s0 per frame from the rig (``auto_config``; ``PRESETS["auto"]``, the CLI's default);
+    ignored with ``target_points``."""
+
     def __post_init__(self) -> None:
         def bad(name: str, want: str) -> None:
             raise ValidationError(f"FuseConfig.{name}: expected {want}, got {getattr(self, name)!r}")
@@ -287,7 +292,7 @@ class FuseConfig:
             bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
         if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
             bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        for name in ("range_priority", "mcm_noise", "consensus", "multiview_mean", "budget_stride"):
+        for name in ("range_priority", "mcm_noise", "consensus", "multiview_mean", "budget_stride", "auto_grid"):
             if not isinstance(getattr(self, name), bool):
                 bad(name, "a bool")
         if self.backend not in ("auto", "torch", "numba"):
@@ -328,8 +333,31 @@ PRESETS: dict[str, FuseConfig] = {
     # candidates on every 2nd pixel of every 2nd row (4x fewer); every stage costs per candidate,
     # so s0 is low enough that selection keeps nearly all of them
     "live": replace(_DEFAULT, pixel_stride=2, s0=1.0, mcm_max_missing=4),
+    # the CLI's default: "live" on frames with many well-filled views, "default" otherwise (auto_config)
+    "auto": replace(_DEFAULT, auto_grid=True),
     **ABLATIONS,
 }
+
+#: auto_config takes the coarse grid for frames of at least this many present views ...
+AUTO_MIN_VIEWS = 6
+#: ... with at least this many valid depth pixels per present view on average.
+AUTO_MIN_VALID_PER_VIEW = 100_000
+
+
+def auto_config(cfg: FuseConfig, views: int, valid_pixels: int) -> tuple[FuseConfig, str]:
+    """FuseConfig.auto_grid: the settings for a frame of ``views`` present views with
+    ``valid_pixels`` valid depth pixels, and a one-line account of the choice. Pixels are
+    plentiful (8 views x 640x480: ~2.4 M on ICL) when there are >= AUTO_MIN_VIEWS views with
+    >= AUTO_MIN_VALID_PER_VIEW valid pixels each on average: then ``live``'s grid, s0 and
+    gap-tolerant MCM (every 2nd pixel of every 2nd row); otherwise (3-4 cameras, 320x240,
+    sparse depth) every pixel with ``cfg``'s own settings."""
+    live = PRESETS["live"]
+    per_view = valid_pixels / max(views, 1)
+    what = f"{views} views, {valid_pixels / 1e6:.2f} M valid depth pixels"
+    if views >= AUTO_MIN_VIEWS and per_view >= AUTO_MIN_VALID_PER_VIEW:
+        out = replace(cfg, pixel_stride=live.pixel_stride, s0=live.s0, mcm_max_missing=live.mcm_max_missing)
+        return out, f"auto: stride {out.pixel_stride}, s0 {out.s0:g} ({what}: pixels plentiful)"
+    return cfg, f"auto: stride {cfg.pixel_stride}, s0 {cfg.s0:g} ({what}: every pixel counts)"
 
 
 def preset_config(name: str, target_points: int | None = None) -> FuseConfig:

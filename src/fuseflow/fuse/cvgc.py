@@ -14,13 +14,17 @@ point and turns them into omega_geo (eq. 21).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
 
 from fuseflow.fuse.mcm import noise_sigma_of
 from fuseflow.geometry.agreement import project_to_pixel, project_votes
 from fuseflow.geometry.camera import pixel_rays, relative_transforms
 from fuseflow.geometry.overlap import NeighbourGraph
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["cvgc_counts", "cvgc_votes", "omega_geo", "multiview_mean"]
 
@@ -49,6 +53,8 @@ def cvgc_counts(
     Returns:
         agree (M,) int32 and votes (M,) int32.
     """
+    import torch
+
     dev = X.device
     M_all = relative_transforms(T_cam_world)
     index = graph.index.tolist()
@@ -77,6 +83,8 @@ def _neighbour_points(
     and back-project that pixel at D_j into camera i.
 
     Returns z_ij (M,), D_j (M,) (0 = no depth / outside / behind), Q (M, 3) in camera i."""
+    import torch
+
     zj, ui, vi, d = project_to_pixel(X, M_ji, Kj, depth_j, eps)
     ynp = (vi - Kj[1][2]) / Kj[1][1]  # pixel_rays' formula for the pixel x_ij
     xnp = ((ui - Kj[0][2]) - Kj[0][1] * ynp) / Kj[0][0]
@@ -115,6 +123,8 @@ def multiview_mean(
         ``with_support`` also (M,) int32 ``support``: how many neighbours passed the gate
         (FuseConfig.lone_cell_keep).
     """
+    import torch
+
     M_all = relative_transforms(T_cam_world).tolist()
     index = graph.index.tolist()
     pres = present.detach().cpu().tolist()
@@ -150,6 +160,8 @@ def multiview_mean(
 
 def omega_geo(agree: torch.Tensor, votes: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     """Eq. (21): share of agreeing votes, or c(x) where there is no vote. (M,) float32."""
+    import torch
+
     share = agree.to(torch.float32) / votes.clamp_min(1).to(torch.float32)
     return torch.where(votes > 0, share, c)
 
@@ -169,6 +181,8 @@ def cvgc_votes(
     likely moved. depth (N, H, W) float32 metres (0 = none), K (N, 3, 3), T_cam_world (N, 4, 4).
     Returns two (N,) int64 numpy arrays.
     """
+    import torch
+
     n = depth.shape[0]
     if present is None:
         present = torch.ones(n, dtype=torch.bool, device=depth.device)

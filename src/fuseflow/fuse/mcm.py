@@ -29,10 +29,14 @@ border keep c = 0.
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING
+
 import torch.nn.functional as F
 
 from fuseflow.geometry.noise import sigma_torch
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["valid_depth", "confidence", "gradient_and_variance", "noise_sigma_of", "tolerant_gradient_and_variance"]
 
@@ -43,6 +47,8 @@ def valid_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor) -> torc
     depth: (N, H, W) float32 metres. lo, hi: (N,) float32 metres (per camera: the larger of
     delta and the camera's range minimum; the smaller of z_max and its maximum).
     """
+    import torch
+
     ok = (depth > lo[:, None, None]) & (depth < hi[:, None, None])
     return torch.where(ok, depth, torch.zeros_like(depth))
 
@@ -66,6 +72,8 @@ def gradient_and_variance(
     docstring); None = eq. (16)-(17) as written. Returns g, v (N, H, W) float32 and
     full (N, H, W) bool: True where the pixel and every pixel of its window has depth.
     """
+    import torch
+
     n, h, w = depth.shape
     r = window // 2
     k = window * window
@@ -97,6 +105,8 @@ def tolerant_gradient_and_variance(
     """g, v of the gap-tolerant 3x3 window (module docstring) and the number of missing
     neighbours (N, H, W) int64 (9 at the image border). Float32 operations in the order of the
     compiled kernel (numba_kernels._pixels)."""
+    import torch
+
     n, h, w = depth.shape
     P = F.unfold(depth[:, None], 3, padding=1).reshape(n, 9, h, w)
     ok = P > 0
@@ -114,6 +124,8 @@ def tolerant_gradient_and_variance(
     half = torch.tensor(0.5, dtype=torch.float32)
 
     def diff(a: int, b: int) -> torch.Tensor:
+        import torch
+
         pa, pb = P[:, a], P[:, b]
         va, vb = ok[:, a], ok[:, b]
         return torch.where(va & vb, (pb - pa) * half, torch.where(vb, pb - depth, torch.where(va, depth - pa, zero)))
@@ -158,6 +170,8 @@ def confidence(
     Returns:
         (N, H, W) float32 in [0, 1]; 0 where there is no depth or the window is incomplete.
     """
+    import torch
+
     valid = depth > 0
     if not use_mcm:
         return valid.to(torch.float32)

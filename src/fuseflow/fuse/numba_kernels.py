@@ -32,7 +32,6 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-import torch
 from numba import njit, prange
 
 from fuseflow.fuse.ash import COARSE_BITS, COARSE_OFFSET, FIXED_BITS, FIXED_OFFSET
@@ -218,19 +217,20 @@ def _gate(depth, lo, hi, present, out, row_count):
         row_count[row] = cnt
 
 
-def gate_depth(depth: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, present: torch.Tensor):
-    """(gated depth (N, H, W) float32 tensor, valid pixels per view): what api._prepare computes
-    with torch (valid_depth, then zero for absent views), as one compiled pass. The tensor is
+def gate_depth(depth: np.ndarray, lo: np.ndarray, hi: np.ndarray, present: np.ndarray):
+    """(gated depth (N, H, W) float32 array, valid pixels per view): what api._prepare computes
+    with torch (valid_depth, then zero for absent views), as one compiled pass. The array is
     a view of this thread's FUSE workspace: the next ``fuse_numba`` call overwrites it after
     reading it (api._prepare's depth is read only by that call)."""
-    d = depth.contiguous().numpy()
+    d = np.ascontiguousarray(depth, dtype=np.float32)
     n, h, w = d.shape
     # in this thread's workspace (fuse_numba reads it in _pixels, then the buffer holds the
     # points): valid until the next fuse_numba of this thread
     out = _workspace(n, h, w).depth()
     rows = np.empty(n * h, dtype=np.int64)
-    _gate(d, lo.numpy(), hi.numpy(), present.numpy().astype(np.bool_), out, rows)
-    return torch.from_numpy(out), tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
+    _gate(d, np.asarray(lo, dtype=np.float32), np.asarray(hi, dtype=np.float32), np.asarray(present, dtype=np.bool_),
+          out, rows)  # fmt: skip
+    return out, tuple(int(x) for x in rows.reshape(n, h).sum(axis=1))
 
 
 @njit(cache=True, fastmath=False, error_model="numpy", inline="always")
@@ -1255,13 +1255,13 @@ class _Cells(NamedTuple):
 
 def _candidates(p, prm: PixelParams, ws: _Workspace) -> _Cells:
     """Stages 1-2: ``_pixels`` over every view, coarse cells per run, members grouped by cell."""
-    depth = p.depth.contiguous().numpy()
+    depth = np.ascontiguousarray(p.depth)
     n, h, w = depth.shape
-    Kf = p.K.numpy().astype(np.float32)
-    M_rel = relative_transforms(p.T_cam_world).numpy()
-    T_wc = p.T_world_cam.numpy().astype(np.float32)
-    nbr = p.graph.index.numpy().astype(np.int64)
-    present = p.present.numpy().astype(np.bool_)
+    Kf = np.asarray(p.K, dtype=np.float32)
+    M_rel = relative_transforms(np.asarray(p.T_cam_world))
+    T_wc = np.asarray(p.T_world_cam, dtype=np.float32)
+    nbr = np.asarray(p.graph.index, dtype=np.int64)
+    present = np.asarray(p.present, dtype=np.bool_)
     rank = ws.rank(prm.range_priority)
     with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
         _pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, ws.P, ws.om, rank, ws.sup, ws.runs, ws.run_n,
@@ -1322,13 +1322,14 @@ def _select_points(
 
 
 def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
-    """The compiled CPU path over api._Prepared inputs; same contract as api._fuse_torch."""
+    """The compiled CPU path over api._Prepared inputs (numpy arrays); same contract as
+    api._fuse_torch, with a cloud of numpy arrays."""
     prm = kernel_params(cfg)
     n, h, w = p.depth.shape
     ws = _workspace(n, h, w)
     c = _candidates(p, prm.pixel, ws)
-    T_wc = p.T_world_cam.numpy().astype(np.float32)
-    T_cw = p.T_cam_world.numpy().astype(np.float32)
+    T_wc = np.asarray(p.T_world_cam, dtype=np.float32)
+    T_cw = np.asarray(p.T_cam_world, dtype=np.float32)
     hw = h * w
     if cfg.target_points is not None:  # density control: search s0 on the hash + selection only
         from fuseflow.fuse.density import search_s0, with_s0
@@ -1354,13 +1355,10 @@ def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     wgt = np.empty(k, dtype=np.float32)
     src = np.empty(k, dtype=np.int16)
     sup = np.empty(k if cons.on else 0, dtype=np.int16)
-    color = p.color.contiguous().reshape(n * h * w, 3).numpy()
-    rig_index = p.rig_index.numpy().astype(np.int16)
+    color = np.ascontiguousarray(p.color).reshape(n * h * w, 3)
+    rig_index = np.asarray(p.rig_index, dtype=np.int16)
     with numba.parallel_chunksize(4):  # a few hundred coarse cells of very different sizes
         _emit(s.start, s.cell_nsel, cell_out, ws.stage_src, ws.stage_sup, cons.on, ws.members, ws.Pc,
               ws.omc, ws.camc, color, rig_index, xyz, rgb, wgt, src, sup)  # fmt: skip
-    support = torch.from_numpy(sup) if cons.on else None
-    cloud = FusedCloud(
-        torch.from_numpy(xyz), torch.from_numpy(rgb), torch.from_numpy(wgt), torch.from_numpy(src), support
-    )
+    cloud = FusedCloud(xyz, rgb, wgt, src, sup if cons.on else None)  # numpy arrays
     return cloud, int(sum(p.valid_per_view)), c.candidates - c.out_of_range, c.out_of_range

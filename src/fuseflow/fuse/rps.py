@@ -19,11 +19,13 @@ comes first in input order (camera, then row-major pixel).
 from __future__ import annotations
 
 import math
-
-import torch
+from typing import TYPE_CHECKING
 
 from fuseflow.fuse.ash import FINE_BITS
 from fuseflow.geometry.noise import sigma_torch
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["cell_counts", "select_representatives", "selection_priority", "consensus"]
 
@@ -52,6 +54,8 @@ def cell_counts(
     Returns:
         inverse (M,) int64 cell index of each point, counts (C,) int64, k (C,) int64.
     """
+    import torch
+
     uniq, inv, counts = torch.unique(key, return_inverse=True, return_counts=True)
     if not density_adaptive:
         k = torch.full_like(counts, int(k_fixed))
@@ -101,6 +105,8 @@ def select_representatives(
     Returns:
         (S,) int64 indices into P of the selected points, ordered by cell then pick round.
     """
+    import torch
+
     m = P.shape[0]
     dev = P.device
     n_cells = int(k.shape[0])
@@ -181,6 +187,8 @@ def consensus(
         xyz (S, 3) float32 moved points, support (S,) int16 number of distinct cameras among
         the agreeing candidates (>= 1). Same float32 / float64 arithmetic as the compiled kernel.
     """
+    import torch
+
     dev = P.device
     ns = int(sel.shape[0])
     if ns == 0:

@@ -8,7 +8,11 @@ the kernels skip CVGC for pixels whose c already rules them out.
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import torch
+
 
 __all__ = ["joint_weight"]
 

@@ -17,13 +17,16 @@ Every product is written element by element, in the order the compiled CPU kerne
 from __future__ import annotations
 
 import contextlib
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from fuseflow.geometry.camera import pixel_rays, relative_transforms
 from fuseflow.geometry.overlap import neighbour_graph
 from fuseflow.types import Frame, Rig
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = [
     "one_torch_thread",
@@ -52,6 +55,8 @@ def project_to_pixel(
         z_ij (M,) depth in j, u_ij and v_ij (M,) the nearest pixel (float32 integers), D_j (M,)
         j's depth there (0 where j has none, x_ij is outside the image or X is behind j).
     """
+    import torch
+
     x, y, z = X[:, 0], X[:, 1], X[:, 2]
     xj = m[0][0] * x + m[0][1] * y + m[0][2] * z + m[0][3]
     yj = m[1][0] * x + m[1][1] * y + m[1][2] * z + m[1][3]
@@ -91,6 +96,8 @@ def project_votes(
     Returns:
         agree (M,) bool (r_ij < tau) and vote (M,) bool (j counts in V_i(x)).
     """
+    import torch
+
     # python floats holding float32 values: torch rounds them back to the same float32
     zj, _, _, d = project_to_pixel(X, M_ji.tolist(), K_j.tolist(), depth_j, eps)
     has = d > 0
@@ -115,6 +122,8 @@ def one_torch_thread():
     op paid for waking and spinning threads. Measured on a 4-camera 320x240 frame, 2 cores: 7-8 ms
     per frame on one thread, 194-509 ms on two while other processes loaded the cores
     (``benchmarks/run_throughput.py`` measures ``run`` against FUSE alone)."""
+    import torch
+
     n = torch.get_num_threads()
     if n == 1:
         yield
@@ -151,6 +160,8 @@ def pair_agreement(
 
 
 def _pair_agreement(frame: Frame, rig: Rig, samples: int, tau: float, k_max: int, only: int | None) -> np.ndarray:
+    import torch
+
     n, h, w = frame.depth.shape
     stride = subsample_stride(h, w, samples)
     depth = frame.depth[:, ::stride, ::stride]

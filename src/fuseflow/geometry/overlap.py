@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from fuseflow.errors import ValidationError
-from fuseflow.types import Rig
+from fuseflow.types import Rig, as_tensor
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["NeighbourGraph", "neighbour_graph", "fov_overlap"]
 
@@ -33,17 +36,19 @@ class NeighbourGraph:
     Attributes:
         index: (N, K) int64 rig indices of each camera's neighbours, best first, -1 = none.
         overlap: (N, K) float32 overlap share of each neighbour, 0 where index is -1.
+        Numpy arrays as built by ``neighbour_graph``; ``to(device)`` gives torch tensors.
     """
 
-    index: torch.Tensor
-    overlap: torch.Tensor
+    index: np.ndarray | torch.Tensor
+    overlap: np.ndarray | torch.Tensor
 
     @property
     def k(self) -> int:
         return int(self.index.shape[1])
 
     def to(self, device: torch.device | str) -> NeighbourGraph:
-        return NeighbourGraph(self.index.to(device), self.overlap.to(device))
+        """The graph as torch tensors on ``device``."""
+        return NeighbourGraph(as_tensor(self.index, device), as_tensor(self.overlap, device))
 
 
 def fov_overlap(rig: Rig) -> np.ndarray:
@@ -110,7 +115,7 @@ def neighbour_graph(rig: Rig, k_max: int = 4, min_overlap: float = 0.05) -> Neig
     The cache key is the calibration itself (intrinsics, resolution, depth ranges, extrinsics),
     so a new calibration gives a new graph and the same one is never computed twice.
     Cameras with no neighbour above ``min_overlap`` get an all -1 row (CVGC then falls back to
-    c(x), eq. 21). Returns a CPU NeighbourGraph.
+    c(x), eq. 21). Returns a NeighbourGraph of numpy arrays (copies: the cache is not shared).
     """
     if not isinstance(rig, Rig):
         raise ValidationError(f"rig must be a fuseflow.Rig, got {type(rig).__name__}")
@@ -118,7 +123,7 @@ def neighbour_graph(rig: Rig, k_max: int = 4, min_overlap: float = 0.05) -> Neig
         missing = [c.id for c in rig.cameras if c.T_cam_world is None]
         raise ValidationError(f"the neighbour graph needs extrinsics; cameras without: {missing}")
     index, share = _graph_cached(_calibration_key(rig), _RigRef(rig), int(k_max), float(min_overlap))
-    return NeighbourGraph(torch.from_numpy(index.copy()), torch.from_numpy(share.copy()))
+    return NeighbourGraph(index.copy(), share.copy())
 
 
 class _RigRef:

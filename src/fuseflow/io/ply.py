@@ -36,18 +36,17 @@ _FIELDS = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u
 def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
     """Write ``cloud`` as binary little-endian PLY (written to a temp file, then renamed)."""
     path = Path(path)
-    c = cloud.to("cpu")
+    c = cloud.numpy()
     fields = _FIELDS + ([("support", "<i2")] if c.support is not None else [])
     arr = np.empty(len(c), dtype=fields)
-    xyz = c.xyz.numpy()
-    rgb = c.rgb.numpy()
+    xyz, rgb = c.xyz, c.rgb
     arr["x"], arr["y"], arr["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     arr["red"], arr["green"], arr["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    arr["weight"] = c.weight.numpy()
-    arr["camera"] = c.camera.numpy()
+    arr["weight"] = c.weight
+    arr["camera"] = c.camera
     extra = ""
     if c.support is not None:
-        arr["support"] = c.support.numpy()
+        arr["support"] = c.support
         extra = "property short support\n"
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment fuseflow fused cloud, metres, world frame\n"

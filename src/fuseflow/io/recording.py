@@ -18,15 +18,17 @@ import re
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from fuseflow.errors import FormatError, FuseFlowError, RecordingError, ValidationError
 from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.images import clean_depth, read_color, read_depth, write_color, write_depth
-from fuseflow.types import Camera, Frame, Rig
+from fuseflow.types import Camera, Frame, Rig, to_numpy
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = [
     "RIG_FORMAT",
@@ -160,8 +162,8 @@ def write_frame(
         depth_m: (N, H, W) float32 metres; written as uint16 with each camera's depth_scale.
         present: (N,) bool; views marked False are not written (dropped views).
     """
-    color = color.cpu().numpy() if isinstance(color, torch.Tensor) else np.asarray(color)
-    depth_m = depth_m.cpu().numpy() if isinstance(depth_m, torch.Tensor) else np.asarray(depth_m)
+    color = to_numpy(color)
+    depth_m = to_numpy(depth_m)
     n = len(rig)
     if color.shape[0] != n or depth_m.shape[0] != n:
         raise ValidationError(f"write_frame: expected {n} views, got color {color.shape}, depth {depth_m.shape}")
@@ -199,6 +201,11 @@ class Recording:
             yield self[t]
 
     def __getitem__(self, t: int) -> Frame:
+        return self.frame(t)
+
+    def frame(self, t: int, numpy: bool = False) -> Frame:
+        """The frame at position ``t`` (negative counts from the end): torch tensors, or with
+        ``numpy`` numpy arrays (then torch is not imported)."""
         if not isinstance(t, (int, np.integer)):
             raise TypeError(f"frames are indexed by int, got {type(t).__name__}")
         n = len(self)
@@ -223,15 +230,8 @@ class Recording:
             d, invalid[i] = clean_depth(d)
             color[i], depth[i], present[i] = c, d, True
             timestamp = ts if timestamp is None else timestamp
-        return Frame(
-            index=number,
-            camera_ids=self.rig.ids,
-            color=torch.from_numpy(color),
-            depth=torch.from_numpy(depth),
-            present=torch.from_numpy(present),
-            invalid_depth=torch.from_numpy(invalid),
-            timestamp=timestamp,
-        )
+        frame = Frame(number, self.rig.ids, color, depth, present, invalid, timestamp)
+        return frame if numpy else frame.to("cpu")
 
     def _load_view(self, cam_index: int, number: int) -> tuple[np.ndarray, np.ndarray, float | None] | None:
         raise NotImplementedError

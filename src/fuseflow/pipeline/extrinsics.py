@@ -7,7 +7,6 @@ import dataclasses
 from collections.abc import Iterable
 
 import numpy as np
-import torch
 
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.geometry.align import rigid_align  # moved to geometry; re-exported here
@@ -105,5 +104,9 @@ def merge_recalibration(old: Rig, new: Calibration, moved: Iterable[str]) -> Rig
 
 def reindex_cameras(cloud: FusedCloud, sel: list[int]) -> FusedCloud:
     """``cloud.camera`` indexes the fused subset of cameras; map it to the source rig's indices."""
+    if cloud.is_numpy:
+        return dataclasses.replace(cloud, camera=np.asarray(sel, dtype=np.int16)[cloud.camera])
+    import torch
+
     lut = torch.tensor(sel, dtype=torch.int16, device=cloud.camera.device)
     return dataclasses.replace(cloud, camera=lut[cloud.camera.long()])

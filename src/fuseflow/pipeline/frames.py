@@ -10,8 +10,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from fuseflow.errors import FuseFlowError
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.recording import Recording
@@ -25,10 +23,11 @@ __all__ = ["process_frame", "first_good_frame", "stream", "select_views"]
 
 
 def select_views(frame: Frame, sel: list[int], device: str) -> Frame:
-    """The views ``sel`` (positions in the frame) of ``frame``, on ``device``."""
+    """The views ``sel`` (positions in the frame) of ``frame``, on ``device`` (a numpy frame
+    stays numpy on the CPU)."""
     if len(sel) != frame.num_views:
         frame = frame.subset(sel)
-    return frame.to(device)
+    return frame if frame.is_numpy and device == "cpu" else frame.to(device)
 
 
 def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig) -> tuple[FusedCloud, FrameRecord]:
@@ -43,7 +42,9 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
     frame = select_views(frame, sel, config.device)
     t0 = time.perf_counter()
     cloud = fuse(frame, rig, config.fuse_config())
-    if frame.device.type == "cuda":
+    if not frame.is_numpy and frame.device.type == "cuda":
+        import torch
+
         torch.cuda.synchronize()
     ms = (time.perf_counter() - t0) * 1000.0
     if len(sel) != full:

@@ -61,6 +61,9 @@ class FuseRunSummary:
     pixel_strides: list[int] = field(default_factory=list)
     """The pixel grids the frames fused in this call took their candidates on
     (FuseReport.pixel_stride: FuseConfig.pixel_stride, or a coarser one a point budget picked)."""
+    grid_choices: list[str] = field(default_factory=list)
+    """With the ``auto`` preset, each distinct choice of grid it made (FuseReport.grid), e.g.
+    "auto: stride 2, s0 1 (8 views, 2.41 M valid depth pixels: pixels plentiful)"."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -124,6 +127,7 @@ class _Fused:
     backend: str = ""
     resumed: int = 0
     strides: set[int] = field(default_factory=set)
+    grids: dict[str, None] = field(default_factory=dict)  # ordered set of FuseReport.grid
 
 
 def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, cfg, device: str, on_frame) -> _Fused:
@@ -138,8 +142,8 @@ def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, c
             done.counts.append(ply_point_count(path))
             done.resumed += 1
         else:
-            res = fuse_with_report(select_views(rec[t], sel, device), rig, cfg)
-            cloud = res.cloud.to("cpu")
+            res = fuse_with_report(select_views(rec.frame(t, numpy=device == "cpu"), sel, device), rig, cfg)
+            cloud = res.cloud.numpy()
             if len(sel) != len(rec.rig):
                 cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
             write_ply(path, cloud)
@@ -147,6 +151,8 @@ def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, c
             done.fuse_ms.append(res.report.ms)
             done.backend = res.report.backend
             done.strides.add(res.report.pixel_stride)
+            if res.report.grid:
+                done.grids[res.report.grid] = None
             for kind in _warning_kinds(res.report):
                 done.warnings.setdefault(kind, []).append(rec.frame_numbers[t])
         if on_frame:
@@ -159,7 +165,7 @@ def fuse_recording(
     out_dir: str | Path,
     calibration: Calibration | None = None,
     frames: range | None = None,
-    preset: str = "default",
+    preset: str = "auto",
     device: str = "cpu",
     on_frame: Callable[[int, int], None] | None = None,
     calibration_source: str | None = None,
@@ -170,7 +176,8 @@ def fuse_recording(
 
     Args:
         calibration: extrinsics to use; None = rig.json's (``rig_for_fusion``).
-        preset: a FUSE preset name (``fuseflow.fuse.PRESETS``).
+        preset: a FUSE preset name (``fuseflow.fuse.PRESETS``); "auto" picks the pixel grid
+            from the rig per frame (FuseConfig.auto_grid).
         device: "cpu" (compiled numba path) or "cuda".
         on_frame: called with (done, total) after each frame, e.g. for a progress bar.
         calibration_source: where ``calibration`` came from (e.g. its file), for calib.json.
@@ -213,6 +220,7 @@ def fuse_recording(
         left_out=[c for c in rec.rig.ids if c not in rig.ids],
         frames_resumed=done.resumed,
         pixel_strides=sorted(done.strides),
+        grid_choices=list(done.grids),
     )
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary

@@ -76,6 +76,7 @@ METHODS = {
     "fuse_quality": "FUSE, PRESETS['quality'] (k_neighbours = 7, s0 = 5; the default)",
     "fuse_fast": "FUSE, PRESETS['fast'] (k_neighbours = 4, s0 = 6.3)",
     "fuse_live": "FUSE, PRESETS['live'] (pixel_stride = 2: every 2nd pixel of every 2nd row; s0 = 1; mcm_max_missing = 4)",
+    "fuse_auto": "FUSE, PRESETS['auto'] (the CLI's default: live's grid on >= 6 well-filled views, every pixel otherwise)",
     "vbg": "Open3D tensor VoxelBlockGrid TSDF, 1 cm, integrate + extract_point_cloud",
     "naive_voxel": "naive back-projection + Open3D voxel_down_sample 1 cm",
 }
@@ -176,7 +177,7 @@ def _render(work: Path, cameras: int, frames: int, resolution: tuple[int, int], 
 
 def _method_fn(method: str, dev: Any, points: int | None = None) -> Callable:
     """``fn(frame, rig) -> FusedCloud`` for a key of :data:`METHODS`."""
-    if method in ("fuse", "fuse_torch", "fuse_quality", "fuse_fast", "fuse_live"):
+    if method in ("fuse", "fuse_torch", "fuse_quality", "fuse_fast", "fuse_live", "fuse_auto"):
         from dataclasses import replace
 
         from fuseflow.fuse import PRESETS, FuseConfig, fuse
@@ -185,6 +186,7 @@ def _method_fn(method: str, dev: Any, points: int | None = None) -> Callable:
             "fuse_quality": PRESETS["quality"],
             "fuse_fast": PRESETS["fast"],
             "fuse_live": PRESETS["live"],
+            "fuse_auto": PRESETS["auto"],
         }.get(method, FuseConfig())
         cfg = replace(base, backend="torch" if method == "fuse_torch" else "auto", target_points=points)
         return lambda frame, rig: fuse(frame.to(dev), rig, cfg)
@@ -303,6 +305,8 @@ def _derived(rows: list[dict[str, Any]]) -> dict[str, float]:
         pre = "" if data == "sim" else f"{data}_"
         if ("fuse", 8) in by and ("vbg", 8) in by:
             derived[pre + "vbg_over_fuse_N8"] = by[("vbg", 8)]["ms"] / by[("fuse", 8)]["ms"]
+        if ("fuse_auto", 8) in by and ("vbg", 8) in by:
+            derived[pre + "vbg_over_fuse_auto_N8"] = by[("vbg", 8)]["ms"] / by[("fuse_auto", 8)]["ms"]
         if ("fuse", 8) in by and ("fuse", 16) in by:
             derived[pre + "fuse_t16_over_t8"] = by[("fuse", 16)]["ms"] / by[("fuse", 8)]["ms"]
     return derived
