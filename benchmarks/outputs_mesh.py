@@ -4,7 +4,8 @@ For frame 0 of each simulated recording: FUSE with the true rig, crop to the cap
 mesh with each method (``fuseflow.pipeline.mesh``), sample the mesh surface (50 000 points,
 Open3D ``sample_points_uniformly``) and report the median / 90th percentile distance of the
 samples to the simulator's true surface (gt/surface_000000.ply) and to the fused points, the
-vertex and face counts, and the wall time of the meshing (normals included). Torch and Open3D
+vertex and face counts, and the wall and CPU time (all threads) of the meshing (normals
+included): on a shared machine the CPU time is the steadier figure. Torch and Open3D
 limited to ``--threads`` threads.
 
     PYTHONPATH=src python benchmarks/outputs_mesh.py /tmp/i29/ring8rs --threads 2
@@ -39,11 +40,12 @@ def measure(rec_dir: str, methods: list[str], repeats: int) -> list[dict]:
     gt_tree, cloud_tree = cKDTree(surf), cKDTree(cloud.xyz.numpy())
     rows = []
     for method in methods:
-        times = []
+        times, cpu = [], []
         for _ in range(repeats):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             mesh = mesh_frame(cloud, frame, gt.rig, method, vol)
             times.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices.astype(np.float64)),
                                       o3d.utility.Vector3iVector(mesh.faces.astype(np.int32)))  # fmt: skip
         pts = np.asarray(m.sample_points_uniformly(50000).points) if len(mesh.faces) else np.zeros((0, 3))
@@ -51,6 +53,7 @@ def measure(rec_dir: str, methods: list[str], repeats: int) -> list[dict]:
         rows.append({
             "recording": rec_dir, "method": method, "points": len(cloud), "vertices": len(mesh.vertices),
             "faces": len(mesh.faces), "s_median": round(float(np.median(times)), 3), "s_min": round(min(times), 3),
+            "cpu_s_median": round(float(np.median(cpu)), 3),
             "gt_median_mm": round(float(np.median(d_gt)), 2), "gt_p90_mm": round(float(np.percentile(d_gt, 90)), 2),
             "cloud_median_mm": round(float(np.median(d_cloud)), 2),
             "cloud_p90_mm": round(float(np.percentile(d_cloud, 90)), 2),
