@@ -52,7 +52,7 @@ def test_fuse_crop_auto_drc_and_mesh(rec, tmp_path):
         assert len(mesh.faces) == f["faces"] > 100
         assert (out / f["mesh_ply"]).exists()
         d = cKDTree(cloud.xyz.numpy()).query(mesh.vertices)[0]
-        assert np.median(d) < 0.015
+        assert np.median(d) < 0.02 and d.max() <= 0.032  # trimmed at 3 cm from the points (+ Draco moves them <= 1 mm)
     # the same call resumes; another format is a different output
     s2 = fuse_recording(rec, out, outputs=opts)
     assert s2.frames_resumed == 2 and s.points_per_frame == s2.points_per_frame

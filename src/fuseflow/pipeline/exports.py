@@ -168,6 +168,10 @@ def write_sequence(out: Path, writer: FrameWriter, fps: float | None = None) -> 
     from fuseflow.pipeline.outputs import MANIFEST
 
     opts = writer.options
+    if fps is None:  # from the frames' timestamps, when they have them
+        stamps = [e["timestamp"] for _, e in sorted(writer.entries.items()) if e.get("timestamp") is not None]
+        steps = np.diff(stamps) if len(stamps) >= 2 else np.zeros(0)
+        fps = round(1.0 / float(np.median(steps)), 3) if steps.size and np.median(steps) > 0 else None
     doc = {
         "format": SEQUENCE_FORMAT,
         "units": "m",
