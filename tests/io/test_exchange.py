@@ -29,16 +29,14 @@ def test_draco_bits_follow_the_error_bound():
 
 @pytest.mark.parametrize("error_mm", [1.0, 2.0])
 def test_draco_positions_stay_within_the_bound(tmp_path, error_mm):
-    from scipy.spatial import cKDTree
-
     c = _cloud(20000)
     p = write_drc(tmp_path / "a.drc", c, error_mm)
     d = DracoPy.decode(p.read_bytes())  # the independent reader
     pts, cols = np.asarray(d.points), np.asarray(d.colors)
     assert pts.shape == (20000, 3) and cols.shape[0] == 20000
-    dist, idx = cKDTree(c.xyz.numpy()).query(pts)
-    assert dist.max() * 1000 <= error_mm
-    assert (cols[:, :3] == c.rgb.numpy()[idx]).mean() > 0.99  # colours travel with their points
+    err = np.linalg.norm(pts - c.xyz.numpy(), axis=1)  # the order is kept: point k is point k
+    assert err.max() * 1000 <= error_mm and np.median(err) * 1000 > error_mm / 10  # quantised, not lossless
+    assert (cols[:, :3] == c.rgb.numpy()).all()
     assert p.stat().st_size < 20000 * 21 / 2  # well under binary PLY (21 bytes a point)
 
 

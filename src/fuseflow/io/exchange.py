@@ -5,7 +5,9 @@
   ``DRC_ERROR_MM`` = 1 mm) of where it was: ``quantization_bits`` = the smallest b with
   sqrt(3)/2 * extent / (2^b - 1) <= error_mm (extent = the cloud's largest side; the half-step
   on each axis is the worst case, sqrt(3)/2 of a step in 3D), at least 8, at most 30; colours
-  as 8-bit RGB. The point order is not kept (Draco sorts for compression); weight and source
+  as 8-bit RGB. The point order is kept (``preserve_order``: point k of the file is point k of
+  the cloud; Draco's reordering encoder packs ~15 % smaller but took 0.65 CPU s for 100 k
+  coloured points and 50 s for 540 k, growing faster than the point count); weight and source
   camera are not stored (PLY keeps them). An empty cloud is a valid zero-point Draco file.
 - **GLB point cloud** (``write_glb_points``): one glTF 2.0 mesh primitive in ``POINTS`` mode with
   ``POSITION`` (float32, metres), ``COLOR_0`` (normalised uint8 RGBA, alpha 255) and ``_WEIGHT`` (float32,
@@ -77,7 +79,8 @@ def write_drc(path: str | Path, cloud: FusedCloud, error_mm: float = DRC_ERROR_M
         lo = xyz.min(axis=0)
         extent = float((xyz.max(axis=0) - lo).max())
         data = dp.encode(
-            xyz, quantization_bits=draco_bits(extent, error_mm), compression_level=7, colors=c.rgb.numpy(),
+            xyz, quantization_bits=draco_bits(extent, error_mm), colors=np.ascontiguousarray(c.rgb.numpy()),
+            preserve_order=True,
         )  # fmt: skip
     return write_bytes_atomic(Path(path), data)
 
