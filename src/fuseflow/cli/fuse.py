@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
     POINTS_HELP,
     check_device,
@@ -42,6 +43,12 @@ def command(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
+    crop: str = oo.CROP,
+    fmt: str = oo.FORMAT,
+    drc_error_mm: float = oo.DRC_ERROR,
+    mesh: bool = oo.MESH,
+    mesh_ply: bool = oo.MESH_PLY,
+    mesh_method: str = oo.MESH_METHOD,
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
     from fuseflow.io import open_recording, read_calibration
@@ -49,6 +56,7 @@ def command(
 
     check_device(device)
     check_fuse_options(preset, points)
+    outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
     recording = open_recording(rec)
     calibration = read_calibration(calib) if calib is not None else None
     positions = parse_range(frames, len(recording))
@@ -62,6 +70,7 @@ def command(
             recording, out, calibration, positions, preset, device,
             on_frame=lambda done, total: bar.update(task, completed=done),
             calibration_source=str(calib) if calib is not None else None, force=force, points=points,
+            outputs=outputs,
         )  # fmt: skip
     ppf, ms = s.points_per_frame, s.fuse_ms_per_frame
     print_table(

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
     POINTS_HELP,
     check_device,
@@ -69,6 +70,12 @@ def command(
         help="off | check: report cameras whose depth agrees best with their neighbours' earlier or later "
         "frames (a camera out of sync) | auto: also re-time them for fusion.",
     ),
+    crop: str = oo.CROP,
+    fmt: str = oo.FORMAT,
+    drc_error_mm: float = oo.DRC_ERROR,
+    mesh: bool = oo.MESH,
+    mesh_ply: bool = oo.MESH_PLY,
+    mesh_method: str = oo.MESH_METHOD,
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
     from fuseflow.fuse.config import preset_config
@@ -77,6 +84,7 @@ def command(
 
     check_device(device)
     check_fuse_options(preset, points)
+    outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
     if calib is not None and use_rig:
         fail("--calib and --use-rig both choose the extrinsics; pass one")
     recording = open_recording(rec)
@@ -84,7 +92,9 @@ def command(
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None
     if sync_offsets == "auto" and ray_opts is not None:
         fail("--sync-offsets auto re-times views in this process; use check or off with --ray")
-    cfg = PipelineConfig(device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=preset_config(preset, points))
+    cfg = PipelineConfig(
+        device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=preset_config(preset, points), outputs=outputs
+    )
     positions = parse_range(frames, len(recording))
     with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))

@@ -16,6 +16,9 @@ def command(
     color_by: str = typer.Option("rgb", "--color-by", help="rgb or weight (PNG only; rerun shows both)."),
     rrd: Path = typer.Option(None, "--rrd", help="Write a rerun .rrd file instead of opening the viewer."),
     frames: str = typer.Option(None, "--frames", help="A:B, which frames to show."),
+    whole: bool = typer.Option(
+        False, "--whole", help="PNG: draw every point (default: the capture volume the cameras look at)."
+    ),
 ) -> None:
     """Show fused clouds per frame (rerun: cameras as frustums, clouds on a timeline, weight as colour)."""
     from fuseflow.viz.sources import render_pngs, send_to_rerun, view_source
@@ -25,7 +28,7 @@ def command(
     source = view_source(path)
     source = replace(source, items=[source.items[i] for i in parse_range(frames, len(source.items))])
     if save_png is not None:
-        n = render_pngs(source, save_png, color_by)
+        n = render_pngs(source, save_png, color_by, whole)
         say(f"wrote {n} PNGs to {save_png}")
         return
     n = send_to_rerun(source, rrd)

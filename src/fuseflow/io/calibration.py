@@ -6,12 +6,20 @@ Schema::
      "cameras": {"<camera id>": {"T_cam_world": [[4x4 row-major]]}, ...},
      "report": {...},          # free-form JSON: how the extrinsics were obtained (GMAC writes
                                # fuseflow.calib.CalibReport.to_json() here)
-     "rig_fingerprint": {"<camera id>": {"width": W, "height": H, "K": [[3x3]]}, ...}}   # optional
+     "rig_fingerprint": {"<camera id>": {"width": W, "height": H, "K": [[3x3]]}, ...},  # optional
+     "capture_volume": {"min": [x, y, z], "max": [x, y, z], "T_box_world": [[4x4]],   # optional
+                        "kind": "ring" | "frusta" | "explicit", "units": "m"}}
 
 rig_fingerprint (optional; files without it are read as before) records the intrinsics and
 resolution of every camera of the rig the calibration was made for. Read back, it is in
 ``Calibration.report["rig_fingerprint"]``; ``fuseflow.pipeline.placed_rig`` refuses to apply the
 calibration to a rig whose cameras of the same ids differ (a calibration of another rig).
+
+capture_volume (optional) is the box ``--crop auto`` crops fused clouds to
+(``fuseflow.geometry.volume.CaptureVolume``: points X with min <= T_box_world X <= max, metres;
+T_box_world box-from-world, identity or absent for a box in world axes). ``run`` and ``fuse``
+write the one they used; edit it to move the crop. Read back, it is in
+``Calibration.report["capture_volume"]`` (validated).
 
 T_cam_world is camera-from-world in metres (the same as rig.json). Cameras that a calibration
 could not place are simply absent from "cameras" (and named in the report).
@@ -25,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
+from fuseflow.geometry.volume import CaptureVolume
 from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.recording import RIG_FORMAT, parse_matrix, rig_from_json
 from fuseflow.types import Calibration, Rig
@@ -32,6 +41,7 @@ from fuseflow.types import Calibration, Rig
 __all__ = [
     "CALIB_FORMAT",
     "FINGERPRINT_KEY",
+    "VOLUME_KEY",
     "read_calibration",
     "write_calibration",
     "calibration_to_json",
@@ -41,6 +51,7 @@ __all__ = [
 
 CALIB_FORMAT = "fuseflow-calib/1"
 FINGERPRINT_KEY = "rig_fingerprint"
+VOLUME_KEY = "capture_volume"
 
 
 def _jsonable(obj: Any) -> Any:
@@ -72,6 +83,7 @@ def calibration_to_json(calib: Calibration, rig: Rig | None = None) -> dict[str,
     read-back calibration carries in its report, if any)."""
     report = _jsonable(calib.report)
     fingerprint = report.pop(FINGERPRINT_KEY, None) if isinstance(report, dict) else None
+    volume = report.pop(VOLUME_KEY, None) if isinstance(report, dict) else None
     if rig is not None:
         fingerprint = rig_fingerprint(rig)
     doc = {
@@ -81,6 +93,8 @@ def calibration_to_json(calib: Calibration, rig: Rig | None = None) -> dict[str,
     }
     if fingerprint is not None:
         doc[FINGERPRINT_KEY] = fingerprint
+    if volume is not None:
+        doc[VOLUME_KEY] = volume.to_json() if isinstance(volume, CaptureVolume) else volume
     return doc
 
 
@@ -127,6 +141,12 @@ def read_calibration(path: str | Path) -> Calibration:
         raise FormatError(f"{path}: field 'report' must be an object")
     if FINGERPRINT_KEY in doc:
         report = {**report, FINGERPRINT_KEY: _read_fingerprint(doc[FINGERPRINT_KEY], path)}
+    if VOLUME_KEY in doc:
+        try:
+            volume = CaptureVolume.from_json(doc[VOLUME_KEY], f"{path}: field {VOLUME_KEY!r}")
+        except ValidationError as exc:
+            raise FormatError(str(exc)) from None
+        report = {**report, VOLUME_KEY: volume.to_json()}
     try:
         return Calibration(T, report)
     except ValidationError as exc:

@@ -15,13 +15,16 @@ around them, all explicit and per run, one module each:
   (bumped); with ``recalibrate="auto"`` GMAC re-runs and its new pose joins the old world frame.
 - :mod:`extrinsics`: which extrinsics are fused (placed cameras, merged recalibrations).
 - :mod:`outputs`, :mod:`records`: the output directory and the typed per-frame and run records.
+- :mod:`exports`, :mod:`mesh`: per-frame files (``OutputOptions``: ``--crop``, ``--format``,
+  ``--mesh``), ``resolve_crop`` for any frame loop, the manifest's ``sequence``.
 - :mod:`ray`: scale-out over frames on Ray (optional extra ``fuseflow[ray]``).
 
 Imports calib and fuse (lazily, where used); neither imports it.
 """
 
 from fuseflow.geometry import camera_agreement, pair_agreement
-from fuseflow.pipeline.config import PipelineConfig
+from fuseflow.pipeline.config import OutputOptions, PipelineConfig
+from fuseflow.pipeline.exports import resolve_crop
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig, reindex_cameras, resolve_rig, rigid_align
 from fuseflow.pipeline.frames import first_good_frame, process_frame, stream
 from fuseflow.pipeline.fuse_only import FuseRunSummary, fuse_recording, rig_for_fusion
@@ -36,6 +39,7 @@ __all__ = [
     "FrameRecord",
     "FuseRunSummary",
     "HealthMonitor",
+    "OutputOptions",
     "PipelineConfig",
     "RayOptions",
     "RunSummary",
@@ -51,6 +55,7 @@ __all__ = [
     "process_frame",
     "read_frame_log",
     "reindex_cameras",
+    "resolve_crop",
     "resolve_rig",
     "rig_for_fusion",
     "rigid_align",

@@ -11,7 +11,42 @@ if TYPE_CHECKING:
     from fuseflow.calib import CalibConfig
     from fuseflow.fuse import FuseConfig
 
-__all__ = ["PipelineConfig"]
+__all__ = ["PipelineConfig", "OutputOptions"]
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """What a run or fuse writes for each frame besides its log (docs/formats.md)."""
+
+    crop: str | None = None
+    """None: keep every fused point; "auto": crop to the capture volume (calib.json's
+    ``capture_volume`` when it has one, else ``geometry.volume.capture_volume`` of the rig);
+    "xmin,ymin,zmin,xmax,ymax,zmax": that world box, metres."""
+    cloud_format: Literal["ply", "drc", "glb"] = "ply"
+    """Cloud files: binary PLY (all fields), Draco (positions within ``drc_error_mm``, colours)
+    or a GLB point cloud (positions, colours, weight)."""
+    drc_error_mm: float = 1.0
+    """Bound on the Draco position error, millimetres (``io.exchange.draco_bits``)."""
+    mesh: bool = False
+    """Also write meshes/<frame:06d>.glb (``pipeline.mesh``)."""
+    mesh_ply: bool = False
+    """With ``mesh``, also meshes/<frame:06d>.ply."""
+    mesh_method: str = "poisson"
+    """``pipeline.mesh.MESH_METHODS``: tsdf, poisson or bpa."""
+
+    def __post_init__(self) -> None:
+        from fuseflow.io.exchange import CLOUD_FORMATS
+
+        if self.cloud_format not in CLOUD_FORMATS:
+            raise ValidationError(f"--format must be one of {', '.join(CLOUD_FORMATS)}, got {self.cloud_format!r}")
+        if not (isinstance(self.drc_error_mm, (int, float)) and 0 < self.drc_error_mm < 1e4):
+            raise ValidationError(f"drc_error_mm must be a positive number of millimetres, got {self.drc_error_mm!r}")
+        if self.mesh_method not in ("tsdf", "poisson", "bpa"):
+            raise ValidationError(f"mesh method must be tsdf, poisson or bpa, got {self.mesh_method!r}")
+        if self.crop is not None and self.crop != "auto":
+            from fuseflow.geometry.volume import parse_crop
+
+            parse_crop(self.crop)  # a bad box fails here, before any work
 
 
 @dataclass(frozen=True)
@@ -48,6 +83,8 @@ class PipelineConfig:
     agreement passes per run."""
     sync_max_shift: int = 3
     """Largest offset, in frames, the sync check looks for. Range >= 1."""
+    outputs: OutputOptions = OutputOptions()
+    """Crop, cloud format and meshes (``OutputOptions``)."""
 
     def __post_init__(self) -> None:
         if self.sync not in ("off", "check", "auto"):

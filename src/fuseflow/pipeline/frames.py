@@ -58,6 +58,7 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
         empty=_empty_views(frame),
         agreement=agreement,
         pairs=pairs,
+        timestamp=frame.timestamp,
     )
     return cloud, record
 

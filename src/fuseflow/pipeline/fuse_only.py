@@ -17,15 +17,24 @@ from typing import Any
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import write_calibration
 from fuseflow.io.datasets import open_recording
+from fuseflow.io.exchange import read_cloud
 from fuseflow.io.paths import prepare_output_dir
-from fuseflow.io.ply import ply_point_count, write_ply
+from fuseflow.io.ply import ply_point_count
 from fuseflow.io.recording import Recording, write_json_atomic
+from fuseflow.pipeline.config import OutputOptions
+from fuseflow.pipeline.exports import (
+    FrameWriter,
+    frame_file,
+    recording_centres,
+    resolve_crop,
+    with_volume,
+    write_sequence,
+)
 from fuseflow.pipeline.extrinsics import placed_rig, reindex_cameras
 from fuseflow.pipeline.frames import select_views
 from fuseflow.pipeline.outputs import (
     OutputManifest,
     calibration_digest,
-    cloud_path,
     config_digest,
     fuseflow_version,
     open_output,
@@ -85,13 +94,16 @@ def rig_for_fusion(rec: Recording, calibration: Calibration | None) -> Rig:
     return rig
 
 
-def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None) -> OutputManifest:
+def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None, outputs: OutputOptions) -> OutputManifest:
+    settings: dict[str, Any] = {"preset": preset, "points": points}
+    if outputs != OutputOptions():
+        settings["outputs"] = asdict(outputs)
     return OutputManifest(
         command="fuse",
         recording=str(Path(rec.path).resolve()),
         recording_fingerprint=recording_fingerprint(rec),
         calibration=f"given:{calibration_digest({c.id: c.T_cam_world for c in rig})}",
-        config=config_digest({"preset": preset, "points": points}),
+        config=config_digest(settings),
         fuseflow_version=fuseflow_version(),
     )
 
@@ -130,23 +142,28 @@ class _Fused:
     grids: dict[str, None] = field(default_factory=dict)  # ordered set of FuseReport.grid
 
 
-def _fuse_positions(rec: Recording, out: Path, positions: list[int], rig: Rig, cfg, device: str, on_frame) -> _Fused:
+def _fuse_positions(rec: Recording, positions: list[int], cfg, device: str, on_frame, writer: FrameWriter) -> _Fused:
     """FUSE each position into OUT/clouds (keeping clouds an earlier matching call wrote)."""
     from fuseflow.fuse import fuse_with_report
 
+    rig = writer.rig
     sel = [rec.rig.index(c) for c in rig.ids]
     done = _Fused()
     for k, t in enumerate(positions, start=1):
-        path = cloud_path(out, rec.frame_numbers[t])
+        number = rec.frame_numbers[t]
+        path = frame_file(writer.out, number, writer.options.cloud_format)
         if path.exists():  # written by an earlier call with the same manifest
-            done.counts.append(ply_point_count(path))
+            n = ply_point_count(path) if path.suffix == ".ply" else len(read_cloud(path))
+            done.counts.append(n)
+            writer.resumed(number, None, n)
             done.resumed += 1
         else:
-            res = fuse_with_report(select_views(rec.frame(t, numpy=device == "cpu"), sel, device), rig, cfg)
-            cloud = res.cloud.numpy()
+            frame = select_views(rec.frame(t, numpy=device == "cpu"), sel, device)
+            res = fuse_with_report(frame, rig, cfg)
+            cloud = writer.crop(res.cloud.numpy())
             if len(sel) != len(rec.rig):
                 cloud = reindex_cameras(cloud, sel)  # camera = index in the recording's rig
-            write_ply(path, cloud)
+            writer.write(number, cloud, lambda frame=frame: frame, frame.timestamp)
             done.counts.append(len(cloud))
             done.fuse_ms.append(res.report.ms)
             done.backend = res.report.backend
@@ -171,6 +188,7 @@ def fuse_recording(
     calibration_source: str | None = None,
     force: bool = False,
     points: int | None = None,
+    outputs: OutputOptions | None = None,
 ) -> FuseRunSummary:
     """FUSE the frames at positions ``frames`` (default all) of ``rec`` into OUT/clouds.
 
@@ -183,6 +201,8 @@ def fuse_recording(
         calibration_source: where ``calibration`` came from (e.g. its file), for calib.json.
         points: a target point count per frame (``FuseConfig.target_points``); None = the
             preset's density.
+        outputs: crop, cloud format and meshes (``OutputOptions``; default: every point, PLY,
+            no mesh).
         force: start over in a used ``out_dir`` whose manifest does not match (see
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
@@ -195,14 +215,17 @@ def fuse_recording(
     positions = list(frames if frames is not None else range(len(rec)))
     if not positions:
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
+    outputs = outputs if outputs is not None else OutputOptions()
+    volume = resolve_crop(outputs.crop, rig, calibration)
     out = prepare_output_dir(out_dir)
-    open_output(out, _manifest(rec, rig, preset, points), force)
+    open_output(out, _manifest(rec, rig, preset, points, outputs), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
-    write_calibration(
-        out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), rig=rec.rig
-    )
+    used = with_volume(Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), volume)
+    write_calibration(out / "calib.json", used, rig=rec.rig)
     t0 = time.perf_counter()
-    done = _fuse_positions(rec, out, positions, rig, cfg, device, on_frame)
+    writer = FrameWriter(out, outputs, rig, volume, recording_centres(rec.rig, rig))
+    done = _fuse_positions(rec, positions, cfg, device, on_frame, writer)
+    write_sequence(out, writer)
     summary = FuseRunSummary(
         recording=str(Path(rec.path).resolve()),
         frames=len(positions),

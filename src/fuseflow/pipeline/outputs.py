@@ -61,7 +61,7 @@ def peak_rss_mb() -> float:
 MANIFEST = "manifest.json"
 """The file in OUT that says what produced it (``OutputManifest``)."""
 
-_OUTPUTS = ("clouds", "frames.jsonl", "summary.json", "calib.json", MANIFEST)
+_OUTPUTS = ("clouds", "meshes", "frames.jsonl", "summary.json", "calib.json", MANIFEST)
 """What a run or fuse writes in OUT (``--force`` removes exactly these)."""
 
 
@@ -131,7 +131,9 @@ def config_digest(*configs: Any) -> str:
 
 
 def _used(out: Path) -> bool:
-    return any((out / name).exists() for name in _OUTPUTS if name != "clouds") or any(out.glob("clouds/*.ply"))
+    return any((out / name).exists() for name in _OUTPUTS if name not in ("clouds", "meshes")) or any(
+        any(out.glob(f"clouds/*.{ext}")) for ext in ("ply", "drc", "glb")
+    )
 
 
 def _clear(out: Path) -> None:
@@ -158,8 +160,10 @@ def open_output(out: Path, manifest: OutputManifest, force: bool = False) -> boo
         _clear(out)
     elif (out / MANIFEST).exists():
         try:
-            old = OutputManifest(**json.loads((out / MANIFEST).read_text()))
-        except (json.JSONDecodeError, TypeError, OSError) as exc:
+            doc = json.loads((out / MANIFEST).read_text())
+            fields = {f.name for f in dataclasses.fields(OutputManifest)}
+            old = OutputManifest(**{k: v for k, v in doc.items() if k in fields})  # "sequence": exports.py
+        except (json.JSONDecodeError, TypeError, AttributeError, OSError) as exc:
             raise OutputError(f"{out / MANIFEST}: unreadable ({exc}); use --force to start over") from None
         diff = manifest.differences(old)
         if diff:

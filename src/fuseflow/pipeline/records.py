@@ -46,6 +46,8 @@ class FrameRecord:
     """Cameras the health monitor flagged as bumped in this frame."""
     recalibrated: bool = False
     """GMAC re-ran on this frame (``recalibrate="auto"``)."""
+    timestamp: float | None = None
+    """The frame's time, seconds (its views' device time), or None when the recording has none."""
 
     def to_json(self) -> dict[str, Any]:
         """The frames.jsonl line: ``pairs`` as nested lists with null for NaN."""
@@ -55,8 +57,11 @@ class FrameRecord:
         d["pairs"] = pairs_to_json(self.pairs)
         return {
             k: d[k]
-            for k in ("index", "points", "fuse_ms", "missing", "empty", "agreement", "pairs", "flagged", "recalibrated")
-        }
+            for k in (
+                "index", "points", "fuse_ms", "missing", "empty", "agreement", "pairs", "flagged", "recalibrated",
+                "timestamp",
+            )
+        }  # fmt: skip
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> FrameRecord:
@@ -72,6 +77,7 @@ class FrameRecord:
             pairs=pairs_from_json(rows, len(rows)),
             flagged=list(d.get("flagged", [])),
             recalibrated=bool(d.get("recalibrated", False)),
+            timestamp=None if d.get("timestamp") is None else float(d["timestamp"]),
         )
 
 

@@ -20,16 +20,15 @@ from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.paths import prepare_output_dir
-from fuseflow.io.ply import write_ply
 from fuseflow.io.recording import Recording, write_json_atomic
-from fuseflow.pipeline.config import PipelineConfig
+from fuseflow.pipeline.config import OutputOptions, PipelineConfig
+from fuseflow.pipeline.exports import FrameWriter, recording_centres, resolve_crop, with_volume, write_sequence
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
 from fuseflow.pipeline.frames import first_good_frame, process_frame
 from fuseflow.pipeline.health import HealthMonitor
 from fuseflow.pipeline.outputs import (
     OutputManifest,
     calibration_digest,
-    cloud_path,
     config_digest,
     fuseflow_version,
     open_output,
@@ -122,9 +121,10 @@ def run_manifest(
     else:
         frame = "first-good" if calib_frame is None else rec.frame_numbers[calib_frame]
         calib = f"gmac:{config_digest(config.calib_config())}:frame={frame}"
-    settings = config_digest(
-        config.fuse_config(), {k: v for k, v in asdict(config).items() if k not in ("fuse", "calib", "device")}
-    )
+    rest = {k: v for k, v in asdict(config).items() if k not in ("fuse", "calib", "device")}
+    if config.outputs == OutputOptions():
+        rest.pop("outputs")  # the default outputs digest as before they were options
+    settings = config_digest(config.fuse_config(), rest)
     return OutputManifest(
         command="run",
         recording=str(Path(rec.path).resolve()),
@@ -133,6 +133,21 @@ def run_manifest(
         config=settings,
         fuseflow_version=fuseflow_version(),
     )
+
+
+def _frame_writer(
+    rec: Recording, out: Path, given: Calibration | None, choice: CalibrationChoice, options: OutputOptions
+) -> FrameWriter:
+    """The writer of the run's frame files, with its capture volume (``options.crop``: "auto"
+    takes the given calibration's stored volume, else OUT/calib.json's, else the placed rig's)
+    written into OUT/calib.json."""
+    calib_json = out / "calib.json"
+    written = read_calibration(calib_json)
+    stored = given if given is not None and "capture_volume" in given.report else written
+    volume = resolve_crop(options.crop, choice.rig, stored)
+    if volume is not None and written.report.get("capture_volume") != volume.to_json():
+        write_calibration(calib_json, with_volume(written, volume), rig=rec.rig)
+    return FrameWriter(out, options, choice.rig, volume, recording_centres(rec.rig, choice.rig))
 
 
 def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tuple[Recording, dict[str, int]]:
@@ -164,6 +179,7 @@ class _RunState:
     fuse_ms: list[float] = field(default_factory=list)
     fused_now: int = 0
     resumed: int = 0
+    writer: FrameWriter | None = None
 
 
 def _recalibrate(rec: Recording, t: int, sel: list[int], state: _RunState, flagged: list[str], config) -> bool:
@@ -181,9 +197,12 @@ def _recalibrate(rec: Recording, t: int, sel: list[int], state: _RunState, flagg
     report = cal.report.to_json() if hasattr(cal.report, "to_json") else cal.report
     write_calibration(
         state.calib_json,
-        Calibration(
-            {c.id: c.T_cam_world for c in state.rig},
-            {"source": f"recalibrated at frame {number}", "gmac": report},
+        with_volume(
+            Calibration(
+                {c.id: c.T_cam_world for c in state.rig},
+                {"source": f"recalibrated at frame {number}", "gmac": report},
+            ),
+            state.writer.volume if state.writer is not None else None,
         ),
     )
     for c in flagged:
@@ -220,7 +239,8 @@ def _fuse_frames(
     sel = [rec.rig.index(c) for c in state.rig.ids]
     log_path = out / "frames.jsonl"
     previous = read_frame_log(log_path)
-    done = {t for t in positions if rec.frame_numbers[t] in previous and cloud_path(out, rec.frame_numbers[t]).exists()}
+    writer = state.writer
+    done = {t for t in positions if rec.frame_numbers[t] in previous and writer.done(rec.frame_numbers[t])}
     results = _frame_results(rec, [t for t in positions if t not in done], sel, state, config, ray)
     n = len(state.rig)
     with open(log_path, "a") as log:
@@ -228,13 +248,16 @@ def _fuse_frames(
             number = rec.frame_numbers[t]
             if t in done:
                 record = previous[number]
+                writer.resumed(number, record.timestamp, record.points)
                 state.resumed += 1
                 if record.pairs.size:  # rebuild the health baselines
                     state.monitor.update(record.pairs.reshape(n, n))
             else:
                 cloud, record = next(results)
                 state.fuse_ms.append(record.fuse_ms)
-                write_ply(cloud_path(out, number), cloud)
+                cloud = writer.crop(cloud)
+                record.points = len(cloud)
+                writer.write(number, cloud, lambda t=t: rec[t].subset(sel), record.timestamp)
                 record.flagged = state.monitor.update(record.pairs.reshape(n, n))
                 if record.flagged and config.recalibrate == "auto":
                     record.recalibrated = _recalibrate(rec, t, sel, state, record.flagged, config)
@@ -339,11 +362,13 @@ def run(
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
+    state.writer = _frame_writer(rec, out, calibration, choice, config.outputs)
     rec, offsets = _check_sync(rec, state, config)
     positions = list(frames if frames is not None else range(len(rec)))
     t_start = time.perf_counter()
     _fuse_frames(rec, out, positions, state, config, ray, on_frame)
     summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
     summary.sync_offsets = offsets
+    write_sequence(out, state.writer)
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary

@@ -22,6 +22,8 @@ class ViewSource:
 
     rig: Rig | None
     items: list[tuple[int, Callable[[], FusedCloud]]]
+    volume: object | None = None
+    """The capture volume a run stored in its calib.json (``geometry.volume.CaptureVolume``), or None."""
 
 
 def _run_rig(path: Path) -> Rig | None:
@@ -38,17 +40,32 @@ def _run_rig(path: Path) -> Rig | None:
         return None
 
 
+def _run_volume(path: Path):
+    """The capture volume in a run directory's calib.json, or None."""
+    from fuseflow.geometry.volume import CaptureVolume
+    from fuseflow.io import read_calibration
+
+    try:
+        doc = read_calibration(path / "calib.json").report.get("capture_volume")
+    except (FuseFlowError, OSError):
+        return None
+    return CaptureVolume.from_json(doc) if doc else None
+
+
 def view_source(path: str | Path) -> ViewSource:
     """The clouds of a run directory (``path/clouds/*.ply``), or of a calibrated recording fused
     frame by frame; RecordingError when there is nothing to show."""
-    from fuseflow.io import open_recording, read_ply
+    from fuseflow.io import open_recording
 
     path = Path(path)
     if (path / "clouds").is_dir():
-        clouds = sorted((path / "clouds").glob("*.ply"))
+        from fuseflow.io.exchange import read_cloud
+
+        clouds = sorted(p for ext in ("ply", "drc", "glb") for p in (path / "clouds").glob(f"*.{ext}"))
         if not clouds:
-            raise RecordingError(f"{path / 'clouds'} holds no .ply files")
-        return ViewSource(_run_rig(path), [(int(p.stem), (lambda p=p: read_ply(p))) for p in clouds])
+            raise RecordingError(f"{path / 'clouds'} holds no .ply, .drc or .glb files")
+        items = [(int(p.stem), (lambda p=p: read_cloud(p))) for p in clouds]
+        return ViewSource(_run_rig(path), items, _run_volume(path))
     rec = open_recording(path)
     if not rec.rig.is_calibrated:
         raise RecordingError(
@@ -69,19 +86,35 @@ def world_up(rig: Rig | None) -> tuple[float, float, float]:
     return tuple((up / n).tolist()) if n > 1e-6 else (0.0, -1.0, 0.0)
 
 
-def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb") -> int:
-    """Render each frame of ``source`` to OUT/<frame:06d>.png from one orbit view framed on the
-    first non-empty cloud (headless); returns the number of PNGs."""
-    from fuseflow.viz.render import orbit_camera, save_cloud_png
+def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb", whole: bool = False) -> int:
+    """Render each frame of ``source`` to OUT/<frame:06d>.png (headless) from one view
+    (``viz.render.view_camera``) framed on the first non-empty cloud: the capture volume (the
+    run's stored one, else the rig's) unless ``whole``; cameras, axes, frame label, colour bar
+    for weights. Returns the number of PNGs."""
+    from fuseflow.viz.render import save_cloud_png, view_camera
 
+    volume = None if whole else _volume(source)
     view = None
     for number, load in source.items:
         cloud = load()
         if view is None and len(cloud):
-            view = orbit_camera(cloud.xyz.numpy(), up=world_up(source.rig))
+            view = view_camera(cloud.xyz.numpy(), source.rig, volume)[:2]
         K, T = view if view is not None else (None, None)
-        save_cloud_png(Path(out_dir) / f"{number:06d}.png", cloud, color_by=color_by, K=K, T_cam_world=T)
+        label = f"frame {number}  {len(cloud):,} points  ({color_by})"
+        save_cloud_png(Path(out_dir) / f"{number:06d}.png", cloud, color_by, K, T, rig=source.rig, volume=volume,
+                       label=label)  # fmt: skip
     return len(source.items)
+
+
+def _volume(source: ViewSource):
+    """The source's stored capture volume, else the one of its calibrated rig, else None."""
+    if source.volume is not None:
+        return source.volume
+    if source.rig is None or not source.rig.is_calibrated:
+        return None
+    from fuseflow.geometry.volume import capture_volume
+
+    return capture_volume(source.rig)
 
 
 def send_to_rerun(source: ViewSource, rrd: str | Path | None = None) -> int:
