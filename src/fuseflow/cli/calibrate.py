@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from fuseflow.cli.app import console, fail, say, warn
+from fuseflow.cli.app import console, fail, parse_range, say, warn
 
 MATCHER_OPTION = typer.Option(
     "sift",
@@ -66,14 +66,14 @@ def command(
     fuseflow.write_calibration(out, calib, rig=recording.rig)  # its fingerprint guards reuse on another rig
     r = calib.report
     say(
-        f"GMAC {rec} {_frames_text(indices)}: backbone {r['backbone']}, s* = {r['scale']:.6g} "
-        f"(naive median ratio {r['scale_naive_median_depth_ratio']}), {len(calib.T_cam_world)}/{len(rig)} cameras placed, "
-        f"{r['timings_s']['total']:.1f} s"
+        f"GMAC {rec} {_frames_text(indices)}: backbone {r.backbone}, s* = {r.scale:.6g} "
+        f"(naive median ratio {r.scale_naive_median_depth_ratio}), {len(calib.T_cam_world)}/{len(rig)} cameras placed, "
+        f"{r.timings_s['total']:.1f} s"
     )
     t = Table("edge", "scale", "corr.", "status", box=None)  # camera ids and numbers: no markup
-    for e, s in r["edge_scales"].items():
-        status = "pruned" if e in r["pruned_edges"] else ("kept, gives s*" if e in r["scale_edges"] else "kept")
-        t.add_row(e, f"{s:.5g}", str(r["correspondence_counts"][e]), status)
+    for e, s in r.edge_scales.items():
+        status = "pruned" if e in r.pruned_edges else ("kept, gives s*" if e in r.scale_edges else "kept")
+        t.add_row(e, f"{s:.5g}", str(r.correspondence_counts[e]), status)
     console.print(t)
     if r.scale_check is not None:
         say(f"metric backbone: poses used at scale 1; GMAC's closed-form scale on them (check): {r.scale_check:.4f}")
@@ -81,16 +81,16 @@ def command(
         say("placed by: " + ", ".join(f"{c} {s}" for c, s in r.placed_by.items()))
     for c, why in r.unplaced_reasons.items():
         warn(f"{c} not placed: {why}")
-    say(f"cycle check: {r['cycle_mode']}; pruned edges: {r['pruned_edges'] or 'none'}")
-    agree = {c: a for c, a in r["depth_agreement"].items() if a is not None}
+    say(f"cycle check: {r.cycle_mode}; pruned edges: {r.pruned_edges or 'none'}")
+    agree = {c: a for c, a in r.depth_agreement.items() if a is not None}
     if agree:
         worst = min(agree, key=agree.get)
         say(
-            f"depth agreement with neighbours: lowest {agree[worst]:.2f} ({worst}), suspect: {r['suspect_cameras'] or 'none'}"
+            f"depth agreement with neighbours: lowest {agree[worst]:.2f} ({worst}), suspect: {r.suspect_cameras or 'none'}"
         )
-    if r["unconnected_cameras"]:
-        warn(f"unconnected (not placed): {r['unconnected_cameras']}")
-    for w in r["warnings"]:
+    if r.unconnected_cameras:
+        warn(f"unconnected (not placed): {r.unconnected_cameras}")
+    for w in r.warnings:
         warn(w)
     say(f"wrote {out}")
 
@@ -114,21 +114,9 @@ def _config(preset: str, backbone: str | None, backbone_path: str | None, refine
 
 
 def frame_indices(spec: str, n: int) -> list[int]:
-    """Frame indices of ``--frames A:B[:step]`` (a Python slice over the recording's n frames; A,
-    B may be empty or negative). Exits with a one-line error on a bad spec or an empty range."""
-    parts = spec.split(":")
-    try:
-        if len(parts) not in (2, 3):
-            raise ValueError(spec)
-        vals = [int(p) if p.strip() else None for p in parts]
-    except ValueError:
-        fail(f"--frames {spec!r}: expected A:B or A:B:step with integers, e.g. 0:50:10")
-    if len(vals) == 3 and vals[2] is not None and vals[2] <= 0:
-        fail(f"--frames {spec!r}: step must be positive")
-    idx = list(range(n))[slice(*vals)]
-    if not idx:
-        fail(f"--frames {spec!r} selects no frame: the recording has {n} frames")
-    return idx
+    """Frame indices of ``--frames A:B[:step]`` (``app.parse_range``, the one parser); exits with a
+    one-line error on a bad spec or an empty range."""
+    return list(parse_range(spec, n))
 
 
 def _frames_text(indices: list[int]) -> str:

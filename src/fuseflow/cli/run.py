@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from fuseflow.cli.app import (
+    FRAMES_OPTION_HELP,
     POINTS_HELP,
     check_device,
     check_fuse_options,
@@ -48,7 +49,7 @@ def command(
     calib_frame: int = typer.Option(
         None, "--calib-frame", help="Frame position GMAC calibrates on (default: first good)."
     ),
-    frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
+    frames: str = typer.Option(None, "--frames", help=FRAMES_OPTION_HELP),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     preset: str = typer.Option(
         "default", "--preset", help="FUSE preset: default (= quality), live (every 2nd pixel), fast, paper, ..."

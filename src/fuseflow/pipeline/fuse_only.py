@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import write_calibration
@@ -26,12 +26,16 @@ from fuseflow.pipeline.outputs import (
     OutputManifest,
     calibration_digest,
     cloud_path,
-    config_digest,
     fuseflow_version,
     open_output,
     recording_fingerprint,
+    settings_digest,
+    settings_doc,
 )
 from fuseflow.types import Calibration, Rig
+
+if TYPE_CHECKING:
+    from fuseflow.fuse import FuseConfig
 
 __all__ = ["fuse_recording", "FuseRunSummary", "rig_for_fusion"]
 
@@ -82,14 +86,17 @@ def rig_for_fusion(rec: Recording, calibration: Calibration | None) -> Rig:
     return rig
 
 
-def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None) -> OutputManifest:
+def _manifest(rec: Recording, rig: Rig, cfg: FuseConfig) -> OutputManifest:
+    """The manifest of a ``fuse``: its FuseConfig recorded and digested as ``run`` does."""
+    settings = settings_doc(fuse=cfg)
     return OutputManifest(
         command="fuse",
         recording=str(Path(rec.path).resolve()),
         recording_fingerprint=recording_fingerprint(rec),
         calibration=f"given:{calibration_digest({c.id: c.T_cam_world for c in rig})}",
-        config=config_digest({"preset": preset, "points": points}),
+        config=settings_digest(settings),
         fuseflow_version=fuseflow_version(),
+        settings=settings,
     )
 
 
@@ -189,7 +196,7 @@ def fuse_recording(
     if not positions:
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
     out = prepare_output_dir(out_dir)
-    open_output(out, _manifest(rec, rig, preset, points), force)
+    open_output(out, _manifest(rec, rig, cfg), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
     write_calibration(
         out / "calib.json", Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), rig=rec.rig
