@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             fuse_recording(rec, Path(tmp) / f"f{r}", frames=positions)
             fuse_fps.append(n / (time.perf_counter() - t0))
             t0 = time.perf_counter()
-            run(rec, Path(tmp) / f"r{r}", use_rig_extrinsics=True, frames=positions)
+            run(rec, Path(tmp) / f"r{r}", use_rig_extrinsics=True, frames=positions, config=PipelineConfig(sync="off"))
             run_fps.append(n / (time.perf_counter() - t0))
     cfg = PipelineConfig()
     health_ms = []

@@ -32,7 +32,7 @@ fi
 # Compile the numba kernels now (cached on disk beside the installed package), so that a
 # newcomer's first simulated or fused frame does not wait ~20 s for the compiler.
 warm=$(mktemp -d)
-if .venv/bin/fuseflow simulate "$warm/rec" --cameras 2 --frames 1 --resolution 64x48 >/dev/null \
+if .venv/bin/fuseflow simulate "$warm/rec" --cameras 2 --num-frames 1 --resolution 64x48 >/dev/null \
     && .venv/bin/fuseflow fuse "$warm/rec" --out "$warm/out" >/dev/null; then
     echo "compiled the FUSE and simulator kernels" >&2
 else

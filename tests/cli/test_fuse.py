@@ -76,7 +76,7 @@ def test_fuse_errors_are_one_line(rec, tmp_path):
     res = _invoke("fuse", bare, "--out", tmp_path / "o")
     assert res.exit_code == 2 and "no extrinsics: run fuseflow calibrate first or pass --calib" in res.output
     for args, msg in (
-        (("--frames", "x:y"), "--frames expects A:B"),
+        (("--frames", "x:y"), "expected A:B[:step]"),
         (("--frames", "5:9"), "selects no frame"),
         (("--device", "tpu"), "--device must be cpu or cuda"),
         (("--preset", "fastest"), "no FUSE preset 'fastest'"),

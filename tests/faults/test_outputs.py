@@ -19,7 +19,7 @@ def _cmd(kind: str, rec, out):
         "fuse": ("fuse", rec, "--out", out),
         "run": ("run", rec, "--out", out, "--use-rig"),
         "calibrate": ("calibrate", rec, "--out", out),
-        "simulate": ("simulate", out, "--cameras", "2", "--frames", "1", "--resolution", "64x48"),
+        "simulate": ("simulate", out, "--cameras", "2", "--num-frames", "1", "--resolution", "64x48"),
     }[kind]
 
 

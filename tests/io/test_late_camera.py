@@ -141,7 +141,7 @@ def test_desync_shifts_a_simulated_camera(sim, tmp_path):
 
 def test_simulate_cli_desync(tmp_path):
     out = tmp_path / "s"
-    res = runner.invoke(app, ["simulate", str(out), "--cameras", "2", "--frames", "4", "--resolution", "48x36",
+    res = runner.invoke(app, ["simulate", str(out), "--cameras", "2", "--num-frames", "4", "--resolution", "48x36",
                               "--desync", "cam01:-1"])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "desync {'cam01': -1}" in res.output

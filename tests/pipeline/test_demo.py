@@ -15,7 +15,7 @@ from fuseflow.io import read_calibration, read_ply
 
 def test_demo_writes_its_scores_pictures_and_clouds(tmp_path):
     out = tmp_path / "demo"
-    res = CliRunner().invoke(app, ["demo", "--out", str(out), "--cameras", "8", "--frames", "2", "--seed", "1"])
+    res = CliRunner().invoke(app, ["demo", "--out", str(out), "--cameras", "8", "--num-frames", "2", "--seed", "1"])
     assert res.exit_code == 0, res.output
     assert "GMAC rotation error" in res.output and "F-score" in res.output
     d = json.loads((out / "demo.json").read_text())

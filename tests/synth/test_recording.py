@@ -21,7 +21,7 @@ runner = CliRunner()
 @pytest.fixture(scope="module")
 def rec(tmp_path_factory):
     out = tmp_path_factory.mktemp("sim") / "r"
-    res = runner.invoke(app, ["simulate", str(out), "--cameras", "8", "--frames", "10", "--seed", "1",
+    res = runner.invoke(app, ["simulate", str(out), "--cameras", "8", "--num-frames", "10", "--seed", "1",
                               "--resolution", "96x72"])  # fmt: skip
     assert res.exit_code == 0, res.output
     return out
@@ -94,7 +94,7 @@ def test_uncalibrated_and_injected_calibration_error(tmp_path):
     ],
 )
 def test_cli_bad_input_is_a_clear_error(tmp_path, args, word):
-    res = runner.invoke(app, ["simulate", str(tmp_path / "x"), "--frames", "1", *args])
+    res = runner.invoke(app, ["simulate", str(tmp_path / "x"), "--num-frames", "1", *args])
     assert res.exit_code != 0
     message = str(res.exception) if isinstance(res.exception, ValidationError) else res.output
     assert word in message
@@ -103,7 +103,7 @@ def test_cli_bad_input_is_a_clear_error(tmp_path, args, word):
 
 def test_cli_disable_switches_effects_off(tmp_path):
     out = tmp_path / "clean"
-    res = runner.invoke(app, ["simulate", str(out), "--cameras", "2", "--frames", "1", "--resolution", "48x36",
+    res = runner.invoke(app, ["simulate", str(out), "--cameras", "2", "--num-frames", "1", "--resolution", "48x36",
                               "--disable", "axial_noise,lateral_noise,quantization,flying_pixels,grazing_dropout,"
                               "range_dropout,random_dropout,color_noise"])  # fmt: skip
     assert res.exit_code == 0, res.output
@@ -113,5 +113,5 @@ def test_cli_disable_switches_effects_off(tmp_path):
     # half-mm boundary may round either way)
     d, g = open_recording(out)[0].depth.numpy(), gt.depth(0).numpy()
     assert np.abs(d - g).max() <= 1e-3 + 1e-6 and np.mean(d != g) < 0.01
-    res = runner.invoke(app, ["simulate", str(tmp_path / "x"), "--frames", "1", "--disable", "blur"])
+    res = runner.invoke(app, ["simulate", str(tmp_path / "x"), "--num-frames", "1", "--disable", "blur"])
     assert res.exit_code != 0 and "unknown effect 'blur'" in res.output

@@ -62,16 +62,36 @@ def warn(message: str) -> None:
     console.print(f"[yellow]warning:[/] {escape(message)}", highlight=False)
 
 
+FRAMES_OPTION_HELP = "A:B[:step]: frame positions, a Python slice (A, B optional or negative; default all)."
+"""The help of every ``--frames`` that selects frames (the grammar of ``io.convert.FRAMES_HELP``)."""
+
+
+def frame_count(num_frames: int, old_frames: int | None) -> int:
+    """A command's frame count: ``--num-frames``, or the deprecated count spelling ``--frames N``
+    (still accepted, with a warning: ``--frames`` selects frames, A:B[:step], elsewhere)."""
+    if old_frames is None:
+        return num_frames
+    warn(f"--frames {old_frames} as a count is deprecated: use --num-frames {old_frames}")
+    return old_frames
+
+
+OLD_FRAMES_COUNT = typer.Option(None, "--frames", hidden=True, help="Deprecated spelling of --num-frames.")
+"""The hidden ``--frames N`` of the commands that take a frame count (``frame_count``)."""
+
+
 def parse_range(spec: str | None, n: int) -> range:
-    """'A:B' (python-style, either side optional) -> range within [0, n); a bad spec exits with
-    the library's one-line message (``io.convert.parse_frame_range``)."""
+    """``--frames A:B[:step]`` -> the positions it selects in range(n) (``io.convert.parse_frame_range``,
+    the one parser); a bad spec or an empty selection exits with a one-line error."""
     from fuseflow.io.convert import parse_frame_range
 
     try:
-        return parse_frame_range(spec, n)
+        positions = parse_frame_range(spec, n)
     except FuseFlowError as exc:
         fail(str(exc))
         raise  # unreachable: fail exits
+    if len(positions) == 0:
+        fail(f"--frames {spec!r} selects no frame: the recording has {n} frames (positions 0:{n})")
+    return positions
 
 
 def parse_int_list(spec: str, option: str) -> list[int]:

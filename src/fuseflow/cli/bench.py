@@ -13,7 +13,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import fail, guarded, progress, say
+from fuseflow.cli.app import OLD_FRAMES_COUNT, fail, frame_count, guarded, progress, say
 
 DATA_DIR_HELP = (
     "The shared data folder holding icl-livingroom1 (ICL-NUIM). Default ../shared/data, relative to the "
@@ -31,7 +31,8 @@ def _echo(line: str) -> None:
 
 def bench_fuse(
     cameras: str = typer.Option("1,2,4,8,16", "--cameras", help="Comma list of camera counts N."),
-    frames: int = typer.Option(7, "--frames", help="Timed frames per N (median over them, after warm-up)."),
+    num_frames: int = typer.Option(7, "--num-frames", help="Timed frames per N (median over them, after warm-up)."),
+    old_frames: int = OLD_FRAMES_COUNT,
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     json_out: Path = typer.Option(None, "--json", help="Write one JSON row per (method, N)."),
     no_baselines: bool = typer.Option(False, "--no-baselines", help="Time FUSE only."),
@@ -42,11 +43,12 @@ def bench_fuse(
     data_dir: Path = _data_dir_option(),
 ) -> None:
     """FUSE per-frame time and peak memory against VoxelBlockGrid TSDF and naive + voxel fusion."""
+    frames = frame_count(num_frames, old_frames)
     from fuseflow.eval.bench import BenchmarkFailed
     from fuseflow.eval.bench.fuse_speed import DEFAULT_METHODS, parse_options, run_fuse_speed
 
     cams, resolution = parse_options(cameras, "640x480")
-    command = f"fuseflow bench fuse --cameras {cameras} --frames {frames} --device {device} --data {data}"
+    command = f"fuseflow bench fuse --cameras {cameras} --num-frames {frames} --device {device} --data {data}"
     command += (f" --json {shlex.quote(str(json_out))}" if json_out is not None else "") + (
         " --no-baselines" if no_baselines else ""
     )

@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from fuseflow.cli.app import StageProgress, console, fail, say, warn
+from fuseflow.cli.app import StageProgress, console, fail, parse_range, say, warn
 
 MATCHER_OPTION = typer.Option(
     "sift",
@@ -209,21 +209,9 @@ def _config(preset: str, backbone: str | None, backbone_path: str | None, refine
 
 
 def frame_indices(spec: str, n: int) -> list[int]:
-    """Frame indices of ``--frames A:B[:step]`` (a Python slice over the recording's n frames; A,
-    B may be empty or negative). Exits with a one-line error on a bad spec or an empty range."""
-    parts = spec.split(":")
-    try:
-        if len(parts) not in (2, 3):
-            raise ValueError(spec)
-        vals = [int(p) if p.strip() else None for p in parts]
-    except ValueError:
-        fail(f"--frames {spec!r}: expected A:B or A:B:step with integers, e.g. 0:50:10")
-    if len(vals) == 3 and vals[2] is not None and vals[2] <= 0:
-        fail(f"--frames {spec!r}: step must be positive")
-    idx = list(range(n))[slice(*vals)]
-    if not idx:
-        fail(f"--frames {spec!r} selects no frame: the recording has {n} frames")
-    return idx
+    """Frame indices of ``--frames A:B[:step]`` (``app.parse_range``, the one parser); exits with a
+    one-line error on a bad spec or an empty range."""
+    return list(parse_range(spec, n))
 
 
 def _frames_text(indices: list[int]) -> str:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import fail, parse_int_list, say
+from fuseflow.cli.app import FRAMES_OPTION_HELP, fail, parse_int_list, say
 
 
 def command(
@@ -29,7 +29,7 @@ def command(
         None, "--cameras", help="Virtual rig of this many cameras taken every --every frames from frame 0."
     ),
     every: int = typer.Option(30, "--every", help="Frame step for --cameras."),
-    frames: str = typer.Option(None, "--frames", help="A:B frame range for a plain (single-camera) conversion."),
+    frames: str = typer.Option(None, "--frames", help="Plain (single-camera) conversion: " + FRAMES_OPTION_HELP),
     tum_intrinsics: str = typer.Option(
         None, "--tum-intrinsics", help="TUM sensor: freiburg1, freiburg2, freiburg3 or ros (default: from folder name)."
     ),

@@ -7,16 +7,18 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import print_table, progress, say, warn
+from fuseflow.cli.app import OLD_FRAMES_COUNT, frame_count, print_table, progress, say, warn
 
 
 def command(
     out: Path = typer.Option(Path("fuseflow-demo"), "--out", help="Where the demo writes its results."),
     cameras: int = typer.Option(8, "--cameras", help="Simulated cameras."),
-    frames: int = typer.Option(10, "--frames", help="Simulated frames."),
+    num_frames: int = typer.Option(10, "--num-frames", help="Simulated frames."),
+    old_frames: int = OLD_FRAMES_COUNT,
     seed: int = typer.Option(1, "--seed", help="Simulator seed."),
 ) -> None:
     """Simulate a dynamic rig, calibrate it with GMAC, fuse it with FUSE, score it against ground truth."""
+    frames = frame_count(num_frames, old_frames)
     from fuseflow.eval.demo import run_demo
 
     with progress("demo") as bar:

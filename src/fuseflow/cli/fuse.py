@@ -9,10 +9,10 @@ import typer
 
 from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
+    FRAMES_OPTION_HELP,
     POINTS_HELP,
     check_device,
     check_fuse_options,
-    fail,
     parse_range,
     print_table,
     progress,
@@ -31,7 +31,7 @@ def command(
     rec: Path = typer.Argument(..., help="Recording directory (fuseflow format, Open3D/ICL or TUM layout)."),
     out: Path = typer.Option(..., "--out", help="Output directory: clouds/<frame>.ply, calib.json, summary.json."),
     calib: Path = typer.Option(None, "--calib", help="Extrinsics to use (calib.json); default: rig.json's."),
-    frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
+    frames: str = typer.Option(None, "--frames", help=FRAMES_OPTION_HELP),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (cpu runs the compiled numba path)."),
     preset: str = typer.Option(
         "auto",
@@ -60,10 +60,6 @@ def command(
     recording = open_recording(rec)
     calibration = read_calibration(calib) if calib is not None else None
     positions = parse_range(frames, len(recording))
-    if len(positions) == 0:
-        fail(
-            f"--frames {frames!r} selects no frame: the recording has {len(recording)} frames (positions 0:{len(recording)})"
-        )
     with progress("fusing") as bar:
         task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))
         s = fuse_recording(

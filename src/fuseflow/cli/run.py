@@ -8,6 +8,7 @@ import typer
 
 from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
+    FRAMES_OPTION_HELP,
     POINTS_HELP,
     check_device,
     check_fuse_options,
@@ -49,7 +50,7 @@ def command(
     calib_frame: int = typer.Option(
         None, "--calib-frame", help="Frame position GMAC calibrates on (default: first good)."
     ),
-    frames: str = typer.Option(None, "--frames", help="A:B, frame positions to fuse (default all)."),
+    frames: str = typer.Option(None, "--frames", help=FRAMES_OPTION_HELP),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
     preset: str = typer.Option(
         "auto",

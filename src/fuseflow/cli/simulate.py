@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import fail, progress, say
+from fuseflow.cli.app import OLD_FRAMES_COUNT, fail, frame_count, progress, say
 
 _EFFECTS = ("axial_noise", "lateral_noise", "quantization", "flying_pixels", "grazing_dropout", "range_dropout",
             "random_dropout", "color_noise")  # fmt: skip
@@ -35,7 +35,8 @@ def _parse_resolution(spec: str) -> tuple[int, int]:
 def command(
     out: Path = typer.Argument(..., help="Output directory (must not already hold a recording)."),
     cameras: int = typer.Option(8, "--cameras", help="Number of cameras, 1..64."),
-    frames: int = typer.Option(10, "--frames", help="Number of frames."),
+    num_frames: int = typer.Option(10, "--num-frames", help="Number of frames."),
+    old_frames: int = OLD_FRAMES_COUNT,
     scene: str = typer.Option("studio", "--scene", help="studio | room | wall (test scene)."),
     dynamic: bool = typer.Option(False, "--dynamic", help="Add moving objects (walking figure, box, sphere)."),
     resolution: str = typer.Option("640x480", "--resolution", help="WxH pixels."),
@@ -53,6 +54,7 @@ def command(
     ),
 ) -> None:
     """Simulate a camera rig around a scene; write the recording, gt.json, GT depth and surfaces."""
+    frames = frame_count(num_frames, old_frames)
     from fuseflow.io.paths import prepare_output_dir
     from fuseflow.synth import SimConfig, simulate_recording
     from fuseflow.synth.desync import apply_desync, parse_desync

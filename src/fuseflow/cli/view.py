@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import fail, parse_range, say
+from fuseflow.cli.app import FRAMES_OPTION_HELP, fail, parse_range, say
 
 
 def command(
@@ -15,7 +15,7 @@ def command(
     save_png: Path = typer.Option(None, "--save-png", help="Headless: render each frame to DIR/<frame>.png."),
     color_by: str = typer.Option("rgb", "--color-by", help="rgb or weight (PNG only; rerun shows both)."),
     rrd: Path = typer.Option(None, "--rrd", help="Write a rerun .rrd file instead of opening the viewer."),
-    frames: str = typer.Option(None, "--frames", help="A:B, which frames to show."),
+    frames: str = typer.Option(None, "--frames", help=FRAMES_OPTION_HELP),
     whole: bool = typer.Option(
         False, "--whole", help="PNG: draw every point (default: the capture volume the cameras look at)."
     ),

@@ -355,7 +355,7 @@ def calibrations(sample: Sample, backbone: str, seed: int, rows: Iterable[str]) 
             "T": {k: np.asarray(v).tolist() for k, v in cal.T_cam_world.items()},
             "seconds": t_bb + time.perf_counter() - t,
         }
-        naive = naive or cal.report.get("scale_naive_median_depth_ratio")
+        naive = naive or cal.report.scale_naive_median_depth_ratio
     if naive:
         out[ORIGINAL] = {"T": {k: v.tolist() for k, v in _scaled(bb, ids, naive).items()}, "seconds": t_bb}
     else:

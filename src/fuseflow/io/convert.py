@@ -21,7 +21,7 @@ from typing import Any
 from fuseflow.errors import RecordingError, ValidationError
 from fuseflow.types import Rig
 
-__all__ = ["ConvertSummary", "convert", "open_camera_file", "parse_frame_range", "CAMERA_FILE_SUFFIXES"]
+__all__ = ["ConvertSummary", "convert", "open_camera_file", "parse_frame_range", "FRAMES_HELP", "CAMERA_FILE_SUFFIXES"]
 
 CAMERA_FILE_SUFFIXES = (".bag", ".mkv")
 
@@ -46,18 +46,29 @@ class ConvertSummary:
     details: dict[str, Any] = field(default_factory=dict)
 
 
+FRAMES_HELP = "A:B[:step], a Python slice of frame positions (A, B optional or negative; B exclusive)"
+"""The one ``--frames`` grammar of every command that selects frames (fuse, run, view, calibrate,
+convert); counts of frames are ``--num-frames``."""
+
+
 def parse_frame_range(spec: str | None, n: int) -> range:
-    """'A:B' (python-style, either side optional) -> the positions it selects in range(n);
-    None = all. ValidationError on anything else (``--frames`` of convert, fuse, run, view)."""
+    """``A:B[:step]`` (a Python slice: A and B optional or negative, B exclusive, step > 0) -> the
+    positions it selects in range(n), possibly empty; None = all. ValidationError on anything else.
+    The one parser of ``--frames`` (``FRAMES_HELP``)."""
     if spec is None:
         return range(n)
+    parts = spec.split(":")
     try:
-        a, _, b = spec.partition(":")
-        start = int(a) if a else 0
-        stop = int(b) if b else n
+        if len(parts) not in (2, 3):
+            raise ValueError(spec)
+        vals = [int(p) if p.strip() else None for p in parts]
     except ValueError:
-        raise ValidationError(f"--frames expects A:B (e.g. 0:100), got {spec!r}") from None
-    return range(n)[start:stop]
+        raise ValidationError(
+            f"--frames {spec!r}: expected A:B[:step] with integers (a Python slice), e.g. 0:100 or 0:50:10"
+        ) from None
+    if len(vals) == 3 and vals[2] is not None and vals[2] <= 0:
+        raise ValidationError(f"--frames {spec!r}: step must be positive")
+    return range(n)[slice(*vals)]
 
 
 def open_camera_file(path: str | Path):

@@ -76,8 +76,9 @@ class PipelineConfig:
     camera is suspect when most of its pairs fell (HealthMonitor). Range (0, 1)."""
     health_patience: int = 2
     """Consecutive suspect frames before a camera is flagged as bumped. Range >= 1."""
-    sync: Literal["off", "check", "auto"] = "off"
-    """Camera-sync check (pipeline/sync.py) before fusing: "check" reports cameras whose depth
+    sync: Literal["off", "check", "auto"] = "check"
+    """Camera-sync check (pipeline/sync.py) before fusing; default "check", as ``fuseflow run``
+    --sync-offsets. "off" skips it; "check" reports cameras whose depth
     agrees consistently better with their neighbours' earlier or later frames ("cam03 is about
     +2 frames late"); "auto" also re-times them for fusion. Costs ~ 8 x 7 x N restricted
     agreement passes per run."""

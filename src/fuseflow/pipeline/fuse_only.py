@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.calibration import write_calibration
@@ -35,12 +35,16 @@ from fuseflow.pipeline.frames import select_views
 from fuseflow.pipeline.outputs import (
     OutputManifest,
     calibration_digest,
-    config_digest,
     fuseflow_version,
     open_output,
     recording_fingerprint,
+    settings_digest,
+    settings_doc,
 )
 from fuseflow.types import Calibration, Rig
+
+if TYPE_CHECKING:
+    from fuseflow.fuse import FuseConfig
 
 __all__ = ["fuse_recording", "FuseRunSummary", "rig_for_fusion"]
 
@@ -94,8 +98,10 @@ def rig_for_fusion(rec: Recording, calibration: Calibration | None) -> Rig:
     return rig
 
 
-def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None, outputs: OutputOptions) -> OutputManifest:
-    settings: dict[str, Any] = {"preset": preset, "points": points}
+def _manifest(rec: Recording, rig: Rig, cfg: FuseConfig, outputs: OutputOptions) -> OutputManifest:
+    """The manifest of a ``fuse``: its FuseConfig recorded and digested as ``run`` does (and the
+    output options where they are not the defaults)."""
+    settings = settings_doc(fuse=cfg)
     if outputs != OutputOptions():
         settings["outputs"] = asdict(outputs)
     return OutputManifest(
@@ -103,8 +109,9 @@ def _manifest(rec: Recording, rig: Rig, preset: str, points: int | None, outputs
         recording=str(Path(rec.path).resolve()),
         recording_fingerprint=recording_fingerprint(rec),
         calibration=f"given:{calibration_digest({c.id: c.T_cam_world for c in rig})}",
-        config=config_digest(settings),
+        config=settings_digest(settings),
         fuseflow_version=fuseflow_version(),
+        settings=settings,
     )
 
 
@@ -218,7 +225,7 @@ def fuse_recording(
     outputs = outputs if outputs is not None else OutputOptions()
     volume = resolve_crop(outputs.crop, rig, calibration)
     out = prepare_output_dir(out_dir)
-    open_output(out, _manifest(rec, rig, preset, points, outputs), force)
+    open_output(out, _manifest(rec, rig, cfg, outputs), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
     used = with_volume(Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), volume)
     write_calibration(out / "calib.json", used, rig=rec.rig)

@@ -29,6 +29,9 @@ __all__ = [
     "recording_fingerprint",
     "calibration_digest",
     "config_digest",
+    "settings_doc",
+    "settings_digest",
+    "setting_changes",
     "MANIFEST",
     "fuseflow_version",
 ]
@@ -94,9 +97,13 @@ class OutputManifest:
     config: str
     """Digest of the settings that change the outputs (FUSE, GMAC, health, recalibration)."""
     fuseflow_version: str
+    settings: dict[str, Any] | None = None
+    """The settings ``config`` digests, by name (``settings_doc``), so that a mismatch can say which
+    setting changed; None in manifests written before it was recorded."""
 
     def differences(self, other: OutputManifest) -> list[str]:
-        """Human-readable differences that forbid resuming ``other`` as ``self`` (path excluded)."""
+        """Human-readable differences that forbid resuming ``other`` as ``self`` (path excluded);
+        changed settings are named one by one ("settings: fuse.s0 was 5.0, now 1.0")."""
         names = {
             "command": "command",
             "recording_fingerprint": "recording content (rig.json or frame list)",
@@ -107,9 +114,37 @@ class OutputManifest:
         out = []
         for key, what in names.items():
             a, b = getattr(other, key), getattr(self, key)
-            if a != b:
+            if a == b:
+                continue
+            named = setting_changes(other.settings, self.settings) if key == "config" else []
+            if named:
+                out.extend(f"{what}: {change}" for change in named)
+            else:
                 out.append(f"{what}: was {a}, now {b}")
         return out
+
+
+def _flat(doc: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(doc, dict):
+        flat: dict[str, Any] = {}
+        for k, v in doc.items():
+            flat.update(_flat(v, f"{prefix}{k}."))
+        return flat
+    return {prefix[:-1]: doc}
+
+
+def setting_changes(old: dict[str, Any] | None, new: dict[str, Any] | None) -> list[str]:
+    """ "NAME was X, now Y" for every setting that differs between two ``settings_doc`` documents
+    (nested names joined by dots); [] when either is unknown."""
+    if old is None or new is None:
+        return []
+    a, b = _flat(json.loads(json.dumps(old, default=str))), _flat(json.loads(json.dumps(new, default=str)))
+    missing = object()
+    return [
+        f"{k} was {a.get(k, 'unset')!r}, now {b.get(k, 'unset')!r}"
+        for k in sorted(set(a) | set(b))
+        if a.get(k, missing) != b.get(k, missing)
+    ]
 
 
 def recording_fingerprint(rec) -> str:
@@ -123,6 +158,17 @@ def calibration_digest(T_cam_world: dict[str, np.ndarray]) -> str:
     """Digest of extrinsics (rounded to 1e-9 m / rad: the same calibration read back from JSON
     matches)."""
     return _digest({c: np.round(np.asarray(T, dtype=np.float64), 9).tolist() for c, T in sorted(T_cam_world.items())})
+
+
+def settings_doc(**configs: Any) -> dict[str, Any]:
+    """The settings of a run by name, each a dataclass config (as its fields) or a plain value:
+    what ``OutputManifest.settings`` records and ``settings_digest`` digests."""
+    return {k: dataclasses.asdict(c) if dataclasses.is_dataclass(c) else c for k, c in configs.items()}
+
+
+def settings_digest(doc: dict[str, Any]) -> str:
+    """Digest of a ``settings_doc`` (``OutputManifest.config``)."""
+    return _digest(doc)
 
 
 def config_digest(*configs: Any) -> str:

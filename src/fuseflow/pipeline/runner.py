@@ -35,6 +35,8 @@ from fuseflow.pipeline.outputs import (
     peak_rss_mb,
     read_frame_log,
     recording_fingerprint,
+    settings_digest,
+    settings_doc,
 )
 from fuseflow.pipeline.ray import RayOptions
 from fuseflow.pipeline.records import FrameRecord, RunSummary
@@ -89,7 +91,7 @@ def choose_calibration(
     unplaced = [c for c in rec.rig.ids if c not in cal.T_cam_world]
     if unplaced:
         warnings.append(f"GMAC could not place cameras {unplaced}; they are left out of fusion")
-    warnings.extend(str(w) for w in cal.report.get("warnings", []))
+    warnings.extend(str(w) for w in cal.report.warnings)
     write_calibration(calib_json, cal, rig=rec.rig)
     number = rec.frame_numbers[t]
     return CalibrationChoice(placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings)
@@ -121,17 +123,18 @@ def run_manifest(
     else:
         frame = "first-good" if calib_frame is None else rec.frame_numbers[calib_frame]
         calib = f"gmac:{config_digest(config.calib_config())}:frame={frame}"
-    rest = {k: v for k, v in asdict(config).items() if k not in ("fuse", "calib", "device")}
+    pipeline = {k: v for k, v in asdict(config).items() if k not in ("fuse", "calib", "device")}
     if config.outputs == OutputOptions():
-        rest.pop("outputs")  # the default outputs digest as before they were options
-    settings = config_digest(config.fuse_config(), rest)
+        pipeline.pop("outputs")  # the default outputs are not recorded
+    settings = settings_doc(fuse=config.fuse_config(), pipeline=pipeline)
     return OutputManifest(
         command="run",
         recording=str(Path(rec.path).resolve()),
         recording_fingerprint=recording_fingerprint(rec),
         calibration=calib,
-        config=settings,
+        config=settings_digest(settings),
         fuseflow_version=fuseflow_version(),
+        settings=settings,
     )
 
 
