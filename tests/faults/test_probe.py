@@ -6,11 +6,13 @@ lists each case."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 CAMS = ("cam00", "cam01", "cam02")
 
@@ -51,3 +53,187 @@ def test_three_channel_16_bit_depth_is_not_depth(small_rec, tmp_path, invoke, ex
     d = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(p), np.dstack([d, d // 2, d // 3]))  # a 16-bit RGB PNG
     expect(invoke("fuse", rec, "--out", tmp_path / "o"), 2, "cam01/depth/000000.png", "one channel", "not depth")
+
+
+# ------------------------------------------------------------------- wrong calibrations, run
+
+
+def _calib(rec: Path, path: Path, edit) -> Path:
+    from fuseflow.io import open_recording, write_calibration
+    from fuseflow.types import Calibration
+
+    rig = open_recording(rec).rig
+    T = edit({c.id: np.array(c.T_cam_world) for c in rig})
+    write_calibration(path, Calibration(T, {"source": "test"}), rig=rig)
+    return path
+
+
+def _summary_warnings(out: Path) -> str:
+    return " ".join(json.loads((out / "summary.json").read_text())["warnings"])
+
+
+def test_right_calibration_gives_no_agreement_warning(small_rec, tmp_path, invoke, expect):
+    calib = _calib(small_rec, tmp_path / "c.json", lambda T: T)
+    expect(invoke("run", small_rec, "--out", tmp_path / "o", "--calib", calib), 0)
+    assert "disagrees" not in _summary_warnings(tmp_path / "o")
+    rows = [json.loads(x) for x in (tmp_path / "o" / "frames.jsonl").read_text().splitlines()]
+    assert min(a for r in rows for a in r["agreement"].values()) > 0.6
+
+
+def test_permuted_extrinsics_are_flagged(tmp_path, invoke, expect, make_recording):
+    # six cameras in reverse order (on a symmetric 3-camera ring a swap is nearly a reflection)
+    rec = make_recording(tmp_path / "rec6", cameras=6, frames=1)
+    calib = _calib(rec, tmp_path / "c.json", lambda T: dict(zip(T, list(T.values())[::-1])))
+    res = invoke("run", rec, "--out", tmp_path / "o", "--calib", calib)
+    expect(res, 0, "disagrees with their neighbours", "cam01", "cam04", "does not fit this recording")
+    assert "does not fit this recording" in _summary_warnings(tmp_path / "o")
+
+
+def test_calibration_in_millimetres_is_refused(small_rec, tmp_path, invoke, expect):
+    def mm(T):
+        for v in T.values():
+            v[:3, 3] *= 1000.0
+        return T
+
+    calib = _calib(small_rec, tmp_path / "c.json", mm)
+    expect(invoke("run", small_rec, "--out", tmp_path / "o", "--calib", calib), 2, "millimetres")
+    assert not list((tmp_path / "o").glob("clouds/*.ply"))
+
+
+def test_depth_range_that_excludes_every_pixel_is_refused(small_rec, tmp_path, invoke, expect):
+    rec = copy_rec(small_rec, tmp_path / "rec")
+    doc = json.loads((rec / "rig.json").read_text())
+    for cam in doc["cameras"]:
+        cam["depth_range"] = [20.0, 30.0]
+    (rec / "rig.json").write_text(json.dumps(doc))
+    expect(invoke("run", rec, "--out", tmp_path / "o", "--use-rig"), 2, "depth_range", "every cloud would be empty")
+
+
+def test_run_passes_fuse_warnings_on(small_rec, tmp_path, invoke, expect):
+    rec = copy_rec(small_rec, tmp_path / "rec")
+    doc = json.loads((rec / "rig.json").read_text())
+    doc["cameras"][1]["depth_range"] = [20.0, 30.0]  # cam01 alone loses every pixel
+    (rec / "rig.json").write_text(json.dumps(doc))
+    expect(invoke("run", rec, "--out", tmp_path / "o", "--use-rig"), 0, "no depth inside their depth_range", "cam01")
+    assert "cam01" in _summary_warnings(tmp_path / "o")
+
+
+# ------------------------------------------------------------------------------ outputs
+
+
+def test_two_runs_into_one_out_at_once(small_rec, tmp_path, invoke, expect):
+    import subprocess
+    import sys
+
+    out = tmp_path / "o"
+    out.mkdir()
+    holder = subprocess.Popen(  # another process holding OUT's lock, as a running `run` does
+        [sys.executable, "-c", "import fcntl,os,sys,time; fd=os.open(sys.argv[1], os.O_RDWR|os.O_CREAT); "
+         "fcntl.flock(fd, fcntl.LOCK_EX); os.write(fd, b'4242'); print('held', flush=True); time.sleep(60)",
+         str(out / ".fuseflow.lock")],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        expect(invoke("run", small_rec, "--out", out, "--use-rig"), 2, "another fuseflow process", "4242")
+        expect(invoke("fuse", small_rec, "--out", out), 2, "another fuseflow process")
+        assert not (out / "frames.jsonl").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    expect(invoke("run", small_rec, "--out", out, "--use-rig"), 0, "2 fused now")  # the lock died with it
+
+
+def test_recording_changed_after_a_run_is_not_resumed(small_rec, tmp_path, invoke, expect):
+    import os
+
+    rec = copy_rec(small_rec, tmp_path / "rec")
+    out = tmp_path / "o"
+    expect(invoke("run", rec, "--out", out, "--use-rig"), 0)
+    p = rec / "cam01" / "depth" / "000001.png"
+    d = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(p), (d * 0.9).astype(np.uint16))  # new content, same file name
+    st = os.stat(p)
+    os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    expect(invoke("run", rec, "--out", out, "--use-rig"), 2, "recording content", "modification time", "--force")
+    expect(invoke("run", rec, "--out", out, "--use-rig", "--force"), 0, "2 fused now")
+
+
+class _FullDisk:
+    """A file whose writes fail with ENOSPC once ``budget`` bytes were written (a full disk)."""
+
+    def __init__(self, f, budget: int):
+        self.f, self.budget = f, budget
+
+    def write(self, b):
+        import errno
+
+        if self.budget - len(b) < 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self.budget -= len(b)
+        return self.f.write(b)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        self.f.close()
+
+
+def _fill_disk(monkeypatch, budget: int = 300) -> None:
+    import builtins
+
+    from fuseflow.io import files
+
+    monkeypatch.setattr(files, "open", lambda p, mode="r": _FullDisk(builtins.open(p, mode), budget), raising=False)
+
+
+@pytest.mark.parametrize("command", ["run", "fuse"])
+def test_full_disk_under_out(small_rec, tmp_path, monkeypatch, command, invoke, expect):
+    _fill_disk(monkeypatch)
+    args = ("--use-rig",) if command == "run" else ()
+    expect(invoke(command, small_rec, "--out", tmp_path / "o", *args), 2, "no space left on the device", "MB free")
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_full_disk_for_a_calibration_file(small_rec, tmp_path, monkeypatch):
+    # calibrate writes calib.json through the same atomic write (GMAC itself is not needed here)
+    from fuseflow.errors import OutputError
+    from fuseflow.io import open_recording, write_calibration
+    from fuseflow.types import Calibration
+
+    rig = open_recording(small_rec).rig
+    _fill_disk(monkeypatch, budget=10)
+    with pytest.raises(OutputError, match="no space left on the device"):
+        write_calibration(tmp_path / "c.json", Calibration({c.id: c.T_cam_world for c in rig}, {}), rig=rig)
+    assert not list(tmp_path.iterdir())
+
+
+def _cli(*args, env=None, stdout=None):
+    import os
+    import subprocess
+    import sys
+
+    src = str(Path(__file__).resolve().parents[2] / "src")
+    e = {**os.environ, "PYTHONPATH": src, **(env or {})}
+    return subprocess.run(
+        [sys.executable, "-m", "fuseflow", *map(str, args)], env=e, stdout=stdout or subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, timeout=120,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("args", [("info", "REC"), ("--help",)])
+def test_stdout_on_a_full_device(small_rec, args):
+    with open("/dev/full", "w") as full:
+        res = _cli(*[small_rec if a == "REC" else a for a in args], stdout=full)
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr and "Exception ignored" not in res.stderr, res.stderr
+    assert "no space left on device" in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_native_log_that_cannot_be_written_stays_out_of_errors(tmp_path):
+    (tmp_path / "fuseflow-native.log").mkdir()  # not writable as a file
+    res = _cli("fuse", tmp_path / "nothing", "--out", tmp_path / "o", env={"TMPDIR": str(tmp_path)})
+    assert res.returncode == 2, res.stderr
+    assert "Error" not in res.stderr.replace("error:", "") and "Traceback" not in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1, res.stderr

@@ -8,7 +8,9 @@ are never taken for markup tags and dropped; help text is plain (``rich_markup_m
 
 from __future__ import annotations
 
+import errno
 import functools
+import os
 from collections.abc import Callable
 
 import typer
@@ -93,6 +95,11 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
             return command(*args, **kwargs)
         except FuseFlowError as exc:
             fail(str(exc))
+        except OSError as exc:  # a full disk or stdout on a full device, wherever it was written
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EPIPE):
+                raise
+            where = exc.filename or "standard output or an output file"
+            fail(f"cannot write {where}: {os.strerror(exc.errno).lower()}; free some space or write elsewhere")
         except KeyboardInterrupt:
             fail(
                 "interrupted; every output written so far is complete: run the same command again "

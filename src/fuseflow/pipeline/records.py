@@ -46,17 +46,23 @@ class FrameRecord:
     """Cameras the health monitor flagged as bumped in this frame."""
     recalibrated: bool = False
     """GMAC re-ran on this frame (``recalibrate="auto"``)."""
+    notes: list[str] = field(default_factory=list)
+    """FUSE's warnings about this frame (``pipeline.frames.fuse_notes``): cameras with no depth in
+    range, cameras with no overlapping neighbour, points dropped, an empty cloud."""
 
     def to_json(self) -> dict[str, Any]:
         """The frames.jsonl line: ``pairs`` as nested lists with null for NaN."""
         d = {k: v for k, v in self.__dict__.items() if k != "pairs"}
         d["missing"], d["flagged"], d["empty"] = list(self.missing), list(self.flagged), list(self.empty)
-        d["agreement"] = dict(self.agreement)
+        d["agreement"], d["notes"] = dict(self.agreement), list(self.notes)
         d["pairs"] = pairs_to_json(self.pairs)
         return {
             k: d[k]
-            for k in ("index", "points", "fuse_ms", "missing", "empty", "agreement", "pairs", "flagged", "recalibrated")
-        }
+            for k in (
+                "index", "points", "fuse_ms", "missing", "empty", "agreement", "pairs", "flagged", "recalibrated",
+                "notes",
+            )
+        }  # fmt: skip
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> FrameRecord:
@@ -72,6 +78,7 @@ class FrameRecord:
             pairs=pairs_from_json(rows, len(rows)),
             flagged=list(d.get("flagged", [])),
             recalibrated=bool(d.get("recalibrated", False)),
+            notes=list(d.get("notes", [])),
         )
 
 

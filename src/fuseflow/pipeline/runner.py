@@ -22,6 +22,7 @@ from fuseflow.io.datasets import open_recording
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
 from fuseflow.io.recording import Recording, write_json_atomic
+from fuseflow.pipeline.checks import check_depth_range, check_scale, frame_notes, low_agreement
 from fuseflow.pipeline.config import PipelineConfig
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
 from fuseflow.pipeline.frames import first_good_frame, process_frame
@@ -152,6 +153,17 @@ def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tup
     return rec, offsets
 
 
+def _check_inputs(rec: Recording, rig: Rig, positions: list[int], config: PipelineConfig) -> list[str]:
+    """Before fusing, on the first frame to fuse: its depth against the depth_range and the
+    extrinsics' scale (``pipeline.checks``); ValidationError when every cloud would be empty."""
+    if not positions:
+        return []
+    sel = [rec.rig.index(c) for c in rig.ids]
+    frame = rec[positions[0]].subset(sel)
+    cfg = config.fuse_config()
+    return check_depth_range(frame, rig, cfg.delta, cfg.z_max) + check_scale(frame, rig, cfg.delta, cfg.z_max)
+
+
 @dataclass
 class _RunState:
     """What the frame loop carries from frame to frame (explicit, per run)."""
@@ -270,6 +282,8 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
         for c, n in empty.items()
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
+    warnings += frame_notes(state.records)
+    warnings += [w for w in [low_agreement(state.records)] if w]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
     stat = (lambda f: float(f(pts))) if pts.size else (lambda f: 0.0)  # noqa: E731
     return RunSummary(
@@ -339,8 +353,9 @@ def run(
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
-    rec, offsets = _check_sync(rec, state, config)
     positions = list(frames if frames is not None else range(len(rec)))
+    state.warnings += _check_inputs(rec, choice.rig, positions, config)
+    rec, offsets = _check_sync(rec, state, config)
     t_start = time.perf_counter()
     _fuse_frames(rec, out, positions, state, config, ray, on_frame)
     summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
