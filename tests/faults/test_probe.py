@@ -237,3 +237,183 @@ def test_native_log_that_cannot_be_written_stays_out_of_errors(tmp_path):
     assert res.returncode == 2, res.stderr
     assert "Error" not in res.stderr.replace("error:", "") and "Traceback" not in res.stderr, res.stderr
     assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+# ------------------------------------------------------------------------- tracebacks
+
+
+def test_calib_frame_beyond_the_recording(small_rec, tmp_path, invoke, expect):
+    expect(invoke("run", small_rec, "--out", tmp_path / "o", "--calib-frame", 7), 2, "--calib-frame", "2 frames")
+
+
+def test_ray_address_with_no_cluster(small_rec, tmp_path, invoke, expect):
+    import socket
+
+    with socket.socket() as s:  # a free port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    res = invoke("run", small_rec, "--out", tmp_path / "o", "--use-rig", "--ray", "--ray-address", f"127.0.0.1:{port}")
+    expect(res, 2, f"--ray-address 127.0.0.1:{port}", "no Ray cluster answers", "ray start --head")
+
+
+def test_tum_list_line_without_a_file_name(tmp_path, invoke, expect):
+    rec = tmp_path / "tum"
+    rec.mkdir()
+    (rec / "rgb.txt").write_text("# timestamp filename\n1.0 rgb/1.png\n2.0\n")
+    (rec / "depth.txt").write_text("1.0 depth/1.png\n")
+    expect(invoke("info", rec), 2, "rgb.txt:3", "no file name")
+
+
+@pytest.mark.parametrize("name", ["rig.json", "calib.json"])
+def test_deeply_nested_json(small_rec, tmp_path, name, invoke, expect):
+    bad = "[" * 100_000 + "]" * 100_000
+    if name == "rig.json":
+        rec = copy_rec(small_rec, tmp_path / "rec")
+        (rec / "rig.json").write_text(bad)
+        expect(invoke("info", rec), 2, "rig.json", "nested too deeply")
+    else:
+        (tmp_path / "calib.json").write_text(bad)
+        expect(invoke("fuse", small_rec, "--calib", tmp_path / "calib.json", "--out", tmp_path / "o"), 2, "nested")
+
+
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_view_save_png_dir_unusable(small_rec, tmp_path, where, invoke, expect):
+    run_dir = tmp_path / "run"
+    expect(invoke("run", small_rec, "--out", run_dir, "--use-rig"), 0)
+    (tmp_path / "f").write_text("x")
+    target = tmp_path / "f" if where == "a file" else tmp_path / "f" / "pngs"
+    expect(invoke("view", run_dir, "--save-png", target), 2, "is a file")
+
+
+def test_view_save_png_dir_not_writable(small_rec, tmp_path, monkeypatch, invoke, expect):
+    import errno
+    import tempfile
+
+    run_dir = tmp_path / "run"
+    expect(invoke("run", small_rec, "--out", run_dir, "--use-rig"), 0)
+
+    def refuse(*a, **k):  # the tests run as root, where chmod does not stop writes
+        raise OSError(errno.EACCES, "refused")
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    expect(invoke("view", run_dir, "--save-png", tmp_path / "pngs"), 2, "no permission")
+
+
+def test_view_frames_beyond_the_run(small_rec, tmp_path, invoke, expect):
+    run_dir = tmp_path / "run"
+    expect(invoke("run", small_rec, "--out", run_dir, "--use-rig"), 0)
+    expect(invoke("view", run_dir, "--frames", "7:9", "--save-png", tmp_path / "p"), 2, "--frames 7:9", "2 frames")
+
+
+def test_view_with_no_display_says_what_to_do(small_rec, tmp_path, monkeypatch, invoke, expect):
+    import time
+
+    from fuseflow.cli import view
+
+    run_dir = tmp_path / "run"
+    expect(invoke("run", small_rec, "--out", run_dir, "--use-rig"), 0)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(view, "VIEWER_PORT", _free_port())
+    t0 = time.perf_counter()
+    expect(invoke("view", run_dir), 2, "no display", "--rrd", "--save-png")
+    assert time.perf_counter() - t0 < 5
+    expect(invoke("view", run_dir, "--rrd", tmp_path / "run.rrd"), 0, "wrote")
+    assert (tmp_path / "run.rrd").stat().st_size > 0
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_echoed_input_is_never_an_emoji(small_rec, tmp_path, invoke, expect):
+    res = invoke("run", small_rec, "--out", tmp_path / "o", "--device", "cuda:smile:")
+    expect(res, 2, "cuda:smile:")
+    assert "\U0001f604" not in res.output
+
+
+# ----------------------------------------------------------------- numba's kernel cache
+
+_KERNEL = """
+import importlib.util, os
+spec = importlib.util.spec_from_file_location("numba_cache", os.environ["NUMBA_CACHE_MODULE"])
+numba_cache = importlib.util.module_from_spec(spec)  # without fuseflow's torch import: seconds faster
+spec.loader.exec_module(numba_cache)
+numba_cache.use_usable_cache(__file__)
+from numba import njit
+@njit(cache=True)
+def f(x):
+    return x + 1
+"""
+
+
+def _kernel_run(pkg: Path, env: dict, drop=()):
+    """Import a one-kernel module with numba caching from a fresh interpreter; (rc, stdout, stderr)."""
+    import os
+    import subprocess
+    import sys
+
+    module = str(Path(__file__).resolve().parents[2] / "src" / "fuseflow" / "io" / "numba_cache.py")
+    e = {k: v for k, v in {**os.environ, "NUMBA_CACHE_MODULE": module, **env}.items() if k not in drop}
+    res = subprocess.run(
+        [sys.executable, "-c", f"import sys; sys.path.insert(0, {str(pkg)!r}); import k; print(k.f(1))"],
+        env=e, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    return res.returncode, res.stdout.strip(), res.stderr
+
+
+def _kernel_pkg(tmp_path: Path) -> Path:
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "k.py").write_text(_KERNEL)
+    return pkg
+
+
+NUMBA_CACHE_FAULTS = {
+    # name: (set up, env, environment variables removed)
+    "NUMBA_CACHE_DIR is a file": (
+        lambda t, p: (t / "f").write_text("x"),
+        lambda t: {"NUMBA_CACHE_DIR": str(t / "f")},
+        (),
+    ),
+    "NUMBA_CACHE_DIR under a file": (
+        lambda t, p: (t / "f").write_text("x"),
+        lambda t: {"NUMBA_CACHE_DIR": str(t / "f" / "c")},
+        (),
+    ),
+    # a read-only install: __pycache__ cannot be created (a file in its place; chmod does not stop root)
+    "package __pycache__ unwritable, HOME unset": (
+        lambda t, p: (p / "__pycache__").write_text("x"),
+        lambda t: {"TMPDIR": str(t)},
+        ("HOME", "NUMBA_CACHE_DIR"),
+    ),
+}
+
+
+@pytest.mark.parametrize("kind", list(NUMBA_CACHE_FAULTS))
+def test_numba_cache_that_cannot_be_written(tmp_path, kind):
+    setup, env, drop = NUMBA_CACHE_FAULTS[kind]
+    pkg = _kernel_pkg(tmp_path)
+    setup(tmp_path, pkg)
+    rc, out, err = _kernel_run(pkg, env(tmp_path), drop)
+    assert (rc, out) == (0, "2"), err
+    assert "Traceback" not in err and err.count("NumbaCacheWarning") == 1, err
+
+
+@pytest.mark.parametrize("damage", ["garbage index (.nbi)", "data cut to 100 bytes (.nbc)"])
+def test_numba_cache_file_damaged(tmp_path, damage):
+    pkg = _kernel_pkg(tmp_path)
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    assert _kernel_run(pkg, env)[:2] == (0, "2")
+    ext = ".nbi" if "nbi" in damage else ".nbc"
+    files = list((tmp_path / "cache").rglob(f"*{ext}"))
+    assert files
+    for f in files:
+        f.write_bytes(b"garbage\n" if ext == ".nbi" else f.read_bytes()[:100])
+    rc, out, err = _kernel_run(pkg, env)
+    assert (rc, out) == (0, "2") and "Traceback" not in err, err
+    assert _kernel_run(pkg, env)[:2] == (0, "2")  # rewritten: the next start loads it again

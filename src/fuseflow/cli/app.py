@@ -28,8 +28,8 @@ app = typer.Typer(
     rich_markup_mode=None,
 )
 
-console = Console()
-err_console = Console(stderr=True)  # writes to sys.stderr at print time (see cli.main)
+console = Console(emoji=False)  # ":abc:" in echoed input ("cuda:abc:") is text, never an emoji
+err_console = Console(stderr=True, emoji=False)  # writes to sys.stderr at print time (see cli.main)
 
 
 def say(message: str) -> None:

@@ -38,7 +38,10 @@ from numba import njit, prange
 from fuseflow.fuse.ash import COARSE_BITS, COARSE_OFFSET, FIXED_BITS, FIXED_OFFSET
 from fuseflow.fuse.config import FuseConfig
 from fuseflow.geometry.camera import relative_transforms
+from fuseflow.io.numba_cache import use_usable_cache
 from fuseflow.types import FusedCloud
+
+use_usable_cache(__file__)  # before any @njit(cache=True) below
 
 __all__ = [
     "fuse_numba",

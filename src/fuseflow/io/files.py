@@ -40,6 +40,8 @@ def load_json(path: str | Path) -> Any:
         raise FormatError(f"{path}: not UTF-8 text (byte {exc.start})") from None
     except json.JSONDecodeError as exc:
         raise FormatError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except RecursionError:
+        raise FormatError(f"{path}: JSON nested too deeply to be a FuseFlow file") from None
 
 
 def write_bytes_atomic(path: str | Path, *chunks: bytes) -> Path:

@@ -38,7 +38,7 @@ from fuseflow.pipeline.outputs import (
     read_frame_log,
     recording_fingerprint,
 )
-from fuseflow.pipeline.ray import RayOptions
+from fuseflow.pipeline.ray import RayOptions, check_ray_address
 from fuseflow.pipeline.records import FrameRecord, RunSummary
 from fuseflow.types import Calibration, FusedCloud, Rig
 
@@ -349,6 +349,13 @@ def run(
     out = prepare_output_dir(out_dir)
     if not isinstance(rec, Recording):
         rec = open_recording(rec)
+    if calib_frame is not None and not 0 <= calib_frame < len(rec):
+        raise ValidationError(
+            f"calibration frame {calib_frame} (--calib-frame) is beyond the recording: it has {len(rec)} frames, "
+            f"positions 0 to {len(rec) - 1}"
+        )
+    if ray is not None and ray.address is not None:
+        check_ray_address(ray.address)  # before any work: Ray itself retries for minutes
     open_output(out, run_manifest(rec, calibration, config, calib_frame, use_rig_extrinsics), force)
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)

@@ -69,18 +69,21 @@ def world_up(rig: Rig | None) -> tuple[float, float, float]:
     return tuple((up / n).tolist()) if n > 1e-6 else (0.0, -1.0, 0.0)
 
 
-def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb") -> int:
+def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb", on_frame=None) -> int:
     """Render each frame of ``source`` to OUT/<frame:06d>.png from one orbit view framed on the
-    first non-empty cloud (headless); returns the number of PNGs."""
+    first non-empty cloud (headless); returns the number of PNGs. ``on_frame(done, total)`` is
+    called after each PNG (a progress bar)."""
     from fuseflow.viz.render import orbit_camera, save_cloud_png
 
     view = None
-    for number, load in source.items:
+    for done, (number, load) in enumerate(source.items, start=1):
         cloud = load()
         if view is None and len(cloud):
             view = orbit_camera(cloud.xyz.numpy(), up=world_up(source.rig))
         K, T = view if view is not None else (None, None)
         save_cloud_png(Path(out_dir) / f"{number:06d}.png", cloud, color_by=color_by, K=K, T_cam_world=T)
+        if on_frame:
+            on_frame(done, len(source.items))
     return len(source.items)
 
 
