@@ -417,3 +417,43 @@ def test_numba_cache_file_damaged(tmp_path, damage):
     rc, out, err = _kernel_run(pkg, env)
     assert (rc, out) == (0, "2") and "Traceback" not in err, err
     assert _kernel_run(pkg, env)[:2] == (0, "2")  # rewritten: the next start loads it again
+
+
+# ------------------------------------------------------------------ reruns and numbers
+
+
+def test_rerun_of_a_finished_run_keeps_its_numbers(small_rec, tmp_path, invoke, expect):
+    rec = copy_rec(small_rec, tmp_path / "rec")
+    doc = json.loads((rec / "rig.json").read_text())
+    doc["cameras"][1]["depth_range"] = [20.0, 30.0]  # a warning the summary must keep
+    (rec / "rig.json").write_text(json.dumps(doc))
+    out = tmp_path / "o"
+    res = invoke("run", rec, "--out", out, "--use-rig")
+    expect(res, 0, "checking inputs, then fusing 2 frames", "ms per frame warm", "first frame", "output", "MB in")
+    before = (out / "summary.json").read_text()
+    assert json.loads(before)["fps"] > 0 and json.loads(before)["warm_ms_per_frame"] > 0
+    expect(invoke("run", rec, "--out", out, "--use-rig"), 0, "nothing to do", "cam01")
+    assert (out / "summary.json").read_text() == before
+
+
+def test_truncated_mkv_is_named(tmp_path, invoke, expect):
+    import sys
+
+    pytest.importorskip("av")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "io"))
+    import test_azure_kinect as ak
+
+    a, *_ = ak._recording(tmp_path, "a", "A", t0_us=3_000_000)
+    b, *_ = ak._recording(tmp_path, "b", "B", t0_us=3_000_160)
+    b.write_bytes(b.read_bytes()[: int(b.stat().st_size * 0.6)])  # cut during the last frames
+    expect(invoke("convert", a, b, tmp_path / "rec"), 0, "2 dropped views", "B: 2 from", "b.mkv", "truncated or damaged")
+
+
+def test_convert_interrupted_says_force(small_rec, tmp_path, monkeypatch, invoke, expect):
+    import fuseflow.io.convert as conv
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(conv, "convert", interrupted)
+    expect(invoke("convert", small_rec, tmp_path / "rec"), 130, "interrupted", "--force")

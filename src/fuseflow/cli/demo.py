@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from fuseflow.cli.app import print_table, progress, say, warn
+from fuseflow.cli.run import output_size
 
 
 def command(
@@ -30,6 +31,7 @@ def command(
 
         res = run_demo(out, cameras=cameras, frames=frames, seed=seed, on_stage=stage, on_frame=frame)
     _print_result(res)
+    say(f"output: {output_size(out)} in {out}")
 
 
 def _print_result(res) -> None:

@@ -107,6 +107,21 @@ class RunSummary:
     warnings: list[str]
     sync_offsets: dict[str, int] = field(default_factory=dict)
     """Cameras the sync check found late (+k frames) or early (-k); applied when ``sync="auto"``."""
+    first_frame_ms: float = 0.0
+    """FUSE time of the first frame fused in this call: it includes the start-up (numba loads or
+    compiles its kernels in each new process)."""
+    warm_ms_per_frame: float | None = None
+    """Median FUSE time of the frames after the first (None with fewer than 2 fused now): the
+    per-frame cost of a long recording."""
+    nothing_to_do: bool = False
+    """Every frame asked for was already in OUT: the numbers are those of the run that fused
+    them (summary.json is left as it was)."""
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        return {k: v for k, v in asdict(self).items() if k != "nothing_to_do"}
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> RunSummary:
+        """Inverse of ``to_json``; fields an older summary.json lacks take their defaults."""
+        names = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in doc.items() if k in names})

@@ -294,6 +294,8 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
         frames_resumed=state.resumed,
         fps=(state.fused_now / wall) if state.fused_now and wall > 0 else 0.0,
         ms_per_frame=float(np.median(state.fuse_ms)) if state.fuse_ms else 0.0,
+        first_frame_ms=float(state.fuse_ms[0]) if state.fuse_ms else 0.0,
+        warm_ms_per_frame=float(np.median(state.fuse_ms[1:])) if len(state.fuse_ms) > 1 else None,
         points_per_frame={"mean": stat(np.mean), "min": stat(np.min), "max": stat(np.max)},
         peak_memory_mb=peak_rss_mb(),
         device=device,
@@ -367,5 +369,19 @@ def run(
     _fuse_frames(rec, out, positions, state, config, ray, on_frame)
     summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
     summary.sync_offsets = offsets
+    if state.fused_now == 0 and (out / "summary.json").exists():
+        return _earlier_summary(out, summary)
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary
+
+
+def _earlier_summary(out: Path, now: RunSummary) -> RunSummary:
+    """Nothing was fused now: the earlier run's summary.json (its timings and warnings) is kept
+    as it is and returned, marked ``nothing_to_do``; ``now`` when it cannot be read."""
+    try:
+        earlier = RunSummary.from_json(json.loads((out / "summary.json").read_text()))
+    except (OSError, ValueError, TypeError):
+        write_json_atomic(out / "summary.json", now.to_json())
+        return now
+    earlier.frames_fused_now, earlier.frames_resumed, earlier.nothing_to_do = 0, now.frames_resumed, True
+    return earlier
