@@ -36,7 +36,7 @@ GROUPS = {"bench": bench.bench_app}
 """Command groups (typer sub-apps)."""
 
 for _name, _module in COMMANDS.items():
-    app.command(_name)(guarded(_module.command))
+    app.command(_name, epilog=getattr(_module, "EXAMPLES", None))(guarded(_module.command))
 for _name, _group in GROUPS.items():
     app.add_typer(_group, name=_name)
 

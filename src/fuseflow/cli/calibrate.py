@@ -136,3 +136,10 @@ def _frames_text(indices: list[int]) -> str:
     if len(indices) == 1:
         return f"frame {indices[0]}"
     return f"{len(indices)} frames ({indices[0]}..{indices[-1]})"
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow calibrate /tmp/studio --frame 0 --out /tmp/studio-calib.json
+"""

@@ -53,3 +53,11 @@ def command(
         fail(f"interrupted; {paths[-1]} holds part of the conversion: run the same command with --force to "
              "convert again into it", code=130)  # fmt: skip
     say(f"{s.message} ({s.seconds:.1f} s)")
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow convert cam1.bag cam2.bag cam3.bag /data/rig
+  fuseflow convert ../shared/data/hocap-8rs /tmp/hocap --with-extrinsics
+"""

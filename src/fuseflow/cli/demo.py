@@ -54,3 +54,11 @@ def _print_result(res) -> None:
     )
     for w in res.warnings:
         warn(w)
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow demo                          # ./fuseflow-demo: simulate, calibrate, fuse, score
+  fuseflow demo --out /tmp/demo --cameras 4 --frames 3
+"""

@@ -81,3 +81,11 @@ def _print_summary(s: dict) -> None:
         console.print(tt)
     if "poses" in s:
         say("single moving camera; trajectory poses: " + ("yes" if s["poses"] else "no"))
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow info /tmp/studio
+  fuseflow info /data/rig --check     # also decode every file
+"""

@@ -118,3 +118,11 @@ def command(
             on_frame=lambda r, done, total: bar.update(task, completed=done, description=fusing),
         )  # fmt: skip
     _print_summary(summary)
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow run /tmp/studio --out /tmp/studio-run          # GMAC on the first good frame, then fuse
+  fuseflow run /data/rig --calib calib.json --out /data/run --sync-offsets auto
+"""

@@ -70,3 +70,12 @@ def viewer_reachable() -> bool:
             return True
     except OSError:
         return False
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow view /tmp/studio-run                         # the rerun viewer (needs a display)
+  fuseflow view /tmp/studio-run --rrd /tmp/run.rrd      # headless: a rerun file
+  fuseflow view /tmp/studio-run --save-png /tmp/png     # headless: a PNG per frame
+"""
