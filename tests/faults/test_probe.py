@@ -457,3 +457,15 @@ def test_convert_interrupted_says_force(small_rec, tmp_path, monkeypatch, invoke
 
     monkeypatch.setattr(conv, "convert", interrupted)
     expect(invoke("convert", small_rec, tmp_path / "rec"), 130, "interrupted", "--force")
+
+
+def test_full_tmpdir_during_calibrate(small_rec, tmp_path, monkeypatch, invoke, expect):
+    real = cv2.imwrite
+
+    def full(path, img, *a):  # OpenCV says only False when the disk is full
+        return False if "fuseflow-colmap-" in str(path) else real(path, img, *a)
+
+    monkeypatch.setattr(cv2, "imwrite", full)
+    res = invoke("calibrate", small_rec, "--out", tmp_path / "c.json", "--backbone", "colmap")
+    expect(res, 2, "COLMAP's workspace", "MB free", "TMPDIR")
+    assert not (tmp_path / "c.json").exists()
