@@ -59,9 +59,9 @@ def fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
-def warn(message: str) -> None:
-    """Print a warning line, verbatim (escaped like ``fail``)."""
-    console.print(f"[yellow]warning:[/] {escape(message)}", highlight=False)
+def warn(message: str, stderr: bool = False) -> None:
+    """Print a warning line, verbatim (escaped like ``fail``); on stderr when asked."""
+    (err_console if stderr else console).print(f"[yellow]warning:[/] {escape(message)}", highlight=False)
 
 
 def parse_range(spec: str | None, n: int) -> range:

@@ -57,8 +57,8 @@ def _print_summary(s) -> None:
         rows.append(("out of sync", ", ".join(f"{c}: {k:+d} frames" for c, k in s.sync_offsets.items())))
     rows.append(("output", output_size(Path(s.out_dir))))
     print_table(f"FUSE-Flow run: {s.out_dir}", rows)
-    for w in s.warnings:
-        warn(w)
+    for w in s.warnings:  # on stderr: a run piped into a file or another tool still shows them
+        warn(w, stderr=True)
 
 
 def command(
