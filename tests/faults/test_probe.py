@@ -114,7 +114,9 @@ def test_run_passes_fuse_warnings_on(small_rec, tmp_path, invoke, expect):
     doc = json.loads((rec / "rig.json").read_text())
     doc["cameras"][1]["depth_range"] = [20.0, 30.0]  # cam01 alone loses every pixel
     (rec / "rig.json").write_text(json.dumps(doc))
-    expect(invoke("run", rec, "--out", tmp_path / "o", "--use-rig"), 0, "no depth inside their depth_range", "cam01")
+    res = invoke("run", rec, "--out", tmp_path / "o", "--use-rig")
+    expect(res, 0, "no depth inside their depth_range", "cam01")
+    assert " ".join(res.output.split()).count("no depth inside their depth_range") == 1  # once, with frame numbers
     assert "cam01" in _summary_warnings(tmp_path / "o")
 
 
