@@ -448,7 +448,9 @@ def test_truncated_mkv_is_named(tmp_path, invoke, expect):
     a, *_ = ak._recording(tmp_path, "a", "A", t0_us=3_000_000)
     b, *_ = ak._recording(tmp_path, "b", "B", t0_us=3_000_160)
     b.write_bytes(b.read_bytes()[: int(b.stat().st_size * 0.6)])  # cut during the last frames
-    expect(invoke("convert", a, b, tmp_path / "rec"), 0, "2 dropped views", "B: 2 from", "b.mkv", "truncated or damaged")
+    expect(
+        invoke("convert", a, b, tmp_path / "rec"), 0, "2 dropped views", "B: 2 from", "b.mkv", "truncated or damaged"
+    )
 
 
 def test_convert_interrupted_says_force(small_rec, tmp_path, monkeypatch, invoke, expect):
