@@ -394,7 +394,8 @@ def make_virtual_rig(
     rig = Rig(tuple(cams))
     write_rig(out, rig)
     (out / "source.json").write_text(
-        json.dumps({"virtual_rig_of": str(Path(seq.path).resolve()), "layout": seq.layout, "frames": indices}, indent=2) + "\n"
+        json.dumps({"virtual_rig_of": str(Path(seq.path).resolve()), "layout": seq.layout, "frames": indices}, indent=2)
+        + "\n"
     )
     return rig
 
