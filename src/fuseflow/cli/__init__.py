@@ -8,6 +8,7 @@ listed is not a command. Each command parses its options, makes one library call
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import sys
 import tempfile
@@ -36,7 +37,7 @@ GROUPS = {"bench": bench.bench_app}
 """Command groups (typer sub-apps)."""
 
 for _name, _module in COMMANDS.items():
-    app.command(_name)(guarded(_module.command))
+    app.command(_name, epilog=getattr(_module, "EXAMPLES", None))(guarded(_module.command))
 for _name, _group in GROUPS.items():
     app.add_typer(_group, name=_name)
 
@@ -65,8 +66,12 @@ def _native_stderr_to_log(enabled: bool):
     try:
         sys.stderr.flush()
         saved = os.dup(2)
-        log = os.open(NATIVE_LOG, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError:  # no writable temp dir: leave stderr alone
+    except OSError:
+        saved = None
+    log = _open_native_log() if saved is not None else None
+    if log is None:  # no writable log (outside the except: its error must not chain into others)
+        if saved is not None:
+            os.close(saved)
         yield
         return
     python_stderr = sys.stderr
@@ -83,6 +88,27 @@ def _native_stderr_to_log(enabled: bool):
         sys.stderr = python_stderr
 
 
+def _open_native_log() -> int | None:
+    """A descriptor of NATIVE_LOG, or of a per-user one beside it when that one belongs to another
+    user; None when neither can be written."""
+    for path in (NATIVE_LOG, NATIVE_LOG.with_name(f"fuseflow-native-{os.getuid()}.log")):
+        try:
+            return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except OSError:
+            continue
+    return None
+
+
+def _flush_stdout() -> None:
+    """Flush stdout at exit; when it cannot be written (``> /dev/full``, a closed pipe) point it at
+    /dev/null, so that Python's own flush at exit does not print a second error."""
+    try:
+        sys.stdout.flush()
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
 def main() -> None:
     """Entry point: run the app, turning FuseFlowError into a one-line message and exit code 2."""
     verbose = "--verbose" in sys.argv[1:] or os.environ.get("FUSEFLOW_VERBOSE", "") not in ("", "0")
@@ -92,6 +118,13 @@ def main() -> None:
         except FuseFlowError as exc:
             error(str(exc))
             raise SystemExit(2) from None
+        except OSError as exc:  # --help or a usage message to a full device (commands: guarded)
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EPIPE):
+                raise
+            error(f"cannot write standard output: {os.strerror(exc.errno).lower()}")
+            raise SystemExit(2) from None
+        finally:
+            _flush_stdout()
 
 
 __all__ = ["COMMANDS", "GROUPS", "app", "main"]

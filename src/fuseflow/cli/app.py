@@ -8,7 +8,9 @@ are never taken for markup tags and dropped; help text is plain (``rich_markup_m
 
 from __future__ import annotations
 
+import errno
 import functools
+import os
 from collections.abc import Callable
 
 import typer
@@ -26,8 +28,8 @@ app = typer.Typer(
     rich_markup_mode=None,
 )
 
-console = Console()
-err_console = Console(stderr=True)  # writes to sys.stderr at print time (see cli.main)
+console = Console(emoji=False)  # ":abc:" in echoed input ("cuda:abc:") is text, never an emoji
+err_console = Console(stderr=True, emoji=False)  # writes to sys.stderr at print time (see cli.main)
 
 
 def say(message: str) -> None:
@@ -57,9 +59,9 @@ def fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
-def warn(message: str) -> None:
-    """Print a warning line, verbatim (escaped like ``fail``)."""
-    console.print(f"[yellow]warning:[/] {escape(message)}", highlight=False)
+def warn(message: str, stderr: bool = False) -> None:
+    """Print a warning line, verbatim (escaped like ``fail``); on stderr when asked."""
+    (err_console if stderr else console).print(f"[yellow]warning:[/] {escape(message)}", highlight=False)
 
 
 FRAMES_OPTION_HELP = "A:B[:step]: frame positions, a Python slice (A, B optional or negative; default all)."
@@ -113,6 +115,11 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
             return command(*args, **kwargs)
         except FuseFlowError as exc:
             fail(str(exc))
+        except OSError as exc:  # a full disk or stdout on a full device, wherever it was written
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EPIPE):
+                raise
+            where = exc.filename or "standard output or an output file"
+            fail(f"cannot write {where}: {os.strerror(exc.errno).lower()}; free some space or write elsewhere")
         except KeyboardInterrupt:
             fail(
                 "interrupted; every output written so far is complete: run the same command again "

@@ -65,11 +65,13 @@ def bench_fuse(
 
 
 def bench_calib(
-    seeds: int = typer.Option(10, "--seeds", help="Seeds per data set (issue 6 asks for >= 10)."),
+    seeds: int = typer.Option(10, "--seeds", help="Seeds per data set (10 or more for stable means)."),
     data: str = typer.Option("sim4,sim8,icl8", "--data", help="Comma list of sim4, sim8, icl8."),
     quick: bool = typer.Option(False, "--quick", help="2 seeds on sim8 and icl8."),
     backbone: str = typer.Option(
-        "colmap", "--backbone", help="colmap (the default backbone) or perturbed (ground truth + noise: GMAC alone)."
+        "colmap",
+        "--backbone",
+        help="colmap (COLMAP's model; calibrate's own default is auto) or perturbed (ground truth + noise: GMAC alone).",
     ),
     no_peer: bool = typer.Option(False, "--no-peer", help="Skip the Open3D multiway registration peer."),
     json_out: Path = typer.Option(None, "--json", help="Also write every per-seed row as JSON."),

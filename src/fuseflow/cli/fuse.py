@@ -90,3 +90,11 @@ def command(
         warn(f"the calibration does not place cameras {s.left_out}; they are left out of fusion")
     for w, n in s.warnings.items():
         warn(f"{w} ({n} frames)")
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow fuse /tmp/studio --calib /tmp/studio-calib.json --out /tmp/studio-clouds --frames 0:10
+  fuseflow fuse /tmp/studio --out /tmp/clouds --preset live     # extrinsics from rig.json
+"""

@@ -39,13 +39,19 @@ def command(
         say("every colour and depth file decodes at the size rig.json gives")
 
 
+def _count(n: int, noun: str) -> str:
+    """'1 frame', '30 frames'."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def _print_summary(s: dict) -> None:
     w, h = s["resolution"]
     say(
-        f"{s['path']} ({s['layout']}): {s['frames']} frames, {s['cameras']} cameras, {w}x{h}, "
+        f"{s['path']} ({s['layout']}): {_count(s['frames'], 'frame')}, {_count(s['cameras'], 'camera')}, {w}x{h}, "
         + ("calibrated" if s["calibrated"] else "not calibrated")
     )
     t = Table("camera", "size", "fx, fy", "cx, cy", "depth/m", "range m", "calib", "missing", box=None)
+    t.columns[0].no_wrap, t.columns[0].overflow = True, "fold"  # ids (12-digit serials) are never cut to "..."
     for c in s["camera_list"]:
         t.add_row(
             escape(c["id"]),
@@ -75,3 +81,11 @@ def _print_summary(s: dict) -> None:
         console.print(tt)
     if "poses" in s:
         say("single moving camera; trajectory poses: " + ("yes" if s["poses"] else "no"))
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow info /tmp/studio
+  fuseflow info /data/rig --check     # also decode every file
+"""

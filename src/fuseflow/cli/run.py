@@ -16,16 +16,36 @@ from fuseflow.cli.app import (
     parse_range,
     print_table,
     progress,
+    say,
     warn,
 )
 
 
+def speed_line(s) -> str:
+    """The fusion row: warm per-frame time and the first frame's start-up apart (a short
+    recording's median is mostly start-up), and the end-to-end rate."""
+    if s.warm_ms_per_frame is not None:
+        return (
+            f"{s.warm_ms_per_frame:.1f} ms per frame warm (median after the first) on {s.device}; first frame "
+            f"{s.first_frame_ms:.0f} ms (start-up included); {s.fps:.2f} frames/s end to end"
+        )
+    return f"{s.first_frame_ms or s.ms_per_frame:.1f} ms for one frame on {s.device}, start-up included"
+
+
+def output_size(path: Path) -> str:
+    """'412 MB in 31 files' for everything under ``path``."""
+    files = [p for p in Path(path).rglob("*") if p.is_file()]
+    return f"{sum(p.stat().st_size for p in files) / 1e6:.1f} MB in {len(files)} files"
+
+
 def _print_summary(s) -> None:
     ppf = s.points_per_frame
+    if s.nothing_to_do:
+        say(f"nothing to do: every frame asked for is already in {s.out_dir}; the numbers are the run that fused them")
     rows = [
         ("frames", f"{s.frames} ({s.frames_fused_now} fused now, {s.frames_resumed} resumed)"),
         ("calibration", s.calibration),
-        ("fusion", f"{s.ms_per_frame:.1f} ms per frame on {s.device}; {s.fps:.2f} frames/s end to end"),
+        ("fusion", speed_line(s)),
         ("points per frame", f"{ppf['mean']:.0f} (min {ppf['min']:.0f}, max {ppf['max']:.0f})"),
         ("peak memory", f"{s.peak_memory_mb:.0f} MB"),
     ]
@@ -37,9 +57,10 @@ def _print_summary(s) -> None:
         rows.append(("recalibrated at", ", ".join(map(str, s.recalibrations))))
     if s.sync_offsets:
         rows.append(("out of sync", ", ".join(f"{c}: {k:+d} frames" for c, k in s.sync_offsets.items())))
+    rows.append(("output", output_size(Path(s.out_dir))))
     print_table(f"FUSE-Flow run: {s.out_dir}", rows)
-    for w in s.warnings:
-        warn(w)
+    for w in s.warnings:  # on stderr: a run piped into a file or another tool still shows them
+        warn(w, stderr=True)
 
 
 def command(
@@ -97,11 +118,24 @@ def command(
         device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=preset_config(preset, points), outputs=outputs
     )
     positions = parse_range(frames, len(recording))
+    gmac = calibration is None and not (use_rig and recording.rig.is_calibrated) and not (out / "calib.json").exists()
+    fusing = f"fusing {len(positions)} frames"
     with progress("fusing") as bar:
-        task = bar.add_task(f"fusing {len(positions)} frames", total=len(positions))
+        first = ("calibrating (GMAC), then " if gmac else "checking inputs, then ") + fusing
+        if not bar.console.is_terminal:  # no bar when piped: one plain line per stage
+            say(first)
+        task = bar.add_task(first, total=len(positions))
         summary = run(
             recording, out, calibration=calibration, config=cfg, frames=positions, calib_frame=calib_frame,
             use_rig_extrinsics=use_rig, ray=ray_opts, force=force,
-            on_frame=lambda r, done, total: bar.update(task, completed=done),
+            on_frame=lambda r, done, total: bar.update(task, completed=done, description=fusing),
         )  # fmt: skip
     _print_summary(summary)
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow run /tmp/studio --out /tmp/studio-run          # GMAC on the first good frame, then fuse
+  fuseflow run /data/rig --calib calib.json --out /data/run --sync-offsets auto
+"""

@@ -78,3 +78,11 @@ def command(
         + (f", desync {offsets}" if offsets else "")
         + f" in {time.perf_counter() - t0:.1f} s"
     )
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow simulate /tmp/studio --cameras 8 --frames 30 --scene studio --dynamic --uncalibrated
+  fuseflow simulate /tmp/small --cameras 3 --frames 2 --resolution 160x120
+"""

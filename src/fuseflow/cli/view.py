@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli.app import FRAMES_OPTION_HELP, fail, parse_range, say
+from fuseflow.cli.app import FRAMES_OPTION_HELP, fail, parse_range, progress, say
 
 
 def command(
@@ -21,15 +21,66 @@ def command(
     ),
 ) -> None:
     """Show fused clouds per frame (rerun: cameras as frustums, clouds on a timeline, weight as colour)."""
+    from fuseflow.io.paths import check_output_file, prepare_output_dir
     from fuseflow.viz.sources import render_pngs, send_to_rerun, view_source
 
     if color_by not in ("rgb", "weight"):
         fail(f"--color-by must be rgb or weight, got {color_by!r}")
+    if save_png is None and rrd is None and not viewer_reachable():
+        fail(
+            "no display (DISPLAY and WAYLAND_DISPLAY are unset) and no rerun viewer listening on "
+            f"127.0.0.1:{VIEWER_PORT}: write a file instead, --rrd run.rrd (open it with 'rerun run.rrd' where "
+            "there is a display) or --save-png DIR"
+        )
     source = view_source(path)
-    source = replace(source, items=[source.items[i] for i in parse_range(frames, len(source.items))])
+    n_all = len(source.items)
+    source = replace(source, items=[source.items[i] for i in parse_range(frames, n_all)])
+    if not source.items:
+        fail(f"--frames {frames}: no frame of {path} in that range (it has {n_all} frames, positions 0 to {n_all - 1})")
     if save_png is not None:
-        n = render_pngs(source, save_png, color_by, whole)
+        prepare_output_dir(save_png)
+        with progress("rendering") as bar:
+            task = bar.add_task(f"rendering {len(source.items)} PNGs", total=len(source.items))
+            n = render_pngs(
+                source, save_png, color_by, whole, on_frame=lambda done, total: bar.update(task, completed=done)
+            )
         say(f"wrote {n} PNGs to {save_png}")
         return
-    n = send_to_rerun(source, rrd)
+    if rrd is not None:
+        check_output_file(rrd)
+    try:
+        n = send_to_rerun(source, rrd)
+    except RuntimeError as exc:  # rerun's gRPC connection to a viewer
+        fail(
+            f"the rerun viewer could not be reached ({str(exc).splitlines()[0][:120]}): use --rrd FILE or --save-png DIR"
+        )
     say(f"wrote {rrd}" if rrd is not None else f"sent {n} frames to the rerun viewer")
+
+
+VIEWER_PORT = 9876
+"""Where a rerun viewer listens for logging connections (rerun's default gRPC port)."""
+
+
+def viewer_reachable() -> bool:
+    """True when a viewer window can open (a display, or not Linux) or one already listens on
+    VIEWER_PORT (e.g. forwarded over SSH); checked in well under a second."""
+    import os
+    import socket
+    import sys
+
+    if not sys.platform.startswith("linux") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return True
+    try:
+        with socket.create_connection(("127.0.0.1", VIEWER_PORT), timeout=0.3):
+            return True
+    except OSError:
+        return False
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow view /tmp/studio-run                         # the rerun viewer (needs a display)
+  fuseflow view /tmp/studio-run --rrd /tmp/run.rrd      # headless: a rerun file
+  fuseflow view /tmp/studio-run --save-png /tmp/png     # headless: a PNG per frame
+"""

@@ -38,7 +38,10 @@ from fuseflow.fuse.ash import COARSE_BITS, COARSE_OFFSET, FIXED_BITS, FIXED_OFFS
 from fuseflow.fuse.config import FuseConfig
 from fuseflow.geometry.camera import relative_transforms
 from fuseflow.geometry.noise import compiled_sigma
+from fuseflow.io.numba_cache import use_usable_cache
 from fuseflow.types import FusedCloud
+
+use_usable_cache(__file__)  # before any @njit(cache=True) below
 
 #: sigma(z) = a + b (z - z0)^2 of fuseflow.geometry.noise, compiled and inlined into the kernels.
 _sigma = compiled_sigma()

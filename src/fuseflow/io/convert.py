@@ -155,6 +155,9 @@ def convert(
         }
         msg = (f"wrote {len(p.index)} frames x {len(streams)} cameras ({kind}) to {out}; views paired within "
                f"{p.tolerance * 1000:.1f} ms (max spread {spread_ms:.1f} ms), {int(p.dropped.sum())} dropped views")  # fmt: skip
+        short = [f"{s.id}: {int(n)} from {s.source}" for s, n in zip(streams, p.dropped) if n]
+        if short:  # name the files: a truncated or damaged one ends early
+            msg += f" ({'; '.join(short)}: a file that ends early is truncated or damaged)"
         return ConvertSummary(kind, out, res.rig, len(p.index), msg, time.perf_counter() - t0, details)
     if len(srcs) != 1:
         raise ValidationError(

@@ -134,7 +134,9 @@ def quaternion_to_matrix(q_xyzw: np.ndarray) -> np.ndarray:
     )
 
 
-def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
+def _read_tum_list(path: Path, need: int = 0) -> list[tuple[float, list[str]]]:
+    """(timestamp, the other fields) per line of a TUM list; FormatError naming the line when a
+    line has fewer than ``need`` fields after its timestamp (rgb.txt / depth.txt: a file name)."""
     try:
         text = path.read_text()
     except OSError as exc:
@@ -149,6 +151,8 @@ def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
             out.append((float(parts[0]), parts[1:]))
         except ValueError:
             raise FormatError(f"{path}:{k}: expected 'timestamp ...', got {line!r}") from None
+        if len(parts) - 1 < need:
+            raise FormatError(f"{path}:{k}: expected 'timestamp filename', got {line!r} (no file name)")
     return out
 
 
@@ -255,8 +259,8 @@ class SequenceRecording(Recording):
     ) -> SequenceRecording:
         """TUM RGB-D layout; ``intrinsics`` is a TUM_INTRINSICS key, guessed from the folder name."""
         path = Path(path)
-        rgb = _read_tum_list(path / "rgb.txt")
-        depth = _read_tum_list(path / "depth.txt")
+        rgb = _read_tum_list(path / "rgb.txt", need=1)
+        depth = _read_tum_list(path / "depth.txt", need=1)
         if intrinsics is None:
             intrinsics = next((k for k in TUM_INTRINSICS if k in path.name), "ros")
         if intrinsics not in TUM_INTRINSICS:
@@ -390,7 +394,8 @@ def make_virtual_rig(
     rig = Rig(tuple(cams))
     write_rig(out, rig)
     (out / "source.json").write_text(
-        json.dumps({"virtual_rig_of": str(seq.path), "layout": seq.layout, "frames": indices}, indent=2) + "\n"
+        json.dumps({"virtual_rig_of": str(Path(seq.path).resolve()), "layout": seq.layout, "frames": indices}, indent=2)
+        + "\n"
     )
     return rig
 

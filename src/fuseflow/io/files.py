@@ -2,19 +2,22 @@
 
 Reads raise ``RecordingError`` naming the file when it is missing or unreadable, and
 ``FormatError`` when its content does not parse; writes go to ``<name>.tmp`` beside the target
-and are renamed over it, so a crash never leaves half a file under the real name.
+and are renamed over it, so a crash never leaves half a file under the real name; a failed
+write (full disk, no permission) removes the temporary file and raises ``OutputError``.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
-from fuseflow.errors import FormatError, RecordingError
+from fuseflow.errors import FormatError, OutputError, RecordingError
 
-__all__ = ["read_bytes", "load_json", "write_bytes_atomic", "write_json_atomic"]
+__all__ = ["read_bytes", "load_json", "write_bytes_atomic", "write_json_atomic", "write_error"]
 
 
 def read_bytes(path: str | Path) -> bytes:
@@ -37,19 +40,45 @@ def load_json(path: str | Path) -> Any:
         raise FormatError(f"{path}: not UTF-8 text (byte {exc.start})") from None
     except json.JSONDecodeError as exc:
         raise FormatError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except RecursionError:
+        raise FormatError(f"{path}: JSON nested too deeply to be a FuseFlow file") from None
 
 
 def write_bytes_atomic(path: str | Path, *chunks: bytes) -> Path:
     """Write ``chunks`` one after the other to ``path`` (parent folders created) through a
     temporary file and a rename. Returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        for chunk in chunks:
-            f.write(chunk)
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            for chunk in chunks:
+                f.write(chunk)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise write_error(path, exc) from None
     return path
+
+
+def write_error(path: str | Path, exc: OSError) -> OutputError:
+    """The one-line OutputError for a failed write of ``path``: a full disk or quota says so (with
+    the space left), a read-only or forbidden place says that."""
+    reason = {
+        errno.ENOSPC: "no space left on the device",
+        errno.EDQUOT: "disk quota exceeded",
+        errno.EROFS: "read-only filesystem",
+        errno.EACCES: "no permission",
+        errno.EPERM: "no permission",
+    }.get(exc.errno, exc.strerror or str(exc))
+    free = ""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        try:
+            free = f" ({shutil.disk_usage(Path(path).parent).free / 1e6:.0f} MB free)"
+        except OSError:
+            pass
+        return OutputError(f"cannot write {path}: {reason}{free}; free some space or choose another --out")
+    return OutputError(f"cannot write {path}: {reason}")
 
 
 def write_json_atomic(path: str | Path, doc: Any) -> None:

@@ -174,6 +174,7 @@ def convert_hocap(src: str | Path, out: str | Path, with_extrinsics: bool = Fals
         write_calibration(out / "reference_calib.json", Calibration(seq.reference, {
             "source": "HO-Cap reference extrinsics (target-based), camera -> master inverted; world = master camera",
             "file": str(seq.extrinsics_file), "master": seq.master}))  # fmt: skip
-    (out / "source.json").write_text(json.dumps({"hocap": str(seq.path), "extrinsics": str(seq.extrinsics_file),
+    ext = str(Path(seq.extrinsics_file).resolve()) if seq.extrinsics_file else None
+    (out / "source.json").write_text(json.dumps({"hocap": str(Path(seq.path).resolve()), "extrinsics": ext,
                                                  "master": seq.master}, indent=2) + "\n")  # fmt: skip
     return rig, seq

@@ -16,7 +16,9 @@ Depth encodings (each reader states its units):
 
 from __future__ import annotations
 
+import os
 import re
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -52,10 +54,54 @@ def _read_bytes(path: Path) -> bytes:
     return data
 
 
+_JPEG_DAMAGE = (b"premature end of data segment", b"Huffman", b"Corrupt JPEG data: bad", b"before marker 0xd9")
+"""libjpeg warnings that mean the picture itself is damaged (decoded with grey blocks: the
+scan data ran out early, or bytes were left over before the end marker); others ("N extraneous
+bytes before marker 0xc4", common from MJPEG cameras) leave the pixels intact."""
+
+_STDERR_LOCK = threading.Lock()
+
+
+def _imdecode_jpeg(cv2, data: bytes, flags: int, path: Path):
+    """cv2.imdecode of a JPEG with libjpeg's warnings (written to file descriptor 2) caught:
+    RecordingError when one says the entropy-coded data is damaged. Whatever else reached
+    descriptor 2 meanwhile is written back. Without memfd (not Linux) the check is skipped."""
+    buf = np.frombuffer(data, dtype=np.uint8)
+    if not hasattr(os, "memfd_create"):  # pragma: no cover - Linux has it
+        return cv2.imdecode(buf, flags)
+    with _STDERR_LOCK:
+        sink = os.memfd_create("fuseflow-jpeg")
+        saved = os.dup(2)
+        try:
+            os.dup2(sink, 2)
+            try:
+                img = cv2.imdecode(buf, flags)
+            finally:
+                os.dup2(saved, 2)
+            os.lseek(sink, 0, os.SEEK_SET)
+            said = os.read(sink, 1 << 16)
+        finally:
+            os.close(saved)
+            os.close(sink)
+    damage = [line for line in said.splitlines() if any(k in line for k in _JPEG_DAMAGE)]
+    rest = b"".join(line + b"\n" for line in said.splitlines() if line not in damage)
+    if rest:
+        os.write(2, rest)
+    if damage and img is not None:
+        raise RecordingError(
+            f"{path}: corrupt JPEG data ({damage[0].decode(errors='replace').strip()}): it decodes with grey "
+            "blocks; replace the file or drop the view"
+        )
+    return img
+
+
 def _decode(path: Path, flags: int) -> np.ndarray:
     cv2 = _cv2()
     data = _read_bytes(path)
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+    if data[:2] == b"\xff\xd8":
+        img = _imdecode_jpeg(cv2, data, flags, path)
+    else:
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
     if img is None:
         raise RecordingError(f"{path}: not a readable image (corrupt, truncated or unsupported format)")
     if _looks_truncated(path, data):
@@ -95,9 +141,12 @@ def read_depth_raw(path: str | Path) -> np.ndarray:
     """Read a single-channel 16-bit depth PNG as (H, W) uint16, without scaling."""
     cv2 = _cv2()
     path = Path(path)
-    img = _decode(path, cv2.IMREAD_ANYDEPTH)
+    img = _decode(path, cv2.IMREAD_UNCHANGED)  # never folds 3 channels into one grey (x 0.30)
     if img.ndim != 2:
-        raise FormatError(f"{path}: depth image must have one channel, got shape {img.shape}")
+        raise FormatError(
+            f"{path}: depth image must have one channel, got {img.shape[2]} ({img.dtype}): a colour "
+            "image is not depth; write depth as a single-channel 16-bit PNG"
+        )
     if img.dtype != np.uint16:
         raise FormatError(f"{path}: depth image must be 16-bit unsigned, got {img.dtype}")
     return img

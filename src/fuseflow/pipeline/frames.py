@@ -19,7 +19,7 @@ from fuseflow.pipeline.health import frame_health
 from fuseflow.pipeline.records import FrameRecord
 from fuseflow.types import Calibration, Frame, FusedCloud, Rig
 
-__all__ = ["process_frame", "first_good_frame", "stream", "select_views"]
+__all__ = ["process_frame", "first_good_frame", "stream", "select_views", "fuse_notes"]
 
 
 def select_views(frame: Frame, sel: list[int], device: str) -> Frame:
@@ -36,12 +36,13 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
     ``sel`` picks the frame's views that ``rig`` has (cameras GMAC could not place are left
     out); the cloud's ``camera`` indexes the frame's full camera list.
     """
-    from fuseflow.fuse import fuse
+    from fuseflow.fuse import fuse_with_report
 
     full = frame.num_views
     frame = select_views(frame, sel, config.device)
     t0 = time.perf_counter()
-    cloud = fuse(frame, rig, config.fuse_config())
+    result = fuse_with_report(frame, rig, config.fuse_config())
+    cloud = result.cloud
     if not frame.is_numpy and frame.device.type == "cuda":
         import torch
 
@@ -50,17 +51,36 @@ def process_frame(frame: Frame, sel: list[int], rig: Rig, config: PipelineConfig
     if len(sel) != full:
         cloud = reindex_cameras(cloud, sel)
     pairs, agreement = frame_health(frame, rig, config.health_samples, config.health_tau)
+    empty = _empty_views(frame)
     record = FrameRecord(
         index=frame.index,
         points=len(cloud),
         fuse_ms=round(ms, 3),
         missing=list(frame.missing),
-        empty=_empty_views(frame),
+        empty=empty,
         agreement=agreement,
         pairs=pairs,
         timestamp=frame.timestamp,
+        notes=fuse_notes(result.report, empty),
     )
     return cloud, record
+
+
+def fuse_notes(report, empty: list[str]) -> list[str]:
+    """FUSE's warnings about one frame that ``run``'s own records do not already carry (missing
+    views and all-zero depth are in ``FrameRecord.missing`` / ``empty``), without frame numbers
+    or counts, so that the summary can group frames by kind."""
+    notes = []
+    out_of_depth_range = [c for c in report.empty if c not in empty]
+    if out_of_depth_range:
+        notes.append(f"cameras with no depth inside their depth_range: {out_of_depth_range}")
+    if report.isolated and report.views > 1:
+        notes.append(f"cameras with no overlapping neighbour: {list(report.isolated)} (omega_geo = c, eq. 21)")
+    if report.out_of_range:
+        notes.append("points beyond the spatial hash's range were dropped (extrinsics in millimetres?)")
+    if report.points == 0:
+        notes.append("the fused cloud is empty")
+    return notes
 
 
 def _empty_views(frame) -> list[str]:

@@ -9,6 +9,7 @@ import dataclasses
 import hashlib
 import importlib.metadata
 import json
+import os
 import resource
 import shutil
 from dataclasses import dataclass
@@ -34,6 +35,8 @@ __all__ = [
     "setting_changes",
     "MANIFEST",
     "fuseflow_version",
+    "lock_output",
+    "recording_files",
 ]
 
 
@@ -90,7 +93,8 @@ class OutputManifest:
     recording: str
     """The recording's resolved path (informative: a moved recording with the same content resumes)."""
     recording_fingerprint: str
-    """Digest of the rig (rig.json: ids, intrinsics, resolution, extrinsics) and the frame list."""
+    """Digest of the rig (rig.json: ids, intrinsics, resolution, extrinsics), the frame list and
+    each data file's size and modification time (``recording_fingerprint``)."""
     calibration: str
     """Where the extrinsics come from: "rig.json", "given:<digest of the extrinsics>" or
     "gmac:<digest of CalibConfig>:frame=<position or first-good>"."""
@@ -106,7 +110,7 @@ class OutputManifest:
         changed settings are named one by one ("settings: fuse.s0 was 5.0, now 1.0")."""
         names = {
             "command": "command",
-            "recording_fingerprint": "recording content (rig.json or frame list)",
+            "recording_fingerprint": "recording content (rig.json, frame list, or a file's size or modification time)",
             "calibration": "calibration",
             "config": "settings",
             "fuseflow_version": "fuseflow version",
@@ -147,11 +151,51 @@ def setting_changes(old: dict[str, Any] | None, new: dict[str, Any] | None) -> l
     ]
 
 
+_DATA_FILES = (
+    ".png",
+    ".jpg",
+    ".jpeg",
+    ".pgm",
+    ".ppm",
+    ".tif",
+    ".tiff",
+    ".exr",
+    ".json",
+    ".txt",
+    ".log",
+    ".bag",
+    ".mkv",
+)
+
+
+def recording_files(path: str | Path) -> list[tuple[str, int, int]]:
+    """(relative path, size, mtime in ns) of the data files of a recording (images, JSON, lists,
+    .bag / .mkv), sorted; folders holding a FuseFlow output (a manifest.json) and hidden ones
+    are left out, so an --out inside the recording does not change it."""
+    root = Path(path)
+    if root.is_file():
+        st = root.stat()
+        return [(root.name, st.st_size, st.st_mtime_ns)]
+    found = []
+    for folder, dirs, files in os.walk(root):
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not (Path(folder) / d / MANIFEST).exists())
+        for name in files:
+            if name.lower().endswith(_DATA_FILES) and not name.startswith("."):
+                try:
+                    st = os.stat(os.path.join(folder, name))
+                except OSError:
+                    continue
+                found.append((os.path.relpath(os.path.join(folder, name), root), st.st_size, st.st_mtime_ns))
+    return sorted(found)
+
+
 def recording_fingerprint(rec) -> str:
-    """Digest of a recording's rig and frame list (``OutputManifest.recording_fingerprint``)."""
+    """Digest of a recording's rig, frame list and files' sizes and modification times
+    (``OutputManifest.recording_fingerprint``): a frame file replaced after a run changes it."""
     from fuseflow.io.recording import rig_to_json
 
-    return _digest({"rig": rig_to_json(rec.rig), "frames": list(rec.frame_numbers)})
+    files = recording_files(rec.path) if getattr(rec, "path", None) else []
+    return _digest({"rig": rig_to_json(rec.rig), "frames": list(rec.frame_numbers), "files": files})
 
 
 def calibration_digest(T_cam_world: dict[str, np.ndarray]) -> str:
@@ -191,16 +235,52 @@ def _clear(out: Path) -> None:
             p.unlink()
 
 
+LOCK = ".fuseflow.lock"
+"""The file in OUT a run or fuse holds an exclusive lock on (``lock_output``) while it writes."""
+
+_HELD: dict[Path, int] = {}  # OUT -> descriptor of its lock file, held until the process ends
+
+
+def lock_output(out: Path) -> None:
+    """Take OUT's lock (``fcntl.flock`` on OUT/.fuseflow.lock, released by the system when this
+    process ends, however it ends); OutputError when another process holds it. Taking it again
+    in the same process is a no-op."""
+    import fcntl
+
+    key = Path(out).resolve()
+    if key in _HELD:
+        return
+    path = Path(out) / LOCK
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create the lock file ({exc.strerror or exc})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise OutputError(
+            f"{out} is being written by another fuseflow process (pid {holder}): wait for it to finish, "
+            "or choose another --out"
+        ) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode())
+    _HELD[key] = fd
+
+
 def open_output(out: Path, manifest: OutputManifest, force: bool = False) -> bool:
     """Make ``out`` ready for a run described by ``manifest``; True when it resumes earlier work.
 
     A new or empty directory starts fresh. A used one resumes only when its manifest matches
     (same command, recording content, calibration, settings and version); otherwise OutputError
-    says what differs and offers ``--force``. ``force`` removes the earlier outputs (only the
+    says what differs and offers ``--force``. Another process writing OUT (``lock_output``) is an
+    OutputError before anything is read or written. ``force`` removes the earlier outputs (only the
     files FuseFlow writes) and starts over. The manifest is written before any other output.
     """
     from fuseflow.io.recording import write_json_atomic
 
+    lock_output(out)
     resumed = False
     if force:
         _clear(out)

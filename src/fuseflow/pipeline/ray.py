@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from fuseflow.pipeline.records import FrameRecord
     from fuseflow.types import FusedCloud, Rig
 
-__all__ = ["RayOptions", "ray_frame_results"]
+__all__ = ["RayOptions", "ray_frame_results", "check_ray_address"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +92,25 @@ def _fuse_task(
     return position, arrays, record, load_ms
 
 
+def check_ray_address(address: str, timeout: float = 3.0) -> None:
+    """FuseFlowError at once when nothing accepts a TCP connection at a "host:port" (or
+    "ray://host:port") Ray address; Ray itself retries for minutes. "auto" and "local" pass."""
+    import socket
+
+    hostport = address.split("://", 1)[-1]
+    host, _, port = hostport.rpartition(":")
+    if address in ("auto", "local") or not host or not port.isdigit():
+        return
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout):
+            return
+    except OSError as exc:
+        raise FuseFlowError(
+            f"--ray-address {address}: no Ray cluster answers there ({exc.strerror or exc}); start one "
+            "(ray start --head) or drop --ray-address to start a local Ray"
+        ) from None
+
+
 def ray_frame_results(
     rec_path: str,
     positions: Sequence[int],
@@ -110,11 +129,21 @@ def ray_frame_results(
     from fuseflow.types import FusedCloud
 
     started_here = False
+    if options.address is not None and not ray.is_initialized():
+        check_ray_address(options.address)
     if not ray.is_initialized():
         kw: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "log_to_driver": False}
         if options.address is None:
             kw["num_cpus"] = options.num_cpus
-        ray.init(address=options.address, **kw)
+        try:
+            ray.init(address=options.address, **kw)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            where = f"--ray-address {options.address}" if options.address else "a local Ray"
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise FuseFlowError(
+                f"{where}: could not connect ({first[:200]}); start the cluster (ray start --head) or drop "
+                "--ray-address to start a local Ray"
+            ) from None
         started_here = True
     try:
         task = ray.remote(num_cpus=options.cpus_per_task, max_retries=options.max_retries)(_fuse_task)

@@ -48,18 +48,22 @@ class FrameRecord:
     """GMAC re-ran on this frame (``recalibrate="auto"``)."""
     timestamp: float | None = None
     """The frame's time, seconds (its views' device time), or None when the recording has none."""
+    notes: list[str] = field(default_factory=list)
+    """FUSE's warnings about this frame (``pipeline.frames.fuse_notes``): cameras with no depth in
+    range, cameras with no overlapping neighbour, points dropped, an empty cloud."""
 
     def to_json(self) -> dict[str, Any]:
         """The frames.jsonl line: ``pairs`` as nested lists with null for NaN."""
         d = {k: v for k, v in self.__dict__.items() if k != "pairs"}
         d["missing"], d["flagged"], d["empty"] = list(self.missing), list(self.flagged), list(self.empty)
-        d["agreement"] = dict(self.agreement)
+        d["agreement"], d["notes"] = dict(self.agreement), list(self.notes)
         d["pairs"] = pairs_to_json(self.pairs)
         return {
             k: d[k]
             for k in (
                 "index", "points", "fuse_ms", "missing", "empty", "agreement", "pairs", "flagged", "recalibrated",
                 "timestamp",
+                "notes",
             )
         }  # fmt: skip
 
@@ -78,6 +82,7 @@ class FrameRecord:
             flagged=list(d.get("flagged", [])),
             recalibrated=bool(d.get("recalibrated", False)),
             timestamp=None if d.get("timestamp") is None else float(d["timestamp"]),
+            notes=list(d.get("notes", [])),
         )
 
 
@@ -106,6 +111,21 @@ class RunSummary:
     warnings: list[str]
     sync_offsets: dict[str, int] = field(default_factory=dict)
     """Cameras the sync check found late (+k frames) or early (-k); applied when ``sync="auto"``."""
+    first_frame_ms: float = 0.0
+    """FUSE time of the first frame fused in this call: it includes the start-up (numba loads or
+    compiles its kernels in each new process)."""
+    warm_ms_per_frame: float | None = None
+    """Median FUSE time of the frames after the first (None with fewer than 2 fused now): the
+    per-frame cost of a long recording."""
+    nothing_to_do: bool = False
+    """Every frame asked for was already in OUT: the numbers are those of the run that fused
+    them (summary.json is left as it was)."""
 
     def to_json(self) -> dict[str, Any]:
-        return asdict(self)
+        return {k: v for k, v in asdict(self).items() if k != "nothing_to_do"}
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> RunSummary:
+        """Inverse of ``to_json``; fields an older summary.json lacks take their defaults."""
+        names = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in doc.items() if k in names})

@@ -21,6 +21,7 @@ from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.recording import Recording, write_json_atomic
+from fuseflow.pipeline.checks import check_depth_range, check_scale, frame_notes, low_agreement
 from fuseflow.pipeline.config import OutputOptions, PipelineConfig
 from fuseflow.pipeline.exports import FrameWriter, recording_centres, resolve_crop, with_volume, write_sequence
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
@@ -38,7 +39,7 @@ from fuseflow.pipeline.outputs import (
     settings_digest,
     settings_doc,
 )
-from fuseflow.pipeline.ray import RayOptions
+from fuseflow.pipeline.ray import RayOptions, check_ray_address
 from fuseflow.pipeline.records import FrameRecord, RunSummary
 from fuseflow.types import Calibration, FusedCloud, Rig
 
@@ -170,6 +171,17 @@ def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tup
     return rec, offsets
 
 
+def _check_inputs(rec: Recording, rig: Rig, positions: list[int], config: PipelineConfig) -> list[str]:
+    """Before fusing, on the first frame to fuse: its depth against the depth_range and the
+    extrinsics' scale (``pipeline.checks``); ValidationError when every cloud would be empty."""
+    if not positions:
+        return []
+    sel = [rec.rig.index(c) for c in rig.ids]
+    frame = rec[positions[0]].subset(sel)
+    cfg = config.fuse_config()
+    return check_depth_range(frame, rig, cfg.delta, cfg.z_max) + check_scale(frame, rig, cfg.delta, cfg.z_max)
+
+
 @dataclass
 class _RunState:
     """What the frame loop carries from frame to frame (explicit, per run)."""
@@ -296,6 +308,8 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
         for c, n in empty.items()
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
+    warnings += frame_notes(state.records)
+    warnings += [w for w in [low_agreement(state.records)] if w]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
     stat = (lambda f: float(f(pts))) if pts.size else (lambda f: 0.0)  # noqa: E731
     return RunSummary(
@@ -306,6 +320,8 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
         frames_resumed=state.resumed,
         fps=(state.fused_now / wall) if state.fused_now and wall > 0 else 0.0,
         ms_per_frame=float(np.median(state.fuse_ms)) if state.fuse_ms else 0.0,
+        first_frame_ms=float(state.fuse_ms[0]) if state.fuse_ms else 0.0,
+        warm_ms_per_frame=float(np.median(state.fuse_ms[1:])) if len(state.fuse_ms) > 1 else None,
         points_per_frame={"mean": stat(np.mean), "min": stat(np.min), "max": stat(np.max)},
         peak_memory_mb=peak_rss_mb(),
         device=device,
@@ -361,17 +377,39 @@ def run(
     out = prepare_output_dir(out_dir)
     if not isinstance(rec, Recording):
         rec = open_recording(rec)
+    if calib_frame is not None and not 0 <= calib_frame < len(rec):
+        raise ValidationError(
+            f"calibration frame {calib_frame} (--calib-frame) is beyond the recording: it has {len(rec)} frames, "
+            f"positions 0 to {len(rec) - 1}"
+        )
+    if ray is not None and ray.address is not None:
+        check_ray_address(ray.address)  # before any work: Ray itself retries for minutes
     open_output(out, run_manifest(rec, calibration, config, calib_frame, use_rig_extrinsics), force)
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
     state.writer = _frame_writer(rec, out, calibration, choice, config.outputs)
-    rec, offsets = _check_sync(rec, state, config)
     positions = list(frames if frames is not None else range(len(rec)))
+    state.warnings += _check_inputs(rec, choice.rig, positions, config)
+    rec, offsets = _check_sync(rec, state, config)
     t_start = time.perf_counter()
     _fuse_frames(rec, out, positions, state, config, ray, on_frame)
     summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
     summary.sync_offsets = offsets
     write_sequence(out, state.writer)
+    if state.fused_now == 0 and (out / "summary.json").exists():
+        return _earlier_summary(out, summary)
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary
+
+
+def _earlier_summary(out: Path, now: RunSummary) -> RunSummary:
+    """Nothing was fused now: the earlier run's summary.json (its timings and warnings) is kept
+    as it is and returned, marked ``nothing_to_do``; ``now`` when it cannot be read."""
+    try:
+        earlier = RunSummary.from_json(json.loads((out / "summary.json").read_text()))
+    except (OSError, ValueError, TypeError):
+        write_json_atomic(out / "summary.json", now.to_json())
+        return now
+    earlier.frames_fused_now, earlier.frames_resumed, earlier.nothing_to_do = 0, now.frames_resumed, True
+    return earlier

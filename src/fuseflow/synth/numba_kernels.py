@@ -9,11 +9,13 @@ import warnings
 import numba
 import numpy as np
 
+from fuseflow.io.numba_cache import use_usable_cache
 from fuseflow.synth.config import sigma_terms
 
 # numba warns once per process that the installed TBB is too old and falls back to another
 # threading layer; that is not the user's concern.
 warnings.filterwarnings("ignore", message="The TBB threading layer requires", category=numba.NumbaWarning)
+use_usable_cache(__file__)  # before any @njit(cache=True) below
 
 
 @numba.njit(parallel=True, cache=True, fastmath=False)

@@ -86,16 +86,19 @@ def world_up(rig: Rig | None) -> tuple[float, float, float]:
     return tuple((up / n).tolist()) if n > 1e-6 else (0.0, -1.0, 0.0)
 
 
-def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb", whole: bool = False) -> int:
+def render_pngs(
+    source: ViewSource, out_dir: str | Path, color_by: str = "rgb", whole: bool = False, on_frame=None
+) -> int:
     """Render each frame of ``source`` to OUT/<frame:06d>.png (headless) from one view
     (``viz.render.view_camera``) framed on the first non-empty cloud: the capture volume (the
     run's stored one, else the rig's) unless ``whole``; cameras, axes, frame label, colour bar
-    for weights. Returns the number of PNGs."""
+    for weights. ``on_frame(done, total)`` is called after each PNG (a progress bar). Returns the
+    number of PNGs."""
     from fuseflow.viz.render import save_cloud_png, view_camera
 
     volume = None if whole else _volume(source)
     view = None
-    for number, load in source.items:
+    for done, (number, load) in enumerate(source.items, start=1):
         cloud = load()
         if view is None and len(cloud):
             view = view_camera(cloud.xyz.numpy(), source.rig, volume)[:2]
@@ -103,6 +106,8 @@ def render_pngs(source: ViewSource, out_dir: str | Path, color_by: str = "rgb", 
         label = f"frame {number}  {len(cloud):,} points  ({color_by})"
         save_cloud_png(Path(out_dir) / f"{number:06d}.png", cloud, color_by, K, T, rig=source.rig, volume=volume,
                        label=label)  # fmt: skip
+        if on_frame:
+            on_frame(done, len(source.items))
     return len(source.items)
 
 

@@ -17,6 +17,7 @@ backbone's own depth at triangulated keypoints (for the naive median-ratio basel
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +26,7 @@ import numpy as np
 
 from fuseflow.calib.backbones.base import BackboneResult
 from fuseflow.calib.errors import CalibrationError
+from fuseflow.errors import OutputError
 
 __all__ = ["colmap_backbone", "merge_models", "MIN_KEYPOINTS"]
 
@@ -117,8 +119,12 @@ def _write_images(color: np.ndarray, present: np.ndarray, img_dir: Path) -> tupl
     img_dir.mkdir()
     names = [f"{i:04d}.png" for i in range(len(color))]
     for i in range(len(color)):
-        if present[i]:
-            cv2.imwrite(str(img_dir / names[i]), cv2.cvtColor(color[i], cv2.COLOR_RGB2BGR))
+        if present[i] and not cv2.imwrite(str(img_dir / names[i]), cv2.cvtColor(color[i], cv2.COLOR_RGB2BGR)):
+            free = shutil.disk_usage(img_dir).free / 1e6
+            raise OutputError(
+                f"cannot write COLMAP's workspace image {img_dir / names[i]} ({free:.0f} MB free in the temporary "
+                "directory): free space there or point TMPDIR at a disk with room"
+            )
     return names, [names[i] for i in range(len(color)) if present[i]]
 
 
