@@ -62,5 +62,5 @@ def _print_result(res) -> None:
 EXAMPLES = """\b
 Examples:
   fuseflow demo                          # ./fuseflow-demo: simulate, calibrate, fuse, score
-  fuseflow demo --out /tmp/demo --cameras 4 --frames 3
+  fuseflow demo --out /tmp/demo --cameras 4 --num-frames 3
 """

@@ -83,6 +83,6 @@ def command(
 #: ``--help`` examples (click keeps a paragraph after "\\b" as written).
 EXAMPLES = """\b
 Examples:
-  fuseflow simulate /tmp/studio --cameras 8 --frames 30 --scene studio --dynamic --uncalibrated
-  fuseflow simulate /tmp/small --cameras 3 --frames 2 --resolution 160x120
+  fuseflow simulate /tmp/studio --cameras 8 --num-frames 30 --scene studio --dynamic --uncalibrated
+  fuseflow simulate /tmp/small --cameras 3 --num-frames 2 --resolution 160x120
 """
