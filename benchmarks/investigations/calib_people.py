@@ -15,10 +15,10 @@ calibration's world (the first placed camera's frame), placed or not.
 
 Rows are JSON lines appended to --out; ``summary`` prints the table.
 
-    python benchmarks/calib_people.py pairs --cameras 3 --seeds 0 1 2 3 4 5 6 7 8 9
-    python benchmarks/calib_people.py pairs --cameras 6 --seeds 0 1 2 --no-icp
-    python benchmarks/calib_people.py pairs --cameras 3 --seeds 0 1 2 --calibrate
-    python benchmarks/calib_people.py summary
+    python benchmarks/investigations/calib_people.py pairs --cameras 3 --seeds 0 1 2 3 4 5 6 7 8 9
+    python benchmarks/investigations/calib_people.py pairs --cameras 6 --seeds 0 1 2 --no-icp
+    python benchmarks/investigations/calib_people.py pairs --cameras 3 --seeds 0 1 2 --calibrate
+    python benchmarks/investigations/calib_people.py summary
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).parent / "results" / "calib_people.jsonl"
+RESULTS = Path(__file__).parent.parent / "results" / "calib_people.jsonl"
 
 
 def _err(T, T_true):
