@@ -164,3 +164,22 @@ def test_real_fuse_and_rig_checks(dynamic_rec):
     other = fuseflow.Rig((fuseflow.Camera("zz", 200, 150, rec.rig[0].K, T_cam_world=np.eye(4)),))
     with pytest.raises(FuseFlowError, match="does not have"):
         LiveLoop(ReplaySource(rec), other)
+
+
+def test_crop_keeps_the_box_and_refuses_a_bad_one(tmp_path):
+    rec = _tiny_rec(tmp_path, frames=3)
+    points = {}
+
+    class Keep(Collect):
+        def send(self, cloud, info):
+            points[info.number] = len(cloud)
+
+    for box, expect in (("-1,-1,-1,1,1,1", 3), ("1,1,1,2,2,2", 0)):  # SlowFuse's points lie at the origin
+        points.clear()
+        loop = LiveLoop(ReplaySource(rec, rate=30.0, preload=True), rec.rig, LiveSettings(crop=box), [Keep()],
+                        fuse_fn=SlowFuse(0.0))  # fmt: skip
+        loop.run()
+        assert points and set(points.values()) == {expect}
+    assert LiveLoop(ReplaySource(rec), rec.rig, LiveSettings(crop="auto"), fuse_fn=SlowFuse(0.0)).volume is not None
+    with pytest.raises(ValidationError):
+        LiveLoop(ReplaySource(rec), rec.rig, LiveSettings(crop="1,2,3"), fuse_fn=SlowFuse(0.0))

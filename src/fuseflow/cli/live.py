@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import POINTS_HELP, check_device, check_fuse_options, fail, print_table, say, warn
 
 
@@ -51,6 +52,7 @@ def command(
     ),
     rerun: str = typer.Option(None, "--rerun", help="spawn | rerun+http://HOST:PORT/proxy | FILE.rrd"),
     record: Path = typer.Option(None, "--record", help="Write the fused clouds here (clouds/<n>.ply, as run)."),
+    crop: str = oo.CROP,
 ) -> None:
     """Fuse cameras (or a recording replayed as cameras) live; serve, log or record the clouds.
 
@@ -63,13 +65,17 @@ def command(
     from fuseflow.pipeline.live import LiveSettings
 
     check_device(device)
+    if crop is not None and crop not in ("auto", "off"):
+        from fuseflow.geometry.volume import parse_crop
+
+        parse_crop(crop)  # a bad box fails in one line before the source opens
     check_fuse_options(preset, points)
     for name, value in (("--frames", frames), ("--duration", duration)):
         if value is not None and value <= 0:
             fail(f"{name} must be positive, got {value}")
     outputs = LiveOutputs(parse_address(serve) if serve else None, rerun, record)
     calibration = read_calibration(calib) if calib is not None else None
-    settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration)
+    settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
     opened = open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))
 
     def started(url, warnings) -> None:

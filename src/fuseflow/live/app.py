@@ -78,7 +78,7 @@ def run_live(
         left_out = [c for c in source.rig.ids if c not in rig.ids]
         if left_out:
             warnings.append(f"the calibration does not place cameras {left_out}; they are left out of fusion")
-        loop = LiveLoop(source, rig, settings, fuse_fn=fuse_fn)
+        loop = LiveLoop(source, rig, settings, fuse_fn=fuse_fn, calibration=calibration)
         if outputs.serve is not None:
             server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig)).start()
             warnings += _server_warnings(server.host)

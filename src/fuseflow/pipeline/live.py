@@ -28,8 +28,10 @@ import numpy as np
 import torch
 
 from fuseflow.errors import FuseFlowError
+from fuseflow.geometry.volume import crop_cloud
+from fuseflow.pipeline.exports import resolve_crop
 from fuseflow.pipeline.extrinsics import reindex_cameras
-from fuseflow.types import Frame, FusedCloud, Rig
+from fuseflow.types import Calibration, Frame, FusedCloud, Rig
 
 __all__ = [
     "Captured",
@@ -105,9 +107,10 @@ class LiveSettings:
     """Fuse one synthetic frame before capture starts, so that loading the compiled kernels does
     not count against the first live frames."""
     crop: Any = None
-    """A capture volume to keep (points outside it are not fused); None keeps everything. Reserved
-    for the capture-volume crop of ``fuse`` / ``run``: the loop passes it to FUSE unchanged once
-    FuseConfig accepts one, and refuses a crop until then."""
+    """The capture-volume crop, as ``fuse`` / ``run`` take it: None or "off" keeps every point,
+    "auto" the capture volume of the calibration (its stored ``capture_volume``, else the placed
+    rig's), "xmin,ymin,zmin,xmax,ymax,zmax" (metres, world frame) or a ``CaptureVolume``; each
+    fused cloud is cropped before the sinks get it."""
 
 
 @dataclass
@@ -242,11 +245,19 @@ class LiveLoop:
         sinks: objects with ``send(cloud, info)`` and ``close()``; they run in the fusion loop.
         fuse_fn: ``(frame, rig) -> (cloud, fuse_ms)``; default FUSE with ``settings`` (tests
             pass a slow stand-in).
+        calibration: where ``rig``'s extrinsics came from; ``settings.crop="auto"`` takes the
+            capture volume stored in it, when it has one.
     """
 
-    def __init__(self, source: Any, rig: Rig, settings: LiveSettings = LiveSettings(), sinks=(), fuse_fn=None):
-        if settings.crop is not None:
-            raise FuseFlowError("a capture-volume crop is not available in live yet")
+    def __init__(
+        self,
+        source: Any,
+        rig: Rig,
+        settings: LiveSettings = LiveSettings(),
+        sinks=(),
+        fuse_fn=None,
+        calibration: Calibration | None = None,
+    ):
         missing = [c for c in rig.ids if c not in source.rig.ids]
         if missing:
             raise FuseFlowError(f"the calibration places cameras {missing} that the source does not have")
@@ -257,6 +268,7 @@ class LiveLoop:
         self.stats = LiveStats()
         self._sel = [source.rig.ids.index(c) for c in rig.ids]
         self._fuse = fuse_fn or self._fuse_frame
+        self.volume = resolve_crop(settings.crop, rig, calibration)
         self._cfg = None
         self._slot = LatestFrame()
         self._stop = threading.Event()
@@ -320,6 +332,7 @@ class LiveLoop:
         if len(self._sel) != frame.num_views or self._sel != list(range(frame.num_views)):
             frame = frame.subset(self._sel)
         cloud, ms = self._fuse(frame, self.rig)
+        cloud = crop_cloud(cloud, self.volume)
         if len(self._sel) != item.frame.num_views:
             cloud = reindex_cameras(cloud, self._sel)
         info = LiveFrame(item.number, int(item.frame.index), item.captured, float(ms), tuple(frame.missing))
