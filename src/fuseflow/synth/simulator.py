@@ -68,6 +68,10 @@ class Simulator:
         self.cfg = cfg
         self.textures = make_textures(cfg.seed)
         self.scene: Scene = build_scene(cfg.scene, cfg.seed, cfg.dynamic, len(self.textures))
+        if cfg.scene == "farroom":  # its plain walls: two textures after the normal ones
+            from fuseflow.synth.studios import plain_textures
+
+            self.textures = np.concatenate([self.textures, plain_textures(self.textures)])
         w, h = cfg.resolution
         self.rig: Rig = make_rig(
             cfg.rig, cfg.cameras, w, h, cfg.hfov_deg, cfg.depth_scale, cfg.sensor.depth_range, self.scene,
