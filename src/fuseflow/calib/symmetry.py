@@ -189,10 +189,12 @@ def select_consistent(
 ) -> list[Solution]:
     """The distinct jointly consistent choices of hypotheses (module docstring, step 3), best
     first: most consistent pairs, then the larger summed score. From every hypothesis one growth
-    with ties to the larger score and RANDOM_GROWTHS with random ties (seeded), each polished."""
+    with ties to the larger score and RANDOM_GROWTHS with random ties (seeded), each polished;
+    none starts from a hypothesis that stacks its two cameras (``colocated``)."""
     seen, out = set(), []
     rng = np.random.default_rng(0)
-    for s, r in [(s, r) for s in range(len(hyps)) for r in range(RANDOM_GROWTHS + 1)]:
+    starts = [s for s, h in enumerate(hyps) if not colocated(h.T_ji, min_separation)]
+    for s, r in [(s, r) for s in starts for r in range(RANDOM_GROWTHS + 1)]:
         poses = _grow(hyps, s, rot_deg, trans_m, min_separation, rng if r else None)
         poses = _polish(hyps, poses, rot_deg, trans_m, min_separation)
         chosen = _consistent(hyps, poses, rot_deg, trans_m)
