@@ -10,8 +10,7 @@ import pytest
 
 from fuseflow.synth import SimConfig, Simulator
 from fuseflow.synth.rigs import camera_centres, make_rig
-from fuseflow.synth.scene import build_scene
-from fuseflow.synth.studios import PLAIN_CONTRAST, plain_textures, sides_of
+from fuseflow.synth.studios import PLAIN_CONTRAST, build_studio, plain_textures, sides_of
 
 
 def _rz(a: float) -> np.ndarray:
@@ -22,7 +21,7 @@ def _rz(a: float) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_symmetric_studio_repeats_exactly(seed):
-    scene = build_scene("symstudio", seed, dynamic=False, n_textures=6)
+    scene = build_studio("symstudio", seed, n_textures=6)
     n = sides_of(seed)
     assert 8 <= n <= 12 and scene.symmetry == n
     for kind in ("panel", "floor", "ceiling", "column"):
@@ -40,7 +39,7 @@ def test_symmetric_studio_repeats_exactly(seed):
 
 @pytest.mark.parametrize("layout, heights", [("ring", 1), ("dome", 2)])
 def test_symmetric_studio_rigs(layout, heights):
-    scene = build_scene("symstudio", 3, dynamic=False, n_textures=6)
+    scene = build_studio("symstudio", 3, n_textures=6)
     rig = make_rig(layout, 7, 64, 48, 70.0, 1000.0, (0.5, 4.5), scene, np.random.default_rng(0))
     C = camera_centres(rig)
     assert len(C) == 7

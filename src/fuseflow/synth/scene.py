@@ -380,15 +380,10 @@ Builder, figure, rot, static, transform = _Builder, _figure, _rot, _static, _T
 
 
 def build_scene(name: str, seed: int, dynamic: bool, n_textures: int) -> Scene:
-    """The named scene, laid out from ``seed`` (same seed, same scene). ``farroom`` uses the two
-    plain textures at indices ``n_textures`` and ``n_textures + 1`` (``studios.plain_textures``)."""
-    from fuseflow.synth import studios
-
+    """The named scene, laid out from ``seed`` (same seed, same scene); 'symstudio' and 'farroom'
+    are built by ``synth.studios.build_studio``."""
     rng = np.random.default_rng([seed, 0x5CE7E])
     b = _Builder(rng, n_textures)
-    if name in ("symstudio", "farroom"):  # their own moving parts, whatever ``dynamic`` says
-        hints = studios.symmetric_studio(b, rng, seed) if name == "symstudio" else studios.far_room(b, rng, n_textures)
-        return Scene(name=name, parts=tuple(b.parts), **hints)
     hints = {"studio": _studio, "room": _room, "wall": _wall}[name](b, rng)
     if dynamic and name != "wall":
         _dynamic_objects(b, hints["target"], 0.9 if name == "studio" else 1.0)

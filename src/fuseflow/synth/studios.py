@@ -13,7 +13,7 @@ walls, and a person walking across the middle (a straight line there and back at
 ``SimConfig.dynamic`` says). Cameras: 3.6 m from the centre, 120 deg apart, 1.8-2.1 m high
 (3.5-4 m from the person), best with ``noise='kinect2'``.
 
-Both are built by ``synth.scene.build_scene`` (names in ``synth.config.SCENES``).
+Both are built by ``build_studio`` (names in ``synth.config.SCENES``; the Simulator dispatches).
 """
 
 from __future__ import annotations
@@ -23,9 +23,22 @@ from dataclasses import replace
 
 import numpy as np
 
-from fuseflow.synth.scene import Builder, MeshData, box, cylinder, figure, quad, rot, static, transform
+from fuseflow.synth.scene import Builder, MeshData, Scene, box, cylinder, figure, quad, rot, static, transform
 
-__all__ = ["symmetric_studio", "far_room", "studio_eyes", "far_eyes", "sides_of", "PLAIN_CONTRAST", "plain_textures"]
+__all__ = [
+    "STUDIO_SCENES",
+    "build_studio",
+    "symmetric_studio",
+    "far_room",
+    "studio_eyes",
+    "far_eyes",
+    "sides_of",
+    "PLAIN_CONTRAST",
+    "plain_textures",
+]
+
+#: The scenes of this module.
+STUDIO_SCENES = ("symstudio", "farroom")
 
 #: Contrast of the plain (low-texture) surfaces of ``farroom`` relative to a normal texture.
 PLAIN_CONTRAST = 0.12
@@ -162,3 +175,14 @@ def far_eyes(n_cameras: int, rng: np.random.Generator) -> list[tuple[np.ndarray,
         eye = np.array([FAR_CAMERA_RADIUS * math.cos(ang), FAR_CAMERA_RADIUS * math.sin(ang), rng.uniform(1.8, 2.1)])
         out.append((eye, np.array([0.0, 0.0, 1.0])))
     return out
+
+
+def build_studio(name: str, seed: int, n_textures: int) -> Scene:
+    """The scene ``name`` ('symstudio' or 'farroom') laid out from ``seed``, with the same random
+    stream as ``scene.build_scene``; 'farroom' uses the two plain textures at indices
+    ``n_textures`` and ``n_textures + 1`` (``plain_textures``). Moving parts are their own (the
+    far room's person walks whatever ``SimConfig.dynamic`` says)."""
+    rng = np.random.default_rng([seed, 0x5CE7E])
+    b = Builder(rng, n_textures)
+    hints = symmetric_studio(b, rng, seed) if name == "symstudio" else far_room(b, rng, n_textures)
+    return Scene(name=name, parts=tuple(b.parts), **hints)
