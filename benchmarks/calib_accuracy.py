@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""GMAC accuracy and timing benchmark (issue 6; DESIGN.md section 4 metrics).
+"""GMAC accuracy and timing benchmark (issue 6; docs/design.md section 4 metrics).
 
 Rows per data set: the backbone's poses scaled by the naive median depth ratio; GMAC with each
 closed form (z-only = paper eq. 12 corrected, full-3D, point-to-plane = default); GMAC +

@@ -3,7 +3,7 @@
 ``fuseflow.calib.correspondences.MIN_MATCHES`` (per direction, after the depth and robust
 gates) decides between match correspondences (s-independent) and the reprojection fallback.
 This runs the colmap backbone once per simulated frame and GMAC's default preset with each
-threshold on that same backbone result, printing the translation error (mm, DESIGN.md
+threshold on that same backbone result, printing the translation error (mm, docs/design.md
 section 4) and the cameras placed.
 
     python benchmarks/calib_match_threshold.py                  # 20, 10, 6, 5, 3 on three frames

@@ -4,7 +4,7 @@ For each simulated 8-camera frame (Kinect noise, 640x480) the colmap backbone ru
 default preset then runs with ``global_from_matches`` off and on over that same result, beside
 the naive median depth ratio and the best scale any method could pick for those poses (the
 least-squares fit of the backbone's camera centres to the true ones). Translation errors in mm
-(DESIGN.md section 4, no scale alignment).
+(docs/design.md section 4, no scale alignment).
 
     python benchmarks/calib_scale_source.py
 """

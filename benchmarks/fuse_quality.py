@@ -7,7 +7,7 @@ Data: two simulated 8-camera rings (``--cameras``) at 640x480 (fuseflow.synth, s
 noise with flying pixels, lateral noise, quantisation and dropout; GT extrinsics): one static,
 one dynamic (walking figure, bouncing box, rolling sphere). ``--frames`` frames of each.
 
-Metrics (fuseflow.eval.metrics, DESIGN.md section 4) per frame against the GT surface samples (1 cm
+Metrics (fuseflow.eval.metrics, docs/design.md section 4) per frame against the GT surface samples (1 cm
 spacing) that some camera measures at that instant (noise-free depth test, inside the sensor's
 depth range; see _reference), then the mean over frames:
 

@@ -1,4 +1,4 @@
-"""The data model of FuseFlow (DESIGN.md section 1): Camera, Rig, View, Frame, FusedCloud, Calibration.
+"""The data model of FuseFlow (docs/design.md section 1): Camera, Rig, View, Frame, FusedCloud, Calibration.
 
 Conventions, used everywhere in the package (docs/conventions.md says the same):
 
@@ -435,7 +435,7 @@ class Frame:
 
 @dataclass(frozen=True)
 class FusedCloud:
-    """A fused point cloud in world coordinates (DESIGN.md section 1).
+    """A fused point cloud in world coordinates (docs/design.md section 1).
 
     Attributes:
         xyz: (M, 3) float32 metres, world frame.

@@ -68,7 +68,7 @@ def test_merge_models_leaves_out_a_model_sharing_one_camera():
 
 def test_colmap_keypoints_use_integer_pixel_centres():
     """COLMAP puts the top-left pixel's centre at (0.5, 0.5); the backbone must hand back
-    keypoints in DESIGN.md's convention (centre at (0, 0)), or depth lookups and the reprojection
+    keypoints in docs/design.md's convention (centre at (0, 0)), or depth lookups and the reprojection
     model are half a pixel off. Isolated Gaussian blobs at known integer centres in two views."""
     W, H = 160, 120
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)

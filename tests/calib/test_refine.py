@@ -1,4 +1,4 @@
-"""Optional refinement: a scale cannot fix rotations, ICP + pose graph must (DESIGN.md 3)."""
+"""Optional refinement: a scale cannot fix rotations, ICP + pose graph must (docs/design.md 3)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from fuseflow.calib.refine import refine_poses
 
 
 def _rot_err_deg(T_est: dict, T_true: np.ndarray, ids) -> float:
-    """Mean geodesic angle of relative rotations over camera pairs (DESIGN.md 4)."""
+    """Mean geodesic angle of relative rotations over camera pairs (docs/design.md 4)."""
     errs = []
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):

@@ -61,7 +61,7 @@ def test_mcm_gradient_variance_hand_computed():
 
 
 def test_mcm_defaults_meet_the_design_targets():
-    """DESIGN.md 2.1: smooth 45-degree surface c > 0.8, a 5 % depth edge c < 0.05 (f = 525, z = 2 m,
+    """docs/design.md 2.1: smooth 45-degree surface c > 0.8, a 5 % depth edge c < 0.05 (f = 525, z = 2 m,
     0.3 % relative noise)."""
     rng = np.random.default_rng(0)
     f, z0 = 525.0, 2.0
@@ -114,7 +114,7 @@ def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
 
 def test_gap_tolerant_window_keeps_surfaces_with_dropouts_and_still_rejects_edges():
     """mcm_max_missing: a smooth 45-degree plane with 5 % isolated dropouts keeps c > 0.8 next to
-    the holes (c = 0 there under DESIGN.md's rule), a 5 % depth edge with the same dropouts keeps
+    the holes (c = 0 there under docs/design.md's rule), a 5 % depth edge with the same dropouts keeps
     a median below 0.05 and no pixel above r_c, and 0 reproduces the strict rule exactly."""
     rng = np.random.default_rng(2)
     f, z0 = 525.0, 2.0

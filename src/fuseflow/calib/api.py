@@ -1,4 +1,4 @@
-"""``calibrate(frame, rig, config) -> Calibration``: GMAC end to end (paper III-B, DESIGN.md 3).
+"""``calibrate(frame, rig, config) -> Calibration``: GMAC end to end (paper III-B, docs/design.md 3).
 
 ``calibrate`` is the method's outline, one named step each: check the inputs -> backbone
 (scale-ambiguous poses, eq. 3, :mod:`backbones`) -> metric scale (RC correspondences, the scale

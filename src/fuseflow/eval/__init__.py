@@ -1,4 +1,4 @@
-"""Evaluation: metrics (DESIGN.md section 4), baseline fusion methods, the demo, the paper's
+"""Evaluation: metrics (docs/design.md section 4), baseline fusion methods, the demo, the paper's
 tables and the benchmark programs.
 
 Nothing in the product depends on this package (it sits above the pipeline, beside the CLI).

@@ -6,7 +6,7 @@
 * :func:`tsdf_fusion`: Open3D TSDF fusion, tensor ``VoxelBlockGrid`` (default) or the legacy
   ``ScalableTSDFVolume``, then point extraction at the zero crossing.
 
-Conventions (DESIGN.md section 1): pixel (u, v) with depth z (metres) back-projects to
+Conventions (docs/design.md section 1): pixel (u, v) with depth z (metres) back-projects to
 X_cam = z K^-1 [u, v, 1]^T and X_world = T_cam_world^-1 X_cam. A depth is valid when
 depth_range[0] <= z <= depth_range[1] of its camera (0 = no measurement). Views with
 ``frame.present`` False are skipped. Output: ``weight`` = 1 for every point (baselines have no

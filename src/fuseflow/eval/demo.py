@@ -2,7 +2,7 @@
 
 1. simulate a small dynamic rig (fuseflow.synth) with an *uncalibrated* rig.json;
 2. run FUSE-Flow on it (fuseflow.pipeline.run: GMAC on the first good frame, FUSE every frame);
-3. compare the GMAC extrinsics with the true ones (DESIGN.md section 4: rotation error in
+3. compare the GMAC extrinsics with the true ones (docs/design.md section 4: rotation error in
    degrees, translation error in mm, no scale alignment);
 4. compare the first, middle and last fused frames with the true surface the cameras can
    measure (visible and inside the depth range; Chamfer distance,

@@ -1,4 +1,4 @@
-"""Evaluation metrics, exactly as DESIGN.md section 4 fixes them for the whole project.
+"""Evaluation metrics, exactly as docs/design.md section 4 fixes them for the whole project.
 
 Extrinsics: :func:`pose_errors` (with :func:`rotation_error_deg`, :func:`translation_error_mm`).
 Point clouds without ground truth: :func:`plane_fitting_residual` (PFR), :func:`pncc` (PNCC),
@@ -183,7 +183,7 @@ def _geodesic_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
 
 
 def pose_errors(T_est: Any, T_ref: Any) -> PoseErrors:
-    """Rotation and translation error of estimated extrinsics (DESIGN.md section 4).
+    """Rotation and translation error of estimated extrinsics (docs/design.md section 4).
 
     Definition: for every unordered camera pair (i, j), i before j in the input order, the
     relative transform T_ij = T_i T_j^-1 maps camera j's coordinates to camera i's, with
@@ -347,7 +347,7 @@ def plane_fitting_residual(
     sample_size: int = 20000,
     seed: int = 0,
 ) -> PFRResult:
-    """PFR, DESIGN.md section 4: iterative RANSAC plane extraction, mean inlier distance in mm.
+    """PFR, docs/design.md section 4: iterative RANSAC plane extraction, mean inlier distance in mm.
 
     Definition: repeat up to ``max_planes`` times on the points not yet assigned to a plane:
 
@@ -366,7 +366,7 @@ def plane_fitting_residual(
 
     Args:
         points: (M, 3) metres (FusedCloud, tensor or array).
-        distance_threshold: RANSAC inlier band, metres. 0.01 = the 1 cm of DESIGN.md section 4.
+        distance_threshold: RANSAC inlier band, metres. 0.01 = the 1 cm of docs/design.md section 4.
         max_planes: most planes extracted ("top planes"); 3 suits a room corner or a box's faces.
         min_inlier_fraction: a plane needs at least this share of the whole cloud ...
         min_inliers: ... and at least this many points.
@@ -449,7 +449,7 @@ class OutlierRatioResult:
 
 
 def outlier_ratio(points: Any, radius: float = 0.005, min_neighbors: int = OR_MIN_NEIGHBORS) -> OutlierRatioResult:
-    """OR, DESIGN.md section 4: share of points with fewer than n neighbours within radius.
+    """OR, docs/design.md section 4: share of points with fewer than n neighbours within radius.
 
     Definition: a point is an outlier when fewer than ``min_neighbors`` *other* points of the
     cloud lie within Euclidean distance ``radius`` of it (the point itself is not counted).
@@ -625,7 +625,7 @@ def surface_distances(points: Any, gt_points: Any, sample: int | None = None, se
 
 
 def chamfer_distance(points: Any, gt_points: Any) -> ChamferResult:
-    """CD, DESIGN.md section 4: symmetric mean nearest-neighbour distance, mm.
+    """CD, docs/design.md section 4: symmetric mean nearest-neighbour distance, mm.
 
     Definition: accuracy = mean over predicted p of min_g |p - g|; completeness = mean over
     reference g of min_p |g - p|; CD = (accuracy + completeness) / 2, all in mm. The reference
@@ -730,7 +730,7 @@ def pncc(
     max_points: int | None = 200_000,
     seed: int = 0,
 ) -> PNCCResult:
-    """PNCC, DESIGN.md section 4: mean NCC of 3x3 grey patches in the two best views of each point.
+    """PNCC, docs/design.md section 4: mean NCC of 3x3 grey patches in the two best views of each point.
 
     Definition, per fused point X (world):
 
@@ -928,7 +928,7 @@ def _read_vm_hwm() -> int | None:
 def _reset_vm_hwm() -> bool:
     """Reset the kernel's peak-RSS counter (Linux >= 4.0: write 5 to clear_refs); True only when
     the reset took (VmHWM came down to about the current VmRSS: some kernels accept the write and
-    keep the lifetime peak, which made a 40 MB allocation invisible late in a test session)."""
+    keep the lifetime peak, which made a 40 MB allocation invisible late in a test run)."""
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")

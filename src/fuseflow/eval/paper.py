@@ -5,7 +5,7 @@ Tables (keys of :data:`TABLES`):
 * ``gmac`` -- Table I/III: GMAC with the backbones available here (pycolmap SIFT, and a
   "perturbed ground truth" stand-in that isolates GMAC from the backbone) and its ablations,
   on a simulated 8-camera room and the ICL-NUIM living-room virtual rig. Rotation / translation
-  error (DESIGN.md 4) per calibration, mean +- std over seeds.
+  error (docs/design.md 4) per calibration, mean +- std over seeds.
 * ``static`` -- Table IV/VI: static scenes, N = 2, 4, 8: FUSE against naive, voxel, SOR and TSDF
   fusion. PFR, PNCC, OR; CD and F-score (1 cm) against the simulator's surface samples.
 * ``dynamic`` -- Table V: the simulated studio with moving objects: the same metrics plus FPS and
@@ -270,7 +270,7 @@ def cloud_metrics(cloud, sample: Sample, seed: int = 0) -> dict[str, float]:
     out["pfr_mm"] = M.plane_fitting_residual(cloud, seed=seed).pfr_mm
     out["pncc"] = M.pncc(cloud, sample.frame, sample.rig, seed=seed).pncc
     out["or_pct"] = 100.0 * M.outlier_ratio(cloud).ratio
-    # DESIGN.md's OR (5 mm) counts every point of a cloud sparser than 5 mm as an outlier; the
+    # docs/design.md's OR (5 mm) counts every point of a cloud sparser than 5 mm as an outlier; the
     # same count at 2 cm is reported beside it (a project addition, labelled as such).
     out["or2_pct"] = 100.0 * M.outlier_ratio(cloud, radius=0.02).ratio
     if sample.gt is not None and len(sample.gt):
@@ -752,7 +752,7 @@ def _md_preamble(pc: PaperConfig, command: str) -> list[str]:
         f"(stride {pc.icl_stride}); calibration cells (Tables I/III, VIII) at "
         f"{'x'.join(map(str, pc.for_calibration().resolution))}, ICL stride {pc.for_calibration().icl_stride}; "
         "device cpu. Numbers: mean ± std over frames (all seeds pooled). "
-        "Metrics as DESIGN.md section 4 / docs/metrics.md: PFR 1 cm band, up to 3 planes; PNCC 3x3 patches; "
+        "Metrics as docs/design.md section 4 / docs/metrics.md: PFR 1 cm band, up to 3 planes; PNCC 3x3 patches; "
         "OR = share of points with fewer than 5 neighbours within 5 mm; CD and F-score (1 cm) against the "
         "simulator's surface samples that a camera sees within its depth range; '>2 cm' = share of fused "
         "points farther than 2 cm from that surface. FPS = 1 / wall time of one fusion call (after one "

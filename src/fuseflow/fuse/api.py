@@ -67,7 +67,7 @@ class FuseReport:
 
 @dataclass(frozen=True)
 class FuseResult:
-    """A fused cloud (DESIGN.md section 1) and its FuseReport."""
+    """A fused cloud (docs/design.md section 1) and its FuseReport."""
 
     cloud: FusedCloud
     report: FuseReport

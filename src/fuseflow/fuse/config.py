@@ -1,27 +1,17 @@
 """FuseConfig: every constant of FUSE (paper III-C), its source, and the named presets.
 
 The paper fixes only tau = 0.05 (eq. 21). Every other value below is a project default with
-its derivation written next to it (DESIGN.md section 2). Presets:
+its derivation written next to it (docs/design.md section 2). Measured numbers of each preset and
+switch: docs/fuse.md. Presets:
 
 * ``FuseConfig()`` / ``PRESETS["default"]``: the project's defaults (visibility-aware CVGC,
   a minimum joint weight for RPS candidates).
 * ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
   depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
-* ``PRESETS["quality"]``: the default since session 9 (``k_neighbours = 7``, ``s0 = 5``), kept
-  under its old name.
-* ``PRESETS["fast"]``: the default before session 9 (``k_neighbours = 4``, ``s0 = 6.3``): 10-15 %
-  less time and ~25 % fewer points, 0.7 mm less accurate on the simulated 8-camera studio
-  (docs/fuse.md, Quality).
-* ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``s0 = 1`` and
-  ``mcm_max_missing = 4`` (the default's value too since session 11; it was chosen for
-  ``live`` first: a grid pixel stands for four, so losing those beside holes costs four times
-  the surface): candidates on every 2nd pixel of every 2nd row, nearly all of them kept. 2.6x faster than the default on
-  the ICL 8-view frame with three quarters of the points; on the simulated 8-ring it meets all
-  four of issue 17's quality targets on 12 of 12 runs (docs/fuse.md, Speed, "Session 11"). For
-  full frames from ~8-camera rigs: at 320x240, and on 3-4 camera rings (0.5-0.7 mm less
-  accurate, 1.7-1.9x the points beyond 2 cm), the default is better.
-  Session 10's ``s0 = 3.5`` kept a third of the points at the same speed and missed F-score and
-  completeness.
+* ``PRESETS["quality"]``: the same as the default (an older name, kept).
+* ``PRESETS["fast"]``: ``k_neighbours = 4``, ``s0 = 6.3``: less time, fewer points.
+* ``PRESETS["live"]``: the default with ``pixel_stride = 2`` and ``s0 = 1``: candidates on every
+  2nd pixel of every 2nd row, nearly all of them kept; for full frames from ~8-camera rigs.
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
 """
@@ -78,7 +68,7 @@ MCM_ALPHA = 20.0
 MCM_BETA = 6000.0
 
 #: Axial noise sigma(z) = a + b (z - z0)^2 (metres) of the simulator's sensor presets
-#: (synth/config.py, mirrored here because fuse does not import synth):
+#: (synth/config.py):
 #: Kinect v1 class, Nguyen et al. 2012 (synth NGUYEN_2012 without the incidence-angle term);
 #: RealSense D435 class, active stereo z^2 s / (f B) with s = 0.08 px, f = 385 px, B = 0.05 m
 #: (synth D400_STEREO / REALSENSE_D435) -> b = 0.08 / (385 * 0.05) = 0.00416, plus a 0.1 mm
@@ -102,45 +92,25 @@ class FuseConfig:
     """Minimum depth (m) in eq. (18): the closest range of Kinect/RealSense-class sensors is
     0.1-0.4 m. Each camera's own ``depth_range`` also gates. > 0."""
     z_max: float = 10.0
-    """Maximum depth (m), DESIGN.md 2.1 (1[z < z_max]); beyond 10 m these sensors return noise.
+    """Maximum depth (m), docs/design.md 2.1 (1[z < z_max]); beyond 10 m these sensors return noise.
     > delta."""
     window: int = 3
-    """r of the r x r variance window of eq. (17) (DESIGN.md 2.1: r = 3). Odd, 3..7."""
+    """r of the r x r variance window of eq. (17) (docs/design.md 2.1: r = 3). Odd, 3..7."""
     use_mcm: bool = True
     """False = the "w/o MCM" ablation of Table VII: c(x) = 1 for every valid pixel."""
     mcm_max_missing: int = 4
-    """Beyond the paper and DESIGN.md's MCM rule: a 3x3 window with at most this many of its 8
-    neighbours without depth is measured on the pixels it has (mcm.py, gap-tolerant window);
-    0 = DESIGN.md ("a neighbour with no depth makes the pixel an edge pixel", the ``paper``
-    preset). Default 4 since session 11: against 3, on six seeds x static / dynamic of the
-    simulated 8-ring (640x480), completeness -0.42 to -0.69 mm on all 12 runs, accuracy +-0.01
-    mm, F @ 1 cm +0.002-0.003, > 2 cm +0-0.03 points; on the real rigs it is nearly a no-op
-    (hocap-8rs +0.18 % points, ICL +0.003 %, the share of points several cameras support
-    unchanged), which answers session 7's worry about shadows beside edges on real sensors
-    (docs/fuse.md, Quality, "Gap-tolerant window: 4 since session 11"). Session 7 had chosen 3:
-    on the simulated 8-camera studio (640x480, seed 11, frame 0) 37.8 % of the floor pixels at
-    3.5-4.5 m had an incomplete window (range cut, dropout) and the completeness was 25.4 /
-    24.5 mm (static / dynamic); with 1, 2, 3 missing allowed it fell to 17.8 / 14.8 / 13.2 mm
-    static, accuracy unchanged (8.73 -> 8.73 mm), > 2 cm share 2.54 -> 2.66 %, F @ 1 cm
-    0.560 -> 0.590 (docs/fuse.md, Quality). 0..8; > 0 needs ``window`` = 3."""
+    """Beyond the paper: a 3x3 window with at most this many of its 8 neighbours without depth is
+    measured on the pixels it has (mcm.py, gap-tolerant window); 0 = a missing neighbour makes
+    an edge pixel (design.md 2.1, the ``paper`` preset). Default 4, 0..8; > 0 needs ``window`` = 3."""
     mcm_noise: bool = False
-    """Beyond the paper: noise-aware MCM. g(x) and v(x) of eq. (16)-(17) are measured after
-    removing the sensor's expected axial noise sigma(z) (``noise_sigma``) at that depth
-    (mcm.py; derivation above MCM_ALPHA), so smooth surfaces keep c > 0.8 at every range of
-    the sensor and not only at 1.5-2.5 m. False (default, and ``paper``) = eq. (16)-(17) as
-    written: on the simulated 8-camera rings it changed the output by < 0.1 % of the points
-    and lost by a hair (F @ 1 cm 0.557 vs 0.561 static, 0.563 vs 0.566 dynamic, with
-    consensus on; docs/fuse.md, Quality), so the far-range loss of completeness there is not
-    MCM's noise term."""
+    """Beyond the paper: g(x) and v(x) of eq. (16)-(17) are measured after removing the sensor's
+    expected axial noise sigma(z) (``noise_sigma``; derivation above MCM_ALPHA), so smooth
+    surfaces keep c > 0.8 at every range. Default False (eq. 16-17 as written)."""
 
-    # ---- neighbour graph (paper III-C-2, DESIGN.md 2.2)
+    # ---- neighbour graph (paper III-C-2, docs/design.md 2.2)
     k_neighbours: int = 7
-    """K_max, the most neighbour cameras per camera. CVGC cost is O(K_max) per point. 1..16.
-    With ``multiview_mean`` more neighbours average more measurements: 7 (on an 8-camera ring
-    every other camera) took accuracy from 7.8-8.0 to 7.1-7.2 mm and F @ 1 cm from 0.63-0.64 to
-    0.66-0.67 on the simulated 8-camera studio (docs/fuse.md, Quality). It cost +37 % time on
-    the ICL 8-view frame with session 8's kernels and costs +11-16 % with session 9's (137 vs
-    123 ms, quiet machine), so 7 became the default in session 9 (was 4: ``PRESETS["fast"]``)."""
+    """K_max, the most neighbour cameras per camera; CVGC and the multi-view mean cost O(K_max) per
+    point. Default 7, 1..16 (docs/fuse.md, Presets)."""
     min_overlap: float = 0.05
     """Overlap floor: a camera j is a neighbour of i only when at least this share of i's
     frustum samples lands in j's image in front of it. 0..1."""
@@ -149,7 +119,7 @@ class FuseConfig:
     tau: float = 0.05
     """Relative depth residual threshold of eq. (21); paper: tau = 0.05. > 0."""
     visibility_aware: bool = True
-    """Beyond the paper (DESIGN.md 2.3): when D_j is in front of the projected point by more
+    """Beyond the paper (docs/design.md 2.3): when D_j is in front of the projected point by more
     than tau (the point is only occluded in j), j casts no vote; only D_j behind the point
     (free-space violation) votes against. False = eq. (20)-(21) as written."""
     use_cvgc: bool = True
@@ -161,13 +131,9 @@ class FuseConfig:
     """s_c (m), the coarse cell of eq. (23). 20 cm holds ~10^3-10^4 points of a surface 1-3 m
     away at 640x480, enough for a stable density estimate. 0.02..2."""
     s0: float = 5.0
-    """s_0 of eq. (24), in m^(1/2). Points lie on surfaces: a coarse cell holding n points of a
-    surface of area ~ s_c^2 has rho = n / s_c^3, so a fine cell of size s_f holds
-    n s_f^2 / s_c^2 = s_0^2 s_c points. s_0 = 5 aims at 5 points per fine cell (about the point
-    count of a 1 cm TSDF on the simulated 8-camera studio: ~430 k points a frame); with
-    ``k_neighbours = 7`` it met issue 17's completeness target on 4 of 6 runs where 6.3
-    (sqrt(8 / 0.2), 8 points per cell, the default before session 9) missed it by 0.4-0.9 mm
-    (docs/fuse.md, Quality). ``target_points`` picks it per frame for a point budget. > 0."""
+    """s_0 of eq. (24), in m^(1/2): a fine cell of a surface holds about s_0^2 s_c points (a coarse
+    cell with n surface points has rho = n / s_c^3). Default 5 (about a 1 cm TSDF's point
+    count); ``target_points`` picks it per frame for a point budget. > 0."""
     s_min: float = 0.002
     """Lower clip of s_f in eq. (24) (m): about one pixel footprint at 1 m (1 / 525 m). > 0."""
     s_max: float = 0.05
@@ -200,111 +166,57 @@ class FuseConfig:
     k_fixed: int = 1
     """Points per cell when use_rps is False. 1..k_max."""
     range_priority: bool = False
-    """Beyond the paper: rank the points of a fine cell by omega(x) / sigma(z(x)) instead of
-    omega(x) in eq. (28) (the first pick and the FPS score), where z is the point's depth in
-    its source camera and sigma the sensor's expected axial noise (``noise_sigma``). Omega
-    (MCM confidence and CVGC vote share, tau = 5 % of depth) does not rank points by their
-    noise, so a camera 4 m away (Kinect sigma 26 mm) wins a cell as often as one 2 m away
-    (6 mm) and FPS then picks its noise tail (docs/fuse.md, Quality). With this switch a
-    near camera's point is preferred in proportion to the noise ratio sigma(z_far) /
-    sigma(z_near). It only changes *which* points are selected: the output weight stays
-    omega (eq. 22), and the candidate filters (r_c, min_weight) are unchanged. Points are
-    still selected, never averaged (DESIGN.md 2). Off by default: on the simulated 8-camera
-    rigs it moved the share beyond 2 cm only from 6.80 % to 6.74 %, because most of that tail
-    sits in cells with no better candidate (docs/fuse.md, Quality)."""
+    """Beyond the paper: eq. (28) ranks the points of a fine cell by omega(x) / sigma(z(x))
+    (``noise_sigma``, z the depth in the source camera) instead of omega(x), so a near camera's
+    point is preferred; only *which* points are selected changes. Default False."""
     lone_cell_mean: float = 2.0
-    """Beyond the paper; 0 = off (eq. 26 as written; the ``paper`` preset). When > 0, a fine cell holding a single
-    candidate gets k = 0 (no representative) if its coarse cell holds at least
-    ``lone_cell_mean`` candidates per occupied fine cell: on a surface sampled that densely a
-    cell with one point is off the surface (axial noise tail, flying pixel), and eq. (26)'s
-    k >= 1 would keep it while thinning the dense surface cells around it (docs/fuse.md,
-    Quality: 70 % of the selected points beyond 2 cm were alone in their fine cell). Sparse
-    regions (few candidates per fine cell, e.g. far range where s_f hits s_max) are untouched.
-    Needs use_ash and use_rps. Default 2: on the 8-camera studio (static / dynamic, 640x480)
-    it took the share of points beyond 2 cm from 6.80 / 6.44 % to 2.61 / 2.42 % and accuracy
-    from 10.0 / 9.8 mm to 8.8 / 8.6 mm, F @ 1 cm 0.538 -> 0.554, Chamfer unchanged, 20 % fewer
-    points (docs/fuse.md, Quality); 1.5 measured the same, 3 and 4 kept more of the tail."""
+    """Beyond the paper: a fine cell holding a single candidate gets k = 0 in eq. (26) when its
+    coarse cell holds at least this many candidates per occupied fine cell (a lone point on a
+    densely sampled surface is off it), unless ``lone_cell_keep`` neighbours confirm it. Needs
+    use_ash and use_rps. Default 2; 0 = off (eq. 26 as written, ``paper``). >= 0."""
     lone_cell_keep: int = 1
-    """Beyond the paper: ``lone_cell_mean`` spares a lone point that at least this many
-    neighbour cameras confirm, i.e. whose depth agrees with theirs within ``multiview_gate``
-    (the multi-view mean's test; without ``multiview_mean`` no point counts as confirmed).
-    0 = drop every lone point of a dense coarse cell (session 9). Of the lone points the rule
-    dropped on the simulated 8-camera studio, those no neighbour confirms lay beyond 2 cm for
-    32 % (the tail the rule is for), the confirmed ones for 3 %. Keeping them (1), on six
-    seeds x static and dynamic 8-rings at 640x480 (benchmarks/fuse_quality.py), took
-    completeness from 11.45-12.24 to 11.03-11.79 mm, accuracy from 7.10-7.17 to 7.45-7.56 mm,
-    beyond 2 cm from 0.66-0.77 to 1.07-1.17 %, F @ 1 cm unchanged (0.69-0.70): issue 17's four
-    quality targets met on 12 of 12 runs (docs/fuse.md, Quality, "Lone points"). 0..16."""
+    """Beyond the paper: ``lone_cell_mean`` spares a lone point that at least this many neighbour
+    cameras confirm (depth within ``multiview_gate``; needs ``multiview_mean``). Default 1;
+    0 = drop every lone point of a dense coarse cell. 0..16."""
     multiview_mean: bool = True
-    """Beyond the paper: multi-view depth averaging inside CVGC (cvgc.multiview_mean). For each
-    candidate of camera i, every neighbour j whose depth D_j at the projection x_ij (eq. 19)
-    agrees with the point's depth z_ij in j within ``multiview_gate`` sqrt(sigma(z_ij)^2 +
-    sigma(D_j)^2) contributes its own measured point Q_j (pixel x_ij back-projected at D_j);
-    the candidate becomes the inverse-variance (1 / sigma(z)^2, ``noise_sigma``) weighted 3D
-    mean of itself and those Q_j. Independent measurements of the same surface average their
-    noise down like a TSDF averages it, with no state and no smoothing across depth edges (a
-    neighbour on the other side of an edge, or seeing a flying pixel, fails the gate). The
-    mean is taken in 3D and not along the candidate's ray: moving along the ray by the
-    neighbour's depth correction assumes the surface is fronto-parallel to j, which
-    over-corrects on surfaces j sees more obliquely (measured worse than no averaging;
-    docs/fuse.md, Quality). CVGC's votes use the unaveraged point. Needs ``use_cvgc``.
-    False = candidates are the pixels' own back-projections (``paper``). Default on: on the
-    simulated 8-camera studio (seeds 11, 29, 47; static and dynamic) accuracy 8.49-8.74 ->
-    7.82-7.97 mm, F @ 1 cm 0.587-0.604 -> 0.631-0.643, share beyond 2 cm 2.30-2.66 % ->
-    1.09-1.26 %, completeness 0.3 mm better, 6 % fewer points; +13 % time on the ICL 8-view
-    frame (docs/fuse.md, Quality, "Multi-view mean")."""
+    """Beyond the paper (cvgc.multiview_mean): each candidate becomes the inverse-variance
+    (1 / sigma(z)^2, ``noise_sigma``) weighted 3-D mean of itself and the measured points Q_j of
+    the neighbours whose depth at x_ij (eq. 19) agrees within ``multiview_gate``; CVGC's votes
+    use the unaveraged point. Needs ``use_cvgc``. Default True; False = the pixels' own
+    back-projections (``paper``)."""
     multiview_gate: float = 3.0
     """Agreement gate of ``multiview_mean`` in units of the combined expected noise
     sqrt(sigma(z_ij)^2 + sigma(D_j)^2) of the two depths compared: 3 keeps 99.7 % of the same
     surface's Gaussian noise. > 0."""
     consensus: bool = True
-    """Beyond the paper: multi-view consensus (rps.consensus). After selection each
-    representative moves along its viewing ray to the omega-weighted mean of the candidates of
-    its fine cell that agree with it within ``consensus_gate`` sigma(z) (``noise_sigma``), so
-    a surface seen by several cameras is averaged like a TSDF averages it, with no state and
-    no smoothing across depth edges (disagreeing candidates are ignored). The cloud then
-    carries ``support``: the number of cameras among the agreeing candidates. False = points
-    are selected, never moved (``paper``). Measured in docs/fuse.md (Quality)."""
+    """Beyond the paper (rps.consensus): after selection each representative moves along its ray to
+    the omega-weighted mean of its fine cell's candidates that agree within ``consensus_gate``
+    sigma(z); the cloud carries ``support`` (cameras among them). Default True; False = points
+    are selected, never moved (``paper``)."""
     consensus_gate: float = 3.0
     """Agreement gate of ``consensus`` in units of the sensor's sigma(z) at the
     representative's depth: 3 sigma keeps 99.7 % of the same surface's Gaussian noise and
     rejects a second surface more than 3 sigma away (Kinect: 18 mm at 2 m, 42 mm at 3 m). > 0."""
     noise_sigma: tuple[float, float, float] = (0.0012, 0.0019, 0.4)
-    """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by
-    ``mcm_noise`` (absolute values matter) and ``range_priority`` (only the ratio between
-    depths matters); ``NOISE_SIGMA`` holds the presets ("kinect", "realsense"). Default: Kinect-class
-    structured light (Nguyen et al. 2012, the model above MCM_ALPHA; 6 mm at 2 m, 14 mm at
-    3 m, 26 mm at 4 m). A stereo sensor (sigma ~ z^2) is (small a, b, 0). a > 0, b >= 0."""
+    """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by ``mcm_noise``,
+    ``range_priority``, ``multiview_mean`` and ``consensus``; ``NOISE_SIGMA`` holds the presets.
+    Default: Kinect-class structured light (Nguyen et al. 2012). a > 0, b >= 0."""
 
     target_points: int | None = None
-    """Density control (beyond the paper): when set, ``s0`` is chosen per frame so that the
-    output has about this many points (fuse/density.py: a secant search in log-log space; the
-    compiled path counts up to 8 trial s_0 on the hash and eq. 26 alone, the reference fuses
-    up to 4 more times). Where the clips s_min / s_max bind, the count cannot follow (measured
-    in docs/fuse.md). With ``budget_stride`` a small budget also coarsens the pixel grid.
-    None = s0 as given. >= 1."""
+    """Density control (beyond the paper): ``s0`` is searched per frame for about this many output
+    points (fuse/density.py); with ``budget_stride`` a small budget also coarsens the pixel
+    grid. Default None (s0 as given); >= 1."""
 
     pixel_stride: int = 1
-    """Beyond the paper: candidates are taken at every ``pixel_stride``-th pixel of every
-    ``pixel_stride``-th row of each view (u % s == 0 and v % s == 0), as Open3D's
-    ``create_from_depth_image(stride=...)``. MCM's window, CVGC's depth lookups and the
-    multi-view mean still read the full-resolution depth maps, so each candidate is measured
-    as at stride 1; there are only s^2 times fewer of them, and every stage after the depth
-    gate costs per candidate (on the ICL 8-view frame 4x fewer output points saved 3 % of the
-    time, 4x fewer candidates ~65 %: docs/fuse.md, Speed, "Session 10"). The speed / density knob
-    for rigs whose views overlap heavily (real full frames). 1 = every pixel (default,
-    ``paper``). 1..8."""
+    """Beyond the paper: candidates on every ``pixel_stride``-th pixel of every ``pixel_stride``-th
+    row; MCM, CVGC lookups and the multi-view mean still read the full-resolution depth.
+    Default 1 (every pixel), 1..8."""
 
     budget_stride: bool = True
-    """Beyond the paper, with ``target_points`` only: a small budget takes its candidates on a
-    coarser pixel grid, the largest stride s <= 3 (and >= ``pixel_stride``) with
-    target_points <= 0.75 V / s^2, V the frame's valid depth pixels (fuse/density.py,
-    ``budget_stride``). At an equal point count on the simulated 8-ring, the coarser grid with a
-    finer s_0 beat every pixel with a coarser s_0 on Chamfer, accuracy, completeness and
-    F-score, in a third to a half of the time (docs/fuse.md, "A point budget picks the pixel
-    grid"). 0.75 leaves room below the most a grid gives (0.87-0.98 V / s^2 on ICL, hocap-8rs and
-    the ring); should the coarser grid still end more than 10 % short, the frame is fused again
-    on ``pixel_stride``'s grid. False = ``pixel_stride`` whatever the budget."""
+    """Beyond the paper, with ``target_points`` only: candidates on the coarsest grid s <= 3 (and
+    >= ``pixel_stride``) with target_points <= 0.75 V / s^2, V the frame's valid depth pixels
+    (fuse/density.py); a grid more than 10 % short is fused again on ``pixel_stride``'s grid.
+    Default True; False = ``pixel_stride`` whatever the budget."""
 
     # ---- execution
     backend: Backend = "auto"
@@ -403,7 +315,7 @@ PRESETS: dict[str, FuseConfig] = {
     "default": _DEFAULT,
     "paper": replace(
         _DEFAULT,
-        k_neighbours=4,  # the values of sessions 1-8 (the paper fixes neither): Table VII's row stays comparable
+        k_neighbours=4,  # the paper fixes neither k_neighbours nor s0
         s0=6.3,
         visibility_aware=False,
         min_weight=0.0,
@@ -416,11 +328,8 @@ PRESETS: dict[str, FuseConfig] = {
     ),
     "quality": _DEFAULT,
     "fast": replace(_DEFAULT, k_neighbours=4, s0=6.3),
-    # candidates on every 2nd pixel of every 2nd row: 4x fewer. Every stage costs per candidate,
-    # not per output point, so s0 is low enough that selection keeps nearly all of them (fine
-    # cells at the s_min clip where the grid is dense): s0 1 scored better than 1.5-3.5 on
-    # completeness and F @ 1 cm on six runs at the same speed; mcm_max_missing 4 took 0.8 mm off
-    # completeness (docs/fuse.md, Speed, "Session 11")
+    # candidates on every 2nd pixel of every 2nd row (4x fewer); every stage costs per candidate,
+    # so s0 is low enough that selection keeps nearly all of them
     "live": replace(_DEFAULT, pixel_stride=2, s0=1.0, mcm_max_missing=4),
     **ABLATIONS,
 }

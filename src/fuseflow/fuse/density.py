@@ -12,7 +12,7 @@ final pass at the chosen s_0 selects exactly).
 A small budget also picks a coarser pixel grid (FuseConfig.budget_stride, ``budget_stride``):
 every stage before the hash costs per candidate, and at an equal point count the candidates of
 a coarser grid, selected with a finer s_0, scored better than every pixel selected with a
-coarser s_0 (docs/fuse.md, "A point budget picks the pixel grid").
+coarser s_0 (docs/fuse.md, Presets, "Point budget").
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ __all__ = ["search_s0", "with_s0", "budget_stride", "BUDGET_FILL", "BUDGET_MAX_S
 #: kept, s_0 -> 0) measured 0.87-0.98 V / s^2 on ICL, hocap-8rs and the simulated ring; 0.75
 #: leaves the search a 15 % margin below the least of them. At 0.76 V / 4 the stride-2 grid still
 #: met the budget (-2 %) and beat every pixel on the simulated ring; at 1.07 V / 4 it ended
-#: 12-16 % short (docs/fuse.md, "A point budget picks the pixel grid").
+#: 12-16 % short (docs/fuse.md, Presets, "Point budget").
 BUDGET_FILL = 0.75
 #: The coarsest grid budget_stride picks (stride 3 was the coarsest measured for quality).
 BUDGET_MAX_STRIDE = 3

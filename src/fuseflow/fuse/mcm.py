@@ -5,7 +5,7 @@ g(x) = ||grad D(x)||_2 / (z + eps), central differences                       (1
 v(x) = Var_{r x r window} D / (z^2 + eps)                                      (17)
 
 A pixel whose gradient stencil or variance window touches a pixel with no depth (0, outside
-the valid range, or outside the image) is an edge pixel: c = 0 (DESIGN.md 2.1: it must not
+the valid range, or outside the image) is an edge pixel: c = 0 (docs/design.md 2.1: it must not
 look smooth). The parameter derivation is next to the defaults in config.py.
 
 Noise-aware MCM (``FuseConfig.mcm_noise``, beyond the paper): the sensor's expected axial
@@ -18,12 +18,12 @@ v_n(x) = max(Var - sigma^2, 0) / (z^2 + eps)                  (E[Var] = (8/9) si
 A slope or an edge keeps its geometric part (it is many sigma), a smooth surface far away
 (Kinect sigma / z = 0.6 % at 4 m) no longer loses c to its noise. Derivation in config.py.
 
-Gap-tolerant window (``FuseConfig.mcm_max_missing`` = m > 0, beyond the paper and DESIGN.md's
+Gap-tolerant window (``FuseConfig.mcm_max_missing`` = m > 0, beyond the paper and docs/design.md's
 "a neighbour with no depth makes the pixel an edge pixel"): a 3x3 window with at most m of its
 8 neighbours missing is measured on the pixels it has: mean and variance over the valid pixels
 (in row-major order), each central difference replaced by the one-sided difference with the
 centre when one side is missing (0 when both are). Isolated dropouts and the range cut no
-longer erase far surfaces (docs/fuse.md, "Where the completeness gap is"); pixels on the image
+longer erase far surfaces (docs/history.md, 2026-11-24, "the gap-tolerant MCM window"); pixels on the image
 border keep c = 0.
 """
 
@@ -153,7 +153,7 @@ def confidence(
         use_mcm: False = "w/o MCM" (Table VII): c = 1 wherever there is depth.
         noise_sigma: (a, b, z0) for the noise-aware g_n, v_n (FuseConfig.mcm_noise); None = off.
         max_missing: FuseConfig.mcm_max_missing (gap-tolerant 3x3 window, module docstring);
-            0 = DESIGN.md's rule (any missing neighbour: c = 0). > 0 needs window = 3.
+            0 = docs/design.md's rule (any missing neighbour: c = 0). > 0 needs window = 3.
 
     Returns:
         (N, H, W) float32 in [0, 1]; 0 where there is no depth or the window is incomplete.

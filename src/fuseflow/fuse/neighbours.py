@@ -1,4 +1,4 @@
-"""The neighbour graph N_i of CVGC (paper III-C-2, |N_i| <= K_max; DESIGN.md 2.2).
+"""The neighbour graph N_i of CVGC (paper III-C-2, |N_i| <= K_max; docs/design.md 2.2).
 
 The graph is pure geometry of the calibrated rig (field-of-view overlap, nothing about the
 scene), so it lives in :mod:`fuseflow.geometry.overlap`, where GMAC's depth-agreement check and

@@ -1,5 +1,5 @@
 """The compiled CPU path of FUSE: the arithmetic of mcm / cvgc / weights / ash / rps fused
-into a few numba loops (DESIGN.md 2; ../shared/notes/fuse-cpu-feasibility.md).
+into a few numba loops (docs/design.md 2; ../shared/notes/fuse-cpu-feasibility.md).
 
 Same float32 operations in the same order as the PyTorch reference, so results agree up to
 float rounding of exp / sqrt and float32 reductions (tests/fuse/test_numba.py states the
@@ -1167,7 +1167,7 @@ class _Workspace:
     arrays per frame cost as much in page faults as some kernels (the kernel zero-fills every
     new page). Buffers hold no result; the cloud is built from new arrays.
 
-    33 bytes per pixel (ICL, 8 x 640 x 480: 77 MiB; 53 before session 9), by reusing buffers whose
+    33 bytes per pixel (ICL, 8 x 640 x 480: 77 MiB), by reusing buffers whose
     lifetimes do not overlap (stages: 1 ``_gate`` / ``_pixels``, 2 ``_cells``, 3 ``_scatter``,
     4 ``_fine_pass``, 5 ``_select``, 6 ``_emit``):
 

@@ -1,5 +1,5 @@
 """Field-of-view overlap and the neighbour graph of CVGC (paper III-C-2, N_i with |N_i| <= K_max;
-DESIGN.md 2.2).
+docs/design.md 2.2).
 
 For camera i, overlap(i, j) = share of i's frustum samples (a pixel grid times depths spread
 over i's depth range) that land inside camera j's image, in front of j. The neighbours of i
@@ -105,7 +105,7 @@ def _calibration_key(rig: Rig) -> bytes:
 
 
 def neighbour_graph(rig: Rig, k_max: int = 4, min_overlap: float = 0.05) -> NeighbourGraph:
-    """The <= ``k_max`` most-overlapping cameras of each camera (DESIGN.md 2.2), cached.
+    """The <= ``k_max`` most-overlapping cameras of each camera (docs/design.md 2.2), cached.
 
     The cache key is the calibration itself (intrinsics, resolution, depth ranges, extrinsics),
     so a new calibration gives a new graph and the same one is never computed twice.

@@ -30,9 +30,8 @@ class PipelineConfig:
     """A frame is "good" for calibration when every camera is present with at least this share of
     pixels with depth. Range (0, 1]."""
     health_samples: int = 5000
-    """Pixels per view the health check samples (a regular grid; cost ~ N K_max samples).
-    With 5000, the pair agreements of a static simulated 4-camera rig varied by
-    at most 0.04 from frame to frame, while a 6-degree bump lowered its pairs by 0.07-0.37. Range >= 1."""
+    """Pixels per view the health check samples (a regular grid; cost ~ N K_max samples). Default
+    5000 (docs/usage.md, "Health"); >= 1."""
     health_tau: float = 0.05
     """Relative depth residual under which a neighbour agrees (the paper's tau, eq. 21)."""
     health_warmup: int = 3
@@ -46,7 +45,7 @@ class PipelineConfig:
     """Camera-sync check (pipeline/sync.py) before fusing: "check" reports cameras whose depth
     agrees consistently better with their neighbours' earlier or later frames ("cam03 is about
     +2 frames late"); "auto" also re-times them for fusion. Costs ~ 8 x 7 x N restricted
-    agreement passes per run (7.5 s for 4 cameras at 320x240 on a loaded 2-core machine)."""
+    agreement passes per run."""
     sync_max_shift: int = 3
     """Largest offset, in frames, the sync check looks for. Range >= 1."""
 

@@ -1,12 +1,12 @@
-"""The default backbone: pycolmap SIFT + exhaustive matching + incremental mapping, offline.
+"""The COLMAP backbone (the `paper` preset and the ablations; `auto` falls back to it): pycolmap SIFT + exhaustive matching + incremental mapping, offline.
 
 Settings follow ../shared/notes/backbone-feasibility.md (measured on the ICL virtual rigs):
 more SIFT features (``peak_threshold = 0.002``), no guided matching, PINHOLE cameras with the
 rig's intrinsics held fixed, ``min_model_size = 2``. COLMAP's mappers refuse 2-image models, so
 for N = 2 (or when the mapper fails) the two-view relative pose that matching stores in the
 database (``compute_relative_pose``) is used. Beyond the notes (measured on the simulated
-rigs, docs/gmac.md "Backbone settings"): two-view tracks are triangulated, pixel centres are
-converted between COLMAP's (0.5, 0.5) and DESIGN.md's (0, 0) convention, and models that share
+rigs, docs/gmac-backbones.md, "Backbone settings"): two-view tracks are triangulated, pixel centres are
+converted between COLMAP's (0.5, 0.5) and docs/design.md's (0, 0) convention, and models that share
 two or more cameras are merged (``merge_models``).
 
 Outputs beyond the poses: the verified inlier matches of every pair (for RC), each camera's
@@ -40,7 +40,7 @@ COLMAP_THREADS = 1
 #: Seed of the two-view verification RANSAC: COLMAP's default (-1) draws a new seed every run, and
 #: two calibrations of one frame then differed by 0.12 m (issue 16); fixed, they are identical.
 RANSAC_SEED = 0
-#: COLMAP puts the centre of the top-left pixel at (0.5, 0.5); DESIGN.md 2.3 puts it at (0, 0).
+#: COLMAP puts the centre of the top-left pixel at (0.5, 0.5); docs/design.md 2.3 puts it at (0, 0).
 #: Principal points go to COLMAP shifted by this and keypoints come back shifted by it (measured:
 #: without it, ground-truth reprojections of verified matches are off by (-0.14, -0.04) px on average).
 PIXEL_ORIGIN = 0.5
@@ -125,7 +125,7 @@ def _write_images(color: np.ndarray, present: np.ndarray, img_dir: Path) -> tupl
 def _extract_features(pycolmap, db_path: Path, img_dir: Path, used: list[str], K: np.ndarray, name_to_idx):
     """SIFT into a new database with each image's PINHOLE intrinsics fixed to the rig's.
 
-    Returns (COLMAP image id -> camera index, camera index -> keypoints (M, 2) in DESIGN.md pixels).
+    Returns (COLMAP image id -> camera index, camera index -> keypoints (M, 2) in docs/design.md pixels).
     """
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "PINHOLE"

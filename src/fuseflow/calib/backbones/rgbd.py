@@ -191,9 +191,9 @@ class RGBDConfig:
     inliers: it orders the work, never accepts a pose) until this many are proposed. The ICP
     stage is ~1.2 s a pair; on hocap-8rs each up-looking camera has 6 such pairs, one gives a
     candidate, and it ranks first (48 and 36 inliers against 5-30). Default 1: hocap-8rs 28 ->
-    ~17 s with the same edges (docs/gmac.md, "Where the time goes"); the cost, a camera held by
+    ~17 s with the same edges (docs/history.md, 2026-11-24, "calibration time"); the cost, a camera held by
     one route (c) edge closes no cycle with it (it is flagged as unchecked, as on hocap-8rs
-    before). A number >= the cameras tries every pair (session 7's behaviour)."""
+    before). A number >= the cameras tries every pair."""
 
     min_separation: float = 0.2
     """Physical plausibility: a relative pose that puts the two camera centres closer than this
@@ -511,7 +511,7 @@ def _lift_keypoints(
     every pixel has depth and none is more than 2 % of the depth off that plane (keypoints sit on
     edges; a depth edge gives no point). The depth at the rounded pixel was up to half a pixel's
     depth gradient off (~6 mm on the floor at 3 m), the same in every frame of a static scene, so
-    pooling frames did not average it out (docs/gmac.md, "multi-frame pooling")."""
+    pooling frames did not average it out (docs/history.md, 2026-11-24, "multi-frame pooling")."""
     feats = matcher.extract(image)
     if not len(feats):
         return np.zeros((0, 3)), feats
@@ -744,7 +744,7 @@ def merge_repeats(uv: np.ndarray, Xa: np.ndarray, Xb: np.ndarray) -> tuple[np.nd
     their first member. A static rig re-detects the same keypoints in every frame, with the same
     localisation error (the image is the same, only the depth noise differs): pooled k times, one
     keypoint's error counted k times against the floor route's, computed once from the median
-    image, and pooling 10 frames came out less accurate than 1 (docs/gmac.md, "multi-frame
+    image, and pooling 10 frames came out less accurate than 1 (docs/history.md, "multi-frame
     pooling"). The mean keeps the depth noise averaged over the frames."""
     if len(uv) < 2:
         return Xa, Xb

@@ -73,8 +73,8 @@ __all__ = [
 METHODS = {
     "fuse": "FUSE (default preset; numba on CPU, PyTorch on CUDA)",
     "fuse_torch": "FUSE, PyTorch reference backend (eager)",
-    "fuse_quality": "FUSE, PRESETS['quality'] (k_neighbours = 7, s0 = 5; the default since session 9)",
-    "fuse_fast": "FUSE, PRESETS['fast'] (k_neighbours = 4, s0 = 6.3; the default before session 9)",
+    "fuse_quality": "FUSE, PRESETS['quality'] (k_neighbours = 7, s0 = 5; the default)",
+    "fuse_fast": "FUSE, PRESETS['fast'] (k_neighbours = 4, s0 = 6.3)",
     "fuse_live": "FUSE, PRESETS['live'] (pixel_stride = 2: every 2nd pixel of every 2nd row; s0 = 1; mcm_max_missing = 4)",
     "vbg": "Open3D tensor VoxelBlockGrid TSDF, 1 cm, integrate + extract_point_cloud",
     "naive_voxel": "naive back-projection + Open3D voxel_down_sample 1 cm",
