@@ -33,10 +33,11 @@ def test_kinect_values_and_names():
 def test_users_read_the_one_table():
     from fuseflow.calib import joint_refine
     from fuseflow.fuse import NOISE_SIGMA, FuseConfig
-    from fuseflow.synth.config import NGUYEN_2012
+    from fuseflow.synth.config import FANKHAUSER_2015, NGUYEN_2012
 
     k = SENSOR_NOISE["kinect_v1"]
     assert FuseConfig().noise_sigma == tuple(k) and type(FuseConfig().noise_sigma) is tuple
     assert NOISE_SIGMA["realsense"] == tuple(SENSOR_NOISE["realsense_d4xx"])
     assert (joint_refine.SIGMA_A, joint_refine.SIGMA_B, joint_refine.SIGMA_Z0) == k
     assert (NGUYEN_2012.a, NGUYEN_2012.b, NGUYEN_2012.z0) == k
+    assert (FANKHAUSER_2015.a, FANKHAUSER_2015.b, FANKHAUSER_2015.z0) == SENSOR_NOISE["kinect_v2"]

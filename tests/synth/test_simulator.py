@@ -262,7 +262,7 @@ def test_deterministic_for_a_seed():
         ({"scene": "moon"}, "scene"),
         ({"resolution": (640,)}, "resolution"),
         ({"resolution": (0, 480)}, "resolution"),
-        ({"noise": "kinect2"}, "noise"),
+        ({"noise": "kinect9"}, "noise"),
         ({"frames": 0}, "frames"),
         ({"calib_error_deg": -1.0}, "calib_error_deg"),
         ({"rig": "/nonexistent/rig.json"}, "rig"),

@@ -4,7 +4,9 @@ placed by the source whose pose its neighbours' depth confirms best (issue 15 it
 ``auto_place`` in named steps:
 
 1. ``rgbd`` (``place_with_backbone``): metric poses from depth and the floor, pooled over frames.
-   When it places every camera and none is below ``min_depth_agreement``, that is the result.
+   When it places every camera and none is below ``min_depth_agreement``, that is the result;
+   when it finds the room repeating (``_repeating``), too: its ambiguous cameras stay unplaced,
+   each with its reason.
 2. Otherwise ``colmap`` + GMAC's scale on the first frame.
 3. ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both placed
    (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such cameras;
@@ -24,6 +26,7 @@ import time
 import numpy as np
 
 from fuseflow.calib.backbones import BackboneResult
+from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS
 from fuseflow.calib.config import CalibConfig
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.placement import Placement, anchor_world, place_with_backbone
@@ -50,7 +53,7 @@ def auto_place(
     runs: dict[str, Placement] = {}
     failures: dict[str, str] = {}
     for name in AUTO_SOURCES:
-        if runs and _complete(runs[AUTO_SOURCES[0]], ids, config):
+        if runs and (_complete(runs[AUTO_SOURCES[0]], ids, config) or _repeating(runs[AUTO_SOURCES[0]])):
             break
         try:
             runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, config)
@@ -65,14 +68,29 @@ def auto_place(
     T = {c: poses[src][c] for c, src in placed_by.items()}
     T, agreement, reasons = drop_unconfirmed(T, runs, frames[0], rig, config.min_depth_agreement)
     placed_by = {c: s for c, s in placed_by.items() if c in T}
+    ambiguous = _repeating(runs["rgbd"]) if "rgbd" in runs else {}
     for c in ids:
-        if c not in T and c not in reasons:
+        if c not in T and c in ambiguous:
+            reasons[c] = f"rgbd: {ambiguous[c]}"
+        elif c not in T and c not in reasons:
             reasons[c] = "no source placed it: " + "; ".join(
                 [f"{k} did not register it" for k, p in runs.items()]
                 + [f"{k} failed ({v})" for k, v in failures.items()]
             )
     T, anchor = anchor_world(T, rig.ids)
     return _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, ids, t0)
+
+
+def _repeating(pl: Placement) -> dict[str, str]:
+    """The rgbd source's ambiguous cameras (camera -> reason) when it found the room repeating
+    (``backbones.rgbd``: pairs whose verified poses its consistent solution refutes); empty
+    otherwise. Then no other source runs: image matching aliases in such a room as badly (one
+    repeating studio: COLMAP put 4 of 7 cameras 45-90 deg off and took 170 s), and a camera left
+    unplaced with its reason is better than one placed wrong."""
+    jc = pl.bb.info.get("joint_choice") or {}
+    if jc.get("ambiguous") or jc.get("refuted_pairs", 0) >= ALIASED_PAIRS:
+        return dict(jc.get("ambiguous") or {}) or {"": "repeating room"}
+    return {}
 
 
 def _complete(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> bool:

@@ -66,7 +66,11 @@ def bench_fuse(
 
 def bench_calib(
     seeds: int = typer.Option(10, "--seeds", help="Seeds per data set (10 or more for stable means)."),
-    data: str = typer.Option("sim4,sim8,icl8", "--data", help="Comma list of sim4, sim8, icl8."),
+    data: str = typer.Option(
+        "sim4,sim8,icl8",
+        "--data",
+        help="Comma list of sim4, sim8, icl8, symstudio (symmetric studio), far3 (far range).",
+    ),
     quick: bool = typer.Option(False, "--quick", help="2 seeds on sim8 and icl8."),
     backbone: str = typer.Option(
         "colmap",
@@ -79,11 +83,19 @@ def bench_calib(
 ) -> None:
     """GMAC rotation / translation error and time per calibration, every variant and peer."""
     from fuseflow.eval.bench.calib_accuracy import run_calib_accuracy
+    from fuseflow.eval.bench.calib_studio import STUDIO_DATA, run_studio_bench
     from fuseflow.eval.paper import icl_path
 
     if quick:
         seeds, data = 2, "sim8,icl8"
     names = [d.strip() for d in data.split(",") if d.strip()]
+    studio = [d for d in names if d in STUDIO_DATA]
+    names = [d for d in names if d not in STUDIO_DATA]
+    if studio:  # per camera: placed / flagged / error, silently wrong (calib_studio)
+        run_studio_bench(studio, seeds, json_path=json_out if not names else None, log=_echo,
+                         progress=lambda line: typer.echo(line, err=True))  # fmt: skip
+        if not names:
+            return
     icl = icl_path(data_dir)
     if "icl8" in names and not icl.is_dir():
         fail(f"icl8: the ICL-NUIM data is not at {icl}; pass --data-dir (or FUSEFLOW_DATA) or leave icl8 out of --data")

@@ -73,6 +73,7 @@ MCM_BETA = 6000.0
 NOISE_SIGMA: dict[str, tuple[float, float, float]] = {
     "kinect": tuple(sensor_noise("kinect")),
     "realsense": tuple(sensor_noise("realsense")),
+    "kinect2": tuple(sensor_noise("kinect2")),
 }
 
 

@@ -46,12 +46,16 @@ class AxialSigma(NamedTuple):
 #: - ``realsense_d4xx``: active stereo, RealSense D4xx class: RMS = z^2 s / (f B) with subpixel
 #:   s = 0.08 px, f = 385 px, B = 0.05 m (Intel D400 datasheet and tuning guide), b = s / (f B),
 #:   plus a 0.1 mm floor so sigma stays positive near z = 0.
-#: ``kinect`` and ``realsense`` are the simulator's names for the same rows.
+#: - ``kinect_v2``: time of flight, Kinect v2 class: Fankhauser et al. 2015 ("Kinect v2 for mobile
+#:   robot navigation"), sigma_z = 1.5 - 0.5 z + 0.3 z^2 mm = 1.29 + 0.3 (z - 0.833)^2 mm (the
+#:   simulator adds an incidence-angle term on top).
+#: ``kinect``, ``realsense`` and ``kinect2`` are the simulator's names for the same rows.
 SENSOR_NOISE: dict[str, AxialSigma] = {
     "kinect_v1": AxialSigma(0.0012, 0.0019, 0.4),
     "realsense_d4xx": AxialSigma(0.0001, 0.08 / (385.0 * 0.05), 0.0),
+    "kinect_v2": AxialSigma(0.00129, 0.0003, 0.833),
 }
-_ALIASES = {"kinect": "kinect_v1", "realsense": "realsense_d4xx"}
+_ALIASES = {"kinect": "kinect_v1", "realsense": "realsense_d4xx", "kinect2": "kinect_v2"}
 
 #: The sensor assumed for a camera whose rig.json entry names none.
 DEFAULT_SENSOR = "kinect_v1"

@@ -21,10 +21,11 @@ from fuseflow.geometry.noise import SENSOR_NOISE
 
 __all__ = [
     "SimConfig", "SensorModel", "AxialNoise", "NGUYEN_2012", "D400_STEREO", "KINECT_V1", "REALSENSE_D435",
+    "FANKHAUSER_2015", "KINECT_V2",
     "SENSORS", "SCENES", "RIG_LAYOUTS",
 ]  # fmt: skip
 
-SCENES = ("studio", "room", "wall")
+SCENES = ("studio", "room", "wall", "symstudio", "farroom")
 RIG_LAYOUTS = ("auto", "ring", "dome")
 
 
@@ -133,8 +134,25 @@ REALSENSE_D435 = SensorModel(
     dropout_rate=0.01,
     flying_pixel_rate=0.3,
 )
+#: Time of flight, Kinect v2 class: the axial term of ``geometry.noise.SENSOR_NOISE["kinect_v2"]``
+#: (Fankhauser et al. 2015); their angular term (0.1 z^1.5 theta^2 / (pi/2 - theta)^2 mm) is
+#: approximated by this model's c / sqrt(z) form with the value it has at 4 m (c = 0.8 mm: an
+#: assumption).
+FANKHAUSER_2015 = AxialNoise(*SENSOR_NOISE["kinect_v2"], c=0.0008)
+KINECT_V2 = SensorModel(
+    name="kinect2",
+    kind="time-of-flight",
+    depth_range=(0.5, 4.5),  # Kinect for Windows v2 SDK: 0.5-4.5 m
+    baseline_m=0.05,  # emitter beside the sensor; no disparity (no stereo term, no quantization)
+    disparity_subpixel=0.0,
+    focal_px=365.0,  # 512x424 depth camera, ~70.6 deg horizontal field of view
+    axial=FANKHAUSER_2015,
+    grazing_max_deg=80.0,
+    dropout_rate=0.005,
+    flying_pixel_rate=0.5,  # ToF mixes foreground and background on edges (Fankhauser et al. 2015)
+)
 NO_NOISE = SensorModel(name="none", kind="none", depth_range=(0.1, 10.0), baseline_m=0.0, disparity_subpixel=0.0)
-SENSORS = {"kinect": KINECT_V1, "realsense": REALSENSE_D435, "none": NO_NOISE}
+SENSORS = {"kinect": KINECT_V1, "realsense": REALSENSE_D435, "none": NO_NOISE, "kinect2": KINECT_V2}
 
 
 @dataclass(frozen=True)
@@ -151,14 +169,18 @@ class SimConfig:
     scene: str = "studio"
     """'studio' (people-sized objects inside a camera ring, backdrop walls) or 'room'
     (floor, walls, furniture-like boxes, cylinders, thin parts); 'wall' is a test scene: one
-    flat textured wall 2 m in front of the cameras (noise statistics)."""
+    flat textured wall 2 m in front of the cameras (noise statistics). Scenes that break
+    target-free calibration (``synth.studios``): 'symstudio' (a regular 8-12-sided room that
+    repeats exactly, a small figure at the centre; rig 'ring': one ring, else two) and
+    'farroom' (low-texture room, a person walking across, cameras 3.6 m out)."""
     dynamic: bool = False
     """Add moving objects (an articulated human-sized figure walking a circle, a bouncing box
     and a rolling sphere) so that every frame differs."""
     resolution: tuple[int, int] = (640, 480)
     """(width, height) pixels of every camera, 16..4096 each."""
     noise: str = "kinect"
-    """Depth sensor preset: 'kinect' (Kinect v1 class), 'realsense' (D435 class) or 'none'."""
+    """Depth sensor preset: 'kinect' (Kinect v1 class), 'realsense' (D435 class), 'kinect2'
+    (Kinect v2 class, time of flight) or 'none'."""
     seed: int = 0
     """Seed of every random draw (scene layout, texture, noise); frame t draws from
     numpy Generator([seed, t, stream])."""

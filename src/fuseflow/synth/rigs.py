@@ -84,7 +84,13 @@ def make_rig(
         return rig
     K = intrinsics(width, height, hfov_deg)
     target = scene.target
-    if scene.name == "wall":
+    if scene.name in ("symstudio", "farroom"):
+        from fuseflow.synth.studios import far_eyes, studio_eyes
+
+        pairs = studio_eyes(n, layout != "ring", scene.symmetry) if scene.name == "symstudio" else far_eyes(n, rng)
+        eyes, targets = [e for e, _ in pairs], [t for _, t in pairs]
+        jitter = True
+    elif scene.name == "wall":
         # a row of cameras 2 m in front of the wall, 0.3 m apart, looking straight at it
         eyes = [np.array([0.0, 0.3 * (k - (n - 1) / 2), 1.0]) for k in range(n)]
         targets = [e + np.array([2.0, 0, 0]) for e in eyes]

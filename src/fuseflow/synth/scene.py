@@ -55,6 +55,7 @@ class Scene:
     ring_height: float  # metres, camera height of a ring
     dome_radius: float  # metres, distance of dome cameras from the target
     dome_elevations: tuple[float, float]  # degrees, lowest and highest dome ring
+    symmetry: int = 1  # the layout repeats every 360 / symmetry deg about the vertical (symstudio)
 
     def triangles_at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """All parts placed at time t: world vertices of every triangle corner (T, 3, 3) float32,
@@ -374,8 +375,13 @@ def _wall(b: _Builder, rng: np.random.Generator) -> dict:
                 dome_elevations=(0.0, 0.0))  # fmt: skip
 
 
+# the building blocks under public names, for the scenes of other modules (synth.studios)
+Builder, figure, rot, static, transform = _Builder, _figure, _rot, _static, _T
+
+
 def build_scene(name: str, seed: int, dynamic: bool, n_textures: int) -> Scene:
-    """The named scene, laid out from ``seed`` (same seed, same scene)."""
+    """The named scene, laid out from ``seed`` (same seed, same scene); 'symstudio' and 'farroom'
+    are built by ``synth.studios.build_studio``."""
     rng = np.random.default_rng([seed, 0x5CE7E])
     b = _Builder(rng, n_textures)
     hints = {"studio": _studio, "room": _room, "wall": _wall}[name](b, rng)

@@ -21,6 +21,7 @@ from fuseflow.synth.config import SimConfig
 from fuseflow.synth.noise import apply_depth_noise
 from fuseflow.synth.rigs import camera_centres, make_rig
 from fuseflow.synth.scene import Scene, build_scene
+from fuseflow.synth.studios import STUDIO_SCENES, build_studio, plain_textures
 from fuseflow.synth.texture import make_textures, surface_albedo_ref
 from fuseflow.types import Frame, Rig
 
@@ -67,7 +68,12 @@ class Simulator:
             raise ValidationError(f"Simulator expects a SimConfig, got {type(cfg).__name__}")
         self.cfg = cfg
         self.textures = make_textures(cfg.seed)
-        self.scene: Scene = build_scene(cfg.scene, cfg.seed, cfg.dynamic, len(self.textures))
+        if cfg.scene in STUDIO_SCENES:
+            self.scene: Scene = build_studio(cfg.scene, cfg.seed, len(self.textures))
+            if cfg.scene == "farroom":  # its plain walls: two textures after the normal ones
+                self.textures = np.concatenate([self.textures, plain_textures(self.textures)])
+        else:
+            self.scene = build_scene(cfg.scene, cfg.seed, cfg.dynamic, len(self.textures))
         w, h = cfg.resolution
         self.rig: Rig = make_rig(
             cfg.rig, cfg.cameras, w, h, cfg.hfov_deg, cfg.depth_scale, cfg.sensor.depth_range, self.scene,

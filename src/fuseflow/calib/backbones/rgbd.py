@@ -47,6 +47,15 @@ from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mas
 from fuseflow.calib.geometric import kabsch
 from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
+from fuseflow.calib.symmetry import (
+    Hypothesis,
+    bridges,
+    colocated,
+    distinct_hypotheses,
+    main_block,
+    pose_gap,
+    select_consistent,
+)
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
 from fuseflow.types import Frame, Rig, invert_rigid
@@ -196,6 +205,23 @@ class RGBDConfig:
     (docs/gmac.md, "Person route"). Needs the ``people`` extra (mediapipe); where it is missing
     ``info["people"]`` says it was skipped and why."""
 
+    min_separation: float = 0.2
+    """Physical plausibility: a relative pose that puts the two camera centres closer than this
+    (metres) is rejected, not scored, unless the two views are nearly the same (agreement >=
+    ``SAME_VIEW_AGREEMENT`` everywhere and off the floor). A device is ~10 cm wide; in a room
+    that repeats, the aliases that stack one camera on another land within the rig's placement
+    tolerance of it (measured 0.05-0.14 m on the simulated symmetric studio, 2-5 cm on a real
+    dome) and agree better than the true pose (:mod:`fuseflow.calib.symmetry`)."""
+
+    pair_hypotheses: int = 3
+    """Verified, mutually distinct poses kept per pair for the joint choice
+    (:func:`fuseflow.calib.symmetry.select_consistent`). 1 = the best only (no joint choice)."""
+
+    ambiguity_ratio: float = 0.8
+    """A camera held only by edges on no cycle is ambiguous (left unplaced, with the reason) when
+    one of its pairs has another passing hypothesis scoring at least this share of the chosen
+    one: nothing tells the two apart. (0, 1)."""
+
     def __post_init__(self) -> None:
         from fuseflow.calib.matchers import MATCHERS
 
@@ -207,7 +233,7 @@ class RGBDConfig:
                 continue
             if not isinstance(v, (int, float)) or v <= 0:
                 raise ValidationError(f"RGBDConfig.{f.name} must be a positive number, got {v!r}")
-        for name in ("ratio", "tau", "min_agreement", "min_structure_agreement", "max_free_space"):
+        for name in ("ratio", "tau", "min_agreement", "min_structure_agreement", "max_free_space", "ambiguity_ratio"):
             if not 0 < getattr(self, name) < 1:
                 raise ValidationError(f"RGBDConfig.{name} must be in (0, 1), got {getattr(self, name)!r}")
 
@@ -248,6 +274,7 @@ class PairCheck:
     structure_votes: int
 
     def passes(self, cfg: RGBDConfig) -> bool:
+        """The depth and free-space tests (``plausible`` adds the physical one)."""
         return (
             self.agreement >= cfg.min_agreement
             and self.structure_votes >= cfg.min_structure_votes
@@ -255,6 +282,29 @@ class PairCheck:
             and self.free_space <= cfg.max_free_space
             and self.agree >= cfg.min_agree_points
         )
+
+
+#: Agreement (all points and off the floor) above which two views count as nearly the same, so
+#: that co-located cameras are plausible (``plausible``): stacked aliases in a symmetric room
+#: agreed 0.90-0.95 overall and at most 0.86 off the floor (symstudio seed 0).
+SAME_VIEW_AGREEMENT = 0.97
+
+
+#: Cameras closer than this share of their views' median depth see the scene from nearly the same
+#: direction (0.15: 8.5 deg): their views must then be nearly the same too (``plausible``). An
+#: alias one period of an 8-fold room from the truth put cameras 51 deg apart 0.29 m apart, 2.6 m
+#: from the subject (symstudio seed 2), and passed the pair checks at 0.90 agreement.
+CLOSE_DEPTH_SHARE = 0.15
+
+
+def plausible(T_ba: np.ndarray, chk: PairCheck, cfg: RGBDConfig, depth: float = 0.0) -> bool:
+    """Physical plausibility of a verified pose: the camera centres at least ``min_separation``
+    and CLOSE_DEPTH_SHARE of the views' median ``depth`` (metres) apart, or the two views nearly
+    the same (``SAME_VIEW_AGREEMENT``)."""
+    if not colocated(T_ba, max(cfg.min_separation, CLOSE_DEPTH_SHARE * depth)):
+        return True
+    sa = chk.structure_agreement
+    return chk.agreement >= SAME_VIEW_AGREEMENT and not np.isnan(sa) and sa >= SAME_VIEW_AGREEMENT
 
 
 # ----------------------------------------------------------------------------- entry point
@@ -300,8 +350,12 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
         progress.report("rgbd: cameras", len(cams), n)
     t_prep = time.perf_counter() - t0
     people, people_skip = _person_route(frames, rig, order, cfg)
+    ids = [rig.cameras[k].id for k in order]
     with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
-        edges, pairs_info = _pair_edges(cams, cfg, people)
+        edges, pairs_info, hyps = _pair_edges(cams, cfg, people)
+        joint, ambiguous = {}, set()
+        if cfg.pair_hypotheses > 1 and edges:
+            edges, joint, ambiguous = _joint_choice(cams, edges, hyps, pairs_info, ids, cfg)
     t_pairs = time.perf_counter() - t0 - t_prep
     kept, dropped, untested = prune_cycles(edges, cfg.cycle_rot_deg, cfg.cycle_trans_m)
     T_int, placed_int, refine_info = _global_poses(n, kept, cfg)
@@ -310,11 +364,13 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     if cfg.geometric and not placed_int.all():
         progress.report("rgbd: geometric route")
         with one_torch_thread():
-            geo_edges, geo_info, solved = _geometric_edges(cams, T_int, placed_int, edges, cfg)
+            geo_edges, geo_info, solved = _geometric_edges(cams, T_int, placed_int, edges, cfg, ambiguous)
         if solved is not None:
             edges = {**edges, **geo_edges}
             kept, dropped, untested, T_int, placed_int, refine_info = solved
     t_geo = time.perf_counter() - t1
+    block = main_block(sorted(kept))  # a 4- or 5-cycle checks its edges as a triangle does
+    untested = [e for e in kept if not set(e) <= block]
     T = np.tile(np.eye(4), (n, 1, 1))
     registered = np.zeros(n, dtype=bool)
     for a, k in enumerate(order):
@@ -322,14 +378,14 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     if registered.any():
         anchor = int(np.flatnonzero(registered)[0])
         T = np.where(registered[:, None, None], T @ invert_rigid(T[anchor]), T)
-    ids = [rig.cameras[k].id for k in order]
     info = {
         "metric": True,
+        "joint_choice": joint,
         "frames": len(frames),
         "pairs": [{**p, "cameras": [ids[p["pair"][0]], ids[p["pair"][1]]]} for p in pairs_info + geo_info],
         "cycle_dropped": [[ids[d["edge"][0]], ids[d["edge"][1]]] for d in dropped],
         "untested_edges": [[ids[a], ids[b]] for a, b in untested],
-        "cameras": _camera_info(cams, ids, kept, untested, placed_int),
+        "cameras": _camera_info(cams, ids, kept, untested, placed_int, joint.get("ambiguous", {})),
         "refine": refine_info,
         "people": people_skip or people.info(),
         "time_s": {"prepare": t_prep, "pairs": t_pairs, "geometric": t_geo, "total": time.perf_counter() - t0},
@@ -741,12 +797,13 @@ def _person_route(frames: list[Frame], rig: Rig, order: list[int], cfg: RGBDConf
     return PersonRoute(frames, rig, order, detector, PeopleConfig(seed=cfg.seed)), None
 
 
-def _pair_edges(
-    cams: list[CameraEvidence], cfg: RGBDConfig, people=None
-) -> tuple[dict[tuple[int, int], Edge], list[dict]]:
+def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
     """Candidates, verification and the accepted edge of every camera pair (canonical order);
-    ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None."""
+    ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. Returns (edges:
+    the best plausible candidate of each pair, per-pair info, hypotheses: pair -> its distinct
+    plausible verified poses, best first, for the joint choice)."""
     edges: dict[tuple[int, int], Edge] = {}
+    hyps: dict[tuple[int, int], list[Hypothesis]] = {}
     info = []
     for i in range(len(cams)):
         for j in range(i + 1, len(cams)):
@@ -754,12 +811,16 @@ def _pair_edges(
             Xa, Xb = _pooled_matches(a, b, cfg)
             cands = _floor_candidates(a, b, cfg, (Xa, Xb)) + _sift3d_candidates(Xa, Xb, cfg)
             cands += people.pair(i, j) if people is not None else []
-            rows, best = [], None
+            rows, passing = [], []
             for c in cands:
                 chk = verify_pose(a, b, c["T_ba"], cfg.tau)
                 ok = chk.passes(cfg)
                 rows.append({"route": c["route"], "inliers": c["inliers"], "ok": ok, **_round(chk),
                              "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
+                if ok and not plausible(c["T_ba"], chk, cfg, _median_depth(a, b)):
+                    # stacked on the other camera: rejected, not scored (calib.symmetry)
+                    rows[-1].update(ok=False, rejected="co-located")
+                    ok = False
                 # rank by how much depth confirms the pose, not by the share alone: a wrong pose
                 # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
                 # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98); counted at
@@ -768,20 +829,169 @@ def _pair_edges(
                 if ok:
                     fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
                     rows[-1]["agree_fine"] = fine
-                    if best is None or fine > best[2]:
-                        best = (c, chk, fine)
+                    passing.append(Hypothesis(i, j, c["T_ba"], float(fine), (c, chk, cands)))
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
             progress.report("rgbd: pairs", len(info) + 1, len(cams) * (len(cams) - 1) // 2)
-            if best is not None:
-                c, chk, _ = best
-                c, chk = _refit(a, b, c, chk, cands, cfg)
-                X_i, X_j = _support(c["T_ba"], cands, cfg)
-                sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
-                edges[(i, j)] = Edge(i, j, c["T_ba"], float(chk.agree), X_i, X_j, sigma)
-                entry["edge"] = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
-                                 "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
+            kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
+            if kept:
+                hyps[(i, j)] = kept
+                edges[(i, j)], entry["edge"] = _edge_of(a, b, kept[0], cfg)
+                entry["hypotheses"] = len(kept)
             info.append(entry)
-    return edges, info
+    return edges, info, hyps
+
+
+def _median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
+    """The median depth (metres) of two cameras' verification points."""
+    z = torch.cat([a.samples_X[:, 2], b.samples_X[:, 2]])
+    return float(z.median()) if len(z) else 0.0
+
+
+def _edge_of(a: CameraEvidence, b: CameraEvidence, h: Hypothesis, cfg: RGBDConfig) -> tuple[Edge, dict]:
+    """The edge of hypothesis ``h`` (refit on every route's correspondences it explains) and its
+    info entry."""
+    c, chk, cands = h.ref
+    c, chk = _refit(a, b, c, chk, cands, cfg)
+    X_i, X_j = _support(c["T_ba"], cands, cfg)
+    sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
+    entry = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
+             "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
+    return Edge(h.i, h.j, c["T_ba"], float(chk.agree), X_i, X_j, sigma), entry
+
+
+#: Tolerance of the joint choice (hypotheses closer than this are one; a pair agrees with a
+#: solution within it): wider than the cycle test's (2 deg / 8 cm), since a growth chains
+#: unrefined poses (hocap-8rs: at 2 deg / 8 cm 5 right pairs fell out); an alias of a 12-fold room
+#: is 30 deg away.
+JOINT_ROT_DEG, JOINT_TRANS_M = 5.0, 0.2
+#: A verified hypothesis this far (deg) from the chosen solution is an alias (``_refutes``).
+ALIAS_MIN_DEG = 10.0
+#: The joint choice compares the best solutions (``symmetry.select_consistent``: at most this
+#: many, with at most one consistent pair fewer than the best) by ``_views_agreement``.
+JOINT_SOLUTIONS = 8
+#: ``_views_agreement``'s depth tolerance, a share of tau (2 % at tau = 5 %): symstudio seed 0,
+#: every pair of the 5 cameras: true poses 0.88 overall / 0.82 on the subject, the solution of two
+#: agreeing wrong edges 0.80 / 0.71 (at tau: 0.97 / 0.91 against 0.93 / 0.85).
+VIEWS_TAU_SHARE = 0.4
+#: The subject: points within this distance (metres, horizontally) of the point nearest to every
+#: camera's optical axis, where a studio's cameras converge (``_views_agreement``).
+SUBJECT_RADIUS_M = 1.0
+#: A lone camera (``_joint_choice``) whose chosen pose beats each rival pose by at least this much
+#: ``_views_agreement`` with the other cameras is not ambiguous.
+AMBIGUITY_MARGIN = 0.05
+#: With at least this many pairs whose verified poses include one the chosen solution refutes,
+#: the room repeats: every camera outside the solution's main cycle-checked group
+#: (``symmetry.main_block``) is ambiguous, and the geometry-only route places none of them.
+ALIASED_PAIRS = 2
+
+
+def _joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str], cfg: RGBDConfig):
+    """Choose each pair's hypothesis jointly: the consistent solutions of
+    ``symmetry.select_consistent``, the best few compared by ``_views_agreement``; the edges of
+    the chosen hypotheses (other pairs lose theirs), and the ambiguous cameras (``_ambiguous``),
+    which lose their edges. Returns (edges, info, ambiguous camera indices)."""
+    flat = [h for hs in hyps.values() for h in hs]
+    sols = select_consistent(flat, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.min_separation)
+    top = [sol for sol in sols if len(sol.chosen) >= len(sols[0].chosen) - 1][:JOINT_SOLUTIONS]
+    views = [_views_agreement(cams, sol.poses, cfg) for sol in top] if len(top) > 1 else [float("nan")]
+    best = top[int(np.nanargmax(views))] if len(top) > 1 else top[0]
+    chosen = {p: flat[k] for p, k in best.chosen.items()}
+    by_pair = {tuple(e["pair"]): e for e in info}
+    out = {}
+    for p, h in chosen.items():
+        if h is hyps[p][0]:
+            out[p] = edges[p]
+        else:
+            out[p], entry = _edge_of(cams[p[0]], cams[p[1]], h, cfg)
+            by_pair[p]["edge"] = {**entry, "joint_choice": True}
+    for p in set(edges) - set(out):
+        by_pair[p]["edge"] = None
+        by_pair[p]["not_consistent"] = True
+    refuted = sorted(p for p, hs in hyps.items() if set(p) <= set(best.poses) and _refutes(hs, best.poses))
+    if len(refuted) >= ALIASED_PAIRS:
+        block = main_block(sorted(out))
+        names = ", ".join(f"{ids[a]}-{ids[b]}" for a, b in refuted[:4]) + (" ..." if len(refuted) > 4 else "")
+        ambiguous = {k: (f"ambiguous: the room repeats ({len(refuted)} pairs have verified poses the consistent "
+                         f"solution refutes: {names}) and no cycle checks this camera against the main group")
+                     for k in sorted({k for p in out for k in p} - block)}  # fmt: skip
+    else:
+        ambiguous = _ambiguous(cams, out, chosen, hyps, best.poses, ids, cfg)
+    out = {p: e for p, e in out.items() if not set(p) & set(ambiguous)}
+    sel = {"solutions": len(sols), "compared": [round(v, 4) for v in views], "consistent_pairs": len(chosen),
+           "refuted_pairs": len(refuted), "ambiguous": {ids[k]: r for k, r in ambiguous.items()}}  # fmt: skip
+    return out, sel, set(ambiguous) | (set(range(len(cams))) - block if len(refuted) >= ALIASED_PAIRS else set())
+
+
+def _refutes(hs: list[Hypothesis], poses: dict) -> bool:
+    """Does a solution (``poses``) refute one of a pair's verified hypotheses by more than
+    ALIAS_MIN_DEG (an alias, not the noise of a right pose)?"""
+    for h in hs:
+        r, _ = pose_gap(h.T_ji @ poses[h.i], poses[h.j])
+        if r > ALIAS_MIN_DEG:
+            return True
+    return False
+
+
+def _ambiguous(cams, out: dict, chosen: dict, hyps: dict, poses: dict, ids: list[str], cfg: RGBDConfig) -> dict:
+    """Camera -> reason, for the cameras held only by edges on no cycle (``symmetry.bridges``) one
+    of whose pairs has another passing hypothesis scoring at least ``ambiguity_ratio`` of the
+    chosen one, unless the chosen pose agrees better with all other views by AMBIGUITY_MARGIN."""
+    lone = bridges(sorted(out))
+    found = {}
+    for k in sorted({k for p in out for k in p}):
+        mine = [p for p in out if k in p]
+        if any(p not in lone for p in mine) or k not in poses:
+            continue
+        for p in mine:
+            rivals = [h for h in hyps[p] if h is not chosen[p] and h.score >= cfg.ambiguity_ratio * chosen[p].score]
+            other = p[0] if p[1] == k else p[1]
+            here = _views_agreement(cams, poses, cfg, only=k)
+            margins = []
+            for h in rivals:
+                T = h.T_ji @ poses[other] if k == h.j else invert_rigid(h.T_ji) @ poses[other]
+                margins.append(here - _views_agreement(cams, {**poses, k: T}, cfg, only=k))
+            if rivals and min(margins) < AMBIGUITY_MARGIN:
+                found[k] = (
+                    f"ambiguous: its only link {ids[p[0]]}-{ids[p[1]]} closes no cycle and has {len(rivals) + 1} "
+                    f"verified poses {_gap(chosen[p], rivals[0]):.0f} deg apart that score alike and agree alike "
+                    f"with the other views (margin {min(margins):.3f}): a repeating room; nothing tells them apart"
+                )
+                break
+    return found
+
+
+def _views_agreement(cams, poses: dict, cfg: RGBDConfig, only: int | None = None) -> float:
+    """What all views say of a solution (``poses``: camera -> camera-from-world): the mean of the
+    share of agreeing votes over every ordered pair of placed cameras (tolerance VIEWS_TAU_SHARE
+    of tau) and the same share on the subject (points within SUBJECT_RADIUS_M of the cameras'
+    convergence point): the subject does not repeat, the walls may. ``only``: pairs with that
+    camera only. NaN without votes."""
+    ks = sorted(poses)
+    world = {k: invert_rigid(poses[k]) for k in ks}
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for k in ks:
+        d = world[k][:3, 2]
+        M = np.eye(3) - np.outer(d, d)
+        A, b = A + M, b + M @ world[k][:3, 3]
+    centre = np.linalg.lstsq(A, b, rcond=None)[0]
+    tau = cfg.tau * VIEWS_TAU_SHARE
+    n = np.zeros(4)  # agree, votes, subject agree, subject votes
+    for x in ks:
+        Xw = cams[x].samples_X.numpy().astype(np.float64) @ world[x][:3, :3].T + world[x][:3, 3]
+        subject = torch.from_numpy(np.linalg.norm(Xw[:, :2] - centre[:2], axis=1) < SUBJECT_RADIUS_M)
+        for y in ks:
+            if x == y or (only is not None and only not in (x, y)):
+                continue
+            M = torch.from_numpy((poses[y] @ world[x])[:3, :].astype(np.float32))
+            ag, vo = project_votes(cams[x].samples_X, M, cams[y].K_sub, cams[y].depth_sub, tau, True)
+            n += [int(ag.sum()), int(vo.sum()), int((ag & subject).sum()), int((vo & subject).sum())]
+    if not n[1]:
+        return float("nan")
+    return 0.5 * n[0] / n[1] + 0.5 * (n[2] / n[3] if n[3] else n[0] / n[1])
+
+
+def _gap(h: Hypothesis, g: Hypothesis) -> float:
+    return rotation_angle_deg(h.T_ji[:3, :3] @ g.T_ji[:3, :3].T)
 
 
 def _geometric_edges(
@@ -790,6 +1000,7 @@ def _geometric_edges(
     placed: np.ndarray,
     edges: dict[tuple[int, int], Edge],
     cfg: RGBDConfig,
+    exclude: set[int] = frozenset(),
 ) -> tuple[dict[tuple[int, int], Edge], list[dict], tuple]:
     """Route (c) (:mod:`fuseflow.calib.geometric`) on every pair with an unplaced camera and no
     edge yet. A pair's passing pose cluster with the most ICP starts is its candidate when at
@@ -799,13 +1010,15 @@ def _geometric_edges(
     judged against every placed view, ``_better``); after each round the poses are re-solved.
     Within a round, an unplaced camera's pairs are run in order of descriptor consensus
     (``RansacStarts.consensus``) until it has ``geometric_edges_per_camera`` candidates; the
-    rest wait in case it is still unplaced after the round. Returns (new edges, per-pair info, (kept, dropped, untested, T, placed, refine info) of the
+    rest wait in case it is still unplaced after the round. Cameras in ``exclude`` (ambiguous
+    ones, ``_joint_choice``) get no candidate. Returns (new edges, per-pair info, (kept, dropped, untested, T, placed, refine info) of the
     last solve, or None when nothing was added)."""
     from fuseflow.calib.geometric import RansacStarts, ransac_starts
 
     feat = _cloud_cache(cams, cfg)
     n = len(cams)
-    todo = [(i, j) for i in range(n) for j in range(i + 1, n) if not (placed[i] and placed[j]) and (i, j) not in edges]
+    todo = [(i, j) for i in range(n) for j in range(i + 1, n)
+            if not (placed[i] and placed[j]) and (i, j) not in edges and not {i, j} & exclude]  # fmt: skip
     cands: dict[tuple[int, int], tuple] = {}
     starts: dict[tuple[int, int], RansacStarts] = {}
     info = []
@@ -874,7 +1087,7 @@ def _geometric_pair(
     rows, passing = [], []
     for c in clusters:
         chk = verify_pose(a, b, c.T_ba, cfg.tau)
-        ok = chk.passes(cfg)
+        ok = chk.passes(cfg) and plausible(c.T_ba, chk, cfg, _median_depth(a, b))
         rows.append({"route": "geometric", "inliers": int(len(c.X_a)), "starts": c.starts, "ok": ok,
                      **_round(chk), "T_ji": np.round(c.T_ba, 6).tolist()})  # fmt: skip
         if ok:
@@ -1005,7 +1218,7 @@ def _global_poses(n: int, edges: dict[tuple[int, int], Edge], cfg: RGBDConfig):
     return T, placed, info
 
 
-def _camera_info(cams, ids, kept, untested, placed) -> dict:
+def _camera_info(cams, ids, kept, untested, placed, ambiguous: dict[str, str]) -> dict:
     out = {}
     for k, c in enumerate(cams):
         mine = [e for e in kept if k in e]
@@ -1024,6 +1237,8 @@ def _camera_info(cams, ids, kept, untested, placed) -> dict:
             # a camera held by edges none of which closes a cycle has had no independent check
             "cycle_checked": any(e not in untested for e in mine),
         }
+        if ids[k] in ambiguous:  # left unplaced: why (``_joint_choice``)
+            out[ids[k]]["ambiguous"] = ambiguous[ids[k]]
     return out
 
 

@@ -1,0 +1,111 @@
+"""Symmetric rooms (calib.symmetry, backbones.rgbd.plausible): a stacked pose is rejected, the
+joint choice of pair hypotheses prefers the cycle-consistent truth over better-scored aliases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fuseflow.calib.backbones.rgbd import PairCheck, RGBDConfig, plausible
+from fuseflow.calib.symmetry import (
+    Hypothesis,
+    bridges,
+    colocated,
+    distinct_hypotheses,
+    main_block,
+    pose_gap,
+    select_consistent,
+)
+from fuseflow.synth.rigs import look_at
+from fuseflow.types import invert_rigid
+
+
+def _rz(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    T = np.eye(4)
+    T[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+    return T
+
+
+def _ring(n: int, radius: float = 2.6) -> list[np.ndarray]:
+    return [
+        look_at([radius * math.cos(2 * math.pi * k / n), radius * math.sin(2 * math.pi * k / n), 1.5], [0, 0, 1])
+        for k in range(n)
+    ]
+
+
+def _rel(T: list[np.ndarray], i: int, j: int) -> np.ndarray:
+    return T[j] @ invert_rigid(T[i])
+
+
+GOOD_CHECK = PairCheck(agreement=0.92, structure_agreement=0.8, free_space=0.03, agree=4000, structure_votes=900)
+
+
+def test_a_stacked_pose_is_rejected_however_well_it_agrees():
+    cfg = RGBDConfig()
+    T = _ring(5)
+    # the alias of a 5-fold room that puts camera 1 on camera 0: 3 cm apart, 72 deg turned
+    stacked = _rz(72.0)
+    stacked[:3, 3] = [0.03, 0.0, 0.0]
+    assert colocated(stacked, cfg.min_separation)
+    assert GOOD_CHECK.passes(cfg)  # the depth checks alone accept it
+    assert not plausible(stacked, GOOD_CHECK, cfg)
+    # 0.29 m apart, 2.6 m from the subject: also too close unless the views are the same
+    near = np.eye(4)
+    near[:3, 3] = [0.29, 0.0, 0.0]
+    assert not plausible(near, GOOD_CHECK, cfg, depth=2.6)
+    assert plausible(near, GOOD_CHECK, cfg, depth=1.0)  # 0.29 m at 1 m: a distinct viewpoint
+    same = PairCheck(agreement=0.99, structure_agreement=0.98, free_space=0.0, agree=5000, structure_votes=2000)
+    assert plausible(stacked, same, cfg)  # nearly identical views: cameras may sit together
+    assert plausible(_rel(T, 0, 1), GOOD_CHECK, cfg, depth=2.6)  # the true neighbour, 3 m away
+
+
+def test_distinct_hypotheses_merge_near_duplicates_and_keep_aliases():
+    T = _ring(4)
+    true = _rel(T, 0, 1)
+    nudged = true.copy()
+    nudged[:3, 3] += [0.01, 0.0, 0.0]
+    alias = _rel([T[0], T[1] @ _rz(90.0)], 0, 1)
+    hs = [Hypothesis(0, 1, true, 5.0), Hypothesis(0, 1, nudged, 4.0), Hypothesis(0, 1, alias, 6.0)]
+    kept = distinct_hypotheses(hs, 2.0, 0.08, keep=3)
+    assert [h.score for h in kept] == [6.0, 5.0]
+
+
+def _symmetric_case():
+    """4 cameras on a ring in a 4-fold room: the true pose of every pair, and better-scored
+    aliases (one room period off) on three pairs that do not agree around loops, plus a stacked
+    alias with the highest score of all."""
+    T = _ring(4)
+    hyps = [Hypothesis(i, j, _rel(T, i, j), 10.0) for i in range(4) for j in range(i + 1, 4)]
+    for i, j, deg in ((0, 1, 90.0), (1, 2, -90.0), (2, 3, 180.0)):
+        hyps.append(Hypothesis(i, j, _rel([*T[:j], T[j] @ _rz(deg), *T[j + 1 :]], i, j), 12.0))
+    stacked = _rel([T[0], T[0]], 0, 1)  # camera 1 on top of camera 0
+    hyps.append(Hypothesis(0, 1, stacked, 30.0))
+    return T, hyps
+
+
+def test_joint_choice_prefers_the_cycle_consistent_truth():
+    T, hyps = _symmetric_case()
+    sols = select_consistent(hyps, 2.0, 0.1, min_separation=0.2)
+    best = sols[0]
+    assert len(best.chosen) == 6
+    for (i, j), k in best.chosen.items():
+        r, t = pose_gap(hyps[k].T_ji, _rel(T, i, j))
+        assert r < 1e-6 and t < 1e-9, (i, j)
+    # the poses are the truth up to one rigid transform
+    W = invert_rigid(best.poses[0]) @ T[0]
+    for k in range(4):
+        r, t = pose_gap(best.poses[k] @ W, T[k])
+        assert r < 1e-6 and t < 1e-9
+    # no solution stacks camera 1 on camera 0
+    for sol in sols:
+        if 0 in sol.poses and 1 in sol.poses:
+            assert np.linalg.norm(invert_rigid(sol.poses[0])[:3, 3] - invert_rigid(sol.poses[1])[:3, 3]) > 0.2
+
+
+def test_bridges_and_main_block():
+    edges = [(0, 1), (1, 2), (0, 2), (2, 3), (3, 4), (4, 5), (3, 5), (5, 6)]
+    assert bridges(edges) == {(2, 3), (5, 6)}
+    assert main_block(edges) == {0, 1, 2}  # ties: the part with the lowest camera
+    assert main_block([(0, 1), (1, 2)]) == set()  # a chain: nothing is checked by a cycle
