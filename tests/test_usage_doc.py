@@ -46,7 +46,7 @@ def _small(args: list[str], tmp: Path) -> list[str]:
 
 def test_the_walkthrough_names_every_step():
     names = [a[0] for a in walkthrough(USAGE.read_text())]
-    assert names[:6] == ["simulate", "info", "calibrate", "fuse", "run", "view"], names
+    assert names[:7] == ["simulate", "info", "calibrate", "calibrate", "fuse", "run", "view"], names
 
 
 def test_usage_walkthrough_runs_as_written(tmp_path, monkeypatch):

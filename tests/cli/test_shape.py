@@ -74,12 +74,13 @@ def test_api_and_cli_share_run_defaults():
 
 def test_fuse_and_run_digest_the_same_fuse_config(rec):
     from fuseflow.io import open_recording
+    from fuseflow.pipeline.config import OutputOptions
     from fuseflow.pipeline.fuse_only import _manifest
     from fuseflow.pipeline.runner import run_manifest
 
     recording = open_recording(rec)
     cfg = preset_config("live", 1000)
-    f = _manifest(recording, recording.rig, cfg)
+    f = _manifest(recording, recording.rig, cfg, OutputOptions())
     r = run_manifest(recording, None, PipelineConfig(fuse=cfg), None, True)
     assert f.settings["fuse"] == r.settings["fuse"]
     assert json.loads(json.dumps(f.settings["fuse"])) == json.loads(json.dumps(r.settings["fuse"]))
@@ -115,5 +116,6 @@ def test_count_options_are_num_frames_and_the_old_spelling_warns(tmp_path):
     assert len(list((tmp_path / "b").rglob("depth/*.png"))) > len(list((tmp_path / "a").rglob("depth/*.png")))
 
 
-def test_default_preset_is_the_default_config():
-    assert preset_config("default") == PRESETS["default"] == PipelineConfig().fuse_config()
+def test_the_api_fuses_with_the_cli_default_preset():
+    assert preset_config("auto") == PRESETS["auto"] == PipelineConfig().fuse_config()
+    assert PRESETS["auto"].auto_grid and not PRESETS["default"].auto_grid

@@ -304,7 +304,13 @@ def test_view_save_png_dir_not_writable(small_rec, tmp_path, monkeypatch, invoke
 def test_view_frames_beyond_the_run(small_rec, tmp_path, invoke, expect):
     run_dir = tmp_path / "run"
     expect(invoke("run", small_rec, "--out", run_dir, "--use-rig"), 0)
-    expect(invoke("view", run_dir, "--frames", "7:9", "--save-png", tmp_path / "p"), 2, "--frames 7:9", "2 frames")
+    expect(
+        invoke("view", run_dir, "--frames", "7:9", "--save-png", tmp_path / "p"),
+        2,
+        "7:9",
+        "selects no frame",
+        "2 frames",
+    )
 
 
 def test_view_with_no_display_says_what_to_do(small_rec, tmp_path, monkeypatch, invoke, expect):

@@ -85,3 +85,12 @@ def command(
 
     result = run_live(opened, calibration, settings, outputs, on_start=started)
     _print_summary(result, opened.description)
+
+
+#: ``--help`` examples (click keeps a paragraph after "\\b" as written).
+EXAMPLES = """\b
+Examples:
+  fuseflow live /tmp/studio --serve 8080 --loop                 # replay a recording; open http://127.0.0.1:8080/
+  fuseflow live realsense --calib calib.json --serve 8080 --crop auto
+  fuseflow live /tmp/studio --record /tmp/live-clouds --frames 30 --preset default
+"""

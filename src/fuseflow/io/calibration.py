@@ -154,9 +154,10 @@ def read_calibration(path: str | Path) -> Calibration:
 
 
 def read_reference(path: str | Path) -> Calibration:
-    """Extrinsics to compare a calibration with: calib.json (``fuseflow-calib/1``) or rig.json
+    """Extrinsics to compare a calibration with: calib.json (``fuseflow-calib/1``), rig.json
     (``fuseflow-rig/1``; a recording directory reads its rig.json) whose cameras have
-    ``T_cam_world``. A rig.json's intrinsics become the calibration's ``rig_fingerprint``.
+    ``T_cam_world``, or a simulated recording's gt.json (``fuseflow-gt/1``: the true extrinsics).
+    A rig.json's intrinsics become the calibration's ``rig_fingerprint``.
 
     Raises:
         RecordingError / FormatError: unreadable, not JSON, another format, a rig.json without
@@ -169,13 +170,33 @@ def read_reference(path: str | Path) -> Calibration:
     fmt = doc.get("format") if isinstance(doc, dict) else None
     if fmt == CALIB_FORMAT:
         return read_calibration(path)
+    if fmt == GT_FORMAT:
+        return _gt_reference(doc, path)
     if fmt != RIG_FORMAT:
         raise FormatError(
-            f"{path}: not a calibration: field 'format' must be {CALIB_FORMAT!r} (calib.json) or "
-            f"{RIG_FORMAT!r} (rig.json), got {fmt!r}"
+            f"{path}: not a calibration: field 'format' must be {CALIB_FORMAT!r} (calib.json), "
+            f"{RIG_FORMAT!r} (rig.json) or {GT_FORMAT!r} (a simulated recording's gt.json), got {fmt!r}"
         )
     rig = rig_from_json(doc, str(path))
     without = [c.id for c in rig.cameras if c.T_cam_world is None]
     if without:
         raise FormatError(f"{path}: cameras {without} have no 'T_cam_world': a rig.json reference needs extrinsics")
     return Calibration({c.id: c.T_cam_world for c in rig.cameras}, {FINGERPRINT_KEY: rig_fingerprint(rig)})
+
+
+#: The simulator's ground-truth file (``synth.recording``: OUT/gt.json).
+GT_FORMAT = "fuseflow-gt/1"
+
+
+def _gt_reference(doc: dict, path: Path) -> Calibration:
+    """The true extrinsics of a simulated recording's gt.json; FormatError naming the field."""
+    cams = doc.get("cameras")
+    if not isinstance(cams, dict) or not cams:
+        raise FormatError(f"{path}: field 'cameras' must be an object id -> {{T_cam_world, K}}")
+    out = {}
+    for cid, c in cams.items():
+        T = np.asarray(c.get("T_cam_world") if isinstance(c, dict) else None, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise FormatError(f"{path}: camera {cid!r}: 'T_cam_world' must be a finite 4x4 matrix")
+        out[str(cid)] = T
+    return Calibration(out, {})

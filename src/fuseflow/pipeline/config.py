@@ -54,7 +54,8 @@ class PipelineConfig:
     """Settings of a FUSE-Flow run (FUSE and GMAC keep their own configs)."""
 
     fuse: FuseConfig | None = None
-    """fuseflow.fuse.FuseConfig; None = FuseConfig() defaults."""
+    """fuseflow.fuse.FuseConfig; None = the ``auto`` preset (``PRESETS["auto"]``: the pixel grid
+    chosen from the rig), the default of ``fuseflow run`` and ``fuseflow fuse``."""
     calib: CalibConfig | None = None
     """fuseflow.calib.CalibConfig; None = CalibConfig() defaults."""
     device: str = "cpu"
@@ -103,10 +104,10 @@ class PipelineConfig:
             raise ValidationError(f"health_drop must be in (0, 1), got {self.health_drop}")
 
     def fuse_config(self) -> FuseConfig:
-        """The FuseConfig to fuse with (``fuse`` or the defaults)."""
-        from fuseflow.fuse import FuseConfig
+        """The FuseConfig to fuse with (``fuse``, else the ``auto`` preset the CLI uses)."""
+        from fuseflow.fuse import PRESETS
 
-        return self.fuse if self.fuse is not None else FuseConfig()
+        return self.fuse if self.fuse is not None else PRESETS["auto"]
 
     def calib_config(self) -> CalibConfig:
         """The CalibConfig to calibrate with (``calib`` or the defaults)."""
