@@ -20,7 +20,7 @@ A person in the capture volume is the commonest "target" a studio has. Outline
    (``inlier_m``): joints lifted from different sides of a body disagree by 10-30 cm.
    The landmarks' left / right labels are used as the detector gives them, never swapped to
    gain inliers: a body is nearly mirror-symmetric, so a swapped labelling gets almost as many
-   inliers and wins by count on wrong poses (docs/gmac.md, "Person route").
+   inliers and wins by count on wrong poses (docs/gmac-trust.md, "Person route").
 4. Per pair (``refine_icp``): point-to-plane ICP on the two cameras' full clouds of the frames
    where both see the person (``icp_frames`` of them, one shared pose, points matched within
    their own frame), from the keypoint pose, coarse to fine: the keypoint pose is accurate to

@@ -58,7 +58,7 @@ __all__ = [
 #: A measured pair pose agrees with the final extrinsics within these (module docstring).
 AGREE_DEG, AGREE_MM = 5.0, 100.0
 #: Expected accuracy within these reads "good" (on hocap-8rs the estimate is 1.1-5.4x the rotation
-#: difference to its reference: docs/gmac.md, "Reading the verdict table").
+#: difference to its reference: docs/gmac-trust.md, "Reading the verdict table").
 GOOD_DEG, GOOD_MM = 2.0, 50.0
 #: The floor check: tilt and height of a camera's floor against the rig's median floor.
 FLOOR_DEG, FLOOR_MM = 2.0, 50.0

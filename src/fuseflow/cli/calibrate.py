@@ -152,7 +152,7 @@ def _print_scale(r) -> None:
 
 def print_verdicts(verdicts: dict) -> None:
     """The per-camera verdict table, the reason of every camera not "good", and a one-line
-    summary (docs/gmac.md, "Reading the verdict table")."""
+    summary (docs/gmac-trust.md, "Reading the verdict table")."""
     t = Table("camera", "verdict", "placed by", "checks", "accuracy", "agree", box=None)
     for c, v in verdicts.items():
         if v["verdict"] == "unplaced":

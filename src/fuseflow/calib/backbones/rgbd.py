@@ -202,7 +202,7 @@ class RGBDConfig:
     """Route (d), person keypoints (:mod:`fuseflow.calib.people`): each pair also gets the
     person's keypoint pose and its depth refinement as candidates. Off by default: on the
     simulated far-range 3-camera rig its poses were 10-19 cm off yet passed depth verification
-    (docs/gmac.md, "Person route"). Needs the ``people`` extra (mediapipe); where it is missing
+    (docs/gmac-trust.md, "Person route"). Needs the ``people`` extra (mediapipe); where it is missing
     ``info["people"]`` says it was skipped and why."""
 
     min_separation: float = 0.2
