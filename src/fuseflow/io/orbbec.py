@@ -18,16 +18,15 @@ replays a recording (tests/io/test_orbbec.py).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.io.images import clean_depth
-from fuseflow.types import Camera, Frame, Rig
+from fuseflow.io.device_source import DeviceSource
+from fuseflow.types import Camera, Rig
 
 __all__ = ["OrbbecConfig", "OrbbecSource"]
 
@@ -52,7 +51,7 @@ class OrbbecConfig:
     """Trustworthy depth range in metres (Femto Bolt NFOV unbinned: 0.25-5.46 m, Orbbec's datasheet)."""
 
 
-class OrbbecSource:
+class OrbbecSource(DeviceSource):
     """Iterate synchronised multi-device Orbbec frames as ``Frame`` objects.
 
     Args:
@@ -132,60 +131,3 @@ class OrbbecSource:
             )
         depth = raw.reshape(h, w).astype(np.float32) * np.float32(d.get_depth_scale() / 1000.0)
         return color.reshape(h, w, 3), depth, float(d.get_timestamp()) / 1000.0
-
-    def read(self) -> Frame:
-        """Grab one frame from every device (dropped views marked not present)."""
-        w, h = self.rig.resolution
-        n = len(self.rig)
-        color = np.zeros((n, h, w, 3), np.uint8)
-        depth = np.zeros((n, h, w), np.float32)
-        present = np.zeros(n, bool)
-        invalid = np.zeros(n, np.int64)
-        stamps: list[float | None] = []
-        for i in range(n):
-            got = self._grab(i)
-            stamps.append(None if got is None else got[2])
-            if got is not None:
-                color[i] = got[0]
-                depth[i], invalid[i] = clean_depth(got[1])
-                present[i] = True
-        self.device_timestamps.append(stamps)
-        known = [s for s in stamps if s is not None]
-        frame = Frame(
-            index=self._index,
-            camera_ids=self.rig.ids,
-            color=torch.from_numpy(color),
-            depth=torch.from_numpy(depth),
-            present=torch.from_numpy(present),
-            invalid_depth=torch.from_numpy(invalid),
-            timestamp=float(np.median(known)) if known else None,
-        )
-        self._index += 1
-        return frame
-
-    def frames(self, count: int | None = None) -> Iterator[Frame]:
-        """Yield ``count`` frames (forever when None); stops when every device stops delivering."""
-        k = 0
-        while count is None or k < count:
-            f = self.read()
-            if not bool(f.present.any()):
-                return
-            yield f
-            k += 1
-
-    def __iter__(self) -> Iterator[Frame]:
-        return self.frames()
-
-    def close(self) -> None:
-        for p in self._pipes:
-            try:
-                p.stop()
-            except Exception:  # noqa: BLE001 - stopping a dead pipeline must not mask the real error
-                pass
-        self._pipes = []
-
-    def __enter__(self) -> OrbbecSource:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
