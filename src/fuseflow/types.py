@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     import torch
 
 __all__ = [
+    "POSE_LANDMARKS",
     "Camera",
     "Rig",
     "View",
@@ -43,6 +44,18 @@ __all__ = [
 
 #: Tolerance on R^T R = I and det R = 1 when checking that a 4x4 matrix is a rigid transform.
 RIGID_TOL = 1e-4
+
+
+#: The 33 human-pose landmarks in MediaPipe Pose's order: what the person route of calibration
+#: detects (``calib.people``) and what the simulator's walking person gives as ground truth
+#: (``synth.person``).
+POSE_LANDMARKS = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
+    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
+    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
+    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
+    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)  # fmt: skip
 
 
 def _frozen_array(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray:

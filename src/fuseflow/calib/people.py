@@ -53,7 +53,7 @@ import numpy as np
 
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.geometric import kabsch
-from fuseflow.types import Frame, Rig
+from fuseflow.types import POSE_LANDMARKS, Frame, Rig
 
 __all__ = [
     "LANDMARKS",
@@ -73,14 +73,8 @@ __all__ = [
     "PersonRoute",
 ]
 
-#: The 33 MediaPipe Pose landmarks, in the detector's order.
-LANDMARKS = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
-    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
-    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
-    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
-    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
-)  # fmt: skip
+#: The 33 MediaPipe Pose landmarks, in the detector's order (``types.POSE_LANDMARKS``).
+LANDMARKS = POSE_LANDMARKS
 
 #: Landmarks used as correspondences: the body's joints (no face, no fingers).
 BODY_JOINTS = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32)

@@ -29,7 +29,7 @@ from fuseflow.synth.config import SimConfig
 from fuseflow.synth.rigs import intrinsics, look_at
 from fuseflow.synth.scene import MeshData, Part, Scene, box, cylinder, quad, sphere
 from fuseflow.synth.texture import make_textures
-from fuseflow.types import Camera, Rig
+from fuseflow.types import POSE_LANDMARKS, Camera, Rig
 
 __all__ = ["Walk", "person_parts", "person_joints", "person_scene", "walking_person_sim", "ring_rig"]
 
@@ -143,15 +143,8 @@ def person_joints(walk: Walk, t: float) -> np.ndarray:
     return P @ B[:3, :3].T + B[:3, 3]
 
 
-#: The landmark order of ``fuseflow.calib.people.LANDMARKS`` (synth sits below calib in the
-#: layers and cannot import it; tests check the two are equal).
-LANDMARK_NAMES = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye", "right_eye_outer",
-    "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder", "right_shoulder", "left_elbow",
-    "right_elbow", "left_wrist", "right_wrist", "left_pinky", "right_pinky", "left_index", "right_index",
-    "left_thumb", "right_thumb", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle",
-    "left_heel", "right_heel", "left_foot_index", "right_foot_index",
-)  # fmt: skip
+#: The landmark order of ``fuseflow.calib.people.LANDMARKS`` (both are ``types.POSE_LANDMARKS``).
+LANDMARK_NAMES = POSE_LANDMARKS
 
 
 def _flat(mesh: MeshData, scale: float = 0.08) -> MeshData:
