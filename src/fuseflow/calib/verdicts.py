@@ -66,6 +66,7 @@ FLOOR_DEG, FLOOR_MM = 2.0, 50.0
 STACKED_M = 0.10
 
 ROUTE_NAMES = {"floor": "floor", "sift4": "image+floor", "sift3d": "image", "geometric": "geometric"}
+ROUTE_NAMES["subject"] = "subject"  # route (e), calib.subject
 
 
 def _angle_deg(R: np.ndarray) -> float:
@@ -168,6 +169,26 @@ def _evidence_rgbd(c: str, edges, T) -> dict[str, Any]:
     return ev
 
 
+def _subject_accuracy(ev: dict[str, Any], info: Mapping[str, Any], c: str) -> dict[str, Any]:
+    """``ev`` with its expected accuracy raised to what the moving-subject edges of camera ``c``
+    (route (e), :mod:`fuseflow.calib.subject`) can give: their pair poses share one head track
+    per camera, so they agree around a cycle better than each is right. Position: the edge's
+    "expected_m" (the tracks' RMS residual with the head-radius bias); rotation: that over half
+    the track's extent, / sqrt(its frames)."""
+    worst = None
+    for p in info.get("pairs", []):
+        e = p.get("edge") or {}
+        if c in p.get("cameras", ()) and "expected_m" in e and e.get("spread_m"):
+            n = max(int(e.get("track_frames", 1)), 1)
+            acc = (float(np.degrees(e["expected_m"] / (e["spread_m"] / 2)) / np.sqrt(n)), e["expected_m"] * 1000)
+            worst = acc if worst is None else (max(worst[0], acc[0]), max(worst[1], acc[1]))
+    if worst is None:
+        return ev
+    deg, mm = float(max(ev["accuracy_deg"] or 0.0, worst[0])), float(max(ev["accuracy_mm"] or 0.0, worst[1]))
+    return {**ev, "accuracy_deg": round(deg, 3), "accuracy_mm": round(mm, 1),
+            "accuracy_from": ev["accuracy_from"] + "; at least its moving-subject tracks' residual"}  # fmt: skip
+
+
 def _evidence_scale_free(c: str, report, T) -> dict[str, Any]:
     """Pairs and cycles of a camera placed by a scale-free backbone (the scale stage's kept
     edges); position accuracy from s*'s standard error at its distance from the world camera."""
@@ -220,7 +241,7 @@ def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
         if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
-            ev = _evidence_rgbd(c, edges, T)
+            ev = _subject_accuracy(_evidence_rgbd(c, edges, T), info, c)
         elif report.backbone != "auto":
             ev = _evidence_scale_free(c, report, T)
         else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera

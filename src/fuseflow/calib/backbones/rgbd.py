@@ -205,6 +205,12 @@ class RGBDConfig:
     (docs/gmac-trust.md, "Person route"). Needs the ``people`` extra (mediapipe); where it is missing
     ``info["people"]`` says it was skipped and why."""
 
+    subject: bool = True
+    """Route (e), the moving subject (:mod:`fuseflow.calib.subject`): with 3 or more frames, the
+    head of a person walking through the rig, tracked in every camera without a detector, gives
+    each pair a candidate and judges every candidate of the pair (a pose that moves one head
+    track away from the other is refuted). Steps aside without frames or a moving person."""
+
     min_separation: float = 0.2
     """Physical plausibility: a relative pose that puts the two camera centres closer than this
     (metres) is rejected, not scored, unless the two views are nearly the same (agreement >=
@@ -350,9 +356,10 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
         progress.report("rgbd: cameras", len(cams), n)
     t_prep = time.perf_counter() - t0
     people, people_skip = _person_route(frames, rig, order, cfg)
+    subject = _subject_route(frames, rig, order, cams, cfg)
     ids = [rig.cameras[k].id for k in order]
     with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
-        edges, pairs_info, hyps = _pair_edges(cams, cfg, people)
+        edges, pairs_info, hyps = _pair_edges(cams, cfg, people, subject)
         joint, ambiguous = {}, set()
         if cfg.pair_hypotheses > 1 and edges:
             edges, joint, ambiguous = _joint_choice(cams, edges, hyps, pairs_info, ids, cfg)
@@ -388,6 +395,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
         "cameras": _camera_info(cams, ids, kept, untested, placed_int, joint.get("ambiguous", {})),
         "refine": refine_info,
         "people": people_skip or people.info(),
+        "subject": subject.info() if subject is not None else "skipped: fewer than 3 frames or off",
         "time_s": {"prepare": t_prep, "pairs": t_pairs, "geometric": t_geo, "total": time.perf_counter() - t0},
     }
     tracks = tuple(
@@ -797,7 +805,16 @@ def _person_route(frames: list[Frame], rig: Rig, order: list[int], cfg: RGBDConf
     return PersonRoute(frames, rig, order, detector, PeopleConfig(seed=cfg.seed)), None
 
 
-def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
+def _subject_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[CameraEvidence], cfg: RGBDConfig):
+    """``subject.SubjectRoute`` over the frames (route (e)), or None (off, or under 3 frames)."""
+    from fuseflow.calib.subject import MIN_FRAMES, SubjectRoute
+
+    if not cfg.subject or len(frames) < MIN_FRAMES:
+        return None
+    return SubjectRoute.build(frames, rig, order, [c.plane for c in cams])
+
+
+def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None):
     """Candidates, verification and the accepted edge of every camera pair (canonical order);
     ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. Returns (edges:
     the best plausible candidate of each pair, per-pair info, hypotheses: pair -> its distinct
@@ -811,12 +828,19 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
             Xa, Xb = _pooled_matches(a, b, cfg)
             cands = _floor_candidates(a, b, cfg, (Xa, Xb)) + _sift3d_candidates(Xa, Xb, cfg)
             cands += people.pair(i, j) if people is not None else []
+            cands += subject.pair(i, j) if subject is not None else []
+            judge = _subject_judge(a, b, cands, cfg, subject, i, j)
             rows, passing = [], []
             for c in cands:
                 chk = verify_pose(a, b, c["T_ba"], cfg.tau)
-                ok = chk.passes(cfg)
+                ok = chk.passes(cfg) or (c["route"] == "subject" and judge is not None)
                 rows.append({"route": c["route"], "inliers": c["inliers"], "ok": ok, **_round(chk),
                              "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
+                if judge is not None and (verdict := judge(c["T_ba"])) is not None:
+                    rows[-1]["subject_m"] = round(verdict, 4)
+                    if ok and verdict > SUBJECT_REFUTE_M:  # the person says no (calib.subject)
+                        rows[-1].update(ok=False, rejected="subject")
+                        ok = False
                 if ok and not plausible(c["T_ba"], chk, cfg, _median_depth(a, b)):
                     # stacked on the other camera: rejected, not scored (calib.symmetry)
                     rows[-1].update(ok=False, rejected="co-located")
@@ -830,6 +854,8 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
                     fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
                     rows[-1]["agree_fine"] = fine
                     passing.append(Hypothesis(i, j, c["T_ba"], float(fine), (c, chk, cands)))
+            if judge is not None:  # the subject's pose first: ~0.1 deg / 1-2 cm, the others' degrees
+                passing = _subject_first(passing)
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
             progress.report("rgbd: pairs", len(info) + 1, len(cams) * (len(cams) - 1) // 2)
             kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
@@ -839,6 +865,38 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
                 entry["hypotheses"] = len(kept)
             info.append(entry)
     return edges, info, hyps
+
+
+#: A candidate whose head tracks stay further apart than this (metres, median) is refuted.
+SUBJECT_REFUTE_M = 0.08
+
+
+def _subject_judge(a: CameraEvidence, b: CameraEvidence, cands: list[dict], cfg: RGBDConfig, subject, i: int, j: int):
+    """The subject's judge of pair (i, j) (pose -> median head-track residual, metres, or None),
+    or None: no subject candidate, or it fails the depth checks on the static scene (agreement,
+    free space), so the two views may have tracked different things."""
+    own = [c for c in cands if c["route"] == "subject"]
+    if subject is None or not own:
+        return None
+    chk = verify_pose(a, b, own[0]["T_ba"], cfg.tau)
+    if chk.agreement < cfg.min_agreement or chk.free_space > cfg.max_free_space or chk.agree < cfg.min_agree_points:
+        return None
+    frames = own[0]["inliers_mask"]
+
+    def judge(T_ba: np.ndarray) -> float | None:
+        got = subject.judge(i, j, T_ba, frames)
+        return None if got is None else got[0]
+
+    return judge
+
+
+def _subject_first(passing: list[Hypothesis]) -> list[Hypothesis]:
+    """The subject route's hypothesis scored as the best of the pair (ties keep it first)."""
+    own = [h for h in passing if h.ref[0]["route"] == "subject"]
+    if not own:
+        return passing
+    top = max(h.score for h in passing)
+    return [Hypothesis(h.i, h.j, h.T_ji, top, h.ref) for h in own] + [h for h in passing if h not in own]
 
 
 def _median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
@@ -856,6 +914,7 @@ def _edge_of(a: CameraEvidence, b: CameraEvidence, h: Hypothesis, cfg: RGBDConfi
     sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
     entry = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
              "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
+    entry.update({k: round(c[k], 4) for k in ("expected_m", "spread_m", "track_frames") if k in c})  # route (e)
     return Edge(h.i, h.j, c["T_ba"], float(chk.agree), X_i, X_j, sigma), entry
 
 
@@ -1163,6 +1222,8 @@ def _refit(a: CameraEvidence, b: CameraEvidence, c: dict, chk: PairCheck, cands:
     precise than any one of them (the 4-DoF floor poses are). Kept when it still passes, agrees
     within 0.02 of the candidate and keeps at least 90 % of its agreeing samples."""
     T = c["T_ba"]
+    if c["route"] == "subject":  # head centres and both floors: other routes' matches are coarser
+        return c, chk
     for _ in range(3):
         Xa, Xb = _support(T, cands, cfg)
         if len(Xa) < 6:

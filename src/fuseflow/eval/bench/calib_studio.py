@@ -72,12 +72,12 @@ def camera_errors(T_est: dict[str, np.ndarray], T_true: dict[str, np.ndarray]) -
 def flagged_cameras(report) -> set[str]:
     """Cameras the report marks: suspect (low depth agreement), placed by rgbd edges that close no
     cycle (no independent check: the report's warning), or a per-camera verdict other than good
-    (``camera_evidence``) when the report has one."""
+    (``camera_verdicts``) when the report has one."""
     out = set(report.suspect_cameras)
     info = report.backbone_info
     cams = info.get("sources", {}).get("rgbd", info).get("cameras", {})
     out |= {c for c, v in cams.items() if v.get("placed") and not v.get("cycle_checked", True)}
-    for c, ev in (getattr(report, "camera_evidence", None) or {}).items():
+    for c, ev in (getattr(report, "camera_verdicts", None) or {}).items():
         if ev.get("verdict", "good") != "good":
             out.add(c)
     return out
@@ -132,14 +132,15 @@ def _summary(rows: list[dict]) -> str:
 
 def run_studio_bench(
     names: Sequence[str], seeds: int, json_path: Path | None = None, log: Callable[[str], None] = print,
-    progress: Callable[[str], None] | None = None, config: CalibConfig | None = None,
+    progress: Callable[[str], None] | None = None, config: CalibConfig | None = None, first_seed: int = 0,
 ) -> list[dict]:  # fmt: skip
-    """Every seed of every data set in ``names``; per-seed lines then one summary row per data set
-    through ``log``; all rows to ``json_path`` when given. Returns the rows."""
+    """Seeds ``first_seed`` .. ``first_seed + seeds - 1`` of every data set in ``names`` (a later
+    range is held out from the one the defaults were chosen on); per-seed lines then one summary
+    row per data set through ``log``; all rows to ``json_path`` when given. Returns the rows."""
     rows_all = []
     for name in names:
         rows = []
-        for seed in range(seeds):
+        for seed in range(first_seed, first_seed + seeds):
             row = run_studio_seed(name, seed, config)
             rows.append(row)
             pc = row["per_camera"].values()
