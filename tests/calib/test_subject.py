@@ -192,3 +192,17 @@ def test_rgbd_backbone_skips_the_route_with_few_frames(frames):
 
     assert _subject_route([object()] * frames, None, [0, 1], [], RGBDConfig()) is None
     assert _subject_route([object()] * 5, None, [0, 1], [], RGBDConfig(subject=False)) is None
+
+
+def test_the_subject_hypothesis_ranks_first_among_the_verified():
+    from fuseflow.calib.backbones.rgbd import _subject_first
+    from fuseflow.calib.symmetry import Hypothesis
+
+    def hyp(route, score):
+        return Hypothesis(0, 1, np.eye(4), score, ({"route": route, "T_ba": np.eye(4)}, None, []))
+
+    out = _subject_first([hyp("floor", 900.0), hyp("sift4", 700.0), hyp("subject", 400.0)])
+    assert [h.ref[0]["route"] for h in out] == ["subject", "floor", "sift4"]
+    assert out[0].score == 900.0  # as strong as the best: the joint choice and the tree keep it
+    plain = [hyp("floor", 900.0), hyp("sift4", 700.0)]
+    assert _subject_first(plain) == plain

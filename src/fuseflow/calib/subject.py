@@ -23,10 +23,13 @@ it; over frames of a walk they form a track. Outline (``SubjectRoute``), no mode
    standing still fixes no heading).
 
 The pair candidate ({"route": "subject", "T_ba", "inliers", "X_a", "X_b"}: the head centres
-of the inlier frames and their feet on the floor; "expected_m": the RMS distance of the inlier
-head centres under the pose combined with ``HEAD_BIAS_M``, "spread_m": the track's extent, "track_frames": its frames, for the expected accuracy) goes through the rgbd backbone's verification like every candidate. The
-tracks also check every other candidate of the pair (``track_residual``): a pose that moves one
-camera's head track more than ``REFUTE_M`` (median) from the other's is refuted by the subject,
+of the inlier frames and their feet on the floor; for the expected accuracy "expected_m" (the
+inlier head centres' RMS distance under the pose combined with ``HEAD_BIAS_M``), "spread_m"
+(the track's extent) and "track_frames") goes through the rgbd backbone's verification like
+every candidate; it is the one candidate there that needs no static structure off the floor
+(a plain room: the floor and the person are all there is). The tracks also judge every other
+candidate of the pair (``track_residual``): a pose that moves one camera's head track more than
+``REFUTE_M`` (median) from the other's is refuted by the subject,
 whatever the static depth says (at 3.5-4 m a 2-deg error moves the person 12-14 cm).
 
 Limits: the frames of all cameras must be taken at the same instants (a 30-ms offset at walking
@@ -67,10 +70,11 @@ BLOB_M = 1.0
 CAP_M = 0.2
 #: Radius of the fitted head sphere, metres (an adult head is 0.08-0.11 m across half its width).
 HEAD_RADIUS_M = 0.10
-#: What the tracks' residual cannot show: a head radius fitted a few millimetres small (0.103-0.106
-#: m for the simulated 0.11 m head at 3.5-4 m) puts every centre of a view that much towards its
-#: camera, ~1 cm between views 120 deg apart (measured: pair poses 0.8-1.9 cm off, residual 2-3 mm).
-HEAD_BIAS_M = 0.01
+#: What the tracks' residual cannot show, metres: a head is not a sphere and its fitted radius
+#: is off (far3's 0.11 m sphere fitted 0.103-0.106 m: pair poses 0.8-1.9 cm off at a 2-3 mm
+#: residual; the articulated figure of ``synth.person``, hair offset 2.5 cm: 0.119-0.127 m,
+#: 0.4-2.9 cm off), so every centre of a view sits a little towards or away from its camera.
+HEAD_BIAS_M = 0.02
 #: The head radius is fitted per camera within this range (metres), in this many rounds.
 RADIUS_RANGE_M, RADIUS_ROUNDS = (0.07, 0.14), 6
 #: Fewest head points for a fit, and the largest RMS of a kept fit (metres).

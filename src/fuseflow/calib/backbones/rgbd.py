@@ -16,7 +16,9 @@ COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. O
    ``sift4`` (the route names stay).
    Where the ``people`` extra is installed, ``people`` / ``people+icp`` (route (d),
    :mod:`fuseflow.calib.people`): the joints of a person both views see, and that pose refined
-   by ICP.
+   by ICP. With 3 or more frames, ``subject`` (route (e), :mod:`fuseflow.calib.subject`): the
+   head of a person walking through the rig, tracked by depth alone; its tracks also refute any
+   candidate of the pair that moves one head track from the other.
 3. Verification (``verify_pose``): every candidate is scored by depth agreement between the two
    views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
    and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
@@ -896,7 +898,9 @@ def _subject_first(passing: list[Hypothesis]) -> list[Hypothesis]:
     if not own:
         return passing
     top = max(h.score for h in passing)
-    return [Hypothesis(h.i, h.j, h.T_ji, top, h.ref) for h in own] + [h for h in passing if h not in own]
+    return [Hypothesis(h.i, h.j, h.T_ji, top, h.ref) for h in own] + [
+        h for h in passing if h.ref[0]["route"] != "subject"
+    ]
 
 
 def _median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
