@@ -455,7 +455,12 @@ def test_truncated_mkv_is_named(tmp_path, invoke, expect):
     b, *_ = ak._recording(tmp_path, "b", "B", t0_us=3_000_160)
     b.write_bytes(b.read_bytes()[: int(b.stat().st_size * 0.6)])  # cut during the last frames
     expect(
-        invoke("convert", a, b, tmp_path / "rec"), 0, "2 dropped views", "B: 2 views: 2 at the end", "b.mkv", "truncated"
+        invoke("convert", a, b, tmp_path / "rec"),
+        0,
+        "2 dropped views",
+        "B: 2 views: 2 at the end",
+        "b.mkv",
+        "truncated",
     )
 
 
