@@ -166,6 +166,8 @@ def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tup
     report = check_sync(rec, state.rig, sel, max_shift=config.sync_max_shift)
     state.warnings.extend(report.warnings())
     offsets = report.late()
+    if config.sync == "auto" and not offsets and report.limit:
+        state.warnings.append(f"--sync-offsets auto found no camera out of sync, but {report.limit}")
     if config.sync == "auto" and offsets:
         return shift_views(rec, offsets), offsets
     return rec, offsets
