@@ -194,15 +194,18 @@ def test_rgbd_backbone_skips_the_route_with_few_frames(frames):
     assert _subject_route([object()] * 5, None, [0, 1], [], RGBDConfig(subject=False)) is None
 
 
-def test_the_subject_hypothesis_ranks_first_among_the_verified():
-    from fuseflow.calib.backbones.rgbd import _subject_first
-    from fuseflow.calib.symmetry import Hypothesis
+def test_the_judge_refutes_relative_to_the_subject_pose():
+    from fuseflow.calib.backbones.rgbd import SUBJECT_MARGIN_M, SUBJECT_REFUTE_M, _SubjectJudge
 
-    def hyp(route, score):
-        return Hypothesis(0, 1, np.eye(4), score, ({"route": route, "T_ba": np.eye(4)}, None, []))
-
-    out = _subject_first([hyp("floor", 900.0), hyp("sift4", 700.0), hyp("subject", 400.0)])
-    assert [h.ref[0]["route"] for h in out] == ["subject", "floor", "sift4"]
-    assert out[0].score == 900.0  # as strong as the best: the joint choice and the tree keep it
-    plain = [hyp("floor", 900.0), hyp("sift4", 700.0)]
-    assert _subject_first(plain) == plain
+    cams = _cams()
+    tracks, planes = _cached("walk")
+    route = SubjectRoute(np.stack(tracks), planes, [HEAD_R, HEAD_R])
+    T_true = _truth(*cams)
+    (cand,) = route.pair(0, 1)
+    base = route.judge(0, 1, cand["T_ba"], cand["inliers_mask"])[0]
+    judge = _SubjectJudge(route, 0, 1, cand["inliers_mask"], min(SUBJECT_REFUTE_M, base + SUBJECT_MARGIN_M))
+    assert judge(T_true) <= judge.limit  # the true pose stays
+    turn = np.eye(4)
+    a = math.radians(1.0)  # 1 deg about the camera's vertical: the head moves ~6 cm at 3.6 m
+    turn[:3, :3] = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    assert judge.limit < judge(turn @ T_true) < SUBJECT_REFUTE_M  # refuted only by the relative gate

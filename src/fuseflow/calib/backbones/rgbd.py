@@ -840,7 +840,7 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subjec
                              "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
                 if judge is not None and (verdict := judge(c["T_ba"])) is not None:
                     rows[-1]["subject_m"] = round(verdict, 4)
-                    if ok and verdict > SUBJECT_REFUTE_M:  # the person says no (calib.subject)
+                    if ok and verdict > judge.limit:  # the person says no (calib.subject)
                         rows[-1].update(ok=False, rejected="subject")
                         ok = False
                 if ok and not plausible(c["T_ba"], chk, cfg, _median_depth(a, b)):
@@ -856,8 +856,6 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subjec
                     fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
                     rows[-1]["agree_fine"] = fine
                     passing.append(Hypothesis(i, j, c["T_ba"], float(fine), (c, chk, cands)))
-            if judge is not None:  # the subject's pose first: ~0.1 deg / 1-2 cm, the others' degrees
-                passing = _subject_first(passing)
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
             progress.report("rgbd: pairs", len(info) + 1, len(cams) * (len(cams) - 1) // 2)
             kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
@@ -869,38 +867,44 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subjec
     return edges, info, hyps
 
 
-#: A candidate whose head tracks stay further apart than this (metres, median) is refuted.
-SUBJECT_REFUTE_M = 0.08
+#: A candidate whose head tracks stay further apart than this (metres, median) is refuted, or
+#: than the subject's own pose leaves them plus SUBJECT_MARGIN_M, whichever is smaller: at
+#: 3.5-4 m a pose 0.5 deg off moves the head 3 cm; a right pose of another route (a textured
+#: near-range studio: 0.05 deg / 3 mm where the subject's was 0.2 deg / 12 mm) stays within it.
+SUBJECT_REFUTE_M, SUBJECT_MARGIN_M = 0.08, 0.03
+
+
+@dataclass(frozen=True)
+class _SubjectJudge:
+    """The subject's judge of one pair: pose -> median head-track residual (metres) over the
+    subject pose's inlier frames; a candidate beyond ``limit`` is refuted."""
+
+    route: object
+    i: int
+    j: int
+    frames: np.ndarray
+    limit: float
+
+    def __call__(self, T_ba: np.ndarray) -> float | None:
+        got = self.route.judge(self.i, self.j, T_ba, self.frames)
+        return None if got is None else got[0]
 
 
 def _subject_judge(a: CameraEvidence, b: CameraEvidence, cands: list[dict], cfg: RGBDConfig, subject, i: int, j: int):
-    """The subject's judge of pair (i, j) (pose -> median head-track residual, metres, or None),
-    or None: no subject candidate, or it fails the depth checks on the static scene (agreement,
-    free space), so the two views may have tracked different things."""
+    """The subject's judge of pair (i, j) (``_SubjectJudge``), or None: no subject candidate, or
+    it fails the depth checks on the static scene (agreement, free space), so the two views may
+    have tracked different things."""
     own = [c for c in cands if c["route"] == "subject"]
     if subject is None or not own:
         return None
     chk = verify_pose(a, b, own[0]["T_ba"], cfg.tau)
     if chk.agreement < cfg.min_agreement or chk.free_space > cfg.max_free_space or chk.agree < cfg.min_agree_points:
         return None
-    frames = own[0]["inliers_mask"]
-
-    def judge(T_ba: np.ndarray) -> float | None:
-        got = subject.judge(i, j, T_ba, frames)
-        return None if got is None else got[0]
-
-    return judge
-
-
-def _subject_first(passing: list[Hypothesis]) -> list[Hypothesis]:
-    """The subject route's hypothesis scored as the best of the pair (ties keep it first)."""
-    own = [h for h in passing if h.ref[0]["route"] == "subject"]
-    if not own:
-        return passing
-    top = max(h.score for h in passing)
-    return [Hypothesis(h.i, h.j, h.T_ji, top, h.ref) for h in own] + [
-        h for h in passing if h.ref[0]["route"] != "subject"
-    ]
+    judge = _SubjectJudge(subject, i, j, own[0]["inliers_mask"], SUBJECT_REFUTE_M)
+    base = judge(own[0]["T_ba"])
+    if base is None:
+        return None
+    return _SubjectJudge(subject, i, j, judge.frames, min(SUBJECT_REFUTE_M, base + SUBJECT_MARGIN_M))
 
 
 def _median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
