@@ -917,6 +917,8 @@ def _edge_of(a: CameraEvidence, b: CameraEvidence, h: Hypothesis, cfg: RGBDConfi
     """The edge of hypothesis ``h`` (refit on every route's correspondences it explains) and its
     info entry."""
     c, chk, cands = h.ref
+    # route (e)'s floor points restate its own pose: evidence for its edge only
+    cands = [x for x in cands if x["route"] != "subject" or x is c]
     c, chk = _refit(a, b, c, chk, cands, cfg)
     X_i, X_j = _support(c["T_ba"], cands, cfg)
     sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
