@@ -46,6 +46,8 @@ class LiveResult:
     warnings: list[str] = field(default_factory=list)
     encode_ms_median: float | None = None
     """Median time the web sink's encoder thread took per frame (all codecs asked for)."""
+    encode_cpu_ms_median: float | None = None
+    """The same in CPU time of the encoder thread."""
     encoder_skipped: int = 0
     """Fused clouds the encoder thread never encoded (replaced while it was busy)."""
 
@@ -118,5 +120,6 @@ def run_live(
     web = next((s for s in sinks if isinstance(s, WebSink)), None)
     if web is not None and web.encode_ms:
         result.encode_ms_median = round(float(np.median(web.encode_ms)), 2)
+        result.encode_cpu_ms_median = round(float(np.median(web.encode_cpu_ms)), 2)
         result.encoder_skipped = web.skipped
     return result

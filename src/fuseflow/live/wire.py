@@ -82,7 +82,9 @@ def encode_frame(
         raise ValidationError(f"unknown frame codec {codec!r}; codecs are {', '.join(CODECS)}")
     m = len(xyz)
     if m:
-        lo, hi = xyz.min(0), xyz.max(0)
+        from fuseflow.live.codec_kernels import bounds
+
+        lo, hi = bounds(np.ascontiguousarray(xyz))
         scale = (np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-6))).astype(np.float32)
         q = np.subtract(xyz, lo, dtype=np.float32)  # in place from here: one float32 buffer
         np.multiply(q, scale, out=q)
