@@ -53,7 +53,7 @@ def test_round_trip_positions_within_half_a_step_and_one_point_per_cell():
     assert len(d.xyz) == len(cells) < len(xyz)  # points sharing a cell are merged
     assert np.array_equal(np.unique(_cells(d.xyz, 0.002, origin), axis=0), cells)  # every cell, once
     dist, _ = cKDTree(d.xyz).query(xyz, p=np.inf)  # Chebyshev: per axis
-    assert dist.max() <= 0.001 + 1e-5  # each point has a decoded point within step / 2 per axis
+    assert dist.max() <= 0.001 + 1e-5  # each point has a decoded point within step / 2 per axis (2 mm grid)
     assert np.median(dist) > 1e-4  # and that is a real quantisation, not a copy
 
 
@@ -85,7 +85,7 @@ def test_compact_is_several_times_smaller_than_raw():
 def test_empty_single_and_non_finite_points():
     for xyz in (np.zeros((0, 3), np.float32), np.array([[1.0, 2.0, 3.0]], np.float32)):
         d = decode_frame(encode_compact(xyz, np.full((len(xyz), 3), 200, np.uint8), 1, 0.0, 0.0, CompactParams()))
-        assert d.xyz.shape == xyz.shape and np.all(np.abs(d.xyz - xyz) <= 0.001 + 1e-6)
+        assert d.xyz.shape == xyz.shape and np.all(np.abs(d.xyz - xyz) <= 0.0015 + 1e-6)  # half a 3 mm step
     xyz = np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0], [0.1, 0.0, np.inf], [0.1, 0.1, 0.1]], np.float32)
     d = decode_frame(encode_compact(xyz, np.zeros((4, 3), np.uint8), 1, 0.0, 0.0, CompactParams()))
     assert len(d.xyz) == 2 and d.points_in == 2 and np.isfinite(d.xyz).all()

@@ -161,7 +161,8 @@ def _run_case(
         "latency_ms_p95": s.latency_ms_p95, "fuse_ms_median": s.fuse_ms_median, "points_mean": s.points_mean,
         "codec": codec, "encode_ms_median": res.encode_ms_median,
         "encode_cpu_ms_median": res.encode_cpu_ms_median, "encoder_skipped": res.encoder_skipped,
-        "client_frames": viewers[0].frames, "client_dropped": client.get("dropped"),
+        "client_frames": viewers[0].frames, "client_fps": round(viewers[0].frames / max(s.wall_s, 1e-9), 2),
+        "client_dropped": client.get("dropped"),
         "bytes_per_frame": round(viewers[0].bytes / max(viewers[0].frames, 1)),
         "mbit_per_s": round(viewers[0].bytes * 8 / max(s.wall_s, 1e-9) / 1e6, 2),
     }  # fmt: skip
@@ -178,7 +179,7 @@ def format_row(r: dict[str, Any]) -> str:
         f"{r['case']:<12} {'' if r['fusion'] == 'FUSE' else '(stand-in) '}{r['cameras']} x {r['resolution']} @ {r['rate']:g} fps: {r['fps']:.2f} fused/s, "
         f"drops {r['drop_rate']:.1%}, latency p50 {r['latency_ms_p50']} / p95 {r['latency_ms_p95']} ms, "
         f"FUSE {r['fuse_ms_median']} ms, encode {r['encode_ms_median']} ms ({r['encode_cpu_ms_median']} CPU), {r['points_mean']:.0f} points, "
-        f"{r['codec']} {r['bytes_per_frame']} B/frame ({r['bytes_per_point']} B/point), "
+        f"{r['codec']} {r['bytes_per_frame']} B/frame ({r['bytes_per_point']} B/point), viewer {r['client_fps']} fps, "
         f"{r['mbit_per_s']:.1f} Mbit/s per client ({r['mbit_per_s_at_rate']:.1f} at {r['rate']:g} fps) "
         f"[{r['target']}: {'met' if r['target_met'] else 'MISSED'}]"
     )
