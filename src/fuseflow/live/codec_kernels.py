@@ -86,26 +86,28 @@ def _sorted_keys(cells, bits):  # pragma: no cover - compiled
     order = np.arange(n)
     key2 = np.empty(n, np.uint64)
     order2 = np.empty(n, np.int64)
-    count = np.empty(2048, np.int64)
-    shift = 0
-    while shift < bits:
+    passes = max(1, (bits + 15) // 16)  # as few scatter passes as 16-bit digits allow
+    digit = (bits + passes - 1) // passes
+    mask = np.uint64((1 << digit) - 1)
+    count = np.empty(1 << digit, np.int64)
+    for p in range(passes):
+        shift = np.uint64(p * digit)
         count[:] = 0
         for i in range(n):
-            count[(key[i] >> np.uint64(shift)) & np.uint64(2047)] += 1
+            count[(key[i] >> shift) & mask] += 1
         total = 0
-        for d in range(2048):
+        for d in range(count.shape[0]):
             c = count[d]
             count[d] = total
             total += c
         for i in range(n):
-            d = (key[i] >> np.uint64(shift)) & np.uint64(2047)
+            d = (key[i] >> shift) & mask
             j = count[d]
             count[d] = j + 1
             key2[j] = key[i]
             order2[j] = order[i]
         key, key2 = key2, key
         order, order2 = order2, order
-        shift += 11
     return key, order
 
 
