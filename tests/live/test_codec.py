@@ -171,7 +171,8 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
     from fuseflow.pipeline.live import LiveFrame
 
     server = LiveServer("127.0.0.1", 0, codec="compact").start()
-    sink = WebSink(server, CompactParams(step_mm=3.0))
+    extra: dict = {}
+    sink = WebSink(server, CompactParams(step_mm=3.0), extra)
     url = f"ws://127.0.0.1:{server.port}/ws"
     try:
         with pytest.raises(InvalidStatus):
@@ -190,6 +191,7 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
             assert (fa.version, fa.number, fa.step) == (2, 5, pytest.approx(0.003))
             assert (fb.version, fb.number, len(fb.xyz)) == (1, 5, 4000)
             assert sink.encoded == 1 and len(sink.encode_ms) == 1
+            assert extra["encoded"] == 1 and extra["encoder_skipped"] == 0 and extra["encode_ms"] >= 0
     finally:
         sink.close()
     assert not server.running

@@ -97,7 +97,7 @@ def run_live(
             server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig),
                                 codec=outputs.codec).start()  # fmt: skip
             warnings += _server_warnings(server.host)
-            sinks.append(WebSink(server, outputs.compact))
+            sinks.append(WebSink(server, outputs.compact, loop.stats.extra))
         if outputs.rerun is not None:
             sinks.append(RerunSink(outputs.rerun, rig))
         if outputs.record is not None:

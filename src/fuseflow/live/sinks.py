@@ -53,9 +53,13 @@ class WebSink:
     the codec's kernels (cached after the first run) does not fall on the first live frames.
     """
 
-    def __init__(self, server: LiveServer, params: CompactParams = CompactParams()):
+    def __init__(self, server: LiveServer, params: CompactParams = CompactParams(), stats: dict | None = None):
         self.server = server
         self.params = params
+        self.stats = stats if stats is not None else {}
+        """Updated after every frame with ``encoded``, ``encoder_skipped`` and ``encode_ms`` (the
+        last frame's): the live loop's ``LiveStats.extra``, so ``/stats`` shows them."""
+        self.stats.update(encoded=0, encoder_skipped=0, encode_ms=None)  # keys fixed from here on
         self.skipped = 0
         self.encoded = 0
         self.encode_ms: list[float] = []
@@ -112,6 +116,7 @@ class WebSink:
         self.encode_cpu_ms.append((time.thread_time() - c0) * 1000.0)
         del self.encode_ms[:-1000], self.encode_cpu_ms[:-1000]
         self.encoded += 1
+        self.stats.update(encoded=self.encoded, encoder_skipped=self.skipped, encode_ms=round(self.encode_ms[-1], 1))
         self.server.publish(frames)
 
     def close(self) -> None:
