@@ -195,3 +195,13 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
     finally:
         sink.close()
     assert not server.running
+
+
+def test_codec_benchmark_rows():
+    from fuseflow.eval.bench.live_codec import measure
+
+    xyz, rgb = _surface(3000)
+    raw, compact = measure("surface", _fused(xyz, rgb), [CompactParams(step_mm=2.0)], repeats=1)
+    assert raw["codec"] == "raw" and raw["bytes_per_point"] == pytest.approx(9.0, abs=0.02)
+    assert compact["codec"] == "compact" and compact["bytes_per_point"] < 4.0
+    assert compact["pos_err_axis_max_mm"] <= 1.0 + 1e-3 and 0 < compact["geometry_bits_per_point"] < 32

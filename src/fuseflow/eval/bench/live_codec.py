@@ -24,7 +24,8 @@ __all__ = ["clouds", "measure", "browser_decode_ms"]
 
 
 def clouds(data_dir: Path, work: Path) -> dict[str, Any]:
-    """name -> FusedCloud: hocap8 (every point), hocap8-200k, sim8-200k (a simulated studio)."""
+    """name -> FusedCloud: hocap8 (every point), hocap8-200k, sim8-200k (a simulated studio) and
+    sim8-200k-crop (the same cropped to the rig's capture volume, ``--crop auto``)."""
     from fuseflow.fuse import fuse
     from fuseflow.fuse.config import preset_config
     from fuseflow.io import open_recording
@@ -34,11 +35,16 @@ def clouds(data_dir: Path, work: Path) -> dict[str, Any]:
     convert_hocap(Path(data_dir) / "hocap-8rs", work / "hocap8", with_extrinsics=True)
     cfg = SimConfig(cameras=8, frames=1, scene="studio", dynamic=True, resolution=(640, 480), seed=0, fps=10.0)
     simulate_recording(work / "sim8", cfg)
+    from fuseflow.geometry.volume import crop_cloud
+    from fuseflow.pipeline.exports import resolve_crop
+
     hocap, sim = open_recording(work / "hocap8"), open_recording(work / "sim8")
+    sim200 = fuse(sim[0], sim.rig, preset_config("live", 200_000))
     return {
         "hocap8": fuse(hocap[0], hocap.rig, preset_config("live")),
         "hocap8-200k": fuse(hocap[0], hocap.rig, preset_config("live", 200_000)),
-        "sim8-200k": fuse(sim[0], sim.rig, preset_config("live", 200_000)),
+        "sim8-200k": sim200,
+        "sim8-200k-crop": crop_cloud(sim200, resolve_crop("auto", sim.rig, None)),
     }
 
 
@@ -69,8 +75,11 @@ def _errors(xyz: np.ndarray, rgb: np.ndarray, data: bytes) -> dict[str, float]:
 
 def measure(name: str, cloud: Any, params: list[CompactParams], repeats: int = 5) -> list[dict[str, Any]]:
     """One row per codec setting: raw first, then each compact ``params``."""
+    from scipy.spatial import cKDTree
+
     xyz = cloud.xyz.numpy().astype(np.float32)
     rgb = cloud.rgb.numpy().astype(np.uint8)
+    spacing = float(np.median(cKDTree(xyz).query(xyz, k=2)[0][:, 1])) * 1e3
     rows = []
     settings: list[tuple[str, CompactParams | None]] = [("raw", None)] + [("compact", p) for p in params]
     for codec, p in settings:
@@ -85,7 +94,10 @@ def measure(name: str, cloud: Any, params: list[CompactParams], repeats: int = 5
                "bytes_per_point": round(len(data) / max(len(xyz), 1), 3),
                "mbit_per_s_at_10fps": round(len(data) * 8 * 10 / 1e6, 2),
                "mbit_per_s_at_10fps_200k": round(len(data) / max(len(xyz), 1) * 200_000 * 8 * 10 / 1e6, 2),
-               "encode_cpu_ms": round(enc, 1), "python_decode_cpu_ms": round(dec, 1)}  # fmt: skip
+               "encode_cpu_ms": round(enc, 1), "python_decode_cpu_ms": round(dec, 1),
+               "nn_spacing_median_mm": round(spacing, 2),
+               "geometry_bits_per_point": round(int.from_bytes(data[52:56], "little") * 8 / max(len(xyz), 1), 2)
+               if p else 48.0}  # fmt: skip
         row.update(_errors(xyz, rgb, data))
         rows.append(row)
     return rows
