@@ -65,7 +65,7 @@ def test_page_draws_live_frames(dynamic_rec, tmp_path):
     port = _free_port()
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
     cmd = [sys.executable, "-m", "fuseflow", "live", str(dynamic_rec), "--loop", "--rate", "5", "--preload",
-           "--serve", str(port), "--duration", "60"]  # fmt: skip
+           "--serve", str(port), "--duration", "300"]  # fmt: skip
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     driver = None
     try:
