@@ -613,7 +613,8 @@ def _match(da: np.ndarray, db: np.ndarray, ratio: float) -> np.ndarray:
 def _ransac_sequential(fit_batch, fit_refine, residual, thr, m: int, k_min: int, cfg: RGBDConfig, seed: int):
     """Sequential RANSAC: up to cfg.hypotheses models, each the largest consensus of the matches
     the previous ones did not explain. fit_batch(idx (H, k_min)) -> models (H, 4, 4);
-    residual(models (H, 4, 4), idx) -> (H, |idx|); thr (m,) per-match threshold.
+    residual(models (H, 4, 4), idx) -> (H, |idx|) distances, residual(models, idx, thr_idx) ->
+    (H,) counts of distances under thr_idx (``calib.ransac_kernels``); thr (m,) per-match threshold.
     Returns [(model (4, 4), inlier indices)]."""
     rng = np.random.default_rng(seed)
     left = np.arange(m)
@@ -630,9 +631,8 @@ def _ransac_sequential(fit_batch, fit_refine, residual, thr, m: int, k_min: int,
         models = models[ok]
         if not len(models):
             break
-        inl = residual(models, left) < thr[left][None, :]
-        best = int(np.argmax(inl.sum(axis=1)))
-        sel = left[inl[best]]
+        best = int(np.argmax(residual(models, left, thr[left])))
+        sel = left[residual(models[best][None], left)[0] < thr[left]]
         if len(sel) < cfg.min_inliers:
             break
         model = models[best]
@@ -645,6 +645,11 @@ def _ransac_sequential(fit_batch, fit_refine, residual, thr, m: int, k_min: int,
         out.append((model, sel))
         left = np.setdiff1d(left, sel)
     return out
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    """a as a C-contiguous float64 array (the compiled residuals' input; exact for float32)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _planar_models(pa: np.ndarray, pb: np.ndarray) -> callable:
@@ -674,6 +679,8 @@ def _floor_candidates(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig, fra
     matches expressed on the floor). frame_pairs: (X_a (K, 3), X_b (K, 3)) pooled 3-D matches."""
     if a.plane is None or b.plane is None:
         return []
+    from fuseflow.calib.ransac_kernels import planar_counts
+
     Fa, Fb = a.plane.T_cam_floor(), b.plane.T_cam_floor()
     out = []
     routes = []
@@ -695,10 +702,12 @@ def _floor_candidates(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig, fra
             np.asarray(cfg.floor_inlier_m if route == "floor" else thr_h, dtype=np.float64), (len(pa),)
         )
 
-        def residual(models, idx, pa=pa, pb=pb, ha=ha, hb=hb):
+        def residual(models, idx, thr_idx=None, pa=pa, pb=pb, ha=ha, hb=hb):
+            dh = np.abs(ha[idx] - hb[idx])  # heights must agree too
+            if thr_idx is not None:
+                return planar_counts(models, _f64(pa[idx]), _f64(pb[idx]), _f64(dh), _f64(thr_idx))
             q = np.einsum("hij,kj->hki", models[:, :2, :2], pa[idx]) + models[:, None, :2, 3]
-            r = np.linalg.norm(q - pb[idx][None], axis=2)
-            return np.maximum(r, np.abs(ha[idx] - hb[idx])[None])  # heights must agree too
+            return np.maximum(np.linalg.norm(q - pb[idx][None], axis=2), dh[None])
 
         models = _ransac_sequential(fit, lambda s, fit=fit: fit(s[None])[0], residual, thr, len(pa), 2, cfg, cfg.seed)
         for model, sel in models:
@@ -716,6 +725,8 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
     """6-DoF 3-D RANSAC (Kabsch) on depth-lifted image matches."""
     if len(Xa) < max(cfg.min_inliers, 3):
         return []
+    from fuseflow.calib.ransac_kernels import rigid_counts
+
     thr = cfg.inlier_m + cfg.inlier_rel * Xb[:, 2]
 
     def fit(idx):
@@ -726,7 +737,9 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
             T[area < 0.01] = np.nan
         return T
 
-    def residual(models, idx):
+    def residual(models, idx, thr_idx=None):
+        if thr_idx is not None:
+            return rigid_counts(models, _f64(Xa[idx]), _f64(Xb[idx]), _f64(thr_idx))
         q = np.einsum("hij,kj->hki", models[:, :3, :3], Xa[idx]) + models[:, None, :3, 3]
         return np.linalg.norm(q - Xb[idx][None], axis=2)
 
