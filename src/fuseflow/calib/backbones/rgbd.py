@@ -68,6 +68,7 @@ __all__ = [
     "PairCheck",
     "CameraEvidence",
     "merge_repeats",
+    "nanmedian_frames",
 ]
 
 
@@ -487,7 +488,7 @@ def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[n
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            d = np.nanmedian(np.where(D > 0, D, np.nan), axis=0)
+            d = nanmedian_frames(np.where(D > 0, D, np.nan))
             # a pixel something moved through has no single depth: the median of frames that saw
             # the person and frames that saw the floor is a surface that never existed, and the
             # verification (which compares median depths) would count it against a right pose
@@ -496,6 +497,21 @@ def _median_images(greys: list[np.ndarray], depths: list[np.ndarray]) -> tuple[n
             )
     d = np.nan_to_num(d, nan=0.0).astype(np.float32)
     return g, np.where(moved, 0.0, d).astype(np.float32), d
+
+
+def nanmedian_frames(X: np.ndarray) -> np.ndarray:
+    """``numpy.nanmedian(X, axis=0)`` of a (F, H, W) float stack, the same values (the mean of the
+    two middle values in X's dtype; NaN where a pixel has none) from one sort. numpy's small-axis
+    path goes through masked arrays and issues one (filtered) warning per all-NaN pixel: 10x
+    slower on a 512x424 camera's 10 frames."""
+    S = np.sort(X, axis=0)  # NaN last
+    n = np.count_nonzero(~np.isnan(X), axis=0)
+    h = n // 2
+    low = np.take_along_axis(S, np.maximum(np.where(n % 2 == 1, h, h - 1), 0)[None], axis=0)[0]
+    high = np.take_along_axis(S, np.minimum(h, len(X) - 1)[None], axis=0)[0]
+    out = (low + high) / X.dtype.type(2)
+    out[n == 0] = np.nan
+    return out
 
 
 def _backproject(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> np.ndarray:

@@ -1,8 +1,11 @@
-"""The compiled RANSAC residuals (calib.ransac_kernels) against the numpy form they replace."""
+"""The calibration's fast paths against the numpy forms they replace (same results)."""
+
+import warnings
 
 import numpy as np
 import pytest
 
+from fuseflow.calib.backbones.rgbd import nanmedian_frames
 from fuseflow.calib.ransac_kernels import planar_counts, rigid_counts
 
 
@@ -63,3 +66,18 @@ def test_empty_inputs():
     e = np.zeros((0, 3))
     np.testing.assert_array_equal(rigid_counts(M, e, e, np.zeros(0)), [0, 0, 0])
     assert planar_counts(M, e[:, :2], e[:, :2], np.zeros(0), np.zeros(0)).shape == (3,)
+
+
+@pytest.mark.parametrize("frames", [1, 2, 3, 10])
+def test_nanmedian_frames_is_numpys(frames):
+    rng = np.random.default_rng(frames)
+    X = (rng.random((frames, 40, 50)) * 4).astype(np.float32)
+    X[rng.random(X.shape) < 0.3] = np.nan
+    X[:, :5] = np.nan  # pixels no frame saw
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref = np.nanmedian(X, axis=0)
+    out = nanmedian_frames(X)
+    assert out.dtype == ref.dtype
+    np.testing.assert_array_equal(out, ref)  # NaN where numpy has NaN, else the same bits
+    assert np.isnan(out[:5]).all() and np.isfinite(out[5:]).any()
