@@ -144,11 +144,10 @@ MAX_BENCHMARK_LINES = 120
 # benchmarks/ keeps thin wrappers over fuseflow.eval.bench; these scripts still hold their logic
 # (issue 30 item 2). Each may not grow past its size today; the list only shrinks.
 PENDING_LONG_BENCHMARKS = {
-    "calib_joint_refine.py": 130,
     "calib_geometric.py": 141,
     "calib_reference_check.py": 201,
     "fuse_quality.py": 280,
-    "calib_wide.py": 371,
+    "calib_wide.py": 343,
 }
 
 
@@ -176,7 +175,6 @@ def test_compiled_kernels_do_not_load_torch():
 PENDING_INTERNAL_BENCHMARKS = {
     "calib_geometric.py",
     "calib_hocap_diagnose.py",
-    "calib_joint_refine.py",
     "calib_match_threshold.py",
     "calib_reference_check.py",
     "calib_scale_source.py",
