@@ -11,15 +11,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from fuseflow.eval.bench.live_codec import browser_decode_ms, clouds, measure  # noqa: E402
-from fuseflow.live.codec import CompactParams, encode_compact  # noqa: E402
-from fuseflow.live.wire import encode_frame  # noqa: E402
+from fuseflow.eval.bench.live_codec import run_codec_bench  # noqa: E402
 
 
 def main() -> None:
@@ -29,28 +26,12 @@ def main() -> None:
     ap.add_argument("--grids", default="2,3,4")
     ap.add_argument("--no-browser", action="store_true")
     a = ap.parse_args()
-    params = [CompactParams(step_mm=float(g)) for g in a.grids.split(",")]
-    params += [CompactParams(luma_step=2, chroma_step=4, chroma_block=2),
-               CompactParams(luma_step=8, chroma_step=16, chroma_block=8)]  # fmt: skip
-    rows = []
-    with tempfile.TemporaryDirectory(prefix="live_codec_") as tmp:
-        found = clouds(a.data_dir, Path(tmp))
-        for name, cloud in found.items():
-            for r in measure(name, cloud, params):
-                print(json.dumps(r))
-                rows.append(r)
-    browser = {}
-    if not a.no_browser:
-        c = found["hocap8-200k"]
-        xyz, rgb = c.xyz.numpy(), c.rgb.numpy()
-        browser = browser_decode_ms({"raw": encode_frame(c, 0, 0.0, 0.0, "raw"),
-                                     "compact": encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams())})  # fmt: skip
-        print("headless Chromium decode ms (hocap8-200k):", browser)
+    out = run_codec_bench(a.data_dir, [float(g) for g in a.grids.split(",")], browser=not a.no_browser)
     meta = {"command": "python benchmarks/live_codec.py " + " ".join(sys.argv[1:]),
-            "date": time.strftime("%Y-%m-%d %H:%M"), "browser_decode_ms_hocap8_200k": browser}  # fmt: skip
+            "date": time.strftime("%Y-%m-%d %H:%M"), "browser_decode_ms_hocap8_200k": out["browser_decode_ms"]}  # fmt: skip
     if a.json is not None:
         a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n")
+        a.json.write_text(json.dumps({"meta": meta, "rows": out["rows"]}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

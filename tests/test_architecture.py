@@ -181,7 +181,6 @@ PENDING_INTERNAL_BENCHMARKS = {
     "fuse_completeness_bands.py",
     "fuse_mcm_floor.py",
     "fuse_quality.py",
-    "live_codec.py",
     "outputs_crop.py",
     "outputs_formats.py",
     "outputs_mesh.py",

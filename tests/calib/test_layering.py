@@ -8,7 +8,8 @@ from pathlib import Path
 import fuseflow.calib
 
 CALIB = Path(fuseflow.calib.__file__).parent
-ALLOWED = ("fuseflow.calib", "fuseflow.types", "fuseflow.errors", "fuseflow.geometry")
+#: io is below calib too (docs/architecture.md); of it calib needs only numba's cache location
+ALLOWED = ("fuseflow.calib", "fuseflow.types", "fuseflow.errors", "fuseflow.geometry", "fuseflow.io.numba_cache")
 
 
 def _imports():

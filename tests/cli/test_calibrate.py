@@ -26,6 +26,7 @@ def test_calibrate_rgbd_over_frames(ring_rec, tmp_path):
     assert res.exit_code == 0, res.output
     assert "2 frames (0..2)" in res.output and "backbone rgbd" in res.output
     assert "(check)" in res.output
+    assert "time per stage: backbone " in res.output and "(prepare " in res.output, res.output
     cal = fuseflow.read_calibration(out)
     assert cal.report["backbone"] == "rgbd" and cal.report["scale"] == 1.0 and cal.report["scale_check"] > 0
     assert cal.report["backbone_info"]["frames"] == 2

@@ -175,6 +175,10 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
     sink = WebSink(server, CompactParams(step_mm=3.0), extra)
     url = f"ws://127.0.0.1:{server.port}/ws"
     try:
+        xyz, rgb = _surface(4000)
+        sink.send(_fused(xyz, rgb), LiveFrame(1, 1, time.perf_counter(), 10.0, ()))
+        time.sleep(0.3)
+        assert sink.encoded == 0  # nobody watches: nothing is encoded
         with pytest.raises(InvalidStatus):
             ws_client.connect(url + "?codec=draco", open_timeout=5)
         with ws_client.connect(url, max_size=None) as a, ws_client.connect(url + "?codec=raw", max_size=None) as b:

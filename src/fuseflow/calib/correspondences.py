@@ -191,9 +191,10 @@ def _lookup(cam: CameraData, uv: np.ndarray) -> tuple[np.ndarray, ...]:
     d = np.zeros(len(uv))
     val = np.zeros(len(uv))
     n = np.zeros((len(uv), 3))
-    d[inside] = cam.depth[vi[inside], ui[inside]]
-    val[inside] = cam.validity[vi[inside], ui[inside]]
-    n[inside] = cam.normals[vi[inside], ui[inside]]
+    f = vi[inside] * W + ui[inside]  # flat pixel indices: one gather per map
+    d[inside] = cam.depth.reshape(-1)[f]
+    val[inside] = cam.validity.reshape(-1)[f]
+    n[inside] = cam.normals.reshape(-1, 3)[f]
     return d, val, inside, np.stack([ui, vi], axis=1).astype(np.float64), n
 
 

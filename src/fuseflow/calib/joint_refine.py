@@ -228,30 +228,32 @@ def _associate(vi: _View, vj: _View, Wi: np.ndarray, Wj: np.ndarray, gate: float
     Returns (X world (m, 3), Q world (m, 3), n_j world (m, 3), sigma (m,)) or None."""
     Tji = invert_rigid(Wj) @ Wi
     Xj = vi.samples @ Tji[:3, :3].T + Tji[:3, 3]
-    z = Xj[:, 2]
-    front = z > 1e-3
-    Xj, idx = Xj[front], np.flatnonzero(front)
+    idx = np.flatnonzero(Xj[:, 2] > 1e-3)
+    Xj = Xj[idx]
     K = vj.K
     h, w = vj.depth.shape
-    u = np.rint(K[0, 0] * Xj[:, 0] / Xj[:, 2] + K[0, 2]).astype(np.int64)
-    v = np.rint(K[1, 1] * Xj[:, 1] / Xj[:, 2] + K[1, 2]).astype(np.int64)
-    inb = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    Xj, idx, u, v = Xj[inb], idx[inb], u[inb], v[inb]
+    x, y, z = Xj[:, 0], Xj[:, 1], Xj[:, 2]
+    u = np.rint(K[0, 0] * x / z + K[0, 2]).astype(np.int64)
+    v = np.rint(K[1, 1] * y / z + K[1, 2]).astype(np.int64)
+    k = np.flatnonzero((u >= 0) & (u < w) & (v >= 0) & (v < h))
     # the gates one after the other, each on the survivors of the last (the same tests as one
-    # mask over all samples, on fewer points: this runs ~500 times per calibration)
-    D = vj.depth[v, u]
-    k = np.flatnonzero((D > 0) & np.isfinite(vj.normals[v, u, 0]))
-    Xj, idx, u, v, D = Xj[k], idx[k], u[k], v[k], D[k]
+    # mask over all samples, on fewer points: this runs ~3000 times per calibration); pixels as
+    # flat indices into the C-ordered maps (one gather instead of a two-index one)
+    Xj, idx, f = Xj[k], idx[k], v[k] * w + u[k]
+    N = vj.normals.reshape(-1, 3)
+    D = vj.depth.reshape(-1)[f]
+    k = np.flatnonzero((D > 0) & np.isfinite(N[f, 0]))
+    Xj, idx, f, D = Xj[k], idx[k], f[k], D[k]
     sig = np.sqrt(sigma(Xj[:, 2], *vi.noise) ** 2 + sigma(np.maximum(D, 1e-3), *vj.noise) ** 2)
     k = np.flatnonzero(np.abs(Xj[:, 2] - D) < np.maximum(gate, 3 * sig))
-    Xj, idx, u, v, sig = Xj[k], idx[k], u[k], v[k], sig[k]
-    nj = vj.normals[v, u]
+    Xj, idx, f, sig = Xj[k], idx[k], f[k], sig[k]
+    nj = N[f]
     ni = vi.sample_normals[idx] @ Tji[:3, :3].T
     cos = ni[:, 0] * nj[:, 0] + ni[:, 1] * nj[:, 1] + ni[:, 2] * nj[:, 2]  # np.sum(ni * nj, axis=1)
     ok = cos > np.cos(np.radians(NORMAL_DEG))
     if ok.sum() < 3:
         return None
-    Q = vj.points[v[ok], u[ok]]
+    Q = vj.points.reshape(-1, 3)[f[ok]]
     Rw, tw = Wj[:3, :3], Wj[:3, 3]
     return Xj[ok] @ Rw.T + tw, Q @ Rw.T + tw, nj[ok] @ Rw.T, sig[ok]
 

@@ -80,6 +80,7 @@ def command(
         f"GMAC {rec} {_frames_text(indices)}: backbone {r.backbone}, {len(calib.T_cam_world)}/{len(rig)} cameras "
         f"placed, {r.timings_s['total']:.1f} s"
     )
+    say(_stage_times(r))
     _print_scale(r)
     print_verdicts(r.camera_verdicts)
     if r.reference is not None:
@@ -135,6 +136,21 @@ def _missing_positions(recording) -> dict[int, set[str]]:
             if number in position:
                 out.setdefault(position[number], set()).add(cam)
     return out
+
+
+def _stage_times(r) -> str:
+    """One line: seconds per stage (the report's timings_s without its sums), the rgbd backbone's
+    own split (per-camera preparation, pairs, geometry-only route) in brackets."""
+    info = r.backbone_info or {}
+    split = info.get("sources", {}).get("rgbd", info).get("time_s") or {}
+    inner = ", ".join(f"{k} {v:.1f}" for k, v in split.items() if k != "total")
+    parts = []
+    for name, sec in r.timings_s.items():
+        if name in ("total", "auto"):  # sums of the others
+            continue
+        more = f" ({inner})" if name in ("backbone", "rgbd_backbone") and inner else ""
+        parts.append(f"{name.replace('_', ' ')} {sec:.1f} s{more}")
+    return "time per stage: " + ", ".join(parts)
 
 
 def _check_views(views) -> None:

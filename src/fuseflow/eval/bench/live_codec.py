@@ -20,7 +20,7 @@ import numpy as np
 from fuseflow.live.codec import CompactParams, encode_compact
 from fuseflow.live.wire import decode_frame, encode_frame
 
-__all__ = ["clouds", "measure", "browser_decode_ms"]
+__all__ = ["clouds", "measure", "browser_decode_ms", "run_codec_bench"]
 
 
 def clouds(data_dir: Path, work: Path) -> dict[str, Any]:
@@ -138,3 +138,29 @@ def browser_decode_ms(frames: dict[str, bytes], seconds: float = 20.0) -> dict[s
         finally:
             driver.quit()
     return out
+
+
+def run_codec_bench(data_dir: Path, grids: list[float], browser: bool = True, log=print) -> dict[str, Any]:
+    """Every cloud of ``clouds`` as raw and compact (each grid in ``grids``, plus a finer and a
+    coarser colour at the default grid), and the browser's decoding time of the hocap8-200k frame
+    (raw and the default compact) when ``browser``: {"rows": [...], "browser_decode_ms": {...}}."""
+    import json
+
+    params = [CompactParams(step_mm=float(g)) for g in grids]
+    params += [CompactParams(luma_step=2, chroma_step=4, chroma_block=2),
+               CompactParams(luma_step=8, chroma_step=16, chroma_block=8)]  # fmt: skip
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="live_codec_") as tmp:
+        found = clouds(data_dir, Path(tmp))
+        for name, cloud in found.items():
+            for r in measure(name, cloud, params):
+                log(json.dumps(r))
+                rows.append(r)
+    decode: dict[str, float | None] = {}
+    if browser:
+        c = found["hocap8-200k"]
+        xyz, rgb = c.xyz.numpy(), c.rgb.numpy()
+        decode = browser_decode_ms({"raw": encode_frame(c, 0, 0.0, 0.0, "raw"),
+                                    "compact": encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams())})  # fmt: skip
+        log(f"headless Chromium decode ms (hocap8-200k): {decode}")
+    return {"rows": rows, "browser_decode_ms": decode}
