@@ -13,110 +13,20 @@ place cameras that no image or floor match places?
 Rows: JSON lines appended to ``--out``; a markdown table is printed per data set.
 
     python benchmarks/calib_geometric.py primitives sim hocap --out benchmarks/results/calib_geometric.jsonl
+
+The benchmark is fuseflow.eval.bench.calib_geometric; this program appends its rows to --out and
+prints its tables.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
 from pathlib import Path
 
-import numpy as np
-import torch
+from fuseflow.eval.bench import calib_geometric as bench
 
-from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
-from fuseflow.eval.metrics import pose_errors
-from fuseflow.synth.primitives import primitive_views
-from fuseflow.types import Frame, Rig, invert_rigid
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-
-def _geo_edges(res) -> list:
-    return [
-        [p["cameras"], p["edge"]["starts"], p["edge"].get("pose")]
-        for p in res.info["pairs"]
-        if p.get("stage") == "geometric" and p["edge"]
-    ]
-
-
-def primitives(angles, seeds, out):
-    print("| angle deg | seeds | placed | rot deg (median / max) | trans mm (median / max) | s (median) |")
-    print("|---|---|---|---|---|---|")
-    for ang in angles:
-        rows = []
-        for seed in seeds:
-            frame, rig, T = primitive_views((0.0, ang), (seed, seed))
-            t0 = time.perf_counter()
-            res = rgbd_backbone([frame], rig, RGBDConfig())
-            dt = time.perf_counter() - t0
-            row = {"data": "primitives", "angle": ang, "seed": seed, "placed": int(res.registered.sum()),
-                   "time_s": dt, "geometric_edges": _geo_edges(res)}  # fmt: skip
-            if res.registered.all():
-                r, t = relative_error(res.T_cam_world[1] @ invert_rigid(res.T_cam_world[0]), T[1] @ invert_rigid(T[0]))
-                row.update(rot_deg=r, trans_mm=t * 1000)
-            rows.append(row)
-            print(json.dumps(row), file=out, flush=True)
-        ok = [r for r in rows if r["placed"] == 2]
-        rot = [r["rot_deg"] for r in ok]
-        tr = [r["trans_mm"] for r in ok]
-        fmt = (lambda v: f"{np.median(v):.2f} / {np.max(v):.2f}") if ok else (lambda v: "-")
-        print(f"| {ang:g} | {len(rows)} | {len(ok)}/{len(rows)} | {fmt(rot)} | {fmt(tr)} | "
-              f"{np.median([r['time_s'] for r in rows]):.1f} |", flush=True)  # fmt: skip
-
-
-def sim(cameras, seeds, out):
-    from fuseflow.synth.config import SimConfig
-    from fuseflow.synth.simulator import Simulator
-
-    print("| scene | N | seed | placed | rot deg / trans mm (placed) | geometric edges | s |")
-    print("|---|---|---|---|---|---|---|")
-    for scene in ("room", "studio"):
-        for n in cameras:
-            for seed in seeds:
-                s = Simulator(SimConfig(cameras=n, frames=1, scene=scene, resolution=(320, 240), seed=seed))
-                f = s.render(0).frame
-                T = np.stack([c.T_cam_world for c in s.rig])
-                rig = Rig(tuple(c.with_extrinsics(None) for c in s.rig))
-                flat = Frame(f.index, f.camera_ids, torch.full_like(f.color, 128), f.depth, f.present)
-                t0 = time.perf_counter()
-                res = rgbd_backbone([flat], rig, RGBDConfig())
-                dt = time.perf_counter() - t0
-                reg = res.registered
-                e = pose_errors(res.T_cam_world[reg], T[reg]) if reg.sum() > 1 else None
-                row = {"data": "sim-textureless", "scene": scene, "n": n, "seed": seed, "placed": int(reg.sum()),
-                       "rot_deg": e.rotation_deg if e else None, "trans_mm": e.translation_mm if e else None,
-                       "time_s": dt, "geometric_edges": _geo_edges(res)}  # fmt: skip
-                print(json.dumps(row), file=out, flush=True)
-                err = f"{e.rotation_deg:.2f} / {e.translation_mm:.1f}" if e else "-"
-                print(f"| {scene} | {n} | {seed} | {reg.sum()}/{n} | {err} | {len(row['geometric_edges'])} | {dt:.1f} |",
-                      flush=True)  # fmt: skip
-
-
-def hocap(out):
-    from calib_wide import SHARED, load_hocap
-
-    frame, rig, T_ref = load_hocap(SHARED / "hocap-8rs")
-    t0 = time.perf_counter()
-    res = rgbd_backbone([frame], rig, RGBDConfig())
-    dt = time.perf_counter() - t0
-    ids = list(rig.ids)
-    T = res.T_cam_world
-    per = {}
-    for k in range(len(ids)):
-        if not res.registered[k]:
-            continue
-        e = [relative_error(T[j] @ invert_rigid(T[k]), T_ref[j] @ invert_rigid(T_ref[k]))
-             for j in range(len(ids)) if j != k and res.registered[j]]  # fmt: skip
-        per[ids[k]] = [float(np.mean([x[0] for x in e])), float(np.mean([x[1] for x in e]) * 1000)]
-    row = {"data": "hocap-8rs", "placed": int(res.registered.sum()), "time_s": dt,
-           "time_geometric_s": res.info["time_s"]["geometric"], "per_camera_deg_mm": per,
-           "geometric_edges": _geo_edges(res)}  # fmt: skip
-    print(json.dumps(row), file=out, flush=True)
-    print(f"hocap-8rs: {row['placed']}/8 placed in {dt:.1f} s (geometry route {row['time_geometric_s']:.1f} s); "
-          f"per camera vs reference (deg, mm): {json.dumps({c: [round(v, 2) for v in x] for c, x in per.items()})}")  # fmt: skip
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def main() -> None:
@@ -128,13 +38,20 @@ def main() -> None:
     ap.add_argument("--cameras", type=int, nargs="+", default=[3, 4])
     a = ap.parse_args()
     with a.out.open("a") as out:
+
+        def emit(row: dict) -> None:
+            print(json.dumps(row), file=out, flush=True)
+
+        def log(line: str) -> None:
+            print(line, flush=True)
+
         for d in a.data:
             if d == "primitives":
-                primitives(a.angles, a.seeds, out)
+                bench.primitives(a.angles, a.seeds, emit, log)
             elif d == "sim":
-                sim(a.cameras, a.seeds[:3], out)
+                bench.sim(a.cameras, a.seeds[:3], emit, log)
             else:
-                hocap(out)
+                bench.hocap(SHARED, emit, log)
 
 
 if __name__ == "__main__":

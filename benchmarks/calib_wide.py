@@ -47,8 +47,9 @@ import torch
 import fuseflow
 from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
 from fuseflow.calib.matchers import MATCHERS
+from fuseflow.eval.bench.calib_refine import load_hocap  # noqa: F401 (also imported from here by sibling scripts)
 from fuseflow.eval.metrics import pose_errors
-from fuseflow.types import Camera, Frame, Rig, invert_rigid
+from fuseflow.types import Frame, Rig, invert_rigid
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 if not SHARED.exists():
@@ -200,35 +201,6 @@ def bench_sim(args) -> None:
                     run_one(
                         all_frames[:nf], bare, T_ref, meta, args.out, RGBDConfig(matcher=args.matcher), args.backbone
                     )
-
-
-def load_hocap(root: Path) -> tuple[Frame, Rig, np.ndarray]:
-    """One frame of hocap-8rs: colour intrinsics (depth is registered to colour), depth in mm,
-    reference camera-from-master extrinsics (the file stores camera -> master)."""
-    import cv2
-
-    from fuseflow.io.images import read_depth
-
-    ext = json.loads((root / "calibration" / "extrinsics" / "extrinsics_20231014.json").read_text())
-    serials = sorted(p.name for p in (root / "frames").iterdir() if p.is_dir())
-    cams, colors, depths, T_ref = [], [], [], []
-    for s in serials:
-        intr = json.loads((root / "calibration" / "intrinsics" / f"{s}_640x480.json").read_text())["color"]
-        K = [[intr["fx"], 0, intr["ppx"]], [0, intr["fy"], intr["ppy"]], [0, 0, 1]]
-        cams.append(Camera(s, intr["width"], intr["height"], K, depth_scale=1000.0, depth_range=(0.2, 1.6)))
-        bgr = cv2.imread(str(root / "frames" / s / "color_000000.jpg"), cv2.IMREAD_COLOR)
-        colors.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
-        depths.append(read_depth(root / "frames" / s / "depth_000000.png", 1000.0))
-        T_c2m = np.vstack([np.array(ext["extrinsics"][s], dtype=np.float64).reshape(3, 4), [0, 0, 0, 1]])
-        T_ref.append(invert_rigid(T_c2m))
-    frame = Frame(
-        index=0,
-        camera_ids=tuple(serials),
-        color=torch.from_numpy(np.stack(colors)),
-        depth=torch.from_numpy(np.stack(depths).astype(np.float32)),
-        present=torch.ones(len(serials), dtype=torch.bool),
-    )
-    return frame, Rig(tuple(cams)), np.stack(T_ref)
 
 
 def bench_hocap(args) -> None:

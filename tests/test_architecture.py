@@ -144,13 +144,9 @@ MAX_BENCHMARK_LINES = 120
 # benchmarks/ keeps thin wrappers over fuseflow.eval.bench; these scripts still hold their logic
 # (issue 30 item 2). Each may not grow past its size today; the list only shrinks.
 PENDING_LONG_BENCHMARKS = {
-    "sim_matches.py": 126,
-    "calib_joint_refine.py": 130,
-    "calib_geometric.py": 141,
-    "ray_scaling.py": 147,
     "calib_reference_check.py": 201,
     "fuse_quality.py": 280,
-    "calib_wide.py": 371,
+    "calib_wide.py": 343,
 }
 
 
@@ -176,9 +172,7 @@ def test_compiled_kernels_do_not_load_torch():
 # top-level module (errors, types) exports (its __all__), or fuseflow.eval.bench (where a benchmark's logic lives). Scripts that
 # still reach into modules (issue 30 item 2); the list only shrinks.
 PENDING_INTERNAL_BENCHMARKS = {
-    "calib_geometric.py",
     "calib_hocap_diagnose.py",
-    "calib_joint_refine.py",
     "calib_match_threshold.py",
     "calib_reference_check.py",
     "calib_scale_source.py",
@@ -190,7 +184,6 @@ PENDING_INTERNAL_BENCHMARKS = {
     "outputs_crop.py",
     "outputs_formats.py",
     "outputs_mesh.py",
-    "ray_scaling.py",
     "run_throughput.py",
     "sim_speed.py",
     "sync_check.py",

@@ -159,6 +159,8 @@ class Camera:
         depth_range: (min, max) metres of trustworthy depth; values outside are treated as missing.
         T_cam_world: (4, 4) float64 camera-from-world rigid transform in metres, or None when
             the camera is not calibrated.
+        sensor: name of the camera's depth-noise preset (``fuseflow.geometry.noise.SENSOR_NOISE``,
+            e.g. "realsense_d4xx"), or None: the algorithms' global choice.
     """
 
     id: str
@@ -168,6 +170,7 @@ class Camera:
     depth_scale: float = 1000.0
     depth_range: tuple[float, float] = (0.1, 10.0)
     T_cam_world: np.ndarray | None = None
+    sensor: str | None = None
 
     def __post_init__(self) -> None:
         where = f"camera {self.id!r}"
@@ -197,6 +200,8 @@ class Camera:
         object.__setattr__(self, "depth_range", (lo, hi))
         if self.T_cam_world is not None:
             object.__setattr__(self, "T_cam_world", check_rigid(self.T_cam_world, f"{where}: T_cam_world"))
+        if self.sensor is not None and (not isinstance(self.sensor, str) or not self.sensor):
+            raise ValidationError(f"{where}: sensor must be a sensor preset name or None, got {self.sensor!r}")
 
     @property
     def is_calibrated(self) -> bool:
@@ -224,6 +229,7 @@ class Camera:
             and np.array_equal(self.K, other.K)
             and self.depth_scale == other.depth_scale
             and self.depth_range == other.depth_range
+            and self.sensor == other.sensor
             and same_T
         )
 

@@ -14,8 +14,8 @@ own depth at (u, v) back-projected to the world and n_j its surface normal there
 kept only when the depths agree within a gate (metres, shrinking over the iterations, never
 below 3 sigma(z)), the normals within ``NORMAL_DEG`` and the point is not occluded or in front
 of j's surface; each residual is weighted by 1 / (sigma_i(z)^2 + sigma_j(z)^2) with the axial
-noise of a structured-light sensor (:data:`SIGMA_A`, :data:`SIGMA_B`: Nguyen et al. 2012, used
-as a relative weight only) and by a Huber IRLS weight. The unknowns are a small rigid update of
+noise of each camera's sensor (``Camera.sensor`` from rig.json; a structured-light sensor when
+it names none: :data:`SIGMA_A`, :data:`SIGMA_B`, Nguyen et al. 2012; used as a relative weight only) and by a Huber IRLS weight. The unknowns are a small rigid update of
 each camera's world-from-camera pose (6 per camera, the anchor fixed), solved with all pairs in
 one normal-equation system. A weak prior holds every camera near its start (``PRIOR_DEG``,
 ``PRIOR_M``), which only matters for directions the depth does not constrain (a camera seeing
@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fuseflow.geometry.noise import SENSOR_NOISE, sigma
+from fuseflow.geometry.noise import SENSOR_NOISE, camera_noise, sigma
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = ["JointRefineResult", "joint_refine", "SIGMA_A", "SIGMA_B"]
@@ -137,6 +137,7 @@ class _View:
     points: np.ndarray
     samples: np.ndarray  # (S, 3) camera-frame points of the sample
     sample_normals: np.ndarray  # (S, 3)
+    noise: tuple[float, float, float] = (SIGMA_A, SIGMA_B, SIGMA_Z0)  # the camera's sigma(z) (a, b, z0)
 
 
 def sigma_z(z: np.ndarray) -> np.ndarray:
@@ -205,7 +206,9 @@ def _near_crease(N: np.ndarray, h: int) -> np.ndarray:
     return out
 
 
-def _view(depth: np.ndarray, K: np.ndarray, drange: Sequence[float], samples: int) -> _View:
+def _view(
+    depth: np.ndarray, K: np.ndarray, drange: Sequence[float], samples: int, noise=(SIGMA_A, SIGMA_B, SIGMA_Z0)
+) -> _View:
     valid = (depth > drange[0]) & (depth < drange[1]) & np.isfinite(depth)
     P = _point_map(np.where(valid, depth, 0.0), K)
     N = _normals(_smooth(P, valid, SMOOTH), valid, NORMAL_STEP)
@@ -216,7 +219,7 @@ def _view(depth: np.ndarray, K: np.ndarray, drange: Sequence[float], samples: in
     grid = np.zeros_like(good)
     grid[::stride, ::stride] = True
     v, u = np.nonzero(good & grid)
-    return _View(K, np.where(valid, depth, 0.0), N, P, P[v, u], N[v, u])
+    return _View(K, np.where(valid, depth, 0.0), N, P, P[v, u], N[v, u], tuple(noise))
 
 
 def _associate(vi: _View, vj: _View, Wi: np.ndarray, Wj: np.ndarray, gate: float):
@@ -241,7 +244,7 @@ def _associate(vi: _View, vj: _View, Wi: np.ndarray, Wj: np.ndarray, gate: float
     D = vj.depth.reshape(-1)[f]
     k = np.flatnonzero((D > 0) & np.isfinite(N[f, 0]))
     Xj, idx, f, D = Xj[k], idx[k], f[k], D[k]
-    sig = np.sqrt(sigma_z(Xj[:, 2]) ** 2 + sigma_z(np.maximum(D, 1e-3)) ** 2)
+    sig = np.sqrt(sigma(Xj[:, 2], *vi.noise) ** 2 + sigma(np.maximum(D, 1e-3), *vj.noise) ** 2)
     k = np.flatnonzero(np.abs(Xj[:, 2] - D) < np.maximum(gate, 3 * sig))
     Xj, idx, f, sig = Xj[k], idx[k], f[k], sig[k]
     nj = N[f]
@@ -462,7 +465,8 @@ def _frame_views(frames: Sequence[Frame], rig: Rig, ids: list[str], max_frames: 
         for c in ids:
             k = f.camera_ids.index(c)
             d = depth[k] if present[k] else np.zeros_like(depth[k])
-            row.append(_view(d, rig[c].K, rig[c].depth_range, max(1, samples // len(picks))))
+            noise = camera_noise(rig[c].sensor, (SIGMA_A, SIGMA_B, SIGMA_Z0))  # rig.json's sensor, else Kinect v1
+            row.append(_view(d, rig[c].K, rig[c].depth_range, max(1, samples // len(picks)), noise))
         views.append(row)
     return views
 

@@ -347,6 +347,7 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
         raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
     backend = resolve_backend(cfg, frame.device) if isinstance(cfg, FuseConfig) else "torch"
     p = _prepare(frame, rig, cfg, backend)
+    cfg, sensor_note = _sensor_noise(cfg, rig, p.ids)
     grid = ""
     if cfg.auto_grid and cfg.target_points is None:
         from fuseflow.fuse.config import auto_config
@@ -361,7 +362,23 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
         torch.cuda.synchronize(cloud.device)
     ms = (time.perf_counter() - t0) * 1000.0
     report = replace(_report(p, frame.index, backend, len(cloud), valid, cand, oor, ms, stride), grid=grid)
+    if sensor_note:
+        report = replace(report, warnings=(*report.warnings, sensor_note))
     return FuseResult(cloud, report)
+
+
+def _sensor_noise(cfg: FuseConfig, rig: Rig, ids: tuple[str, ...]) -> tuple[FuseConfig, str]:
+    """``cfg`` with noise_sigma from the frame's cameras' sensors (Camera.sensor, rig.json; a
+    camera naming none keeps cfg.noise_sigma), and a warning line. The kernels take one sigma(z)
+    per frame: cameras naming different sensors keep cfg.noise_sigma, and the line says so."""
+    from fuseflow.geometry.noise import camera_noise
+
+    models = {tuple(camera_noise(rig[c].sensor, cfg.noise_sigma)) for c in ids}
+    if len(models) == 1:
+        (m,) = models
+        return (cfg if m == tuple(cfg.noise_sigma) else replace(cfg, noise_sigma=m)), ""
+    names = sorted({str(rig[c].sensor) for c in ids})
+    return cfg, f"cameras name different depth sensors ({', '.join(names)}): sigma(z) is noise_sigma {cfg.noise_sigma}"
 
 
 def fuse(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FusedCloud:

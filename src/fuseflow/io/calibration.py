@@ -71,9 +71,13 @@ def _jsonable(obj: Any) -> Any:
 
 
 def rig_fingerprint(rig: Rig) -> dict[str, Any]:
-    """Camera id -> {"width", "height", "K"} (pixels) of every camera of ``rig``: what calib.json
-    records of the rig it was made for."""
-    return {c.id: {"width": c.width, "height": c.height, "K": c.K.tolist()} for c in rig.cameras}
+    """Camera id -> {"width", "height", "K"} (pixels) and, when the camera names one, "sensor"
+    (its noise preset) of every camera of ``rig``: what calib.json records of the rig it was
+    made for."""
+    return {
+        c.id: {"width": c.width, "height": c.height, "K": c.K.tolist(), **({"sensor": c.sensor} if c.sensor else {})}
+        for c in rig.cameras
+    }
 
 
 def calibration_to_json(calib: Calibration, rig: Rig | None = None) -> dict[str, Any]:

@@ -23,9 +23,24 @@ import numpy as np
 from fuseflow.errors import RecordingError, ValidationError
 from fuseflow.types import Rig
 
-__all__ = ["ConvertSummary", "convert", "open_camera_file", "parse_frame_range", "FRAMES_HELP", "CAMERA_FILE_SUFFIXES"]
+__all__ = [
+    "ConvertSummary",
+    "convert",
+    "open_camera_file",
+    "parse_frame_range",
+    "FRAMES_HELP",
+    "CAMERA_FILES",
+    "CAMERA_FILE_SUFFIXES",
+]
 
-CAMERA_FILE_SUFFIXES = (".bag", ".mkv")
+#: The device recording formats, one row each: file suffix -> (reader module, its CameraStream
+#: class, ConvertSummary.kind). A new format is its reader module and one row here.
+CAMERA_FILES: dict[str, tuple[str, str, str]] = {
+    ".bag": ("fuseflow.io.rosbag", "RealSenseBag", "realsense"),
+    ".mkv": ("fuseflow.io.azure_kinect", "AzureKinectMkv", "azure-kinect"),
+}
+CAMERA_FILE_SUFFIXES = tuple(CAMERA_FILES)
+_EXPECTED = " or ".join(CAMERA_FILE_SUFFIXES)
 
 
 @dataclass(frozen=True)
@@ -74,18 +89,15 @@ def parse_frame_range(spec: str | None, n: int) -> range:
 
 
 def open_camera_file(path: str | Path):
-    """A ``CameraStream`` for one .bag (RealSense) or .mkv (Azure Kinect) file."""
+    """A ``CameraStream`` for one device recording (``CAMERA_FILES``: .bag RealSense, .mkv Azure
+    Kinect); the reader module is imported only here."""
+    import importlib
+
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".bag":
-        from fuseflow.io.rosbag import RealSenseBag
-
-        return RealSenseBag(path)
-    if suffix == ".mkv":
-        from fuseflow.io.azure_kinect import AzureKinectMkv
-
-        return AzureKinectMkv(path)
-    raise ValidationError(f"{path}: not a camera recording (expected .bag or .mkv)")
+    row = CAMERA_FILES.get(path.suffix.lower())
+    if row is None:
+        raise ValidationError(f"{path}: not a camera recording (expected {_EXPECTED})")
+    return getattr(importlib.import_module(row[0]), row[1])(path)
 
 
 def _camera_files(sources: Sequence[Path]) -> list[Path] | None:
@@ -160,8 +172,8 @@ def convert(
         from fuseflow.io.multicam import convert_streams
 
         streams = [open_camera_file(f) for f in files]
-        kinds = {f.suffix.lower() for f in files}
-        kind = "realsense" if kinds == {".bag"} else "azure-kinect" if kinds == {".mkv"} else "mixed"
+        kinds = {CAMERA_FILES[f.suffix.lower()][2] for f in files}
+        kind = kinds.pop() if len(kinds) == 1 else "mixed"
         res = convert_streams(streams, out, tolerance_s, progress)
         p = res.pairing
         spread_ms = float(p.spread.max() * 1000) if len(p.spread) else 0.0
@@ -181,7 +193,7 @@ def convert(
         return ConvertSummary(kind, out, res.rig, len(p.index), msg, time.perf_counter() - t0, details)
     if len(srcs) != 1:
         raise ValidationError(
-            f"convert: several inputs must all be .bag or .mkv files (got {', '.join(map(str, srcs))})"
+            f"convert: several inputs must all be {_EXPECTED} files (got {', '.join(map(str, srcs))})"
         )
     src = srcs[0]
     from fuseflow.io.hocap import convert_hocap, is_hocap

@@ -158,8 +158,14 @@ def _stamp_package(package_dir: Path, depends: tuple[str | Path, ...]) -> None:
     from numba.core import caching
 
     _STAMPED[str(package_dir)] = tuple(str(Path(d).resolve()) for d in depends)
-    if _PackageStampLocator not in caching.CacheImpl._locator_classes:
-        caching.CacheImpl._locator_classes.insert(0, _PackageStampLocator)
+    locators = getattr(getattr(caching, "CacheImpl", None), "_locator_classes", None)
+    if locators is None:  # a numba without this hook: kernels are stamped by their own file only
+        warnings.warn("numba's cache locators are not reachable: an edit to one kernel file may leave "
+                      "a kernel that inlines it stale in the cache (delete __pycache__)", NumbaCacheWarning,
+                      stacklevel=3)  # fmt: skip
+        return
+    if _PackageStampLocator not in locators:
+        locators.insert(0, _PackageStampLocator)
 
 
 def use_usable_cache(module_file: str | Path, package: bool = False, depends: tuple[str | Path, ...] = ()) -> None:

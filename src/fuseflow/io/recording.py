@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fuseflow.errors import FormatError, FuseFlowError, RecordingError, ValidationError
+from fuseflow.geometry.noise import sensor_noise
 from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.images import clean_depth, read_color, read_depth, write_color, write_depth
 from fuseflow.types import Camera, Frame, Rig, to_numpy
@@ -63,6 +64,7 @@ def rig_to_json(rig: Rig) -> dict[str, Any]:
                 "depth_scale": c.depth_scale,
                 "depth_range": list(c.depth_range),
                 "T_cam_world": None if c.T_cam_world is None else c.T_cam_world.tolist(),
+                **({} if c.sensor is None else {"sensor": c.sensor}),
             }
             for c in rig.cameras
         ],
@@ -104,6 +106,14 @@ def rig_from_json(doc: Any, source: str = "rig.json") -> Rig:
             if key not in c:
                 raise FormatError(f"{where}: missing field '{key}'")
         T = c.get("T_cam_world")
+        sensor = c.get("sensor")
+        if sensor is not None:
+            if not isinstance(sensor, str):
+                raise FormatError(f"{where}: field 'sensor' must be a sensor preset name, got {sensor!r}")
+            try:
+                sensor_noise(sensor)
+            except ValidationError as exc:
+                raise FormatError(f"{where}: field 'sensor': {exc}") from None
         try:
             out.append(
                 Camera(
@@ -114,6 +124,7 @@ def rig_from_json(doc: Any, source: str = "rig.json") -> Rig:
                     depth_scale=c.get("depth_scale", 1000.0),
                     depth_range=tuple(c.get("depth_range", (0.1, 10.0))),
                     T_cam_world=None if T is None else parse_matrix(T, 4, f"{where}: field 'T_cam_world'"),
+                    sensor=sensor,
                 )
             )
         except ValidationError as exc:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import OutputError
+from fuseflow.io.convert import CAMERA_FILE_SUFFIXES
 from fuseflow.pipeline.records import FrameRecord
 
 __all__ = [
@@ -163,8 +164,7 @@ _DATA_FILES = (
     ".json",
     ".txt",
     ".log",
-    ".bag",
-    ".mkv",
+    *CAMERA_FILE_SUFFIXES,
 )
 
 

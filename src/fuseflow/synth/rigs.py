@@ -7,6 +7,7 @@ All cameras look at the scene's target point; extrinsics are camera-from-world w
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ import numpy as np
 from fuseflow.errors import ValidationError
 from fuseflow.types import Camera, Rig
 
-__all__ = ["look_at", "intrinsics", "make_rig", "camera_centres"]
+__all__ = ["look_at", "intrinsics", "make_rig", "camera_centres", "with_sensor", "SIM_SENSOR"]
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -119,6 +120,19 @@ def make_rig(
             )  # fmt: skip
         )
     return Rig(tuple(cams))
+
+
+#: SimConfig.noise -> the fuseflow.geometry.noise preset its rig.json names per camera
+#: ("none": no sensor, the global choice).
+SIM_SENSOR: dict[str, str | None] = {"kinect": "kinect_v1", "realsense": "realsense_d4xx", "kinect2": "kinect_v2",
+                                     "none": None}  # fmt: skip
+
+
+def with_sensor(rig: Rig, sensor: str | None) -> Rig:
+    """``rig`` with ``sensor`` (a noise preset name) on every camera that names none."""
+    if sensor is None:
+        return rig
+    return Rig(tuple(c if c.sensor is not None else replace(c, sensor=sensor) for c in rig.cameras))
 
 
 def camera_centres(rig: Rig) -> np.ndarray:

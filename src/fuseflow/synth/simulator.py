@@ -19,7 +19,7 @@ import torch
 from fuseflow.errors import ValidationError
 from fuseflow.synth.config import SimConfig
 from fuseflow.synth.noise import apply_depth_noise
-from fuseflow.synth.rigs import camera_centres, make_rig
+from fuseflow.synth.rigs import SIM_SENSOR, camera_centres, make_rig, with_sensor
 from fuseflow.synth.scene import Scene, build_scene
 from fuseflow.synth.studios import STUDIO_SCENES, build_studio, plain_textures
 from fuseflow.synth.texture import make_textures, surface_albedo_ref
@@ -75,10 +75,10 @@ class Simulator:
         else:
             self.scene = build_scene(cfg.scene, cfg.seed, cfg.dynamic, len(self.textures))
         w, h = cfg.resolution
-        self.rig: Rig = make_rig(
+        self.rig: Rig = with_sensor(make_rig(
             cfg.rig, cfg.cameras, w, h, cfg.hfov_deg, cfg.depth_scale, cfg.sensor.depth_range, self.scene,
             np.random.default_rng([cfg.seed, 0x816]),
-        )  # fmt: skip
+        ), SIM_SENSOR[cfg.noise])  # fmt: skip
         self._static_cache: tuple | None = None
         self._surface_local: list[tuple[np.ndarray, np.ndarray]] | None = None
 
