@@ -144,3 +144,4 @@ def test_default_frame_is_the_first_with_every_camera(ring_rec, tmp_path):
     text = " ".join(res.output.split())
     assert "cameras ['cam02'] have no view in the frames to calibrate from" in text, res.output
     assert "(--frame 1)" in text
+    assert "not 'good' from one frame; --frames 0:3 pools 3 frames" in text  # cam02 is left unplaced

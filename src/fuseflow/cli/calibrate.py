@@ -87,6 +87,13 @@ def command(
         print_reference(r.reference)
     for w in r.warnings:
         warn(w)
+    unsure = [c for c, v in (r.camera_verdicts or {}).items() if v.get("verdict") != "good"]
+    if unsure and len(indices) == 1 and len(recording) >= 3:
+        k = min(len(recording), 10)
+        say(
+            f"hint: {len(unsure)} camera(s) not 'good' from one frame; --frames 0:{k} pools {k} frames, and a person "
+            "walking through the rig then places cameras by their head track (docs/gmac-trust.md, moving-subject route)"
+        )
     say(
         f"wrote {out}"
         + (" (it replaced the file that was there)" if replaced else "")
