@@ -80,6 +80,7 @@ def bench_calib(
     no_peer: bool = typer.Option(False, "--no-peer", help="Skip the Open3D multiway registration peer."),
     json_out: Path = typer.Option(None, "--json", help="Also write every per-seed row as JSON."),
     data_dir: Path = _data_dir_option(),
+    seed_start: int = typer.Option(0, "--seed-start", min=0, help="First seed of symstudio / far3 (held-out seeds)."),
 ) -> None:
     """GMAC rotation / translation error and time per calibration, every variant and peer."""
     from fuseflow.eval.bench.calib_accuracy import run_calib_accuracy
@@ -93,7 +94,7 @@ def bench_calib(
     names = [d for d in names if d not in STUDIO_DATA]
     if studio:  # per camera: placed / flagged / error, silently wrong (calib_studio)
         run_studio_bench(studio, seeds, json_path=json_out if not names else None, log=_echo,
-                         progress=lambda line: typer.echo(line, err=True))  # fmt: skip
+                         progress=lambda line: typer.echo(line, err=True), seed_start=seed_start)  # fmt: skip
         if not names:
             return
     icl = icl_path(data_dir)

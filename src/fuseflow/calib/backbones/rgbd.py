@@ -48,6 +48,8 @@ from fuseflow.calib.geometric import kabsch
 from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.calib.symmetry import (
+    SUBJECT_MAX_FREE_SPACE,
+    SUBJECT_MIN_POINTS,
     Hypothesis,
     bridges,
     colocated,
@@ -55,6 +57,7 @@ from fuseflow.calib.symmetry import (
     main_block,
     pose_gap,
     select_consistent,
+    subject_free_space,
 )
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
@@ -821,6 +824,8 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
                     # stacked on the other camera: rejected, not scored (calib.symmetry)
                     rows[-1].update(ok=False, rejected="co-located")
                     ok = False
+                if ok and not _subject_ok(a, b, c["T_ba"], cfg, rows[-1]):
+                    ok = False  # the other camera sees through its subject: an alias (calib.symmetry)
                 # rank by how much depth confirms the pose, not by the share alone: a wrong pose
                 # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
                 # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98); counted at
@@ -839,6 +844,20 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None):
                 entry["hypotheses"] = len(kept)
             info.append(entry)
     return edges, info, hyps
+
+
+def _subject_ok(a: CameraEvidence, b: CameraEvidence, T_ba: np.ndarray, cfg: RGBDConfig, row: dict) -> bool:
+    """The subject check of a verified pose (``symmetry.subject_free_space``, at tau): False
+    (``row`` marked rejected) when the other camera sees through more than SUBJECT_MAX_FREE_SPACE
+    of the subject points it sees, with at least SUBJECT_MIN_POINTS of them."""
+    share, seen = subject_free_space(a, b, T_ba, cfg.tau)
+    if seen < SUBJECT_MIN_POINTS:
+        return True
+    row["subject_free_space"] = round(share, 4)
+    if share > SUBJECT_MAX_FREE_SPACE:
+        row.update(ok=False, rejected="subject seen through")
+        return False
+    return True
 
 
 def _median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
@@ -1090,6 +1109,7 @@ def _geometric_pair(
         ok = chk.passes(cfg) and plausible(c.T_ba, chk, cfg, _median_depth(a, b))
         rows.append({"route": "geometric", "inliers": int(len(c.X_a)), "starts": c.starts, "ok": ok,
                      **_round(chk), "T_ji": np.round(c.T_ba, 6).tolist()})  # fmt: skip
+        ok = ok and _subject_ok(a, b, c.T_ba, cfg, rows[-1])
         if ok:
             passing.append((c, chk))
     entry = {"pair": [i, j], "stage": "geometric", "candidates": rows, "edge": None}

@@ -72,12 +72,12 @@ def camera_errors(T_est: dict[str, np.ndarray], T_true: dict[str, np.ndarray]) -
 def flagged_cameras(report) -> set[str]:
     """Cameras the report marks: suspect (low depth agreement), placed by rgbd edges that close no
     cycle (no independent check: the report's warning), or a per-camera verdict other than good
-    (``camera_evidence``) when the report has one."""
+    (``report.camera_verdicts``: "check it")."""
     out = set(report.suspect_cameras)
     info = report.backbone_info
     cams = info.get("sources", {}).get("rgbd", info).get("cameras", {})
     out |= {c for c, v in cams.items() if v.get("placed") and not v.get("cycle_checked", True)}
-    for c, ev in (getattr(report, "camera_evidence", None) or {}).items():
+    for c, ev in (report.camera_verdicts or {}).items():
         if ev.get("verdict", "good") != "good":
             out.add(c)
     return out
@@ -97,8 +97,9 @@ def run_studio_seed(name: str, seed: int, config: CalibConfig | None = None) -> 
         calib = calibrate(frames, rig, config or CalibConfig())
         T_est, flagged, error = dict(calib.T_cam_world), flagged_cameras(calib.report), None
         reasons = dict(calib.report.unplaced_reasons)
+        verdicts = {c: v.get("verdict") for c, v in (calib.report.camera_verdicts or {}).items()}
     except CalibrationError as e:
-        T_est, flagged, error, reasons = {}, set(), str(e), {}
+        T_est, flagged, error, reasons, verdicts = {}, set(), str(e), {}, {}
     seconds = time.perf_counter() - t0
     errs = camera_errors(T_est, T_true) if T_est else {}
     # the anchor camera is right by construction: one right camera alone is no evidence
@@ -111,7 +112,7 @@ def run_studio_seed(name: str, seed: int, config: CalibConfig | None = None) -> 
         cams[c] = {"placed": placed, "flagged": c in flagged, "rot_deg": r, "pos_m": t,
                    "silently_wrong": bool(wrong and c not in flagged),
                    "good": bool(placed and not lone and r <= GOOD_DEG and t <= GOOD_M),
-                   "reason": reasons.get(c)}  # fmt: skip
+                   "reason": reasons.get(c), "verdict": verdicts.get(c)}  # fmt: skip
     return {"data": name, "seed": seed, "cameras": len(T_true), "frames": cfg.frames, "rig": cfg.rig,
             "sides": getattr(sim.scene, "symmetry", 1), "seconds": round(seconds, 2), "error": error,
             "per_camera": cams}  # fmt: skip
@@ -132,14 +133,15 @@ def _summary(rows: list[dict]) -> str:
 
 def run_studio_bench(
     names: Sequence[str], seeds: int, json_path: Path | None = None, log: Callable[[str], None] = print,
-    progress: Callable[[str], None] | None = None, config: CalibConfig | None = None,
+    progress: Callable[[str], None] | None = None, config: CalibConfig | None = None, seed_start: int = 0,
 ) -> list[dict]:  # fmt: skip
-    """Every seed of every data set in ``names``; per-seed lines then one summary row per data set
-    through ``log``; all rows to ``json_path`` when given. Returns the rows."""
+    """Seeds ``seed_start`` .. ``seed_start + seeds - 1`` of every data set in ``names``; per-seed
+    lines then one summary row per data set through ``log``; all rows to ``json_path`` when
+    given. Returns the rows."""
     rows_all = []
     for name in names:
         rows = []
-        for seed in range(seeds):
+        for seed in range(seed_start, seed_start + seeds):
             row = run_studio_seed(name, seed, config)
             rows.append(row)
             pc = row["per_camera"].values()
