@@ -177,3 +177,19 @@ def test_the_subject_check_rejects_a_turn_of_the_room_that_the_walls_confirm():
     par = look_at([0.0, 1.0, 1.4], [2.0, 1.0, 1.4])
     assert subject_centre(par @ invert_rigid(side)) is None
     assert subject_free_space(_view(side), _view(par), par @ invert_rigid(side))[1] == 0
+
+
+def test_a_camera_off_the_checked_group_stays_placed_only_when_the_subject_confirms_its_one_link():
+    """In a repeating room a camera outside the cycle-checked group is ambiguous unless its
+    link is its pair's only remaining hypothesis and the subject confirms it."""
+    from fuseflow.calib.backbones.rgbd import _subject_held
+
+    T = [look_at([2.6 * math.cos(a), 2.6 * math.sin(a), 1.4], [0, 0, 1.0]) for a in np.radians([0.0, 72.0])]
+    cams, cfg = [_view(T[0]), _view(T[1])], RGBDConfig()
+    true = Hypothesis(0, 1, _rel(T, 0, 1), 10.0)
+    alias = Hypothesis(0, 1, T[1] @ invert_rigid(_rz(36.0)) @ invert_rigid(T[0]), 12.0)
+    out = {(0, 1): None}
+    assert _subject_held(cams, out, {(0, 1): true}, {(0, 1): [true]}, {0}, cfg) == {1}
+    assert _subject_held(cams, out, {(0, 1): alias}, {(0, 1): [alias]}, {0}, cfg) == set()
+    # two hypotheses left for the pair: nothing tells them apart here, the camera stays ambiguous
+    assert _subject_held(cams, out, {(0, 1): true}, {(0, 1): [alias, true]}, {0}, cfg) == set()

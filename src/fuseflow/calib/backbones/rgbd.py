@@ -930,15 +930,33 @@ def _joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str
     if len(refuted) >= ALIASED_PAIRS:
         block = main_block(sorted(out))
         names = ", ".join(f"{ids[a]}-{ids[b]}" for a, b in refuted[:4]) + (" ..." if len(refuted) > 4 else "")
+        held = _subject_held(cams, out, chosen, hyps, block, cfg)
         ambiguous = {k: (f"ambiguous: the room repeats ({len(refuted)} pairs have verified poses the consistent "
                          f"solution refutes: {names}) and no cycle checks this camera against the main group")
-                     for k in sorted({k for p in out for k in p} - block)}  # fmt: skip
+                     for k in sorted({k for p in out for k in p} - block - held)}  # fmt: skip
     else:
         ambiguous = _ambiguous(cams, out, chosen, hyps, best.poses, ids, cfg)
     out = {p: e for p, e in out.items() if not set(p) & set(ambiguous)}
     sel = {"solutions": len(sols), "compared": [round(v, 4) for v in views], "consistent_pairs": len(chosen),
            "refuted_pairs": len(refuted), "ambiguous": {ids[k]: r for k, r in ambiguous.items()}}  # fmt: skip
     return out, sel, set(ambiguous) | (set(range(len(cams))) - block if len(refuted) >= ALIASED_PAIRS else set())
+
+
+def _subject_held(cams, out: dict, chosen: dict, hyps: dict, block: set[int], cfg: RGBDConfig) -> set[int]:
+    """Cameras outside the cycle-checked ``block`` that are not ambiguous: one of their chosen
+    pair poses is the pair's only remaining hypothesis and the subject confirms it
+    (``symmetry.subject_free_space`` on at least SUBJECT_MIN_POINTS points, within
+    SUBJECT_MAX_FREE_SPACE): the alternatives were refuted. They stay placed, unchecked by a cycle
+    (the verdict says "check it")."""
+    held = set()
+    for p in out:
+        if len(hyps[p]) != 1 or set(p) <= block:
+            continue
+        h = chosen[p]
+        share, seen = subject_free_space(cams[h.i], cams[h.j], h.T_ji, cfg.tau)
+        if seen >= SUBJECT_MIN_POINTS and share <= SUBJECT_MAX_FREE_SPACE:
+            held |= set(p) - block
+    return held
 
 
 def _refutes(hs: list[Hypothesis], poses: dict) -> bool:
