@@ -89,3 +89,17 @@ def test_auto_end_to_end_on_a_sparse_ring():
     assert set(r.placed_by.values()) == {"rgbd"} and r.unplaced_reasons == {}
     e = pose_errors(cal.T_cam_world, {c.id: c.T_cam_world for c in sim.rig})
     assert e.rotation_deg < 0.3 and e.translation_mm < 10.0, e
+
+
+def test_a_cycle_checked_rgbd_camera_keeps_its_pose(scene5):
+    """In a repeating room a second source's alias can agree better with the neighbours than
+    the truth; a camera rgbd's cycles check is not handed to another source."""
+    frame, rig, T = scene5
+    ids = rig.ids
+    ref = {c: T[k] for k, c in enumerate(ids)}
+    ref["c2"] = _rotated(ref["c2"], 40.0)  # rgbd's c2 measurably worse than colmap's
+    other = {c: T[k] for k, c in enumerate(ids)}
+    runs = {"rgbd": _placement(ref, {}), "colmap": _placement(other, {})}
+    poses = align_sources(runs, ids, 0.8)
+    assert choose_sources(runs, poses, ids, frame, rig)["c2"] == "colmap"
+    assert choose_sources(runs, poses, ids, frame, rig, locked={"c2"})["c2"] == "rgbd"

@@ -109,3 +109,87 @@ def test_bridges_and_main_block():
     assert bridges(edges) == {(2, 3), (5, 6)}
     assert main_block(edges) == {0, 1, 2}  # ties: the part with the lowest camera
     assert main_block([(0, 1), (1, 2)]) == set()  # a chain: nothing is checked by a cycle
+
+
+# ----------------------------------------------------------------------------- the subject check
+
+
+def _ray_depth(T: np.ndarray, K: np.ndarray, w: int, h: int) -> np.ndarray:
+    """Depth (h, w) of a round room (radius 3.6 m, 3 m high: any turn about its axis maps it
+    onto itself) with an asymmetric subject near its centre (a 1.7 m post and a low box beside
+    it), ray-cast from camera-from-world ``T``."""
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(-1, 3)
+    D = d @ T[:3, :3]  # world directions, z-component 1 in the camera: t along D is the depth
+    C = invert_rigid(T)[:3, 3]
+    t = np.full(len(D), np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for z0 in (0.0, 3.0):  # floor, ceiling
+            tz = (z0 - C[2]) / D[:, 2]
+            t = np.where(tz > 0, np.minimum(t, tz), t)
+        a = D[:, 0] ** 2 + D[:, 1] ** 2
+        b = 2 * (C[0] * D[:, 0] + C[1] * D[:, 1])
+        tc = (-b + np.sqrt(b * b - 4 * a * (C[0] ** 2 + C[1] ** 2 - 3.6**2))) / (2 * a)
+        t = np.minimum(t, np.where(tc > 0, tc, np.inf))
+        for lo, hi in (((0.0, -0.25, 0.0), (0.3, 0.25, 1.7)), ((0.35, 0.3, 0.0), (0.75, 0.6, 0.5))):
+            t1, t2 = (np.array(lo) - C) / D, (np.array(hi) - C) / D
+            near, far = np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)
+            t = np.where((near <= far) & (near > 0), np.minimum(t, near), t)
+    return t.reshape(h, w).astype(np.float32)
+
+
+def _view(T: np.ndarray):
+    """A sampled view as the rgbd backbone keeps it (``CameraEvidence``'s fields the check reads)."""
+    from types import SimpleNamespace
+
+    K = np.array([[60.0, 0, 40], [0, 60.0, 30], [0, 0, 1]])
+    depth = _ray_depth(T, K, 80, 60)
+    v, u = np.mgrid[0:60, 0:80]
+    z = depth.astype(float).ravel()
+    X = np.stack([(u.ravel() - 40) / 60 * z, (v.ravel() - 30) / 60 * z, z], 1)
+    W = invert_rigid(T)
+    floor = (X @ W[:3, :3].T + W[:3, 3])[:, 2] < 0.05
+    return SimpleNamespace(samples_X=X, samples_floor=floor, K_sub=K, depth_sub=depth,
+                           plane=SimpleNamespace(normal=T[:3, :3] @ [0, 0, 1.0]))  # fmt: skip
+
+
+def test_the_subject_check_rejects_a_turn_of_the_room_that_the_walls_confirm():
+    from fuseflow.calib.symmetry import (
+        SUBJECT_MAX_FREE_SPACE,
+        SUBJECT_MIN_POINTS,
+        subject_centre,
+        subject_free_space,
+    )
+
+    T = [look_at([2.6 * math.cos(a), 2.6 * math.sin(a), 1.4], [0, 0, 1.0]) for a in np.radians([0.0, 72.0])]
+    a, b = _view(T[0]), _view(T[1])
+    true = _rel(T, 0, 1)
+    centre = subject_centre(true)  # where the two optical axes meet: the look-at point
+    np.testing.assert_allclose(invert_rigid(T[0])[:3, :3] @ centre + invert_rigid(T[0])[:3, 3], [0, 0, 1.0], atol=1e-6)
+    share, seen = subject_free_space(a, b, true)
+    assert seen >= SUBJECT_MIN_POINTS and share < 0.02, (share, seen)
+    for deg in (30.0, -45.0, 90.0):  # camera 1 turned about the room's axis: the walls still agree
+        alias = T[1] @ invert_rigid(_rz(deg)) @ invert_rigid(T[0])
+        share, seen = subject_free_space(a, b, alias)
+        assert seen >= SUBJECT_MIN_POINTS and share > SUBJECT_MAX_FREE_SPACE, (deg, share, seen)
+    # parallel optical axes meet nowhere: no subject, no verdict
+    side = look_at([0.0, -1.0, 1.4], [2.0, -1.0, 1.4])
+    par = look_at([0.0, 1.0, 1.4], [2.0, 1.0, 1.4])
+    assert subject_centre(par @ invert_rigid(side)) is None
+    assert subject_free_space(_view(side), _view(par), par @ invert_rigid(side))[1] == 0
+
+
+def test_a_camera_off_the_checked_group_stays_placed_only_when_the_subject_confirms_its_one_link():
+    """In a repeating room a camera outside the cycle-checked group is ambiguous unless its
+    link is its pair's only remaining hypothesis and the subject confirms it."""
+    from fuseflow.calib.backbones.rgbd import _subject_held
+
+    T = [look_at([2.6 * math.cos(a), 2.6 * math.sin(a), 1.4], [0, 0, 1.0]) for a in np.radians([0.0, 72.0])]
+    cams, cfg = [_view(T[0]), _view(T[1])], RGBDConfig()
+    true = Hypothesis(0, 1, _rel(T, 0, 1), 10.0)
+    alias = Hypothesis(0, 1, T[1] @ invert_rigid(_rz(36.0)) @ invert_rigid(T[0]), 12.0)
+    out = {(0, 1): None}
+    assert _subject_held(cams, out, {(0, 1): true}, {(0, 1): [true]}, {0}, cfg) == {1}
+    assert _subject_held(cams, out, {(0, 1): alias}, {(0, 1): [alias]}, {0}, cfg) == set()
+    # two hypotheses left for the pair: nothing tells them apart here, the camera stays ambiguous
+    assert _subject_held(cams, out, {(0, 1): true}, {(0, 1): [alias, true]}, {0}, cfg) == set()

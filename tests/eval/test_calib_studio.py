@@ -28,3 +28,16 @@ def test_camera_errors_ignore_the_world_frame_and_find_the_wrong_camera():
     for c in ("cam0", "cam1", "cam2", "cam4"):
         assert errs[c][0] < 1e-6 and errs[c][1] < 1e-9
     assert abs(errs["cam3"][0] - 72.0) < 1e-6 and errs["cam3"][1] > 1.0
+
+
+def test_a_camera_whose_verdict_is_check_it_counts_as_flagged():
+    from types import SimpleNamespace
+
+    from fuseflow.eval.bench.calib_studio import flagged_cameras
+
+    report = SimpleNamespace(
+        suspect_cameras=["cam0"],
+        backbone_info={"sources": {"rgbd": {"cameras": {"cam1": {"placed": True, "cycle_checked": False}}}}},
+        camera_verdicts={"cam2": {"verdict": "check it"}, "cam3": {"verdict": "good"}, "cam4": {"verdict": "unplaced"}},
+    )
+    assert flagged_cameras(report) == {"cam0", "cam1", "cam2", "cam4"}

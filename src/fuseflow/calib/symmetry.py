@@ -22,7 +22,20 @@ Three steps keep that from becoming a confidently wrong calibration:
 ``bridges`` names the edges that lie on no cycle of a graph: a camera held only by such edges has
 had no independent check, and when its link had another passing hypothesis it is ambiguous.
 
-Pure numpy, no images: the verification that produces the hypotheses stays in the backbone.
+4. ``subject_free_space``: the room repeats, the subject at its centre does not. An alias turns
+   one camera about the room's axis, so what it sees of the subject (a person, a figure, the
+   things beside it) lands where the other camera sees through empty space. The check counts,
+   on the points off the floor within ``SUBJECT_RADIUS_M`` of where the two optical axes meet,
+   the share that the other camera sees through (every pixel of a 3x3 window beyond the point
+   by more than tau: a depth edge alone does not count). Measured at tau 5 % on the simulated
+   symmetric studio (seeds 0-6; 5-10 cameras, 8-12-fold, Kinect v2 noise): true pair poses
+   0.00-0.04, aliases 0.04 (one, 36 deg) and 0.11-0.40 otherwise; hocap-8rs's pair poses at most
+   0.002. Aliases that nearly stack the cameras (axes almost parallel) are left to step 1.
+   Whole-view checks cannot tell them apart (aliases agree 0.92-0.97 overall).
+   ``SUBJECT_MAX_FREE_SPACE`` is the limit.
+
+Pure numpy on the backbone's sampled views; the verification that produces the hypotheses
+stays in the backbone.
 """
 
 from __future__ import annotations
@@ -42,6 +55,11 @@ __all__ = [
     "select_consistent",
     "bridges",
     "pose_gap",
+    "subject_centre",
+    "subject_free_space",
+    "SUBJECT_RADIUS_M",
+    "SUBJECT_MAX_FREE_SPACE",
+    "SUBJECT_MIN_POINTS",
 ]
 
 
@@ -247,3 +265,77 @@ def main_block(edges: list[tuple[int, int]]) -> set[int]:
         parts.append(part)
     best = max(parts, key=lambda p: (len(p), -min(p)), default=set())
     return best if len(best) >= 3 else set()
+
+
+#: The subject: points off the floor within this distance (metres, across the floor normal when
+#: the view has a floor) of where the two cameras' optical axes meet (``subject_free_space``).
+SUBJECT_RADIUS_M = 1.0
+#: Depth tolerance of the subject check, relative (13 cm at 2.6 m).
+SUBJECT_TAU = 0.05
+#: A pair pose whose subject points the other camera sees through at more than this share is
+#: rejected (module docstring, step 4).
+SUBJECT_MAX_FREE_SPACE = 0.08
+#: Fewest subject points with depth in the other view for the check to count.
+SUBJECT_MIN_POINTS = 100
+
+
+def subject_centre(T_ba: np.ndarray) -> np.ndarray | None:
+    """Where the optical axes (+z) of cameras a and b pass closest, in camera a's frame
+    (metres): the midpoint of the shortest segment between them. None when the axes are
+    nearly parallel or meet behind either camera."""
+    T_ab = invert_rigid(T_ba)
+    c, d = T_ab[:3, 3], T_ab[:3, 2]  # camera b's centre and axis in a's frame
+    b = float(d[2])
+    den = 1.0 - b * b
+    if den < 1e-4:
+        return None
+    w = -c
+    s = (b * (d @ w) - w[2]) / den  # along a's axis
+    t = ((d @ w) - b * w[2]) / den  # along b's axis
+    if s <= 0 or t <= 0:
+        return None
+    return 0.5 * (np.array([0.0, 0.0, s]) + c + t * d)
+
+
+def _see_through(X: np.ndarray, T: np.ndarray, K: np.ndarray, depth: np.ndarray, tau: float):
+    """(seen, through) for points X (M, 3) of one camera in another (T: this -> other, K and
+    depth the other's sampled intrinsics and depth): seen, every pixel of the 3x3 window around
+    the projection has depth; through, every one of them is beyond the point by more than tau."""
+    Y = X @ T[:3, :3].T + T[:3, 3]
+    z = Y[:, 2]
+    h, w = depth.shape
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    u = np.floor(K[0, 0] * Y[:, 0] / zs + K[0, 1] * Y[:, 1] / zs + K[0, 2] + 0.5).astype(np.int64)
+    v = np.floor(K[1, 1] * Y[:, 1] / zs + K[1, 2] + 0.5).astype(np.int64)
+    inside = front & (u >= 1) & (u <= w - 2) & (v >= 1) & (v <= h - 2)
+    u, v = np.clip(u, 1, w - 2), np.clip(v, 1, h - 2)
+    win = np.stack([depth[v + dv, u + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
+    seen = inside & (win > 0).all(axis=1)
+    through = seen & (win > (z * (1.0 + tau))[:, None]).all(axis=1)
+    return seen, through
+
+
+def subject_free_space(a, b, T_ba: np.ndarray, tau: float = SUBJECT_TAU, radius: float = SUBJECT_RADIUS_M):
+    """(share, points): of the subject points of both views (module docstring, step 4) that the
+    other view sees, the share it sees through under the relative pose ``T_ba`` (camera a ->
+    camera b); ``points`` the number seen (share NaN when the axes do not meet in front of both).
+    ``a``, ``b``: sampled views with ``samples_X`` (M, 3) metres, ``samples_floor`` (M,) bool,
+    ``K_sub`` (3, 3), ``depth_sub`` (h, w) metres and ``plane`` (a floor with ``normal``, or
+    None), as the rgbd backbone's ``CameraEvidence``."""
+    centre = subject_centre(T_ba)
+    if centre is None:
+        return float("nan"), 0
+    seen_n = through_n = 0
+    for src, dst, T, ctr in ((a, b, T_ba, centre), (b, a, invert_rigid(T_ba), T_ba[:3, :3] @ centre + T_ba[:3, 3])):
+        X = np.asarray(src.samples_X, dtype=np.float64)
+        off = X - ctr
+        if src.plane is not None:
+            up = np.asarray(src.plane.normal, dtype=np.float64)
+            off = off - np.outer(off @ up, up)
+        subject = (np.linalg.norm(off, axis=1) < radius) & ~np.asarray(src.samples_floor, dtype=bool)
+        K = np.asarray(dst.K_sub, dtype=np.float64)
+        seen, through = _see_through(X[subject], T, K, np.asarray(dst.depth_sub), tau)
+        seen_n += int(seen.sum())
+        through_n += int(through.sum())
+    return (through_n / seen_n if seen_n else float("nan")), seen_n

@@ -50,6 +50,8 @@ from fuseflow.calib.geometric import kabsch
 from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.calib.symmetry import (
+    SUBJECT_MAX_FREE_SPACE,
+    SUBJECT_MIN_POINTS,
     Hypothesis,
     bridges,
     colocated,
@@ -57,6 +59,7 @@ from fuseflow.calib.symmetry import (
     main_block,
     pose_gap,
     select_consistent,
+    subject_free_space,
 )
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import one_torch_thread, project_votes
@@ -876,6 +879,8 @@ def _pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subjec
                     # stacked on the other camera: rejected, not scored (calib.symmetry)
                     rows[-1].update(ok=False, rejected="co-located")
                     ok = False
+                if ok and not _subject_ok(a, b, c["T_ba"], cfg, rows[-1]):
+                    ok = False  # the other camera sees through its subject: an alias (calib.symmetry)
                 # rank by how much depth confirms the pose, not by the share alone: a wrong pose
                 # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
                 # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98); counted at
@@ -934,6 +939,20 @@ def _subject_judge(a: CameraEvidence, b: CameraEvidence, cands: list[dict], cfg:
     if base is None:
         return None
     return _SubjectJudge(subject, i, j, judge.frames, min(SUBJECT_REFUTE_M, base + SUBJECT_MARGIN_M))
+
+
+def _subject_ok(a: CameraEvidence, b: CameraEvidence, T_ba: np.ndarray, cfg: RGBDConfig, row: dict) -> bool:
+    """The subject check of a verified pose (``symmetry.subject_free_space``, at tau): False
+    (``row`` marked rejected) when the other camera sees through more than SUBJECT_MAX_FREE_SPACE
+    of the subject points it sees, with at least SUBJECT_MIN_POINTS of them."""
+    share, seen = subject_free_space(a, b, T_ba, cfg.tau)
+    if seen < SUBJECT_MIN_POINTS:
+        return True
+    row["subject_free_space"] = round(share, 4)
+    if share > SUBJECT_MAX_FREE_SPACE:
+        row.update(ok=False, rejected="subject seen through")
+        return False
+    return True
 
 
 def _median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
@@ -1009,15 +1028,33 @@ def _joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str
     if len(refuted) >= ALIASED_PAIRS:
         block = main_block(sorted(out))
         names = ", ".join(f"{ids[a]}-{ids[b]}" for a, b in refuted[:4]) + (" ..." if len(refuted) > 4 else "")
+        held = _subject_held(cams, out, chosen, hyps, block, cfg)
         ambiguous = {k: (f"ambiguous: the room repeats ({len(refuted)} pairs have verified poses the consistent "
                          f"solution refutes: {names}) and no cycle checks this camera against the main group")
-                     for k in sorted({k for p in out for k in p} - block)}  # fmt: skip
+                     for k in sorted({k for p in out for k in p} - block - held)}  # fmt: skip
     else:
         ambiguous = _ambiguous(cams, out, chosen, hyps, best.poses, ids, cfg)
     out = {p: e for p, e in out.items() if not set(p) & set(ambiguous)}
     sel = {"solutions": len(sols), "compared": [round(v, 4) for v in views], "consistent_pairs": len(chosen),
            "refuted_pairs": len(refuted), "ambiguous": {ids[k]: r for k, r in ambiguous.items()}}  # fmt: skip
     return out, sel, set(ambiguous) | (set(range(len(cams))) - block if len(refuted) >= ALIASED_PAIRS else set())
+
+
+def _subject_held(cams, out: dict, chosen: dict, hyps: dict, block: set[int], cfg: RGBDConfig) -> set[int]:
+    """Cameras outside the cycle-checked ``block`` that are not ambiguous: one of their chosen
+    pair poses is the pair's only remaining hypothesis and the subject confirms it
+    (``symmetry.subject_free_space`` on at least SUBJECT_MIN_POINTS points, within
+    SUBJECT_MAX_FREE_SPACE): the alternatives were refuted. They stay placed, unchecked by a cycle
+    (the verdict says "check it")."""
+    held = set()
+    for p in out:
+        if len(hyps[p]) != 1 or set(p) <= block:
+            continue
+        h = chosen[p]
+        share, seen = subject_free_space(cams[h.i], cams[h.j], h.T_ji, cfg.tau)
+        if seen >= SUBJECT_MIN_POINTS and share <= SUBJECT_MAX_FREE_SPACE:
+            held |= set(p) - block
+    return held
 
 
 def _refutes(hs: list[Hypothesis], poses: dict) -> bool:
@@ -1188,6 +1225,7 @@ def _geometric_pair(
         ok = chk.passes(cfg) and plausible(c.T_ba, chk, cfg, _median_depth(a, b))
         rows.append({"route": "geometric", "inliers": int(len(c.X_a)), "starts": c.starts, "ok": ok,
                      **_round(chk), "T_ji": np.round(c.T_ba, 6).tolist()})  # fmt: skip
+        ok = ok and _subject_ok(a, b, c.T_ba, cfg, rows[-1])
         if ok:
             passing.append((c, chk))
     entry = {"pair": [i, j], "stage": "geometric", "candidates": rows, "edge": None}
