@@ -7,12 +7,12 @@ Data: two simulated 8-camera rings (``--cameras``) at 640x480 (fuseflow.synth, s
 noise with flying pixels, lateral noise, quantisation and dropout; GT extrinsics): one static,
 one dynamic (walking figure, bouncing box, rolling sphere). ``--frames`` frames of each.
 
-Metrics (fuseflow.eval.metrics, docs/design.md section 4) per frame against the GT surface samples (1 cm
-spacing) that some camera measures at that instant (noise-free depth test, inside the sensor's
-depth range; see _reference), then the mean over frames:
+Metrics per frame against the GT surface some camera saw (fuseflow.eval.reference: recall and
+completeness on its 1 cm samples, precision / accuracy / outliers by the exact distance to the
+true surface), then the mean over frames:
 
 * chamfer_mm, accuracy_mm (cloud -> surface), completeness_mm (surface -> cloud);
-* F-score at 5 mm and at 1 cm (precision, recall, F);
+* precision, recall and F at 5 mm, 1 cm and 2 cm (f_5mm, precision_1cm, recall_2cm, ...);
 * outlier_2cm: share of points farther than 2 cm from the surface;
 * or_5mm: the paper's outlier ratio, share of points with fewer than 3 others within 5 mm
   (depends on density: see docs/metrics.md);
@@ -230,8 +230,8 @@ def main(argv: list[str] | None = None) -> int:
             "resolution": [w, h],
             "frames": args.frames,
             "seed": args.seed,
-            "reference": "SimFrame.surface_points (GT surface, 1 cm samples) that some camera sees in its "
-            "noise-free depth within its depth_range at that instant (_reference)",
+            "reference": "fuseflow.eval.reference.simulated_reference: seen 1 cm samples (recall), exact "
+            "distance to the true surface (precision)",
             "torch_threads": torch.get_num_threads(),
             "date": time.strftime("%Y-%m-%d %H:%M"),
         }
