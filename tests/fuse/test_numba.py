@@ -1,4 +1,4 @@
-"""The compiled CPU path (numba_kernels.py) gives the PyTorch reference's cloud.
+"""The compiled CPU path (fuse/kernels/) gives the PyTorch reference's cloud.
 
 Tolerance: both paths run the same float32 operations in the same order, but numba's exp /
 sqrt and LLVM's contraction may differ from torch's by one ulp, which moves a point across a
@@ -207,9 +207,10 @@ def test_lone_cell_keep_needs_the_multiview_support(sim_frame):
 
 
 def test_numba_select_prefers_the_near_point_like_torch():
-    """The compiled _select with the ranking value of rps.selection_priority picks the near
+    """The compiled select with the ranking value of rps.selection_priority picks the near
     point of a cell whose two points have equal omega, in either input order."""
-    from fuseflow.fuse.numba_kernels import _select, consensus_params, kernel_params
+    from fuseflow.fuse.kernels import consensus_params, kernel_params
+    from fuseflow.fuse.kernels.rps import select
     from fuseflow.fuse.rps import selection_priority
 
     P = np.array([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0]], dtype=np.float32)
@@ -219,7 +220,7 @@ def test_numba_select_prefers_the_near_point_like_torch():
         # k = 1 in every cell (fixed_k), lone_cell_mean off
         prm = kernel_params(FuseConfig(lone_cell_mean=0.0)).select._replace(fixed_k=True, k_const=1)
         src, nsel = np.full(2, -1, dtype=np.int64), np.zeros(1, dtype=np.int64)
-        _select(
+        select(
             P,  # the points in slot order (here slot = pixel)
             pr,
             omega.numpy(),
@@ -349,7 +350,7 @@ def test_numba_workspace_reuse_across_shapes():
     """The per-thread workspace (and the gated depth, which lives in it) is kept between frames
     of one shape and replaced when the shape changes: the same frame gives the same cloud,
     bit for bit, whatever was fused before it."""
-    from fuseflow.fuse import numba_kernels as nk
+    from fuseflow.fuse.kernels import workspace as nk
     from fuseflow.synth import SimConfig, Simulator
 
     rig_a = make_rig([(-0.5, 0.0, 0.0), (0.0, 0.2, 0.1), (0.5, 0.0, 0.0)])
@@ -373,9 +374,9 @@ def test_numba_workspace_reuse_across_shapes():
 
 
 def test_cells_table_grows_with_the_cells():
-    """_cells' hash table starts small and is rehashed as cells appear: cell ids in order of
+    """ash.cells' hash table starts small and is rehashed as cells appear: cell ids in order of
     first appearance, run slots grouped by cell, as a dict gives them."""
-    from fuseflow.fuse.numba_kernels import _cells
+    from fuseflow.fuse.kernels.ash import cells
 
     rng = np.random.default_rng(0)
     n_rows, w = 40, 200
@@ -401,7 +402,7 @@ def test_cells_table_grows_with_the_cells():
         ref_slot.append(fill[cid[k]])
         fill[cid[k]] += c
     run_slot = np.empty(len(ref_runs), dtype=np.int32)
-    start, cell_key, largest, roff = _cells(runs, r_n, row_info, run_slot)
+    start, cell_key, largest, roff = cells(runs, r_n, row_info, run_slot)
     assert len(order) > 2000  # past several doublings of the 1024-entry table
     assert np.array_equal(start, ref_start) and np.array_equal(cell_key, np.array(order, dtype=np.int64))
     assert largest == sizes.max() and np.array_equal(run_slot, np.array(ref_slot))

@@ -5,7 +5,7 @@ neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``multiview_mean`` each
 becomes the mean of its agreeing neighbours' measurements) -> joint weight (weights.py, eq. 22) ->
 ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
 (the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
-(numba_kernels.py); ``"auto"`` picks numba for CPU tensors. A frame of numpy arrays gives a
+(fuse/kernels/); ``"auto"`` picks numba for CPU tensors. A frame of numpy arrays gives a
 cloud of numpy arrays, and on the numba path torch is never imported.
 """
 
@@ -140,7 +140,7 @@ def _prepare(frame: Frame, rig: Rig, config: FuseConfig, backend: str = "torch")
     }
     graph = neighbour_graph(Rig(tuple(cams)), config.k_neighbours, config.min_overlap)
     if backend == "numba":  # numpy arrays throughout (CPU), no torch
-        from fuseflow.fuse.numba_kernels import gate_depth
+        from fuseflow.fuse.kernels import gate_depth
 
         present = to_numpy(frame.present)
         depth, per_view = gate_depth(to_numpy(frame.depth), lo, hi, present)  # one parallel pass
@@ -293,23 +293,23 @@ def _report(
 
 def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int]:
     """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference.
-    With ``target_points`` the numba path searches s0 on its candidates (fuse/density.py); the
-    reference, which is not split into stages, searches with whole passes (at most 4 more).
+    With ``target_points`` both search s0 with density.fit_s0: the numba path counts on its
+    candidates, the reference, which is not split into stages, with whole passes.
     The depth is smoothed first (FuseConfig.depth_smoothing) at this grid's pixels."""
     if cfg.depth_smoothing > 0:
         smoothed = smooth_depth(p.depth, cfg.depth_smoothing, cfg.smoothing_gate, cfg.noise_sigma, cfg.pixel_stride)
         p = replace(p, depth=smoothed)
     if backend == "numba":
-        from fuseflow.fuse.numba_kernels import fuse_numba
+        from fuseflow.fuse.kernels import fuse_numba
 
         return fuse_numba(p, cfg)
     if cfg.target_points is None:
         return _fuse_torch(p, cfg)
-    from fuseflow.fuse.density import search_s0, with_s0
+    from fuseflow.fuse.density import fit_s0, with_s0
 
     first = _fuse_torch(p, with_s0(cfg, cfg.s0))
-    s0, _ = search_s0(lambda s: len(_fuse_torch(p, with_s0(cfg, s))[0]), cfg.s0, cfg.target_points, len(first[0]))
-    return first if s0 == cfg.s0 else _fuse_torch(p, with_s0(cfg, s0))
+    fit = fit_s0(cfg, lambda s: len(_fuse_torch(p, with_s0(cfg, s))[0]), len(first[0]), whole_passes=True)
+    return first if fit.s0 == cfg.s0 else _fuse_torch(p, fit)
 
 
 def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int, int]:

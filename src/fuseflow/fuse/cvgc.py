@@ -119,7 +119,7 @@ def multiview_mean(
 
     Returns:
         (M, 3) float32 averaged points in each point's own camera frame. Same float32
-        operations in the same order as the compiled kernel (numba_kernels._pixels). With
+        operations in the same order as the compiled kernel (kernels.pixels). With
         ``with_support`` also (M,) int32 ``support``: how many neighbours passed the gate
         (FuseConfig.lone_cell_keep).
     """

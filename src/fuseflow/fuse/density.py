@@ -20,7 +20,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-__all__ = ["search_s0", "with_s0", "budget_stride", "BUDGET_FILL", "BUDGET_MAX_STRIDE", "BUDGET_SHORT"]
+__all__ = [
+    "search_s0",
+    "fit_s0",
+    "with_s0",
+    "budget_stride",
+    "BUDGET_FILL",
+    "BUDGET_MAX_STRIDE",
+    "BUDGET_SHORT",
+    "COUNT_EVALS",
+    "PASS_EVALS",
+]
 
 #: budget_stride takes a grid of stride s only for a budget of at most this many points per
 #: valid pixel on it (target <= BUDGET_FILL V / s^2). The most a grid gives (every candidate
@@ -29,6 +39,12 @@ __all__ = ["search_s0", "with_s0", "budget_stride", "BUDGET_FILL", "BUDGET_MAX_S
 #: met the budget (-2 %) and beat every pixel on the simulated ring; at 1.07 V / 4 it ended
 #: 12-16 % short (docs/fuse.md, Presets, "Point budget").
 BUDGET_FILL = 0.75
+#: Most evaluations of the s_0 search when each is a count pass (hash and eq. 26 only, the
+#: compiled path): with multiview_mean the count falls more steeply with s_0 on small frames
+#: (4-camera 160x120: -20 % for +2.5 % s_0) and 6 left it 11 % off.
+COUNT_EVALS = 8
+#: Most evaluations of the s_0 search when each is a whole FUSE pass (the PyTorch reference).
+PASS_EVALS = 6
 #: The coarsest grid budget_stride picks (stride 3 was the coarsest measured for quality).
 BUDGET_MAX_STRIDE = 3
 #: A coarser grid whose cloud ends this far below the budget is replaced by pixel_stride's.
@@ -93,6 +109,17 @@ def search_s0(
             p = min(max(p_new, 0.3), 4.0) if math.isfinite(p_new) and p_new > 0 else p
         s_prev, m_prev = s, m
     return best[1], best[2]
+
+
+def fit_s0(cfg, count_at: Callable[[float], int], first_count: int | None = None, whole_passes: bool = False):
+    """The policy of FuseConfig.target_points, for every backend: ``cfg`` (a FuseConfig with
+    target_points) at the s_0 of ``search_s0`` from cfg.s0 (``with_s0``: clips scaled, target
+    cleared). ``count_at(s_0)``: the frame's point count at s_0; ``first_count``: count_at(cfg.s0)
+    when already known; ``whole_passes``: each count is a whole FUSE pass (PASS_EVALS
+    evaluations, else COUNT_EVALS)."""
+    evals = PASS_EVALS if whole_passes else COUNT_EVALS
+    s0, _ = search_s0(count_at, cfg.s0, cfg.target_points, first_count, max_evals=evals)
+    return with_s0(cfg, s0)
 
 
 def budget_stride(stride: int, target: int, valid_pixels: int) -> int:

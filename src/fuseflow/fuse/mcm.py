@@ -104,7 +104,7 @@ def tolerant_gradient_and_variance(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """g, v of the gap-tolerant 3x3 window (module docstring) and the number of missing
     neighbours (N, H, W) int64 (9 at the image border). Float32 operations in the order of the
-    compiled kernel (numba_kernels._pixels)."""
+    compiled kernel (kernels.pixels)."""
     import torch
 
     n, h, w = depth.shape

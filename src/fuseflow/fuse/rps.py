@@ -87,7 +87,7 @@ def selection_priority(omega: torch.Tensor, z: torch.Tensor, noise_sigma: tuple[
             source camera (m). noise_sigma: (a, b, z0) of FuseConfig.noise_sigma.
 
     Returns:
-        (M,) float32; same float32 operations as the compiled kernel (numba_kernels._pixels).
+        (M,) float32; same float32 operations as the compiled kernel (kernels.pixels).
     """
     return omega / sigma_torch(z, noise_sigma)
 

@@ -7,8 +7,8 @@ noise by up to 2r+1; across a depth edge the far side lies many sigma away and i
 edges, flying pixels and thin structures keep their own depth. Missing pixels (0) stay missing.
 
 Two forms with the same float32 operations in the same window order: ``smooth_depth_numpy``
-(compiled with numba, parallel over rows; numpy arrays) and ``smooth_depth_torch`` (tensors,
-any device). tests/fuse/test_smooth.py checks that they agree and what the filter keeps.
+(numpy arrays; the numba kernel of fuse/kernels/smooth.py, parallel over rows) and
+``smooth_depth_torch`` (tensors, any device). tests/fuse/test_smooth.py checks that they agree and what the filter keeps.
 """
 
 from __future__ import annotations
@@ -18,54 +18,6 @@ from typing import Any
 import numpy as np
 
 __all__ = ["smooth_depth", "smooth_depth_numpy", "smooth_depth_torch"]
-
-_KERNEL: Any = None
-
-
-def _compiled():
-    """The numba kernel, compiled on first use (numba is imported only here)."""
-    global _KERNEL
-    if _KERNEL is None:
-        from numba import njit, prange
-
-        from fuseflow.io.numba_cache import use_usable_cache
-
-        use_usable_cache(__file__)
-
-        @njit(cache=True, parallel=True, error_model="numpy")
-        def kernel(depth, r, gate, a, b, z0, stride):  # pragma: no cover - compiled
-            N, H, W = depth.shape
-            out = depth.copy()
-            for row in prange(N * H):
-                i = row // H
-                y = row % H
-                if y % stride != 0:
-                    continue
-                for x in range(0, W, stride):
-                    z = depth[i, y, x]
-                    if z <= 0:
-                        continue
-                    dz = z - z0
-                    lim = gate * (a + b * (dz * dz))
-                    s = np.float32(0.0)
-                    n = np.float32(0.0)
-                    for dy in range(-r, r + 1):
-                        yy = y + dy
-                        if yy < 0 or yy >= H:
-                            continue
-                        for dx in range(-r, r + 1):
-                            xx = x + dx
-                            if xx < 0 or xx >= W:
-                                continue
-                            zn = depth[i, yy, xx]
-                            if zn > 0 and abs(zn - z) < lim:
-                                s += zn
-                                n += np.float32(1.0)
-                    out[i, y, x] = s / n
-            return out
-
-        _KERNEL = kernel
-    return _KERNEL
 
 
 def smooth_depth_numpy(
@@ -78,7 +30,9 @@ def smooth_depth_numpy(
         return depth
     a, b, z0 = (np.float32(v) for v in model)
     d = np.ascontiguousarray(depth, dtype=np.float32)
-    return _compiled()(d, int(radius), np.float32(gate), a, b, z0, int(stride))
+    from fuseflow.fuse.kernels.smooth import smooth_depth_kernel
+
+    return smooth_depth_kernel(d, int(radius), np.float32(gate), a, b, z0, int(stride))
 
 
 def smooth_depth_torch(depth: Any, radius: int, gate: float, model: tuple[float, float, float], stride: int = 1) -> Any:

@@ -11,7 +11,7 @@ occluded in j (D_j < z_ij by more than tau) casts no vote; only agreement and fr
 violations (D_j > z_ij) vote.
 
 Every product is written element by element, in the order the compiled CPU kernel
-(fuse/numba_kernels.py) uses, so both paths give the same float32 numbers.
+(fuse/kernels/) uses, so both paths give the same float32 numbers.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def project_to_pixel(
         X: (M, 3) float32 points in camera i's frame (metres).
         m: [R_ji | t_ji] as nested lists of python floats holding float32 values (3 x 4), Kj:
             K_j likewise (3 x 3): torch rounds them back to the same float32, so the arithmetic
-            is the compiled kernels' (numba_kernels._pixels).
+            is the compiled kernels' (kernels.pixels).
         depth_j: (H, W) float32 metres (0 = no depth).
 
     Returns:

@@ -9,6 +9,11 @@ NUMBA_CACHE_DIR, the package's ``__pycache__``, ``$XDG_CACHE_HOME``/``~/.cache``
 and ``$TMPDIR``/fuseflow-numba-<uid> is used (a fresh temporary directory, i.e. no lasting
 cache, when none is), and a damaged cache file counts as a cache miss: the kernel is compiled
 again and the file rewritten. Each fallback warns once (``NumbaCacheWarning``).
+
+numba checks a cached kernel against its own file only, yet a kernel that calls (or inlines)
+kernels of other files holds their code too. ``use_usable_cache(__file__, package=True)`` stamps
+every kernel of the module's package with all the package's ``.py`` files (and ``depends``): an
+edit to any of them compiles the package's kernels again.
 """
 
 from __future__ import annotations
@@ -114,14 +119,60 @@ def _warn_damaged(cache_file, exc: Exception) -> None:
                       stacklevel=2)  # fmt: skip
 
 
-def use_usable_cache(module_file: str | Path) -> None:
+#: package directory -> extra files whose edits also invalidate its kernels (``package=True``)
+_STAMPED: dict[str, tuple[str, ...]] = {}
+
+
+def package_stamp(package_dir: str) -> tuple:
+    """(name, mtime_ns, size) of every ``.py`` file of ``package_dir`` and of its ``depends``."""
+    files = sorted(str(p) for p in Path(package_dir).glob("*.py")) + list(_STAMPED.get(package_dir, ()))
+    out = []
+    for f in files:
+        st = os.stat(f)
+        out.append((f, st.st_mtime_ns, st.st_size))
+    return tuple(out)
+
+
+class _PackageStampLocator:
+    """A numba cache locator for the kernels of a stamped package: numba's own locator (same
+    cache directory) with the package's stamp as the source stamp."""
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        from numba.core import caching
+
+        where = str(Path(py_file).resolve().parent)
+        if where not in _STAMPED:
+            return None
+        for other in caching.CacheImpl._locator_classes:
+            if other is cls:
+                continue
+            loc = other.from_function(py_func, py_file)
+            if loc is not None:
+                loc.get_source_stamp = lambda: package_stamp(where)
+                return loc
+        return None
+
+
+def _stamp_package(package_dir: Path, depends: tuple[str | Path, ...]) -> None:
+    from numba.core import caching
+
+    _STAMPED[str(package_dir)] = tuple(str(Path(d).resolve()) for d in depends)
+    if _PackageStampLocator not in caching.CacheImpl._locator_classes:
+        caching.CacheImpl._locator_classes.insert(0, _PackageStampLocator)
+
+
+def use_usable_cache(module_file: str | Path, package: bool = False, depends: tuple[str | Path, ...] = ()) -> None:
     """Make ``@njit(cache=True)`` in the module ``module_file`` (and its package) work (see the module doc);
     also silence numba's note that the TBB threading layer is missing (numba falls back to its
-    own threads: nothing for a user to do)."""
+    own threads: nothing for a user to do). ``package``: a kernel's cache holds while no ``.py``
+    file of the package and none of ``depends`` (e.g. the module of an inlined helper) changed."""
     import numba
 
     warnings.filterwarnings("ignore", message="The TBB threading layer requires", category=numba.NumbaWarning)
     package_dir = Path(module_file).resolve().parent
+    if package:
+        _stamp_package(package_dir, depends)
     if str(package_dir) in _DONE:
         return
     _DONE.add(str(package_dir))
