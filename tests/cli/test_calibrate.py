@@ -122,3 +122,24 @@ def test_bad_reference_fails_in_one_line_before_gmac(static_rec, tmp_path, case)
     assert res.exit_code == 2 and expect in res.output, res.output
     assert "Traceback" not in res.output and "calibrate: " not in res.output  # before GMAC started
     assert not out.exists()
+
+
+def test_default_frame_is_the_first_with_every_camera(ring_rec, tmp_path):
+    """A camera whose stream starts late (no view in frame 0): the default calibrates on the first
+    frame with every camera and places all three; an explicit --frame 0 names the absent camera
+    and the frame to use before GMAC runs."""
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(ring_rec, rec)
+    for kind in ("color", "depth"):
+        next((rec / "cam02" / kind).glob("000000.*")).unlink()
+    out = tmp_path / "c.json"
+    res = CliRunner().invoke(cli_app, ["calibrate", str(rec), "--out", str(out), "--backbone", "rgbd"])
+    assert res.exit_code == 0, res.output
+    assert "calibrating on frame 1, the first with every camera present" in " ".join(res.output.split())
+    assert len(fuseflow.read_calibration(out).T_cam_world) == 3
+    res = CliRunner().invoke(cli_app, ["calibrate", str(rec), "--out", str(out), "--frame", "0"])
+    text = " ".join(res.output.split())
+    assert "cameras ['cam02'] have no view in the frames to calibrate from" in text, res.output
+    assert "(--frame 1)" in text

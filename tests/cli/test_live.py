@@ -39,6 +39,10 @@ def test_port_in_use_and_bad_options(dynamic_rec, tmp_path):
     assert res.exit_code == 2 and "--frames must be positive" in res.output
     res = _invoke("live", dynamic_rec, "--rate", "-1")
     assert res.exit_code == 2 and "--rate" in res.output
+    res = _invoke("live", dynamic_rec, "--codec", "draco")
+    assert res.exit_code == 2 and "--codec must be one of compact, raw" in res.output
+    res = _invoke("live", dynamic_rec, "--grid-mm", "0")
+    assert res.exit_code == 2 and "--grid-mm" in res.output and "Traceback" not in res.output
 
 
 def test_no_extrinsics_and_open_host_warning(tmp_path, dynamic_rec):

@@ -89,6 +89,45 @@ def test_permuted_extrinsics_are_flagged(tmp_path, invoke, expect, make_recordin
     assert "does not fit this recording" in _summary_warnings(tmp_path / "o")
 
 
+def _measured(rec: Path) -> dict:
+    """What a calibration's report records: each camera's depth agreement under the true extrinsics."""
+    from fuseflow.geometry.agreement import depth_agreement
+    from fuseflow.io import open_recording
+
+    r = open_recording(rec)
+    return depth_agreement(r[0], r.rig, {c.id: np.array(c.T_cam_world) for c in r.rig})
+
+
+def _swap_with_report(rec: Path, path: Path, swap: bool) -> Path:
+    """calib.json with the report of a calibration of ``rec`` (its depth agreement), and cam01 and
+    cam02's extrinsics swapped afterwards when ``swap`` (a hand edit, or two cables exchanged)."""
+    from fuseflow.io import open_recording, write_calibration
+    from fuseflow.types import Calibration
+
+    rig = open_recording(rec).rig
+    T = {c.id: np.array(c.T_cam_world) for c in rig}
+    if swap:
+        T["cam01"], T["cam02"] = T["cam02"], T["cam01"]
+    write_calibration(path, Calibration(T, {"depth_agreement": _measured(rec)}), rig=rig)
+    return path
+
+
+@pytest.mark.parametrize("swap", [False, True])
+def test_swap_on_a_symmetric_ring_is_flagged_against_the_calibrations_agreement(small_rec, tmp_path, invoke, expect,
+                                                                                swap):  # fmt: skip
+    """On a 3-camera ring a swap is nearly a reflection: agreement stays above LOW_AGREEMENT, but
+    falls well below what the calibration itself measured."""
+    calib = _swap_with_report(small_rec, tmp_path / "c.json", swap)
+    res = invoke("run", small_rec, "--out", tmp_path / "o", "--calib", calib)
+    words = "less than when they were calibrated"
+    if swap:
+        expect(res, 0, words, "cam01", "cam02", "may not fit this recording")
+        assert words in _summary_warnings(tmp_path / "o")
+    else:
+        expect(res, 0)
+        assert words not in _summary_warnings(tmp_path / "o")
+
+
 def test_calibration_in_millimetres_is_refused(small_rec, tmp_path, invoke, expect):
     def mm(T):
         for v in T.values():
@@ -455,7 +494,12 @@ def test_truncated_mkv_is_named(tmp_path, invoke, expect):
     b, *_ = ak._recording(tmp_path, "b", "B", t0_us=3_000_160)
     b.write_bytes(b.read_bytes()[: int(b.stat().st_size * 0.6)])  # cut during the last frames
     expect(
-        invoke("convert", a, b, tmp_path / "rec"), 0, "2 dropped views", "B: 2 from", "b.mkv", "truncated or damaged"
+        invoke("convert", a, b, tmp_path / "rec"),
+        0,
+        "2 dropped views",
+        "B: 2 views: 2 at the end",
+        "b.mkv",
+        "truncated",
     )
 
 

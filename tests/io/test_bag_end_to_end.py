@@ -69,6 +69,7 @@ def test_four_late_bags_convert_calibrate_and_run_resynced(bags, tmp_path):
     rec = tmp_path / "rec"
     res = runner.invoke(app, ["convert", str(bags), str(rec)])
     assert res.exit_code == 0, res.output
+    assert "cam03: 2 views: 2 at the start (its stream starts later" in " ".join(res.output.split())
     assert open_recording(rec).missing_views()[LATE_CAM] == [0, 1]  # paired by time: the late camera starts later
 
     calib = tmp_path / "calib.json"

@@ -1,6 +1,7 @@
 """The viewer in a real browser: `fuseflow live` on a small replay, headless Chromium (Debian's
-chromium + chromium-driver, driven by selenium) opens the page; the frame counter must advance
-and the canvas must show points. Ctrl-C then stops the command with its summary."""
+chromium + chromium-driver, driven by selenium) opens the page; frames in the default (compact)
+codec must decode, the frame counter advance and the canvas show points. Ctrl-C then stops the
+command with its summary."""
 
 import json
 import os
@@ -84,6 +85,9 @@ def test_page_draws_live_frames(dynamic_rec, tmp_path):
         later = _wait_for(lambda: _frames(driver) > first, 30) and _frames(driver)
         assert first >= 1 and later > first, (first, later)  # frames arrive and the counter advances
         assert int(driver.find_element("id", "cameras").text) == 4
+        stats = driver.execute_script("return window.fuseflowStats")  # decode.js decoded them
+        assert stats["version"] == 2 and driver.find_element("id", "codec").text == "compact", stats
+        assert len(stats["decodeMs"]) >= 2 and "bad frame" not in driver.find_element("id", "status").text
         assert _stats(port)["clients"] == 1
         shot = tmp_path / "viewer.png"
         driver.save_screenshot(str(shot))

@@ -11,7 +11,7 @@ import torch
 
 from fuseflow.errors import ValidationError
 from fuseflow.io import open_recording
-from fuseflow.io.timesync import shift_views
+from fuseflow.io.timesync import shift_views, write_timestamps
 from fuseflow.pipeline import PipelineConfig
 from fuseflow.pipeline.sync import check_sync
 from fuseflow.synth import SimConfig, simulate_recording
@@ -87,3 +87,23 @@ def test_30fps_in_sync_rig_has_no_false_alarm(walk30):
     assert report.late() == {} and report.warnings() == []
     sub = np.array([v for v in report.sub_frame.values() if np.isfinite(v)])
     assert sub.size >= 3 and np.abs(sub).max() < 0.5
+
+
+def test_short_30fps_recording_says_the_check_is_blind(tmp_path):
+    """12 frames at 30 fps: "auto" takes the agreement check, which cannot see a frame or two at
+    this rate; the report says so (``run --sync-offsets auto`` passes it on as a warning) instead of
+    a silent "nothing found". At 5 fps it has no such limit."""
+    for fps, blind in ((30.0, True), (5.0, False)):
+        out = tmp_path / f"r{fps:.0f}"
+        simulate_recording(out, SimConfig(cameras=3, frames=6, scene="studio", dynamic=True, resolution=(160, 120),
+                                          seed=1, fps=fps, surface_density=100.0))  # fmt: skip
+        rec = open_recording(out)
+        t = np.arange(len(rec)) / fps  # the stamps a .bag / .mkv conversion writes
+        write_timestamps(out, rec.frame_numbers, {c: t for c in rec.rig.ids}, {c: t for c in rec.rig.ids}, 0.5 / fps)
+        report = check_sync(rec, rec.rig, list(range(len(rec.rig))), max_shift=1, sample_frames=2)
+        assert report.method == "agreement"
+        if blind:
+            assert "on 6 frames at 30 fps the sync check cannot see" in report.limit
+            assert "at least 30 frames" in report.limit  # 24 positions + 2 (max_shift + 2)
+        else:
+            assert report.limit == ""

@@ -161,6 +161,7 @@ def bench_live(
     stand_in_ms: float = typer.Option(
         None, "--stand-in-ms", help="Replace FUSE by a sleep of this many ms returning a real cloud (all but FUSE)."
     ),
+    codec: str = typer.Option("compact", "--codec", help="The viewer's frame codec: compact or raw."),
 ) -> None:
     """Replays through `fuseflow live --serve` with one viewer: fps, drops, latency, Mbit/s."""
     from fuseflow.eval.bench.live import run_live_bench
@@ -168,8 +169,11 @@ def bench_live(
     command = f"fuseflow bench live --cases {cases} --duration {duration:g}"
     command += f" --json {shlex.quote(str(json_out))}" if json_out is not None else ""
     command += f" --stand-in-ms {stand_in_ms:g}" if stand_in_ms is not None else ""
+    command += f" --codec {codec}" if codec != "compact" else ""
     names = [c.strip() for c in cases.split(",") if c.strip()]
-    run_live_bench(names, duration, data_dir, json_out, command=command, log=_echo, stand_in_ms=stand_in_ms)
+    run_live_bench(
+        names, duration, data_dir, json_out, command=command, log=_echo, stand_in_ms=stand_in_ms, codec=codec
+    )
 
 
 def bench_fuse_ratio(

@@ -31,7 +31,9 @@ REFERENCE_OPTION = typer.Option(
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (any layout `fuseflow info` reads)."),
     out: Path = typer.Option(..., "--out", "-o", help="calib.json to write (and the report picture, same stem, .png)."),
-    frame: int = typer.Option(0, "--frame", "-t", help="Frame index to calibrate from."),
+    frame: int = typer.Option(
+        None, "--frame", "-t", help="Frame index to calibrate from (default: the first with every camera present)."
+    ),
     frames: str = typer.Option(
         None,
         "--frames",
@@ -59,9 +61,7 @@ def command(
     check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
     replaced = out.exists()
     recording = fuseflow.open_recording(rec)
-    indices = frame_indices(frames, len(recording)) if frames else [frame]
-    if not 0 <= indices[0] < len(recording):
-        fail(f"--frame {frame} is out of range: the recording has {len(recording)} frames")
+    indices = _chosen_frames(recording, frame, frames)
     config = _config(preset, backbone, backbone_path, refine, matcher)
     ref = _read_reference(reference, recording.rig) if reference is not None else None  # before minutes of GMAC
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
@@ -91,6 +91,50 @@ def command(
         + (" (it replaced the file that was there)" if replaced else "")
         + (f" and {picture}" if picture else "")
     )
+
+
+def _chosen_frames(recording, frame: int | None, frames: str | None) -> list[int]:
+    """Frame positions to calibrate from: ``--frames``, else ``--frame``, else the first frame
+    with every camera present. A frame with every camera goes first (the scale stage and the
+    checks use the first), and cameras absent from every chosen frame are named before GMAC runs:
+    they cannot be placed from those frames."""
+    n = len(recording)
+    missing = _missing_positions(recording)
+    complete = [t for t in range(n) if t not in missing]
+    if frames:
+        indices = frame_indices(frames, n)
+    elif frame is not None:
+        if not 0 <= frame < n:
+            fail(f"--frame {frame} is out of range: the recording has {n} frames")
+        indices = [frame]
+    else:
+        indices = [complete[0] if complete else 0]
+        if indices[0] != 0:
+            say(f"calibrating on frame {indices[0]}, the first with every camera present (--frame picks another)")
+    full = [t for t in indices if t not in missing]
+    if full and full[0] != indices[0]:
+        indices = [full[0]] + [t for t in indices if t != full[0]]
+    absent = [c for c in recording.rig.ids if all(c in missing.get(t, ()) for t in indices)]
+    if absent:
+        hint = f"; every camera is present in frame {complete[0]} (--frame {complete[0]})" if complete else ""
+        warn(f"cameras {absent} have no view in the frames to calibrate from, so they cannot be placed{hint}")
+    return indices
+
+
+def _missing_positions(recording) -> dict[int, set[str]]:
+    """Frame position -> ids of the cameras with no view there, from the file listings (empty when
+    the reader cannot tell without decoding)."""
+    try:
+        by_camera = recording.missing_views()
+    except NotImplementedError:
+        return {}
+    position = {number: t for t, number in enumerate(recording.frame_numbers)}
+    out: dict[int, set[str]] = {}
+    for cam, numbers in by_camera.items():
+        for number in numbers:
+            if number in position:
+                out.setdefault(position[number], set()).add(cam)
+    return out
 
 
 def _check_views(views) -> None:

@@ -24,9 +24,11 @@ def _print_summary(result, source: str) -> None:
     if s.dropped_views:
         rows.append(("dropped views", ", ".join(f"{c}: {n} frames" for c, n in s.dropped_views.items())))
     for k, c in enumerate(result.clients):
-        rows.append(
-            (f"viewer {k + 1}", f"{c['frames_sent']} frames sent, {c['dropped']} dropped, {c['mbit_per_s']:.1f} Mbit/s")
-        )
+        rows.append((f"viewer {k + 1}", f"{c['codec']}: {c['frames_sent']} frames sent, {c['dropped']} dropped, "
+                     f"{c['mbit_per_s']:.1f} Mbit/s"))  # fmt: skip
+    if result.encode_ms_median is not None:
+        rows.append(("encoding", f"{result.encode_ms_median:.1f} ms median per frame (encoder thread), "
+                     f"{result.encoder_skipped} frames not encoded"))  # fmt: skip
     print_table("FuseFlow live", rows)
     for w in s.warnings:
         warn(w)
@@ -53,6 +55,12 @@ def command(
     rerun: str = typer.Option(None, "--rerun", help="spawn | rerun+http://HOST:PORT/proxy | FILE.rrd"),
     record: Path = typer.Option(None, "--record", help="Write the fused clouds here (clouds/<n>.ply, as run)."),
     crop: str = oo.CROP,
+    codec: str = typer.Option(
+        "compact", "--codec", help="Frame codec of the viewer stream: compact (about 1.1-1.7 bytes a point) or raw (9)."
+    ),
+    grid_mm: float = typer.Option(
+        3.0, "--grid-mm", help="compact: position grid step in mm (positions at most half a step off per axis)."
+    ),
 ) -> None:
     """Fuse cameras (or a recording replayed as cameras) live; serve, log or record the clouds.
 
@@ -73,7 +81,13 @@ def command(
     for name, value in (("--frames", frames), ("--duration", duration)):
         if value is not None and value <= 0:
             fail(f"{name} must be positive, got {value}")
-    outputs = LiveOutputs(parse_address(serve) if serve else None, rerun, record)
+    from fuseflow.live.codec import CompactParams
+    from fuseflow.live.wire import CODECS
+
+    if codec not in CODECS:
+        fail(f"--codec must be one of {', '.join(CODECS)}, got {codec!r}")
+    compact = CompactParams(step_mm=grid_mm).check()
+    outputs = LiveOutputs(parse_address(serve) if serve else None, rerun, record, codec, compact)
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
     opened = open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fuseflow.errors import RecordingError, ValidationError
 from fuseflow.types import Rig
 
@@ -104,6 +106,23 @@ def _camera_files(sources: Sequence[Path]) -> list[Path] | None:
     return files
 
 
+def _where_dropped(missing: np.ndarray) -> str:
+    """Where a camera's views are missing among the paired frames: at the start (its stream starts
+    later than the others', as a late or later-started camera's does), at the end (it stops
+    earlier, or the file is truncated) or in the middle (dropped frames, a damaged file)."""
+    idx = np.flatnonzero(missing)
+    lead = int(np.argmin(missing)) if not missing.all() else len(missing)
+    trail = int(np.argmin(missing[::-1])) if not missing.all() else 0
+    parts = [f"{len(idx)} views"]
+    if lead:
+        parts.append(f"{lead} at the start (its stream starts later than the others')")
+    if trail:
+        parts.append(f"{trail} at the end (it stops earlier, or the file is truncated)")
+    if len(idx) - lead - trail > 0:
+        parts.append(f"{len(idx) - lead - trail} in the middle (dropped frames or a damaged file)")
+    return ", ".join(parts[:1]) + (": " + ", ".join(parts[1:]) if len(parts) > 1 else "")
+
+
 def convert(
     sources: Sequence[str | Path],
     out: str | Path,
@@ -155,9 +174,10 @@ def convert(
         }
         msg = (f"wrote {len(p.index)} frames x {len(streams)} cameras ({kind}) to {out}; views paired within "
                f"{p.tolerance * 1000:.1f} ms (max spread {spread_ms:.1f} ms), {int(p.dropped.sum())} dropped views")  # fmt: skip
-        short = [f"{s.id}: {int(n)} from {s.source}" for s, n in zip(streams, p.dropped) if n]
-        if short:  # name the files: a truncated or damaged one ends early
-            msg += f" ({'; '.join(short)}: a file that ends early is truncated or damaged)"
+        short = [f"{s.id}: {_where_dropped(p.index[:, n] < 0)} from {s.source}" for n, s in enumerate(streams)
+                 if p.dropped[n]]  # fmt: skip
+        if short:  # name the files and where their views are missing
+            msg += f" ({'; '.join(short)})"
         return ConvertSummary(kind, out, res.rig, len(p.index), msg, time.perf_counter() - t0, details)
     if len(srcs) != 1:
         raise ValidationError(

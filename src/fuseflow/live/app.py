@@ -7,7 +7,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fuseflow.errors import FuseFlowError
+from fuseflow.live.codec import CompactParams
 from fuseflow.live.server import LiveServer, is_loopback
 from fuseflow.live.sinks import RecordSink, RerunSink, WebSink, rig_message
 from fuseflow.pipeline.extrinsics import placed_rig
@@ -27,6 +30,10 @@ class LiveOutputs:
     """"spawn", a rerun+http:// address, or an .rrd path (``RerunSink``); None = no rerun."""
     record: Path | None = None
     """Write clouds here (``RecordSink``); None = no files."""
+    codec: str = "compact"
+    """Frame codec of a viewer that does not ask for one (``/ws?codec=``): compact or raw."""
+    compact: CompactParams = CompactParams()
+    """Grid step and colour quantisation of the compact codec."""
 
 
 @dataclass
@@ -37,6 +44,12 @@ class LiveResult:
     clients: list[dict[str, Any]] = field(default_factory=list)
     """Per viewer client: frames sent and dropped, bytes, Mbit/s (``LiveServer.client_stats``)."""
     warnings: list[str] = field(default_factory=list)
+    encode_ms_median: float | None = None
+    """Median time the web sink's encoder thread took per frame (all codecs asked for)."""
+    encode_cpu_ms_median: float | None = None
+    """The same in CPU time of the encoder thread."""
+    encoder_skipped: int = 0
+    """Fused clouds the encoder thread never encoded (replaced while it was busy)."""
 
 
 def rig_for_live(source_rig: Rig, calibration: Calibration | None) -> Rig:
@@ -80,9 +93,11 @@ def run_live(
             warnings.append(f"the calibration does not place cameras {left_out}; they are left out of fusion")
         loop = LiveLoop(source, rig, settings, fuse_fn=fuse_fn, calibration=calibration)
         if outputs.serve is not None:
-            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig)).start()
+            outputs.compact.check()
+            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig),
+                                codec=outputs.codec).start()  # fmt: skip
             warnings += _server_warnings(server.host)
-            sinks.append(WebSink(server))
+            sinks.append(WebSink(server, outputs.compact, loop.stats.extra))
         if outputs.rerun is not None:
             sinks.append(RerunSink(outputs.rerun, rig))
         if outputs.record is not None:
@@ -101,4 +116,10 @@ def run_live(
             close()
         raise
     clients = server.client_stats() if server is not None else []
-    return LiveResult(summary, server.url if server else None, clients, warnings)
+    result = LiveResult(summary, server.url if server else None, clients, warnings)
+    web = next((s for s in sinks if isinstance(s, WebSink)), None)
+    if web is not None and web.encode_ms:
+        result.encode_ms_median = round(float(np.median(web.encode_ms)), 2)
+        result.encode_cpu_ms_median = round(float(np.median(web.encode_cpu_ms)), 2)
+        result.encoder_skipped = web.skipped
+    return result

@@ -7,9 +7,12 @@ while the others, and the capture, go on. The server answers only these paths; i
 script are files of this package, looked up in a fixed table (no file system path is ever built
 from a request).
 
-On connect a client gets one text message, the rig (``{"type": "rig", "cameras": [...]}``: id,
-width, height, K and ``T_world_cam`` row-major, for the cameras with extrinsics), then one binary
-message per fused frame (``fuseflow.live.wire``).
+A client picks its frame codec in the address, ``/ws?codec=raw`` or ``/ws?codec=compact``
+(default: the server's ``codec``; ``fuseflow.live.wire.CODECS``). On connect it gets one text
+message, the rig (``{"type": "rig", "codec": ..., "cameras": [...]}``: id, width, height, K and
+``T_world_cam`` row-major, for the cameras with extrinsics), then one binary message per fused
+frame in its codec (``fuseflow.live.wire``). ``codecs()`` tells the publisher which codecs the
+connected clients want, so that a frame is encoded only in those.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ ASSETS = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/index.html": ("index.html", "text/html; charset=utf-8"),
     "/viewer.js": ("viewer.js", "text/javascript; charset=utf-8"),
+    "/decode.js": ("decode.js", "text/javascript; charset=utf-8"),
 }
 """Request path -> (file in fuseflow/live/static, content type): everything the server serves
 besides ``/ws`` and ``/stats``."""
@@ -61,6 +65,7 @@ def is_loopback(host: str) -> bool:
 class _Client:
     ws: Any
     event: asyncio.Event
+    codec: str = "compact"
     pending: bytes | None = None
     sent: int = 0
     dropped: int = 0
@@ -77,11 +82,18 @@ class LiveServer:
             ``start``).
         stats: returns the loop's counters for ``/stats`` (the server adds ``clients`` and per
             client ``client_stats``).
-        rig_message: the text message every client gets first (the rig as JSON).
+        rig_message: the text message every client gets first (the rig as JSON; the server adds
+            the client's ``codec``).
+        codec: the frame codec of a client that does not name one (``?codec=``).
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8080, stats: Callable[[], dict] | None = None,
-                 rig_message: str = '{"type": "rig", "cameras": []}'):  # fmt: skip
+                 rig_message: str = '{"type": "rig", "cameras": []}', codec: str = "compact"):  # fmt: skip
+        from fuseflow.live.wire import CODECS
+
+        if codec not in CODECS:
+            raise FuseFlowError(f"--codec must be one of {', '.join(CODECS)}, got {codec!r}")
+        self.codec = codec
         self.host, self.port = host, port
         self._stats = stats or dict
         self._rig = rig_message
@@ -131,10 +143,15 @@ class LiveServer:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/"
 
-    def publish(self, data: bytes) -> None:
-        """Hand one frame to every client (returns at once; from any thread)."""
+    def publish(self, data: bytes | dict[str, bytes]) -> None:
+        """Hand one frame to every client (returns at once; from any thread): the same bytes to
+        all, or {codec: bytes} (a client gets its codec's; one whose codec is missing gets nothing)."""
         if self._loop is not None:
             self._loop.call_soon_threadsafe(self._offer, data)
+
+    def codecs(self) -> set[str]:
+        """The codecs the connected clients want (empty: nobody to encode for)."""
+        return {c.codec for c in list(self._clients)}
 
     def client_stats(self) -> list[dict[str, Any]]:
         """Per client (connected ones, then those gone): frames sent and dropped, bytes, seconds."""
@@ -177,20 +194,23 @@ class LiveServer:
                 c.event.set()
             await asyncio.wait_for(server.wait_closed(), timeout=3.0)
 
-    def _offer(self, data: bytes) -> None:
+    def _offer(self, data: bytes | dict[str, bytes]) -> None:
         for c in self._clients:
+            mine = data.get(c.codec) if isinstance(data, dict) else data
+            if mine is None:
+                continue
             if c.pending is not None:
                 c.dropped += 1
-            c.pending = data
+            c.pending = mine
             c.event.set()
 
     def _client_json(self, c: _Client, now: float) -> dict[str, Any]:
         seconds = max(now - c.connected, 1e-9)
-        return {"frames_sent": c.sent, "dropped": c.dropped, "bytes_sent": c.bytes_sent,
+        return {"codec": c.codec, "frames_sent": c.sent, "dropped": c.dropped, "bytes_sent": c.bytes_sent,
                 "seconds": round(seconds, 2), "mbit_per_s": round(c.bytes_sent * 8 / seconds / 1e6, 3)}  # fmt: skip
 
     async def _handler(self, ws: Any) -> None:
-        client = _Client(ws, asyncio.Event(), connected=time.perf_counter())
+        client = _Client(ws, asyncio.Event(), self._client_codec(ws.request.path), connected=time.perf_counter())
         self._clients.add(client)
         sender = asyncio.ensure_future(self._send_frames(client))
         closed = asyncio.ensure_future(ws.wait_closed())
@@ -209,7 +229,8 @@ class LiveServer:
         from websockets.exceptions import ConnectionClosed
 
         try:
-            await client.ws.send(self._rig)
+            rig = json.loads(self._rig)
+            await client.ws.send(json.dumps({"type": rig.pop("type", "rig"), "codec": client.codec, **rig}))
             while not self._stopped.is_set():
                 await client.event.wait()
                 client.event.clear()
@@ -222,12 +243,29 @@ class LiveServer:
         except ConnectionClosed:
             pass
 
+    def _client_codec(self, path: str) -> str:
+        """The codec named in ``/ws?codec=NAME`` (the server's default when none is)."""
+        from urllib.parse import parse_qs, urlsplit
+
+        from fuseflow.live.wire import CODECS
+
+        asked = parse_qs(urlsplit(path).query).get("codec", [self.codec])[-1]
+        if asked not in CODECS:
+            raise FuseFlowError(f"unknown codec {asked!r}: /ws?codec= takes {', '.join(CODECS)}")
+        return asked
+
     def _http(self, connection: Any, request: Any) -> Any:
         from websockets.datastructures import Headers
         from websockets.http11 import Response
 
         path = request.path.split("?", 1)[0]
         if path == "/ws":
+            try:
+                self._client_codec(request.path)
+            except FuseFlowError as exc:
+                body = f"{exc}\n".encode()
+                return Response(400, "Bad Request", Headers([("Content-Type", "text/plain; charset=utf-8"),
+                                                             ("Content-Length", str(len(body)))]), body)  # fmt: skip
             return None  # the WebSocket handshake
         if path == "/stats":
             doc = {**self._stats(), "clients": len(self._clients), "client_stats": self.client_stats()}

@@ -1,19 +1,23 @@
 """Where the live loop's fused clouds go: the web viewer (``WebSink``), rerun (``RerunSink``),
 PLY files (``RecordSink``). Each has ``send(cloud, info)`` (called in the fusion loop) and
-``close()``."""
+``close()``. ``WebSink.send`` only hands the cloud over: encoding runs in a thread of its own."""
 
 from __future__ import annotations
 
 import json
+import threading
 import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fuseflow.io.calibration import write_calibration
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
+from fuseflow.live.codec import CompactParams
 from fuseflow.live.server import LiveServer
-from fuseflow.live.wire import encode_frame
+from fuseflow.live.wire import CODECS, encode_frame
 from fuseflow.pipeline.live import LiveFrame
 from fuseflow.pipeline.outputs import cloud_path
 from fuseflow.types import Calibration, FusedCloud, Rig
@@ -38,16 +42,88 @@ def rig_message(rig: Rig) -> str:
 
 
 class WebSink:
-    """Encode each cloud (``fuseflow.live.wire``) and publish it to the server's clients."""
+    """Encode each cloud (``fuseflow.live.wire``) in the codecs the viewers want and publish it.
 
-    def __init__(self, server: LiveServer):
+    ``send`` puts the cloud in a one-frame slot and returns; an encoder thread takes the newest
+    cloud, encodes it once per codec the connected clients use (none when nobody watches) and
+    hands the bytes to the server. A cloud replaced before the encoder took it is counted in
+    ``skipped`` (the encoder fell behind the fusion); ``encode_ms`` holds the last encoding
+    times and ``encode_cpu_ms`` the encoder thread's CPU time for them (all codecs of a frame
+    together). Both codecs are run once on a small cloud when the sink is made, so that compiling
+    the codec's kernels (cached after the first run) does not fall on the first live frames.
+    """
+
+    def __init__(self, server: LiveServer, params: CompactParams = CompactParams(), stats: dict | None = None):
         self.server = server
+        self.params = params
+        self.stats = stats if stats is not None else {}
+        """Updated after every frame with ``encoded``, ``encoder_skipped`` and ``encode_ms`` (the
+        last frame's): the live loop's ``LiveStats.extra``, so ``/stats`` shows them."""
+        self.stats.update(encoded=0, encoder_skipped=0, encode_ms=None)  # keys fixed from here on
+        self.skipped = 0
+        self.encoded = 0
+        self.encode_ms: list[float] = []
+        self.encode_cpu_ms: list[float] = []
+        self._warmup()
+        self._cond = threading.Condition()
+        self._item: tuple[FusedCloud, LiveFrame] | None = None
+        self._closed = False
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="fuseflow-encoder", daemon=True)
+        self._thread.start()
+
+    def _warmup(self) -> None:
+        import torch
+
+        rng = np.random.default_rng(0)
+        xyz = torch.from_numpy(rng.uniform(-1, 1, (64, 3)).astype(np.float32))
+        rgb = torch.from_numpy(rng.integers(0, 256, (64, 3), dtype=np.uint8))
+        cloud = FusedCloud(xyz, rgb, torch.ones(64), torch.zeros(64, dtype=torch.int16))
+        for codec in CODECS:
+            encode_frame(cloud, 0, 0.0, 0.0, codec, self.params)
 
     def send(self, cloud: FusedCloud, info: LiveFrame) -> None:
-        latency = (time.perf_counter() - info.captured) * 1000.0
-        self.server.publish(encode_frame(cloud, info.number, latency, info.fuse_ms))
+        if self._error is not None:
+            raise self._error
+        with self._cond:
+            if self._item is not None:
+                self.skipped += 1
+            self._item = (cloud, info)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._item is None and not self._closed:
+                    self._cond.wait()
+                if self._item is None:
+                    return
+                (cloud, info), self._item = self._item, None
+            try:
+                self._encode(cloud, info)
+            except BaseException as exc:  # noqa: BLE001 - re-raised by the next send()
+                self._error = exc
+                return
+
+    def _encode(self, cloud: FusedCloud, info: LiveFrame) -> None:
+        codecs = self.server.codecs()
+        if not codecs:
+            return
+        t0, c0 = time.perf_counter(), time.thread_time()
+        latency = (t0 - info.captured) * 1000.0
+        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in sorted(codecs)}
+        self.encode_ms.append((time.perf_counter() - t0) * 1000.0)
+        self.encode_cpu_ms.append((time.thread_time() - c0) * 1000.0)
+        del self.encode_ms[:-1000], self.encode_cpu_ms[:-1000]
+        self.encoded += 1
+        self.stats.update(encoded=self.encoded, encoder_skipped=self.skipped, encode_ms=round(self.encode_ms[-1], 1))
+        self.server.publish(frames)
 
     def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join(timeout=10.0)
         self.server.close()
 
 

@@ -1,5 +1,9 @@
-"""The binary frame format of the live stream (``/ws``), one WebSocket binary message per fused
-frame, little-endian (docs/live.md has it byte by byte)::
+"""The binary frame formats of the live stream (``/ws``), one WebSocket binary message per fused
+frame, little-endian (docs/live.md has them byte by byte). Two codecs (``CODECS``): ``compact``
+(version 2, ``fuseflow.live.codec``: about 1-2 bytes a point) and ``raw`` (version 1, below: 9
+bytes a point, no decompression). ``encode_frame`` writes either; ``decode_frame`` reads both.
+
+Version 1 (``raw``)::
 
     offset  size  type        field
     0       4     char[4]     magic "FFLV"
@@ -26,16 +30,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fuseflow.errors import FormatError
+from fuseflow.errors import FormatError, ValidationError
+from fuseflow.live.codec import COMPACT_VERSION, CompactParams, decode_compact, encode_compact
 from fuseflow.types import FusedCloud
 
-__all__ = ["MAGIC", "VERSION", "HEADER", "encode_frame", "decode_frame", "DecodedFrame"]
+__all__ = ["MAGIC", "VERSION", "HEADER", "CODECS", "encode_frame", "decode_frame", "DecodedFrame"]
 
 MAGIC = b"FFLV"
 VERSION = 1
 _HEAD = struct.Struct("<4sHHII3f3fff")
 HEADER = _HEAD.size
 """Header size in bytes (48)."""
+CODECS = ("compact", "raw")
+"""Frame codecs, the default first."""
 
 
 @dataclass
@@ -44,21 +51,40 @@ class DecodedFrame:
 
     number: int
     xyz: np.ndarray
-    """(M, 3) float32 metres, within one quantisation step of the sent positions."""
+    """(M, 3) float32 metres: within one quantisation step of the sent positions (raw), or the
+    centres of the occupied grid cells (compact: at most half a step off per axis)."""
     rgb: np.ndarray
     """(M, 3) uint8."""
     box: tuple[np.ndarray, np.ndarray]
     latency_ms: float
     fuse_ms: float
+    version: int = VERSION
+    points_in: int = -1
+    """Points of the fused cloud before cells were merged (compact); M for raw."""
+    step: float = 0.0
+    """Grid step in metres (compact); 0 for raw."""
 
 
-def encode_frame(cloud: FusedCloud, number: int, latency_ms: float, fuse_ms: float) -> bytes:
-    """The message for one fused cloud (module docstring)."""
+def encode_frame(
+    cloud: FusedCloud,
+    number: int,
+    latency_ms: float,
+    fuse_ms: float,
+    codec: str = "raw",
+    params: CompactParams = CompactParams(),
+) -> bytes:
+    """The message for one fused cloud in ``codec`` (module docstring)."""
     xyz = cloud.xyz.detach().cpu().numpy().astype(np.float32, copy=False)
     rgb = cloud.rgb.detach().cpu().numpy().astype(np.uint8, copy=False)
+    if codec == "compact":
+        return encode_compact(xyz, rgb, number, latency_ms, fuse_ms, params)
+    if codec != "raw":
+        raise ValidationError(f"unknown frame codec {codec!r}; codecs are {', '.join(CODECS)}")
     m = len(xyz)
     if m:
-        lo, hi = xyz.min(0), xyz.max(0)
+        from fuseflow.live.codec_kernels import bounds
+
+        lo, hi = bounds(np.ascontiguousarray(xyz))
         scale = (np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-6))).astype(np.float32)
         q = np.subtract(xyz, lo, dtype=np.float32)  # in place from here: one float32 buffer
         np.multiply(q, scale, out=q)
@@ -74,16 +100,29 @@ def encode_frame(cloud: FusedCloud, number: int, latency_ms: float, fuse_ms: flo
 
 
 def decode_frame(data: bytes) -> DecodedFrame:
-    """Read a message written by ``encode_frame``; FormatError when it is not one."""
+    """Read a message written by ``encode_frame`` (either codec); FormatError when it is not one
+    (truncated, corrupt, inconsistent or of an unknown version)."""
+    data = bytes(data)
+    if len(data) < 8:
+        raise FormatError(f"live frame: {len(data)} bytes, too short for a header")
+    magic, version = struct.unpack_from("<4sH", data)
+    if magic == MAGIC and version == COMPACT_VERSION:
+        h, xyz, rgb = decode_compact(data)
+        box = (xyz.min(0), xyz.max(0)) if len(xyz) else (np.zeros(3, np.float32), np.zeros(3, np.float32))
+        return DecodedFrame(h.number, xyz, rgb, box, h.latency_ms, h.fuse_ms, COMPACT_VERSION, h.points_in, h.step)
+    if magic != MAGIC or version != VERSION:
+        raise FormatError(
+            f"live frame: magic {magic!r} version {version}, expected {MAGIC!r} version {VERSION} or {COMPACT_VERSION}"
+        )
     if len(data) < HEADER:
         raise FormatError(f"live frame: {len(data)} bytes, shorter than the {HEADER}-byte header")
     magic, version, head, number, m, *rest = _HEAD.unpack_from(data)
-    if magic != MAGIC or version != VERSION:
-        raise FormatError(f"live frame: magic {magic!r} version {version}, expected {MAGIC!r} version {VERSION}")
     if len(data) != head + 9 * m:
         raise FormatError(f"live frame: {len(data)} bytes, expected {head + 9 * m} for {m} points")
     lo, hi = np.array(rest[0:3], np.float32), np.array(rest[3:6], np.float32)
     q = np.frombuffer(data, "<i2", 3 * m, head).reshape(m, 3).astype(np.float32)
     xyz = lo + (q + 32768.0) / 65535.0 * np.maximum(hi - lo, np.float32(1e-6))
     rgb = np.frombuffer(data, np.uint8, 3 * m, head + 6 * m).reshape(m, 3)
-    return DecodedFrame(number, xyz.astype(np.float32), rgb.copy(), (lo, hi), float(rest[6]), float(rest[7]))
+    return DecodedFrame(
+        number, xyz.astype(np.float32), rgb.copy(), (lo, hi), float(rest[6]), float(rest[7]), VERSION, m
+    )

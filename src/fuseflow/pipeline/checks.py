@@ -10,7 +10,15 @@ import numpy as np
 from fuseflow.errors import ValidationError
 from fuseflow.types import Frame, Rig
 
-__all__ = ["check_depth_range", "check_scale", "low_agreement", "LOW_AGREEMENT", "frame_notes"]
+__all__ = [
+    "check_depth_range",
+    "check_scale",
+    "low_agreement",
+    "LOW_AGREEMENT",
+    "below_calibration",
+    "CALIBRATION_DROP",
+    "frame_notes",
+]
 
 LOW_AGREEMENT = 0.5
 """A camera whose median depth agreement with its neighbours (``pipeline.health``, tau = 5 %) is
@@ -18,6 +26,13 @@ below this fits the recording badly. Measured on frame 0 (``pipeline.health.fram
 5000 samples): right extrinsics 0.90-0.99 on HO-Cap (``convert --with-extrinsics``) and
 0.79-0.86 on simulated 4- and 6-camera studios; two HO-Cap cameras swapped 0.12-0.16 (the
 others 0.59-0.85), all eight shuffled 0.07-0.23; a 6-camera studio in reverse order 0.20-0.53."""
+
+CALIBRATION_DROP = 0.12
+"""A camera whose median agreement in a run is this far below the agreement its calibration
+measured (calib.json ``report.depth_agreement``, the same score) no longer fits. Measured: right
+extrinsics on a dynamic simulated 4-camera 320x240 room, 32 frames: 0.86-0.89 in the run against
+0.87-0.90 at calibration (drops <= 0.02); cam01 and cam02 of a symmetric 3-camera 160x120 studio
+swapped (seeds 4-7): 0.48-0.66 against 0.79-0.86 (drops 0.20-0.37), mostly above ``LOW_AGREEMENT``."""
 
 UNIT_FACTOR = 100.0
 """Cameras whose nearest neighbour is more than this many times the deepest measured depth
@@ -92,12 +107,7 @@ def check_scale(frame: Frame, rig: Rig, delta: float, z_max: float) -> list[str]
 def low_agreement(records, threshold: float = LOW_AGREEMENT) -> str | None:
     """A warning naming the cameras whose median agreement over ``records`` (FrameRecord) is
     below ``threshold``, or None."""
-    values: dict[str, list[float]] = {}
-    for r in records:
-        for c, a in r.agreement.items():
-            if a is not None:
-                values.setdefault(c, []).append(float(a))
-    low = {c: float(np.median(v)) for c, v in values.items() if v and float(np.median(v)) < threshold}
+    low = {c: a for c, a in _medians(records).items() if a < threshold}
     if not low:
         return None
     named = ", ".join(f"{c} {a:.2f}" for c, a in low.items())
@@ -105,6 +115,36 @@ def low_agreement(records, threshold: float = LOW_AGREEMENT) -> str | None:
         f"cameras whose depth disagrees with their neighbours (median agreement {named}; about 0.8 or more "
         "when the extrinsics fit): the calibration does not fit this recording (cameras swapped or renamed, "
         "another rig's calibration, or moved since); check it, or calibrate this recording (drop --calib / --use-rig)"
+    )
+
+
+def _medians(records) -> dict[str, float]:
+    values: dict[str, list[float]] = {}
+    for r in records:
+        for c, a in r.agreement.items():
+            if a is not None:
+                values.setdefault(c, []).append(float(a))
+    return {c: float(np.median(v)) for c, v in values.items() if v}
+
+
+def below_calibration(records, calibrated: dict | None, drop: float = CALIBRATION_DROP) -> str | None:
+    """A warning naming the cameras whose median agreement over ``records`` fell more than ``drop``
+    below what their calibration measured (``calibrated``: camera id -> agreement, from calib.json's
+    report; None or empty: no check), leaving out those ``low_agreement`` already names; or None."""
+    if not calibrated:
+        return None
+    low = {
+        c: (a, float(calibrated[c]))
+        for c, a in _medians(records).items()
+        if isinstance(calibrated.get(c), (int, float)) and LOW_AGREEMENT <= a < float(calibrated[c]) - drop
+    }
+    if not low:
+        return None
+    named = ", ".join(f"{c} {a:.2f} (calibration: {b:.2f})" for c, (a, b) in low.items())
+    return (
+        f"cameras whose depth agrees with their neighbours less than when they were calibrated ({named}): "
+        "the calibration may not fit this recording (cameras swapped or renamed, or moved since); check it, "
+        "or calibrate this recording (drop --calib / --use-rig)"
     )
 
 

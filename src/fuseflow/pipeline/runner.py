@@ -21,7 +21,7 @@ from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.recording import Recording, write_json_atomic
-from fuseflow.pipeline.checks import check_depth_range, check_scale, frame_notes, low_agreement
+from fuseflow.pipeline.checks import below_calibration, check_depth_range, check_scale, frame_notes, low_agreement
 from fuseflow.pipeline.config import OutputOptions, PipelineConfig
 from fuseflow.pipeline.exports import FrameWriter, recording_centres, resolve_crop, with_volume, write_sequence
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
@@ -59,6 +59,14 @@ class CalibrationChoice:
     frame: int | None = None
     """Frame number GMAC calibrated on (None when GMAC did not run)."""
     warnings: list[str] = field(default_factory=list)
+    calibrated: dict | None = None
+    """Per camera id, the depth agreement its calibration measured (calib.json's report), if any."""
+
+
+def _measured_agreement(report) -> dict | None:
+    """``depth_agreement`` of a calibration report (a CalibReport or calib.json's dict), if any."""
+    value = report.get("depth_agreement") if isinstance(report, dict) else getattr(report, "depth_agreement", None)
+    return dict(value) if isinstance(value, dict) else None
 
 
 def choose_calibration(
@@ -73,12 +81,16 @@ def choose_calibration(
     else GMAC on ``calib_frame`` (default: the first good frame). Writes OUT/calib.json."""
     calib_json = out / "calib.json"
     if calib_json.exists():  # an earlier run of the same manifest (open_output checked it)
-        rig, warnings = _placed(rec.rig, read_calibration(calib_json))
-        return CalibrationChoice(rig, f"resumed from {calib_json}", warnings=warnings)
+        earlier = read_calibration(calib_json)
+        rig, warnings = _placed(rec.rig, earlier)
+        return CalibrationChoice(rig, f"resumed from {calib_json}", warnings=warnings,
+                                 calibrated=_measured_agreement(earlier.report))  # fmt: skip
     if calibration is not None:
         rig, warnings = _placed(rec.rig, calibration)
-        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, {"source": "given"}), rig=rec.rig)
-        return CalibrationChoice(rig, "given", warnings=warnings)
+        measured = _measured_agreement(calibration.report)
+        report = {"source": "given"} | ({"depth_agreement": measured} if measured else {})
+        write_calibration(calib_json, Calibration({c.id: c.T_cam_world for c in rig}, report), rig=rec.rig)
+        return CalibrationChoice(rig, "given", warnings=warnings, calibrated=measured)
     if use_rig_extrinsics and rec.rig.is_calibrated:
         write_calibration(
             calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}), rig=rec.rig
@@ -95,7 +107,9 @@ def choose_calibration(
     warnings.extend(str(w) for w in cal.report.warnings)
     write_calibration(calib_json, cal, rig=rec.rig)
     number = rec.frame_numbers[t]
-    return CalibrationChoice(placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings)
+    return CalibrationChoice(
+        placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings, _measured_agreement(cal.report)
+    )
 
 
 def _placed(rig: Rig, calibration: Calibration) -> tuple[Rig, list[str]]:
@@ -166,6 +180,8 @@ def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tup
     report = check_sync(rec, state.rig, sel, max_shift=config.sync_max_shift)
     state.warnings.extend(report.warnings())
     offsets = report.late()
+    if config.sync == "auto" and not offsets and report.limit:
+        state.warnings.append(f"--sync-offsets auto found no camera out of sync, but {report.limit}")
     if config.sync == "auto" and offsets:
         return shift_views(rec, offsets), offsets
     return rec, offsets
@@ -189,6 +205,7 @@ class _RunState:
     rig: Rig
     monitor: HealthMonitor
     calib_json: Path
+    calibrated: dict | None = None
     records: list[FrameRecord] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     fuse_ms: list[float] = field(default_factory=list)
@@ -309,7 +326,7 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
     warnings += frame_notes(state.records)
-    warnings += [w for w in [low_agreement(state.records)] if w]
+    warnings += [w for w in [low_agreement(state.records), below_calibration(state.records, state.calibrated)] if w]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
     stat = (lambda f: float(f(pts))) if pts.size else (lambda f: 0.0)  # noqa: E731
     return RunSummary(
@@ -387,7 +404,7 @@ def run(
     open_output(out, run_manifest(rec, calibration, config, calib_frame, use_rig_extrinsics), force)
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
-    state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
+    state = _RunState(choice.rig, monitor, out / "calib.json", choice.calibrated, warnings=list(choice.warnings))
     state.writer = _frame_writer(rec, out, calibration, choice, config.outputs)
     positions = list(frames if frames is not None else range(len(rec)))
     state.warnings += _check_inputs(rec, choice.rig, positions, config)

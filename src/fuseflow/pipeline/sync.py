@@ -52,6 +52,8 @@ class SyncReport:
     method: str = "agreement"
     pairs: tuple[PairLag, ...] = ()
     sub_frame: dict[str, float] | None = None
+    limit: str = ""
+    """Why this check may miss an offset on this recording ("" when it can see one)."""
 
     def late(self) -> dict[str, int]:
         """Cameras with a non-zero offset: id -> frames late (negative: early)."""
@@ -223,4 +225,20 @@ def check_sync(
         c = max(new)[1]
         found[c] = est[c]
     offsets = {c: (found[c] if c in found else est[c]) for c in rig.ids}
-    return SyncReport(offsets, tuple(rec.frame_numbers[t] for t in positions))
+    return SyncReport(
+        offsets, tuple(rec.frame_numbers[t] for t in positions), limit=_agreement_limit(len(rec), period, max_shift)
+    )
+
+
+#: Frame rate above which the agreement check misses a camera 2 frames late (docs/formats.md
+#: "Camera-sync check": 0 of 5 seeds at 30 fps, 4 of 5 at 5 fps): the scene moves too little per frame.
+AGREEMENT_MAX_FPS = 10.0
+
+
+def _agreement_limit(frames: int, period: float | None, max_shift: int) -> str:
+    """The agreement check's blind spot on this recording, in words ("" outside it)."""
+    if period is None or period <= 0 or 1.0 / period <= AGREEMENT_MAX_FPS:
+        return ""
+    return (f"on {frames} frames at {1.0 / period:.0f} fps the sync check cannot see an offset of a frame or two: "
+            f"the motion check needs at least {COVISIBLE_MIN_FRAMES + 2 * (max_shift + 2)} frames (docs/formats.md, "
+            "\"Camera-sync check\"); record longer, or check the cameras' sync cable")  # fmt: skip

@@ -10,7 +10,8 @@ Cases (``CASES``):
   frame replayed in a loop at 10 fps (a static rig filming a static scene).
 * ``hocap8-200k``: the same with ``--points 200000``: the bandwidth of a 200 k-point stream.
 
-Every case uses ``--preset live`` and ``--preload`` (decoded frames in memory, as cameras deliver
+Every case uses ``--preset live``, the viewer codec ``codec`` (``compact`` by default, ``raw``
+for the 9-byte format) and ``--preload`` (decoded frames in memory, as cameras deliver
 them: the replay then costs no PNG decoding). The viewer is a Python WebSocket client in this
 process of its own that reads every message as fast as it can. Bandwidth is reported twice: measured (bytes
 the viewer received / seconds: it scales with the fused frames per second this machine reached)
@@ -103,8 +104,8 @@ class _Viewer:
     """A WebSocket client in a process of its own (it must not take CPU time from the fusion
     loop's interpreter) that reads every message and counts frames and bytes."""
 
-    def __init__(self, url: str):
-        self.url = url.replace("http://", "ws://") + "ws"
+    def __init__(self, url: str, codec: str = "compact"):
+        self.url = url.replace("http://", "ws://") + "ws?codec=" + codec
         self.frames = 0
         self.bytes = 0
         self.proc = subprocess.Popen([sys.executable, "-c", _VIEWER, self.url], stdout=subprocess.PIPE, text=True)
@@ -134,7 +135,9 @@ def _stand_in(recording: Any, points: int | None, ms: float) -> Callable:
     return fuse_fn
 
 
-def _run_case(case: LiveCase, rec: Path, duration: float, stand_in_ms: float | None = None) -> dict[str, Any]:
+def _run_case(
+    case: LiveCase, rec: Path, duration: float, stand_in_ms: float | None = None, codec: str = "compact"
+) -> dict[str, Any]:
     from fuseflow.io import open_recording
     from fuseflow.io.replay import ReplaySource
     from fuseflow.live import LiveOutputs, run_live
@@ -146,7 +149,7 @@ def _run_case(case: LiveCase, rec: Path, duration: float, stand_in_ms: float | N
     settings = LiveSettings(preset="live", points=case.points, duration=duration)
     fuse_fn = _stand_in(recording, case.points, stand_in_ms) if stand_in_ms is not None else None
     res = run_live(source, None, settings, LiveOutputs(serve=("127.0.0.1", 0)),
-                   on_start=lambda url, _w: viewers.append(_Viewer(url)), fuse_fn=fuse_fn)  # fmt: skip
+                   on_start=lambda url, _w: viewers.append(_Viewer(url, codec)), fuse_fn=fuse_fn)  # fmt: skip
     viewers[0].finish()
     s, client = res.summary, (res.clients[0] if res.clients else {})
     row = {
@@ -156,12 +159,16 @@ def _run_case(case: LiveCase, rec: Path, duration: float, stand_in_ms: float | N
         "points_target": case.points, "duration_s": s.wall_s, "frames_in": s.frames_in, "frames_out": s.frames_out,
         "dropped": s.dropped, "drop_rate": round(s.drop_rate, 4), "fps": s.fps, "latency_ms_p50": s.latency_ms_p50,
         "latency_ms_p95": s.latency_ms_p95, "fuse_ms_median": s.fuse_ms_median, "points_mean": s.points_mean,
-        "client_frames": viewers[0].frames, "client_dropped": client.get("dropped"),
+        "codec": codec, "encode_ms_median": res.encode_ms_median,
+        "encode_cpu_ms_median": res.encode_cpu_ms_median, "encoder_skipped": res.encoder_skipped,
+        "client_frames": viewers[0].frames, "client_fps": round(viewers[0].frames / max(s.wall_s, 1e-9), 2),
+        "client_dropped": client.get("dropped"),
         "bytes_per_frame": round(viewers[0].bytes / max(viewers[0].frames, 1)),
         "mbit_per_s": round(viewers[0].bytes * 8 / max(s.wall_s, 1e-9) / 1e6, 2),
     }  # fmt: skip
     # what the stream needs when fusion keeps up with the cameras: bytes per frame x the camera rate
     row["mbit_per_s_at_rate"] = round(row["bytes_per_frame"] * 8 * case.rate / 1e6, 2)
+    row["bytes_per_point"] = round(row["bytes_per_frame"] / max(s.points_mean, 1.0), 3)
     row["target"] = TARGETS[case.name]
     row["target_met"] = _target_met(case.name, row)
     return row
@@ -171,7 +178,8 @@ def format_row(r: dict[str, Any]) -> str:
     return (
         f"{r['case']:<12} {'' if r['fusion'] == 'FUSE' else '(stand-in) '}{r['cameras']} x {r['resolution']} @ {r['rate']:g} fps: {r['fps']:.2f} fused/s, "
         f"drops {r['drop_rate']:.1%}, latency p50 {r['latency_ms_p50']} / p95 {r['latency_ms_p95']} ms, "
-        f"FUSE {r['fuse_ms_median']} ms, {r['points_mean']:.0f} points, {r['bytes_per_frame']} B/frame, "
+        f"FUSE {r['fuse_ms_median']} ms, encode {r['encode_ms_median']} ms ({r['encode_cpu_ms_median']} CPU), {r['points_mean']:.0f} points, "
+        f"{r['codec']} {r['bytes_per_frame']} B/frame ({r['bytes_per_point']} B/point), viewer {r['client_fps']} fps, "
         f"{r['mbit_per_s']:.1f} Mbit/s per client ({r['mbit_per_s_at_rate']:.1f} at {r['rate']:g} fps) "
         f"[{r['target']}: {'met' if r['target_met'] else 'MISSED'}]"
     )
@@ -185,13 +193,19 @@ def run_live_bench(
     command: str = "",
     stand_in_ms: float | None = None,
     log: Callable[[str], None] = lambda s: None,
+    codec: str = "compact",
 ) -> list[dict[str, Any]]:
     """Run each case for ``duration`` seconds; one row per case (also written to ``json_path``).
 
     ``stand_in_ms``: replace FUSE by a stand-in that sleeps this long and returns a real fused
     cloud (``_stand_in``): the capture, mailbox, encoding, server and viewer measured with a
-    fusion of known duration and no CPU use, e.g. FUSE's time on a quiet machine."""
+    fusion of known duration and no CPU use, e.g. FUSE's time on a quiet machine. ``codec``: the
+    viewer's frame codec (``fuseflow.live.wire.CODECS``)."""
     require("websockets", "live", "bench live")
+    from fuseflow.live.wire import CODECS
+
+    if codec not in CODECS:
+        raise ValidationError(f"bench live: --codec must be one of {', '.join(CODECS)}, got {codec!r}")
     unknown = [c for c in cases if c not in CASES]
     if unknown:
         raise ValidationError(f"bench live: unknown cases {unknown}; cases are {sorted(CASES)}")
@@ -201,7 +215,7 @@ def run_live_bench(
     with tempfile.TemporaryDirectory(prefix="bench_live_") as tmp:
         for name in cases:
             rec = _recording(name, Path(tmp), data_dir)
-            row = _run_case(CASES[name], rec, duration, stand_in_ms)
+            row = _run_case(CASES[name], rec, duration, stand_in_ms, codec)
             log(format_row(row))
             rows.append(row)
     meta = {"command": command, "machine": platform.processor() or platform.machine(), "cpus": torch.get_num_threads(),

@@ -21,17 +21,17 @@
     gl.linkProgram(p);
     return p;
   }
-  // Points: int16 positions in the frame's box, decoded on the GPU; uint8 colours.
+  // Points: float32 positions (decoded from either frame codec below); uint8 colours.
   const pointProg = program(
-    "attribute vec3 q; attribute vec3 c; uniform mat4 mvp; uniform vec3 lo; uniform vec3 ext; uniform float size;" +
-    "varying vec3 vc; void main() { vec3 p = lo + (q + 32768.0) / 65535.0 * ext;" +
-    "gl_Position = mvp * vec4(p, 1.0); gl_PointSize = size / max(gl_Position.w, 0.1); vc = c / 255.0; }",
+    "attribute vec3 q; attribute vec3 c; uniform mat4 mvp; uniform float size;" +
+    "varying vec3 vc; void main() {" +
+    "gl_Position = mvp * vec4(q, 1.0); gl_PointSize = size / max(gl_Position.w, 0.1); vc = c / 255.0; }",
     "precision mediump float; varying vec3 vc; void main() { gl_FragColor = vec4(vc, 1.0); }");
   const lineProg = program(
     "attribute vec3 p; uniform mat4 mvp; void main() { gl_Position = mvp * vec4(p, 1.0); }",
     "precision mediump float; uniform vec3 col; void main() { gl_FragColor = vec4(col, 1.0); }");
   const posBuf = gl.createBuffer(), colBuf = gl.createBuffer(), lineBuf = gl.createBuffer();
-  let count = 0, lo = [0, 0, 0], ext = [1, 1, 1], lineCount = 0, haveView = false;
+  let count = 0, lineCount = 0, haveView = false;
 
   // ---- camera: orbit around a target. "Up" is the cameras' mean up direction (minus their
   // y axes: image up), so z-up and y-down worlds both look upright; the first view looks the way
@@ -113,31 +113,53 @@
     }
   }
 
-  // ---- frames
-  let frames = 0, lastBox = null, times = [];
-  function onFrame(buf) {
-    const dv = new DataView(buf);
-    const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
-    if (magic !== "FFLV" || dv.getUint16(4, true) !== 1) { $("status").textContent = "unknown frame format"; return; }
-    const head = dv.getUint16(6, true), m = dv.getUint32(12, true);
-    const f = (o) => dv.getFloat32(o, true);
-    lo = [f(16), f(20), f(24)];
-    ext = [0, 1, 2].map((i) => Math.max(f(28 + 4 * i) - lo[i], 1e-6));
+  // ---- frames: version 1 (raw) and version 2 (compact); docs/live.md has both byte by byte
+  let frames = 0, lastBox = null, times = [], busy = false, waiting = null, decodeMs = [];
+  window.fuseflowStats = { decodeMs, frames: 0, bytes: 0, version: 0 };
+  function boxOf(xyz, m) {
+    const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+    for (let i = 0; i < m; i++) for (let a = 0; a < 3; a++) {
+      const v = xyz[3 * i + a]; if (v < lo[a]) lo[a] = v; if (v > hi[a]) hi[a] = v;
+    }
+    return [lo, [0, 1, 2].map((a) => Math.max(hi[a] - lo[a], 1e-6))];
+  }
+  async function onFrame(buf) {
+    // one frame decodes at a time; frames arriving meanwhile replace each other (newest wins)
+    if (busy) { waiting = buf; return; }
+    busy = true;
+    try {
+      while (buf) {
+        await show(buf);
+        buf = waiting; waiting = null;
+      }
+    } finally { busy = false; }
+  }
+  async function show(buf) {
+    const t0 = performance.now();
+    let frame;
+    try { frame = await FuseFlowDecode.decodeFrame(buf); } catch (err) {
+      $("status").textContent = "bad frame: " + err.message; return;
+    }
+    const version = frame.version;
+    decodeMs.push(performance.now() - t0);
+    if (decodeMs.length > 200) decodeMs.shift();
+    const m = frame.m;
     gl.bindBuffer(gl.ARRAY_BUFFER, posBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, new Int16Array(buf, head, 3 * m), gl.DYNAMIC_DRAW);
+    gl.bufferData(gl.ARRAY_BUFFER, frame.xyz, gl.DYNAMIC_DRAW);
     gl.bindBuffer(gl.ARRAY_BUFFER, colBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, new Uint8Array(buf, head + 6 * m, 3 * m), gl.DYNAMIC_DRAW);
+    gl.bufferData(gl.ARRAY_BUFFER, frame.rgb, gl.DYNAMIC_DRAW);
     count = m;
-    lastBox = [lo, ext];
-    if (!haveView && m > 0) { resetView(lastBox); haveView = true; }
+    if (!haveView && m > 0) { lastBox = boxOf(frame.xyz, m); resetView(lastBox); haveView = true; }
     frames += 1;
+    Object.assign(window.fuseflowStats, { frames, bytes: window.fuseflowStats.bytes + buf.byteLength, version });
     const now = performance.now();
     times.push(now);
     while (times.length && now - times[0] > 2000) times.shift();
     $("frames").textContent = frames;
     $("points").textContent = m.toLocaleString();
-    $("latency").textContent = f(40).toFixed(0);
+    $("latency").textContent = frame.latency.toFixed(0);
     $("fps").textContent = times.length > 1 ? ((times.length - 1) * 1000 / (now - times[0])).toFixed(1) : "0";
+    $("codec").textContent = version === 2 ? "compact" : "raw";
   }
 
   function draw() {
@@ -151,13 +173,11 @@
     if (count > 0) {
       gl.useProgram(pointProg);
       gl.uniformMatrix4fv(gl.getUniformLocation(pointProg, "mvp"), false, m);
-      gl.uniform3fv(gl.getUniformLocation(pointProg, "lo"), lo);
-      gl.uniform3fv(gl.getUniformLocation(pointProg, "ext"), ext);
       gl.uniform1f(gl.getUniformLocation(pointProg, "size"), 6.0 * window.devicePixelRatio);
       const qa = gl.getAttribLocation(pointProg, "q"), ca = gl.getAttribLocation(pointProg, "c");
       gl.bindBuffer(gl.ARRAY_BUFFER, posBuf);
       gl.enableVertexAttribArray(qa);
-      gl.vertexAttribPointer(qa, 3, gl.SHORT, false, 0, 0);
+      gl.vertexAttribPointer(qa, 3, gl.FLOAT, false, 0, 0);
       gl.bindBuffer(gl.ARRAY_BUFFER, colBuf);
       gl.enableVertexAttribArray(ca);
       gl.vertexAttribPointer(ca, 3, gl.UNSIGNED_BYTE, false, 0, 0);
@@ -179,7 +199,10 @@
   requestAnimationFrame(draw);
 
   function connect() {
-    const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
+    // ?codec=raw in the page's address asks the server for that codec (default: the server's)
+    const codec = new URLSearchParams(location.search).get("codec");
+    const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws" +
+      (codec ? "?codec=" + encodeURIComponent(codec) : ""));
     ws.binaryType = "arraybuffer";
     ws.onopen = () => { $("status").textContent = "live"; };
     ws.onmessage = (e) => {
