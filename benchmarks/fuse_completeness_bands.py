@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Where is the surface FUSE misses (issue 17, completeness)? One static 8-camera studio frame
-(640x480, seed 11, the fuse_quality.py reference): the GT samples farther than 2 cm from the
+(640x480, seed 11, the seen surface of fuseflow.eval.reference): the GT samples farther than 2 cm from the
 cloud, split by distance to the nearest camera centre and by height (floor / above), for FUSE
 and four variants; "share of completeness sum" says which band the mean distance comes from.
 
@@ -26,7 +26,7 @@ from fuseflow.synth import SimConfig, Simulator  # noqa: E402
 sim = Simulator(SimConfig(cameras=8, frames=1, scene="studio", resolution=(640, 480), seed=11))
 sf = sim.render(0)
 rig = sim.rig
-gt = _reference(sf, rig)
+gt = _reference(sf, sim).samples
 C = np.stack([np.linalg.inv(c.T_cam_world)[:3, 3] for c in rig.cameras])
 dcam = cKDTree(C).query(gt)[0]  # distance of each GT sample to the nearest camera centre
 naive = naive_fusion(sf.frame, rig).xyz.numpy()

@@ -7,12 +7,12 @@ Data: two simulated 8-camera rings (``--cameras``) at 640x480 (fuseflow.synth, s
 noise with flying pixels, lateral noise, quantisation and dropout; GT extrinsics): one static,
 one dynamic (walking figure, bouncing box, rolling sphere). ``--frames`` frames of each.
 
-Metrics (fuseflow.eval.metrics, docs/design.md section 4) per frame against the GT surface samples (1 cm
-spacing) that some camera measures at that instant (noise-free depth test, inside the sensor's
-depth range; see _reference), then the mean over frames:
+Metrics per frame against the GT surface some camera saw (fuseflow.eval.reference: recall and
+completeness on its 1 cm samples, precision / accuracy / outliers by the exact distance to the
+true surface), then the mean over frames:
 
 * chamfer_mm, accuracy_mm (cloud -> surface), completeness_mm (surface -> cloud);
-* F-score at 5 mm and at 1 cm (precision, recall, F);
+* precision, recall and F at 5 mm, 1 cm and 2 cm (f_5mm, precision_1cm, recall_2cm, ...);
 * outlier_2cm: share of points farther than 2 cm from the surface;
 * or_5mm: the paper's outlier ratio, share of points with fewer than 3 others within 5 mm
   (depends on density: see docs/metrics.md);
@@ -91,62 +91,27 @@ def _density_methods():
     return out
 
 
-def _score(cloud, gt) -> dict:
-    # one pair of nearest-neighbour passes for CD, both F-scores and the outlier share (the
-    # definitions of fuseflow.eval.metrics.chamfer_distance / f_score / outlier_share)
-    from fuseflow.eval.metrics import outlier_ratio, surface_distances
+def _score(cloud, ref) -> dict:
+    # fuseflow.eval.reference: precision / accuracy / outliers against the true surface,
+    # recall / completeness on the seen samples; plus the paper's OR at 5 mm
+    from fuseflow.eval.metrics import outlier_ratio
 
     pts = cloud.xyz.numpy()
-    dist = surface_distances(pts, gt)
-    cd = dist.chamfer()
-    f5, f10 = dist.fscore(0.005), dist.fscore(0.01)
-    return {
-        "points": len(pts),
-        "chamfer_mm": cd.chamfer_mm,
-        "accuracy_mm": cd.accuracy_mm,
-        "completeness_mm": cd.completeness_mm,
-        "f_5mm": f5.f_score,
-        "precision_5mm": f5.precision,
-        "recall_5mm": f5.recall,
-        "f_1cm": f10.f_score,
-        "precision_1cm": f10.precision,
-        "recall_1cm": f10.recall,
-        "outlier_2cm": dist.outlier_share(0.02),
-        "or_5mm": outlier_ratio(pts, radius=0.005).ratio,
-    }
+    return {**ref.score(pts), "or_5mm": outlier_ratio(pts, radius=0.005).ratio}
 
 
-def _reference(sf, rig) -> np.ndarray:
-    """The GT surface samples some camera measures: visible in its noise-free depth (within
-    2 cm + 1 %) at a depth inside the camera's depth_range. The simulator's own visibility test
-    ignores the sensor range, so without this the far backdrop, which no sensor returns, would
-    count as missing from every method's cloud (completeness, recall)."""
+def _reference(sf, sim):
+    """The seen GT surface of frame sf (fuseflow.eval.reference.simulated_reference)."""
+    from fuseflow.eval.reference import simulated_reference
 
-    pts = sf.surface_points.numpy().astype(np.float64)
-    dgt = sf.depth_gt.numpy()
-    seen = np.zeros(len(pts), dtype=bool)
-    for i, cam in enumerate(rig.cameras):
-        Xc = pts @ cam.T_cam_world[:3, :3].T + cam.T_cam_world[:3, 3]
-        z = Xc[:, 2]
-        lo, hi = cam.depth_range
-        ok = (z > lo) & (z < hi)
-        uvw = Xc[ok] @ cam.K.T
-        u = np.floor(uvw[:, 0] / uvw[:, 2]).astype(np.int64)
-        v = np.floor(uvw[:, 1] / uvw[:, 2]).astype(np.int64)
-        inside = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        idx = np.flatnonzero(ok)[inside]
-        d = dgt[i, v[inside], u[inside]]
-        zz = z[idx]
-        seen[idx] |= (d > 0) & (np.abs(d - zz) < 0.02 + 0.01 * zz)
-    return pts[seen].astype(np.float32)
+    pts, nrm = sf.surface_points.numpy(), sf.surface_normals.numpy()
+    return simulated_reference(sim, sf.frame.index, (pts, nrm), sf.depth_gt.numpy())
 
 
 def _tail_cells(sf, rig, gt, cfg) -> dict:
     """Where FUSE's points beyond 2 cm come from (torch reference, one frame): the RPS inputs
     (candidates, their fine cell, k per cell) are captured around select_representatives."""
     import importlib
-
-    from scipy.spatial import cKDTree
 
     from fuseflow.fuse import fuse
 
@@ -165,7 +130,7 @@ def _tail_cells(sf, rig, gt, cfg) -> dict:
     finally:
         api.select_representatives = orig
     inv, sel, k = cap["inv"], cap["sel"], cap["k"]
-    bad = cKDTree(gt).query(cap["P"])[0] > 0.02
+    bad = gt.distance_to_surface(cap["P"]) > 0.02
     n = np.bincount(inv)
     good = np.bincount(inv, weights=(~bad).astype(np.float64))
     c = inv[sel[bad[sel]]]  # cells of the selected points beyond 2 cm
@@ -189,7 +154,7 @@ def _run_rig(
     warm = set()
     for t in range(frames):
         sf = sim.render(t)
-        gt = _reference(sf, sim.rig)
+        gt = _reference(sf, sim)
         for m, fn in methods.items():
             if m not in warm:  # compile / start-up outside the timing
                 fn(sf.frame, sim.rig)
@@ -238,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
 
         sim = Simulator(SimConfig(cameras=8, frames=1, resolution=(w, h), dynamic=False, seed=args.seed, rig="ring"))
         sf = sim.render(0)
-        gt = _reference(sf, sim.rig)
+        gt = _reference(sf, sim)
         for rp in (False, True):
             out = _tail_cells(sf, sim.rig, gt, replace(FuseConfig(), range_priority=rp))
             print(f"range_priority={rp}: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in out.items()))
@@ -265,8 +230,8 @@ def main(argv: list[str] | None = None) -> int:
             "resolution": [w, h],
             "frames": args.frames,
             "seed": args.seed,
-            "reference": "SimFrame.surface_points (GT surface, 1 cm samples) that some camera sees in its "
-            "noise-free depth within its depth_range at that instant (_reference)",
+            "reference": "fuseflow.eval.reference.simulated_reference: seen 1 cm samples (recall), exact "
+            "distance to the true surface (precision)",
             "torch_threads": torch.get_num_threads(),
             "date": time.strftime("%Y-%m-%d %H:%M"),
         }

@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fuseflow.fuse import PRESETS, FuseConfig, fuse_with_report
+from fuseflow.fuse import PRESETS, fuse_with_report
 from fuseflow.fuse.config import AUTO_MIN_VALID_PER_VIEW, AUTO_MIN_VIEWS, auto_config
 
 
@@ -19,16 +19,17 @@ def test_auto_config_takes_lives_grid_only_where_pixels_are_plentiful():
     assert "stride 2" in why and "plentiful" in why
     for views, valid in ((AUTO_MIN_VIEWS - 1, 10 * plenty), (AUTO_MIN_VIEWS, plenty - 1), (8, 8 * 320 * 240)):
         out, why = auto_config(cfg, views, valid)
-        assert out == cfg and "stride 1" in why
+        dense = PRESETS["dense"]
+        assert out == replace(cfg, s0=dense.s0, depth_smoothing=dense.depth_smoothing) and "stride 1" in why
 
 
-def test_auto_preset_on_a_small_rig_is_the_default_and_says_so():
+def test_auto_preset_on_a_small_rig_is_dense_and_says_so():
     from fuseflow.synth import SimConfig, Simulator
 
     sim = Simulator(SimConfig(cameras=4, resolution=(96, 72), frames=1, seed=2))
     frame = sim.render(0).frame
     a = fuse_with_report(frame, sim.rig, PRESETS["auto"])
-    b = fuse_with_report(frame, sim.rig, FuseConfig())
+    b = fuse_with_report(frame, sim.rig, PRESETS["dense"])
     assert a.report.pixel_stride == 1 and a.report.grid.startswith("auto: stride 1")
     assert b.report.grid == ""
     assert np.array_equal(a.cloud.xyz.numpy(), b.cloud.xyz.numpy())

@@ -193,12 +193,52 @@ def bench_fuse_ratio(
         json_out.write_text(json.dumps(rows, indent=1))
 
 
+def bench_fuse_quality(
+    cameras: str = typer.Option("3,4,8", "--cameras", help="Comma list of ring sizes."),
+    resolutions: str = typer.Option("320x240,640x480", "--resolutions", help="Comma list of WxH."),
+    seeds: str = typer.Option("11,29,47,61,73,89", "--seeds", help="Comma list of simulator seeds."),
+    kinds: str = typer.Option("static,dynamic", "--kinds", help="static, dynamic or both."),
+    methods: str = typer.Option("auto,vbg,naive", "--methods", help="FUSE presets, vbg, naive; the first is compared."),
+    num_frames: int = typer.Option(1, "--num-frames", help="Frames per cell (mean over them)."),
+    json_out: Path = typer.Option(None, "--json", help="Write the rows and the per-rig summary as JSON."),
+) -> None:
+    """FUSE vs VoxelBlockGrid: precision / recall / F at 5 mm, 1 cm, 2 cm on simulated rings."""
+    import json
+
+    from fuseflow.eval.bench.fuse_quality import run_fuse_quality, summarize_quality
+
+    def ints(text: str) -> list[int]:
+        try:
+            return [int(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            fail(f"expected a comma list of integers, got {text!r}")
+
+    try:
+        res = [tuple(int(v) for v in r.lower().split("x")) for r in resolutions.split(",") if r.strip()]
+    except ValueError:
+        fail(f"--resolutions: expected WxH[,WxH...], got {resolutions!r}")
+    dyn = [{"static": False, "dynamic": True}.get(k.strip(), k) for k in kinds.split(",") if k.strip()]
+    if any(not isinstance(d, bool) for d in dyn):
+        fail(f"--kinds: expected static and/or dynamic, got {kinds!r}")
+    names = [m.strip() for m in methods.split(",") if m.strip()]
+    rows = run_fuse_quality(ints(cameras), res, ints(seeds), dyn, names, num_frames, log=_echo)
+    summary = summarize_quality(rows)
+    for s in summary:
+        m = s["method"]
+        say(f"{s['cameras']}-ring {s['resolution']}: {m} F@1cm {s[f'{m}_f_1cm']:.3f}, VBG {s.get('vbg_f_1cm', float('nan')):.3f}: "
+            f"{m} >= VBG in {s['wins']} of {s['cells']} cells")  # fmt: skip
+    if json_out is not None:
+        cmd = "fuseflow bench " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+        json_out.write_text(json.dumps({"command": cmd, "rows": rows, "summary": summary}, indent=1))
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
 for _name, _command in (
     ("fuse", bench_fuse),
     ("fuse-ratio", bench_fuse_ratio),
+    ("fuse-quality", bench_fuse_quality),
     ("calib", bench_calib),
     ("paper", bench_paper),
     ("live", bench_live),

@@ -4,8 +4,8 @@
 2. run FUSE-Flow on it (fuseflow.pipeline.run: GMAC on the first good frame, FUSE every frame);
 3. compare the GMAC extrinsics with the true ones (docs/design.md section 4: rotation error in
    degrees, translation error in mm, no scale alignment);
-4. compare the first, middle and last fused frames with the true surface the cameras can
-   measure (visible and inside the depth range; Chamfer distance,
+4. compare the first, middle and last fused frames with the true surface the cameras saw
+   (fuseflow.eval.reference; Chamfer distance,
    F-score at 1 cm, share of points farther than 2 cm from the surface; 100k random query
    points each way, an unbiased estimate that keeps the demo fast). GMAC's world frame is its own (a reference
    camera); the cloud is moved into the simulator's world by the rigid (rotation +
@@ -202,12 +202,15 @@ def _score(out: Path, gt: Any) -> _Scores:
     est = calib.apply(gt.rig.subset([gt.rig.index(c) for c in calib.camera_ids]))
     pe = pose_errors(calib, gt.rig)
     A = align_world(est, gt.rig)
+    from fuseflow.synth import Simulator
+
+    sim = Simulator(gt.config)  # the same scene (same config and seed), for its triangles
     cds, fss, outs = [], [], []
     for t in sorted({0, gt.frames // 2, gt.frames - 1}):  # first, middle, last frame
-        m = _frame_metrics(_transform(read_ply(cloud_path(out, t)), A), gt, t)
-        cds.append(m.chamfer.chamfer_mm)
-        fss.append(m.fscore.f_score)
-        outs.append(m.outlier_share)
+        m = _frame_metrics(_transform(read_ply(cloud_path(out, t)), A), gt, sim, t)
+        cds.append(m.chamfer().chamfer_mm)
+        fss.append(m.fscore(0.01).f_score)
+        outs.append(m.outlier_share(0.02))
     last_cloud = read_ply(cloud_path(out, gt.frames - 1))
     return _Scores(
         est=est,
@@ -222,17 +225,14 @@ def _score(out: Path, gt: Any) -> _Scores:
     )
 
 
-def _frame_metrics(xyz: np.ndarray, gt: Any, t: int) -> Any:
-    """CD, F-score at 1 cm and share beyond 2 cm of (M, 3) world points against frame t's surface."""
-    from fuseflow.eval.metrics import reference_metrics
-    from fuseflow.synth import observable_mask
+def _frame_metrics(xyz: np.ndarray, gt: Any, sim: Any, t: int) -> Any:
+    """Distances (fuseflow.eval.metrics.SurfaceDistances) of (M, 3) world points to frame t's seen
+    surface (fuseflow.eval.reference): fused point -> true surface, seen sample -> cloud."""
+    from fuseflow.eval.reference import simulated_reference
 
-    surf, nrm = gt.surface(t)
-    # score against the surface the cameras can measure (visible and inside the depth
-    # range): the studio's far walls are in the simulator's surface but beyond 4.5 m
-    surf = surf[observable_mask(surf, nrm, gt.depth(t).numpy(), gt.rig)]
+    ref = simulated_reference(sim, t, gt.surface(t), gt.depth(t).numpy())
     # 100k random queries each way against the full clouds: an unbiased, fast estimate
-    return reference_metrics(xyz, surf, f_threshold=0.01, outlier_threshold=0.02, sample=METRIC_SAMPLE, seed=t)
+    return ref.distances(xyz, sample=METRIC_SAMPLE, seed=t)
 
 
 def _render_pngs(out: Path, last_xyz: np.ndarray, last_cloud: FusedCloud) -> list[str]:

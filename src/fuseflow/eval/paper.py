@@ -137,7 +137,8 @@ class Sample:
 
     frame: Any
     rig: Any
-    gt: np.ndarray | None
+    gt: Any
+    """fuseflow.eval.reference.SurfaceReference, or None (no ground truth)."""
     label: str
 
 
@@ -165,13 +166,13 @@ def _subsample(frame, rig, stride: int):
     return f, fuseflow.Rig(tuple(cams))
 
 
-def _observable_surface(sf, rig) -> np.ndarray:
-    """GT surface samples a camera can measure (fuseflow.synth.observable_mask)."""
-    from fuseflow.synth.simulator import observable_mask
+def _observable_surface(sim, sf):
+    """The seen GT surface of frame sf (fuseflow.eval.reference.simulated_reference)."""
+    from fuseflow.eval.reference import simulated_reference
 
-    pts = sf.surface_points.numpy()
-    keep = observable_mask(pts, sf.surface_normals.numpy(), sf.depth_gt.numpy(), rig)
-    return pts[keep].astype(np.float64)
+    return simulated_reference(
+        sim, sf.frame.index, (sf.surface_points.numpy(), sf.surface_normals.numpy()), sf.depth_gt.numpy()
+    )
 
 
 class _SimCache:
@@ -194,7 +195,7 @@ class _SimCache:
             self._key, self._sim, self._frames = key, Simulator(cfg), {}
         if t not in self._frames:
             sf = self._sim.render(t)
-            self._frames[t] = Sample(sf.frame, self._sim.rig, _observable_surface(sf, self._sim.rig), "sim")
+            self._frames[t] = Sample(sf.frame, self._sim.rig, _observable_surface(self._sim, sf), "sim")
         return self._frames[t]
 
 
@@ -273,16 +274,16 @@ def cloud_metrics(cloud, sample: Sample, seed: int = 0) -> dict[str, float]:
     # docs/design.md's OR (5 mm) counts every point of a cloud sparser than 5 mm as an outlier; the
     # same count at 2 cm is reported beside it (a project addition, labelled as such).
     out["or2_pct"] = 100.0 * M.outlier_ratio(cloud, radius=0.02).ratio
-    if sample.gt is not None and len(sample.gt):
-        r = M.reference_metrics(cloud, sample.gt, f_threshold=0.01, outlier_threshold=0.02)
+    if sample.gt is not None and len(sample.gt.samples):
+        r = sample.gt.score(cloud.xyz)
         out.update(
-            cd_mm=r.chamfer.chamfer_mm,
-            acc_mm=r.chamfer.accuracy_mm,
-            comp_mm=r.chamfer.completeness_mm,
-            fscore=r.fscore.f_score,
-            precision=r.fscore.precision,
-            recall=r.fscore.recall,
-            gt_outlier_pct=100.0 * r.outlier_share,
+            cd_mm=r["chamfer_mm"],
+            acc_mm=r["accuracy_mm"],
+            comp_mm=r["completeness_mm"],
+            fscore=r["f_1cm"],
+            precision=r["precision_1cm"],
+            recall=r["recall_1cm"],
+            gt_outlier_pct=100.0 * r["outlier_2cm"],
         )
     return out
 
@@ -754,8 +755,9 @@ def _md_preamble(pc: PaperConfig, command: str) -> list[str]:
         "device cpu. Numbers: mean ± std over frames (all seeds pooled). "
         "Metrics as docs/design.md section 4 / docs/metrics.md: PFR 1 cm band, up to 3 planes; PNCC 3x3 patches; "
         "OR = share of points with fewer than 5 neighbours within 5 mm; CD and F-score (1 cm) against the "
-        "simulator's surface samples that a camera sees within its depth range; '>2 cm' = share of fused "
-        "points farther than 2 cm from that surface. FPS = 1 / wall time of one fusion call (after one "
+        "simulator's surface that a camera sees (fuseflow.eval.reference: recall on its samples, precision "
+        "by the distance to the true surface); '>2 cm' = share of fused points farther than 2 cm from the "
+        "true surface. FPS = 1 / wall time of one fusion call (after one "
         "warm-up call); peak RSS is the whole process's (Python, torch, Open3D included).",
         "",
     ]

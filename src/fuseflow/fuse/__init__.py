@@ -1,7 +1,7 @@
 """FUSE: stateless, reliability-guided multi-view point cloud fusion (paper III-C).
 
-``fuse(frame, rig, config=FuseConfig()) -> FusedCloud``. One module per component: mcm (eq.
-16-18), neighbours (the camera graph), cvgc (eq. 19-21), weights (eq. 22), ash (eq. 23-25),
+``fuse(frame, rig, config=FuseConfig()) -> FusedCloud``. One module per component: smooth
+(noise-aware depth smoothing before MCM, beyond the paper), mcm (eq. 16-18), neighbours (the camera graph), cvgc (eq. 19-21), weights (eq. 22), ash (eq. 23-25),
 rps (eq. 26-28); api composes them; kernels/ is the compiled CPU path (numba is imported
 only when that path runs). See design.md and docs/fuse.md.
 """

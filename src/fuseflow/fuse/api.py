@@ -21,6 +21,7 @@ import numpy as np
 from fuseflow.errors import ValidationError
 from fuseflow.fuse.config import FuseConfig
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
+from fuseflow.fuse.smooth import smooth_depth
 from fuseflow.types import Frame, FusedCloud, Rig, to_numpy
 
 if TYPE_CHECKING:
@@ -293,7 +294,11 @@ def _report(
 def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int]:
     """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference.
     With ``target_points`` both search s0 with density.fit_s0: the numba path counts on its
-    candidates, the reference, which is not split into stages, with whole passes."""
+    candidates, the reference, which is not split into stages, with whole passes.
+    The depth is smoothed first (FuseConfig.depth_smoothing) at this grid's pixels."""
+    if cfg.depth_smoothing > 0:
+        smoothed = smooth_depth(p.depth, cfg.depth_smoothing, cfg.smoothing_gate, cfg.noise_sigma, cfg.pixel_stride)
+        p = replace(p, depth=smoothed)
     if backend == "numba":
         from fuseflow.fuse.kernels import fuse_numba
 
