@@ -17,6 +17,7 @@ def test_auto_config_takes_lives_grid_only_where_pixels_are_plentiful():
     live = PRESETS["live"]
     assert (out.pixel_stride, out.s0, out.mcm_max_missing) == (live.pixel_stride, live.s0, live.mcm_max_missing)
     assert "stride 2" in why and "plentiful" in why
+    assert out.depth_smoothing == cfg.depth_smoothing == 1 and live.depth_smoothing == 0  # live's grid, smoothed
     for views, valid in ((AUTO_MIN_VIEWS - 1, 10 * plenty), (AUTO_MIN_VIEWS, plenty - 1), (8, 8 * 320 * 240)):
         out, why = auto_config(cfg, views, valid)
         dense = PRESETS["dense"]

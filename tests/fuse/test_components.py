@@ -36,7 +36,7 @@ def test_config_presets_and_validation():
     assert PRESETS["paper"].multiview_mean is False  # candidates are the pixels' own points
     assert PRESETS["quality"] == FuseConfig() and (FuseConfig().k_neighbours, FuseConfig().s0) == (7, 5.0)
     assert PRESETS["fast"] == replace(FuseConfig(), k_neighbours=4, s0=6.3)
-    assert PRESETS["live"] == replace(FuseConfig(), pixel_stride=2, s0=1.0, mcm_max_missing=4)
+    assert PRESETS["live"] == replace(FuseConfig(), pixel_stride=2, s0=1.0, mcm_max_missing=4, depth_smoothing=0)
     assert PRESETS["paper"].pixel_stride == 1 and FuseConfig().pixel_stride == 1
     with pytest.raises(ValidationError, match="noise_sigma"):
         FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
