@@ -40,12 +40,13 @@ def test_fuse_writes_one_ply_per_frame_and_a_summary(rec, tmp_path):
     assert set(clouds[0].camera.tolist()) == {0, 1, 2}
     for key in ("frames", "points per frame", "ms per frame"):
         assert key in res.output
-    # the PLY holds what fuse() gives for that frame (same extrinsics: rig.json's)
-    from fuseflow.fuse import fuse
+    # the PLY holds what fuse() gives for that frame with the CLI's default preset, auto (same
+    # extrinsics: rig.json's)
+    from fuseflow.fuse import PRESETS, fuse
     from fuseflow.io import open_recording
 
     recording = open_recording(rec)
-    direct = fuse(recording[1], recording.rig)
+    direct = fuse(recording[1], recording.rig, PRESETS["auto"])
     assert np.allclose(np.sort(direct.xyz.numpy(), axis=0), np.sort(clouds[1].xyz.numpy(), axis=0))
 
 
