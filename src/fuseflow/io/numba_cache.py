@@ -157,7 +157,9 @@ class _PackageStampLocator:
 def _stamp_package(package_dir: Path, depends: tuple[str | Path, ...]) -> None:
     from numba.core import caching
 
-    _STAMPED[str(package_dir)] = tuple(str(Path(d).resolve()) for d in depends)
+    # the union over the package's modules: one that names no dependency must not drop another's
+    known = set(_STAMPED.get(str(package_dir), ()))
+    _STAMPED[str(package_dir)] = tuple(sorted(known | {str(Path(d).resolve()) for d in depends}))
     locators = getattr(getattr(caching, "CacheImpl", None), "_locator_classes", None)
     if locators is None:  # a numba without this hook: kernels are stamped by their own file only
         warnings.warn("numba's cache locators are not reachable: an edit to one kernel file may leave "
