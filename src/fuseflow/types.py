@@ -103,14 +103,14 @@ def invert_rigid(T: np.ndarray) -> np.ndarray:
 
 
 # A horizontal field of view outside this range is no depth camera's: a focal length in the wrong
-# units, or a K written for another resolution, lands here (issue 16).
+# units, or a K written for another resolution, lands here.
 HFOV_RANGE_DEG = (10.0, 170.0)
 _ID_FORBIDDEN = frozenset('/\\:*?"<>|')
 
 
 def _check_camera_id(cid: object) -> None:
-    """A camera id names a folder of the recording: a plain name, never a path (issue 16: an id
-    of '..' read the recording's parent folder)."""
+    """A camera id names a folder of the recording: a plain name, never a path (an id of '..'
+    would read the recording's parent folder)."""
     bad = None
     if not isinstance(cid, str) or not cid:
         bad = "must be a non-empty string"

@@ -1,5 +1,5 @@
 """The ``auto`` backbone: the metric RGB-D route first, COLMAP where it falls short, each camera
-placed by the source whose pose its neighbours' depth confirms best (issue 15 item 5).
+placed by the source whose pose its neighbours' depth confirms best.
 
 ``auto_place`` in named steps:
 

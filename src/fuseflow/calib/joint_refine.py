@@ -1,4 +1,4 @@
-"""Depth-aware joint refinement of all placed cameras at once (issue 15 item 4; beyond the paper).
+"""Depth-aware joint refinement of all placed cameras at once (beyond the paper).
 
 Every backbone's poses are only as good as the keypoints and planes they came from: on the wider
 ICL virtual rigs the rotation stays ~0.8 deg off, because a 3-D keypoint lifted by noisy depth

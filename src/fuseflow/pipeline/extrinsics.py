@@ -20,7 +20,7 @@ def placed_rig(rig: Rig, calibration: Calibration) -> Rig:
 
     A calibration that records the rig it was made for (calib.json's ``rig_fingerprint``) is
     refused (FuseFlowError naming the cameras) when a placed camera's resolution or intrinsics
-    differ: extrinsics of another rig whose camera ids happen to match (issue 16)."""
+    differ: extrinsics of another rig whose camera ids happen to match."""
     placed = [i for i, c in enumerate(rig.ids) if c in calibration.T_cam_world]
     if not placed:
         raise FuseFlowError(f"the calibration places none of the cameras {list(rig.ids)}")

@@ -1,4 +1,4 @@
-"""Camera-sync scores on co-visible moving surface (the 30-fps sync check, issue 19).
+"""Camera-sync scores on co-visible moving surface (the 30-fps sync check).
 
 Per camera pair (i, j) and shift s: camera i's *moving* pixels at frame t (depth closer than
 that pixel's median over the loaded frames by more than ``motion_m``), restricted to surface

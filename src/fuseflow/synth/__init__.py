@@ -1,4 +1,4 @@
-"""The simulator: synthetic multi-camera RGB-D rigs with exact ground truth (issue 4).
+"""The simulator: synthetic multi-camera RGB-D rigs with exact ground truth.
 
 Depends only on fuseflow.types, fuseflow.errors and fuseflow.io (ground truth must not depend on
 the code it tests). Open3D and numba are imported when a Simulator renders, not here.

@@ -163,7 +163,7 @@ class SimConfig:
     """
 
     cameras: int = 8
-    """Number of cameras, 1..64 (issue 4)."""
+    """Number of cameras, 1..64."""
     frames: int = 10
     """Number of frames (instants) in a recording, >= 1."""
     scene: str = "studio"

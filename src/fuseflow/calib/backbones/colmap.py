@@ -37,10 +37,10 @@ PEAK_THRESHOLD = 0.002
 #: Threads of COLMAP's feature extraction, matching and mapping. One: with two, repeated
 #: calibrations of one frame agreed on an idle machine but differed by up to 3 mm when other
 #: processes loaded the cores (parallel steps finish in a load-dependent order, and the RANSAC
-#: samples follow); issue 16 asks for identical results.
+#: samples follow); one thread gives identical results.
 COLMAP_THREADS = 1
 #: Seed of the two-view verification RANSAC: COLMAP's default (-1) draws a new seed every run, and
-#: two calibrations of one frame then differed by 0.12 m (issue 16); fixed, they are identical.
+#: two calibrations of one frame then differed by 0.12 m; fixed, they are identical.
 RANSAC_SEED = 0
 #: COLMAP puts the centre of the top-left pixel at (0.5, 0.5); docs/design.md 2.3 puts it at (0, 0).
 #: Principal points go to COLMAP shifted by this and keypoints come back shifted by it (measured:

@@ -1,6 +1,6 @@
 """Metric RGB-D backbone: camera poses in metres from sensor depth, for sparse wide-baseline rigs.
 
-COLMAP cannot match across cameras 90-120 deg apart (issue 15); the depth can. Outline
+COLMAP cannot match across cameras 90-120 deg apart; the depth can. Outline
 (``rgbd_backbone``), one or several frames of a static rig:
 
 1. Per camera (``prepare_camera``): median colour / depth over the frames, the floor plane

@@ -1,4 +1,4 @@
-"""GMAC accuracy and timing benchmark (issue 6; docs/design.md section 4 metrics): ``fuseflow bench calib``.
+"""GMAC accuracy and timing benchmark (docs/design.md section 4 metrics): ``fuseflow bench calib``.
 
 Rows per data set: the backbone's poses scaled by the naive median depth ratio; GMAC with each
 closed form (z-only = paper eq. 12 corrected, full-3D, point-to-plane = default); GMAC +

@@ -1,4 +1,4 @@
-"""What the depth-aware joint refinement (issue 15 item 4, ``fuseflow.calib.joint_refine``) adds
+"""What the depth-aware joint refinement (``fuseflow.calib.joint_refine``) adds
 to the metric ``rgbd`` backbone: the same backbone run, errors before and after.
 
 Per recording: ``rgbd_backbone`` on frame 0 (its poses and its edges' verified 3-D matches, the

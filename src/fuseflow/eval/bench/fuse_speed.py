@@ -3,7 +3,7 @@
     fuseflow bench fuse --cameras 1,2,4,8,16 --json OUT
     flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_speed.py --json docs/data/fuse_speed.json
 
-What it does (issue 5):
+What it does:
 
 * Renders ``warmup + frames`` frames of a *dynamic* simulated ring of max(N) cameras at 640x480
   (fuseflow.synth, Kinect-class noise, GT extrinsics) once, into a temporary folder (one .npy per

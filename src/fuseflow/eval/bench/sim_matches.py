@@ -1,5 +1,5 @@
-"""SIFT matches between the cameras of simulated rigs (issue 4: texture rich enough for
-target-free calibration).
+"""SIFT matches between the cameras of simulated rigs: is the texture rich enough for
+target-free calibration.
 
 For each scene, one frame of an N-camera ring at 640x480 (Kinect noise, colour noise on) is
 rendered; per image, OpenCV SIFT keypoints; per camera pair, Lowe's ratio test (0.75) on 2-NN
