@@ -225,22 +225,22 @@ def select_consistent(
     return out
 
 
+def _reachable(start: int, edges: list[tuple[int, int]]) -> set[int]:
+    """The nodes an undirected graph's ``edges`` connect to ``start`` (itself included)."""
+    seen, stack = {start}, [start]
+    while stack:
+        k = stack.pop()
+        for a, b in edges:
+            for u, v in ((a, b), (b, a)):
+                if u == k and v not in seen:
+                    seen.add(v)
+                    stack.append(v)
+    return seen
+
+
 def bridges(edges: list[tuple[int, int]]) -> set[tuple[int, int]]:
     """The edges of an undirected graph that lie on no cycle (their removal disconnects it)."""
-    out = set()
-    for e in edges:
-        rest = [f for f in edges if f != e]
-        seen, stack = {e[0]}, [e[0]]
-        while stack:
-            k = stack.pop()
-            for a, b in rest:
-                for u, v in ((a, b), (b, a)):
-                    if u == k and v not in seen:
-                        seen.add(v)
-                        stack.append(v)
-        if e[1] not in seen:
-            out.add(e)
-    return out
+    return {e for e in edges if e[1] not in _reachable(e[0], [f for f in edges if f != e])}
 
 
 def main_block(edges: list[tuple[int, int]]) -> set[int]:
@@ -253,14 +253,7 @@ def main_block(edges: list[tuple[int, int]]) -> set[int]:
     for s0 in sorted({k for e in rest for k in e}):
         if s0 in seen:
             continue
-        part, stack = {s0}, [s0]
-        while stack:
-            k = stack.pop()
-            for a, b in rest:
-                for u, v in ((a, b), (b, a)):
-                    if u == k and v not in part:
-                        part.add(v)
-                        stack.append(v)
+        part = _reachable(s0, rest)
         seen |= part
         parts.append(part)
     best = max(parts, key=lambda p: (len(p), -min(p)), default=set())
