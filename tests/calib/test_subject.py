@@ -22,25 +22,12 @@ from fuseflow.calib.subject import (
     track_pose,
     track_residual,
 )
+from fuseflow.synth.rigs import look_at
 from fuseflow.types import invert_rigid
 
 W, H, F_PX = 320, 240, 220.0
 K = np.array([[F_PX, 0, W / 2], [0, F_PX, H / 2], [0, 0, 1.0]])
 HEAD_R = 0.11
-
-
-def _look_at(eye, target=(0.0, 0.0, 1.0)):
-    """Camera-from-world (OpenCV axes) of a camera at ``eye`` looking at ``target``, world z up."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z])
-    T[:3, 3] = -T[:3, :3] @ eye
-    return T
 
 
 def _boxes_hit(o, d, lo, hi):
@@ -90,7 +77,7 @@ def _walk(n=8, length=2.0):
 
 
 def _cams():
-    return [_look_at((3.6 * math.cos(a), 3.6 * math.sin(a), 1.9)) for a in (0.3, 0.3 + 2 * math.pi / 3)]
+    return [look_at((3.6 * math.cos(a), 3.6 * math.sin(a), 1.9), (0.0, 0.0, 1.0)) for a in (0.3, 0.3 + 2 * math.pi / 3)]
 
 
 def _truth(Ta, Tb):
