@@ -205,7 +205,6 @@ class _RunState:
     rig: Rig
     monitor: HealthMonitor
     calib_json: Path
-    calibrated: dict | None = None
     records: list[FrameRecord] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     fuse_ms: list[float] = field(default_factory=list)
@@ -326,7 +325,7 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
     warnings += frame_notes(state.records)
-    warnings += [w for w in [low_agreement(state.records), below_calibration(state.records, state.calibrated)] if w]
+    warnings += [w for w in [low_agreement(state.records), below_calibration(state.records, choice.calibrated)] if w]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
     stat = (lambda f: float(f(pts))) if pts.size else (lambda f: 0.0)  # noqa: E731
     return RunSummary(
@@ -404,7 +403,7 @@ def run(
     open_output(out, run_manifest(rec, calibration, config, calib_frame, use_rig_extrinsics), force)
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
-    state = _RunState(choice.rig, monitor, out / "calib.json", choice.calibrated, warnings=list(choice.warnings))
+    state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
     state.writer = _frame_writer(rec, out, calibration, choice, config.outputs)
     positions = list(frames if frames is not None else range(len(rec)))
     state.warnings += _check_inputs(rec, choice.rig, positions, config)
