@@ -82,3 +82,11 @@ def test_no_room_turns_without_aliases_or_with_turns_about_a_tilted_axis():
     # two poses per pair that differ by a turn about a horizontal axis: not a room's repeat
     tilted = {p: [Ts[0], Ts[0] @ turn_about(np.array([1.0, 0.0, 0.0]), np.zeros(3), 40.0)] for p, Ts in truth.items()}
     assert room_orbits(tilted, _ups(T)) is None
+
+
+def test_one_pair_with_turns_by_different_numbers_of_periods_is_enough():
+    sides, T = 12, _cameras()
+    one = {(0, 1): [_alias(T, 0, 1, k, sides) for k in (1, 4, 5)]}
+    room = room_orbits(one, _ups(T))
+    assert room is not None and room.sides == sides and room.pairs == 1
+    assert room_orbits({(0, 1): [_alias(T, 0, 1, k, sides) for k in (1, 4)]}, _ups(T)) is None  # one turn

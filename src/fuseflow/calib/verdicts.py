@@ -5,7 +5,8 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
 
 - **route**: the source that placed the camera (``placed_by``) and, for the metric ``rgbd``
   backbone, the routes of the pair poses that link it ("floor": top-down floor texture; "image":
-  image keypoints lifted by depth; "image+floor": both; "geometric": shape alone).
+  image keypoints lifted by depth; "image+floor": both; "geometric": shape alone; "... turned":
+  that route's pose turned by whole periods of a repeating room, ``symmetry.room_orbits``).
 - **pairs**: the measured pair poses (edges) that link the camera. Each is compared with the
   relative pose of the final extrinsics; it *agrees* within ``AGREE_DEG`` / ``AGREE_MM`` (wide
   enough for the noise of real pair poses, which the pose graph and the joint refinement
@@ -102,8 +103,9 @@ def _rgbd_edges(info: Mapping[str, Any]) -> dict[tuple[str, str], tuple[np.ndarr
         a, b = p["cameras"]
         if b not in cams.get(a, {}).get("edges", [b]):
             continue  # dropped by its cycle check
-        route = str(e.get("route", "?")).split("+")[0]
-        out[(a, b)] = (np.asarray(e["T_ji"], dtype=np.float64), ROUTE_NAMES.get(route, route))
+        parts = str(e.get("route", "?")).split("+")
+        name = ROUTE_NAMES.get(parts[0], parts[0]) + (" turned" if "turn" in parts else "")
+        out[(a, b)] = (np.asarray(e["T_ji"], dtype=np.float64), name)
     return out
 
 
