@@ -372,10 +372,6 @@ TURN_PITCH_M = 0.1
 TURN_TOL_DEG = 3.0
 #: The most sides ``room_period`` considers (a period of 15 deg).
 MAX_SIDES = 24
-#: Fewest pairs whose poses show a room turn before ``room_orbits`` believes the room repeats (or
-#: one pair whose three or more poses show turns by different numbers of periods: symstudio seed
-#: 19, where one pair had poses 30, 90 and 120 deg apart and no other pair two poses).
-TURN_MIN_PAIRS = 2
 
 
 @dataclass(frozen=True)
@@ -530,15 +526,15 @@ class RoomOrbits:
 def room_orbits(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, np.ndarray | None]) -> RoomOrbits | None:
     """The room's repeat (section 5) from the pairs' verified poses (pair (i, j) -> poses camera
     i -> camera j, each pair's mutually distinct ones) and the cameras' floor normals, or None:
-    no period fits the turns, or they come from fewer than TURN_MIN_PAIRS pairs and turn by one
-    number of periods only."""
+    no pair shows a room turn, or no period fits the turns. One turn is enough (symstudio seed
+    13: one pair had two poses, none other more than one): a wrong period or axis costs only
+    time, since every turned pose must still pass the subject check and the depth checks."""
     turns = room_turns(poses, ups)
     sides = room_period([t.angle for t in turns])
     if sides is None:
         return None
     fit = [t for t, ok in zip(turns, _fits(np.array([t.angle for t in turns]), sides, TURN_TOL_DEG)) if ok]
     pairs = {t.pair for t in fit}
-    steps = {int(round(abs(t.angle) * sides / 360.0)) for t in fit}
-    if len(pairs) < TURN_MIN_PAIRS and len(steps) < 2:
+    if not pairs:
         return None
     return RoomOrbits(sides, axis_points(fit, poses), len(fit), len(pairs))
