@@ -55,8 +55,8 @@ def command(
 ) -> None:
     """Target-free metric extrinsics (GMAC) from one multi-view RGB-D frame."""
     import fuseflow
-    from fuseflow.calib import calibrate as run_gmac
     from fuseflow.io.paths import check_output_file
+    from fuseflow.pipeline.calibration import calibrate_frames
 
     check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
     replaced = out.exists()
@@ -65,10 +65,14 @@ def command(
     config = _config(preset, backbone, backbone_path, refine, matcher)
     ref = _read_reference(reference, recording.rig) if reference is not None else None  # before minutes of GMAC
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
-    views = [recording[t] for t in indices]
-    _check_views(views)
+    _check_views([recording[t] for t in indices])
     pool = frame is None and not frames
-    calib, views, indices = _gmac(run_gmac, recording, (views, indices), rig, config, pool)
+    with StageProgress("calibrate: ") as on_progress:
+        done = calibrate_frames(recording, indices, config, pool, progress=on_progress)
+    calib, indices = done.calibration, done.positions
+    for note in done.notes:
+        say(note)
+    views = [recording[indices[0]]]
     r = calib.report
     if ref is not None:
         from fuseflow.calib.reference import compare_to_reference
@@ -101,77 +105,15 @@ def command(
     )
 
 
-#: Frames the default pools when one frame leaves a camera not "good" (the 10-camera x 10-frame
-#: studio calibrates in about a minute on 2 cores: docs/gmac.md).
-POOLED_FRAMES = 10
-
-
-def _gmac(run_gmac, recording, chosen, rig, config, pool: bool):
-    """GMAC on the chosen frames -> (calibration, views, indices). With ``pool`` (no --frame or
-    --frames given) and a recording of 3 or more frames: when the one frame places fewer than two
-    cameras or leaves a camera not "good", GMAC runs again on up to POOLED_FRAMES frames spread over
-    the recording (a person moving through the rig is then a target: the moving-subject route), and
-    the result with more "good" cameras (then more placed) is kept; a tie keeps the one frame's."""
-    from fuseflow.calib import CalibrationError
-
-    views, indices = chosen
-    spread = _spread_frames(recording, indices[0]) if pool else []
-    with StageProgress("calibrate: ") as on_progress:
-        try:
-            calib = run_gmac(views, rig, config, progress=on_progress)
-        except CalibrationError as exc:
-            if len(spread) < 3:
-                raise
-            calib, why = None, f"one frame placed too few cameras ({exc})"
-        else:
-            good = _good_count(calib)
-            if len(spread) < 3 or good == len(rig):
-                return calib, views, indices
-            why = f"frame {indices[0]} left {len(rig) - good} camera(s) not 'good'"
-        say(f"{why}: pooling {_frames_text(spread)} spread over the recording")
-        pooled_views = [recording[t] for t in spread]
-        try:
-            pooled = run_gmac(pooled_views, rig, config, progress=on_progress)
-        except CalibrationError:
-            if calib is None:
-                raise
-            say("the pooled frames placed too few cameras: keeping the one-frame result")
-            return calib, views, indices
-    if calib is not None and _rank(pooled) <= _rank(calib):
-        say(f"the pooled frames were no better ({_good_count(pooled)} 'good'): keeping the one-frame result")
-        return calib, views, indices
-    return pooled, pooled_views, spread
-
-
-def _good_count(calib) -> int:
-    return sum(v.get("verdict") == "good" for v in (calib.report.camera_verdicts or {}).values())
-
-
-def _rank(calib) -> tuple[int, int]:
-    return _good_count(calib), len(calib.T_cam_world)
-
-
-def _spread_frames(recording, first: int) -> list[int]:
-    """Up to POOLED_FRAMES frame positions spread evenly over the recording, ``first`` first,
-    frames with every camera present preferred (the first one carries the scale stage)."""
-    import numpy as np
-
-    missing = _missing_positions(recording)
-    pick_from = [t for t in range(len(recording)) if t not in missing]
-    if len(pick_from) < 3:
-        pick_from = list(range(len(recording)))
-    k = min(POOLED_FRAMES, len(pick_from))
-    chosen = [pick_from[int(i)] for i in np.linspace(0, len(pick_from) - 1, k).round()]
-    return [first] + sorted(set(chosen) - {first})
-
-
 def _chosen_frames(recording, frame: int | None, frames: str | None) -> list[int]:
     """Frame positions to calibrate from: ``--frames``, else ``--frame``, else the first frame
     with every camera present. A frame with every camera goes first (the scale stage and the
     checks use the first), and cameras absent from every chosen frame are named before GMAC runs:
     they cannot be placed from those frames."""
     n = len(recording)
-    missing = _missing_positions(recording)
+    from fuseflow.pipeline.calibration import missing_positions
+
+    missing = missing_positions(recording)
     complete = [t for t in range(n) if t not in missing]
     if frames:
         indices = frame_indices(frames, n)
@@ -191,22 +133,6 @@ def _chosen_frames(recording, frame: int | None, frames: str | None) -> list[int
         hint = f"; every camera is present in frame {complete[0]} (--frame {complete[0]})" if complete else ""
         warn(f"cameras {absent} have no view in the frames to calibrate from, so they cannot be placed{hint}")
     return indices
-
-
-def _missing_positions(recording) -> dict[int, set[str]]:
-    """Frame position -> ids of the cameras with no view there, from the file listings (empty when
-    the reader cannot tell without decoding)."""
-    try:
-        by_camera = recording.missing_views()
-    except NotImplementedError:
-        return {}
-    position = {number: t for t, number in enumerate(recording.frame_numbers)}
-    out: dict[int, set[str]] = {}
-    for cam, numbers in by_camera.items():
-        for number in numbers:
-            if number in position:
-                out.setdefault(position[number], set()).add(cam)
-    return out
 
 
 def _stage_times(r) -> str:
