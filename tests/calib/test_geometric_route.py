@@ -139,7 +139,7 @@ def test_route_c_tries_an_unplaced_cameras_pairs_by_consensus(monkeypatch):
     from types import SimpleNamespace
 
     from fuseflow.calib import geometric
-    from fuseflow.calib.backbones import rgbd
+    from fuseflow.calib.backbones.rgbd import backbone as rgbd
     from fuseflow.calib.posegraph import Edge
 
     rng = np.random.default_rng(0)
@@ -182,7 +182,7 @@ def test_route_c_tries_an_unplaced_cameras_pairs_by_consensus(monkeypatch):
 
 
 def test_prepared_ransac_starts_give_the_same_candidates(textureless):
-    from fuseflow.calib.backbones.rgbd import _backproject
+    from fuseflow.calib.backbones.rgbd.backbone import _backproject
     from fuseflow.calib.geometric import cloud_features, geometric_candidates, ransac_starts
 
     frame, rig, _, _ = textureless

@@ -5,7 +5,7 @@ COLMAP cannot match across cameras 90-120 deg apart; the depth can. Outline
 
 1. Per camera (``prepare_camera``): median colour / depth over the frames, the floor plane
    (:mod:`fuseflow.calib.floor`) and its metric top-down image with SIFT on it, keypoints of every
-   frame's image (SIFT, or the learned ``RGBDConfig.matcher``, :mod:`fuseflow.calib.matchers`)
+   frame's image (SIFT, or the learned ``RGBDConfig.matcher``, :mod:`fuseflow.calib.backbones.rgbd.matchers`)
    lifted to 3-D by that frame's depth, and a subsampled point set for checks.
 2. Per camera pair, candidate relative poses from three routes (several hypotheses each,
    sequential RANSAC with a fixed seed):
@@ -43,11 +43,11 @@ import torch
 
 from fuseflow.calib import progress
 from fuseflow.calib.backbones.base import BackboneResult
+from fuseflow.calib.backbones.rgbd.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.floor import FloorPlane, TopDown, fit_floor_plane, floor_mask, render_topdown
 from fuseflow.calib.geometric import kabsch
-from fuseflow.calib.matchers import ImageFeatures, Matcher, get_matcher, sift_uv
 from fuseflow.calib.posegraph import Edge, prune_cycles, refine_poses, rotation_angle_deg, spanning_tree
 from fuseflow.calib.symmetry import (
     SUBJECT_MAX_FREE_SPACE,
@@ -170,7 +170,7 @@ class RGBDConfig:
     """Joint robust refinement of all cameras on the edges' correspondences (posegraph)."""
 
     matcher: str = "sift"
-    """Image matcher of the ``sift3d`` / ``sift4`` routes (:mod:`fuseflow.calib.matchers`): "sift",
+    """Image matcher of the ``sift3d`` / ``sift4`` routes (:mod:`fuseflow.calib.backbones.rgbd.matchers`): "sift",
     or "xfeat", "aliked", "disk" with ``fuseflow[matchers]``. The floor route always uses SIFT
     (rotation-invariant; the top-down views differ by any yaw). Default SIFT: XFeat placed no more
     cameras right on 3-4 camera rings (no right pair of its own; SIFT 3 of 54), put hocap-8rs
@@ -235,7 +235,7 @@ class RGBDConfig:
     one: nothing tells the two apart. (0, 1)."""
 
     def __post_init__(self) -> None:
-        from fuseflow.calib.matchers import MATCHERS
+        from fuseflow.calib.backbones.rgbd.matchers import MATCHERS
 
         if self.matcher not in MATCHERS:
             raise ValidationError(f"RGBDConfig.matcher must be one of {', '.join(MATCHERS)}, got {self.matcher!r}")
@@ -643,7 +643,7 @@ def _ransac_sequential(fit_batch, fit_refine, residual, thr, m: int, k_min: int,
     """Sequential RANSAC: up to cfg.hypotheses models, each the largest consensus of the matches
     the previous ones did not explain. fit_batch(idx (H, k_min)) -> models (H, 4, 4);
     residual(models (H, 4, 4), idx) -> (H, |idx|) distances, residual(models, idx, thr_idx) ->
-    (H,) counts of distances under thr_idx (``calib.ransac_kernels``); thr (m,) per-match threshold.
+    (H,) counts of distances under thr_idx (``calib.backbones.rgbd.ransac_kernels``); thr (m,) per-match threshold.
     Returns [(model (4, 4), inlier indices)]."""
     rng = np.random.default_rng(seed)
     left = np.arange(m)
@@ -708,7 +708,7 @@ def _floor_candidates(a: CameraEvidence, b: CameraEvidence, cfg: RGBDConfig, fra
     matches expressed on the floor). frame_pairs: (X_a (K, 3), X_b (K, 3)) pooled 3-D matches."""
     if a.plane is None or b.plane is None:
         return []
-    from fuseflow.calib.ransac_kernels import planar_counts
+    from fuseflow.calib.backbones.rgbd.ransac_kernels import planar_counts
 
     Fa, Fb = a.plane.T_cam_floor(), b.plane.T_cam_floor()
     out = []
@@ -754,7 +754,7 @@ def _sift3d_candidates(Xa: np.ndarray, Xb: np.ndarray, cfg: RGBDConfig) -> list[
     """6-DoF 3-D RANSAC (Kabsch) on depth-lifted image matches."""
     if len(Xa) < max(cfg.min_inliers, 3):
         return []
-    from fuseflow.calib.ransac_kernels import rigid_counts
+    from fuseflow.calib.backbones.rgbd.ransac_kernels import rigid_counts
 
     thr = cfg.inlier_m + cfg.inlier_rel * Xb[:, 2]
 
