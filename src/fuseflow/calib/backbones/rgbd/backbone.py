@@ -24,7 +24,7 @@ from fuseflow.geometry import one_torch_thread
 from fuseflow.types import Frame, Rig, invert_rigid
 
 
-def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig | None = None) -> BackboneResult:
+def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config=None) -> BackboneResult:
     """Metric camera-from-world poses of a static rig from one or several RGB-D frames.
 
     Args:
@@ -32,7 +32,7 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
             (color (N, H, W, 3) uint8, depth (N, H, W) float32 metres). Matches are pooled over
             frames; the floor is taken from the per-pixel median over frames.
         rig: the rig (intrinsics K and depth ranges are used; extrinsics are ignored).
-        config: an RGBDConfig (or any object; only an RGBDConfig is used, else the defaults).
+        config: an RGBDConfig, a CalibConfig (its ``rgbd``), or None (the defaults).
 
     Returns:
         BackboneResult with metric=True: T_cam_world (N, 4, 4) float64 metres, world frame =
@@ -43,11 +43,7 @@ def rgbd_backbone(frames: Frame | Sequence[Frame], rig: Rig, config: RGBDConfig 
     Raises:
         ValidationError: frames empty or not matching the rig.
     """
-    cfg = (
-        config
-        if isinstance(config, RGBDConfig)
-        else RGBDConfig(matcher=getattr(config, "matcher", "sift"), seed=getattr(config, "seed", 0))
-    )
+    cfg = config if isinstance(config, RGBDConfig) else RGBDConfig() if config is None else config.rgbd
     frames = _check_frames(frames, rig)
     with one_blas_thread():  # thin (M, 3) products: BLAS threads only cost (calib.blas)
         return _rgbd_backbone(frames, rig, cfg)
