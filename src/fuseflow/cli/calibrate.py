@@ -67,8 +67,8 @@ def command(
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
     views = [recording[t] for t in indices]
     _check_views(views)
-    with StageProgress("calibrate: ") as on_progress:
-        calib = run_gmac(views, rig, config, progress=on_progress)
+    pool = frame is None and not frames
+    calib, views, indices = _gmac(run_gmac, recording, (views, indices), rig, config, pool)
     r = calib.report
     if ref is not None:
         from fuseflow.calib.reference import compare_to_reference
@@ -88,7 +88,7 @@ def command(
     for w in r.warnings:
         warn(w)
     unsure = [c for c, v in (r.camera_verdicts or {}).items() if v.get("verdict") != "good"]
-    if unsure and len(indices) == 1 and len(recording) >= 3:
+    if unsure and len(indices) == 1 and len(recording) >= 3 and not pool:
         k = min(len(recording), 10)
         say(
             f"hint: {len(unsure)} camera(s) not 'good' from one frame; --frames 0:{k} pools {k} frames, and a person "
@@ -99,6 +99,70 @@ def command(
         + (" (it replaced the file that was there)" if replaced else "")
         + (f" and {picture}" if picture else "")
     )
+
+
+#: Frames the default pools when one frame leaves a camera not "good" (the 10-camera x 10-frame
+#: studio calibrates in about a minute on 2 cores: docs/gmac.md).
+POOLED_FRAMES = 10
+
+
+def _gmac(run_gmac, recording, chosen, rig, config, pool: bool):
+    """GMAC on the chosen frames -> (calibration, views, indices). With ``pool`` (no --frame or
+    --frames given) and a recording of 3 or more frames: when the one frame places fewer than two
+    cameras or leaves a camera not "good", GMAC runs again on up to POOLED_FRAMES frames spread over
+    the recording (a person moving through the rig is then a target: the moving-subject route), and
+    the result with more "good" cameras (then more placed) is kept; a tie keeps the one frame's."""
+    from fuseflow.calib import CalibrationError
+
+    views, indices = chosen
+    spread = _spread_frames(recording, indices[0]) if pool else []
+    with StageProgress("calibrate: ") as on_progress:
+        try:
+            calib = run_gmac(views, rig, config, progress=on_progress)
+        except CalibrationError as exc:
+            if len(spread) < 3:
+                raise
+            calib, why = None, f"one frame placed too few cameras ({exc})"
+        else:
+            good = _good_count(calib)
+            if len(spread) < 3 or good == len(rig):
+                return calib, views, indices
+            why = f"frame {indices[0]} left {len(rig) - good} camera(s) not 'good'"
+        say(f"{why}: pooling {_frames_text(spread)} spread over the recording")
+        pooled_views = [recording[t] for t in spread]
+        try:
+            pooled = run_gmac(pooled_views, rig, config, progress=on_progress)
+        except CalibrationError:
+            if calib is None:
+                raise
+            say("the pooled frames placed too few cameras: keeping the one-frame result")
+            return calib, views, indices
+    if calib is not None and _rank(pooled) <= _rank(calib):
+        say(f"the pooled frames were no better ({_good_count(pooled)} 'good'): keeping the one-frame result")
+        return calib, views, indices
+    return pooled, pooled_views, spread
+
+
+def _good_count(calib) -> int:
+    return sum(v.get("verdict") == "good" for v in (calib.report.camera_verdicts or {}).values())
+
+
+def _rank(calib) -> tuple[int, int]:
+    return _good_count(calib), len(calib.T_cam_world)
+
+
+def _spread_frames(recording, first: int) -> list[int]:
+    """Up to POOLED_FRAMES frame positions spread evenly over the recording, ``first`` first,
+    frames with every camera present preferred (the first one carries the scale stage)."""
+    import numpy as np
+
+    missing = _missing_positions(recording)
+    pick_from = [t for t in range(len(recording)) if t not in missing]
+    if len(pick_from) < 3:
+        pick_from = list(range(len(recording)))
+    k = min(POOLED_FRAMES, len(pick_from))
+    chosen = [pick_from[int(i)] for i in np.linspace(0, len(pick_from) - 1, k).round()]
+    return [first] + sorted(set(chosen) - {first})
 
 
 def _chosen_frames(recording, frame: int | None, frames: str | None) -> list[int]:
