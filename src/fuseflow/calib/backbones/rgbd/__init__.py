@@ -39,21 +39,26 @@ entry point); ``matchers`` (image matchers) and ``ransac_kernels`` (compiled RAN
 outside the package imports only the names below.
 """
 
-from fuseflow.calib.backbones.rgbd.backbone import rgbd_backbone
-from fuseflow.calib.backbones.rgbd.candidates import merge_repeats
-from fuseflow.calib.backbones.rgbd.choice import ALIASED_PAIRS
-from fuseflow.calib.backbones.rgbd.config import RGBDConfig
-from fuseflow.calib.backbones.rgbd.evidence import (
-    CameraEvidence,
-    PairCheck,
-    nanmedian_frames,
-    plausible,
-    prepare_camera,
-    verify_pose,
-)
-from fuseflow.calib.backbones.rgbd.judge import SUBJECT_MARGIN_M, SUBJECT_REFUTE_M
-from fuseflow.calib.backbones.rgbd.matchers import MATCHERS, get_matcher
-from fuseflow.calib.backbones.rgbd.poses import relative_error
+import importlib
+
+#: Each public name -> the module of the package that defines it.
+_HOME = {
+    "ALIASED_PAIRS": "choice",
+    "MATCHERS": "config",
+    "SUBJECT_MARGIN_M": "judge",
+    "SUBJECT_REFUTE_M": "judge",
+    "CameraEvidence": "evidence",
+    "PairCheck": "evidence",
+    "RGBDConfig": "config",
+    "get_matcher": "matchers",
+    "merge_repeats": "candidates",
+    "nanmedian_frames": "evidence",
+    "plausible": "evidence",
+    "prepare_camera": "evidence",
+    "relative_error": "poses",
+    "rgbd_backbone": "backbone",
+    "verify_pose": "evidence",
+}
 
 __all__ = [
     "ALIASED_PAIRS",
@@ -72,3 +77,16 @@ __all__ = [
     "rgbd_backbone",
     "verify_pose",
 ]
+
+
+def __getattr__(name: str):
+    """A public name, imported from its module on first use (module ``__getattr__``, PEP 562)."""
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -6,6 +6,9 @@ from dataclasses import dataclass, fields
 
 from fuseflow.errors import ValidationError
 
+MATCHERS = ("sift", "xfeat", "aliked", "disk")
+"""Names accepted by ``get_matcher`` (``RGBDConfig.matcher``, ``fuseflow calibrate --matcher``)."""
+
 
 @dataclass(frozen=True)
 class RGBDConfig:
@@ -165,8 +168,6 @@ class RGBDConfig:
     one: nothing tells the two apart. (0, 1)."""
 
     def __post_init__(self) -> None:
-        from fuseflow.calib.backbones.rgbd.matchers import MATCHERS
-
         if self.matcher not in MATCHERS:
             raise ValidationError(f"RGBDConfig.matcher must be one of {', '.join(MATCHERS)}, got {self.matcher!r}")
         for f in fields(self):
