@@ -312,7 +312,7 @@ def build_report(
         method="GMAC",
         backbone=bb.name,
         backbone_info=bb.info,
-        config=asdict(config),
+        config=config.as_dict(),
         scale=sr.s,
         scale_before_pruning=sr.s_initial,
         scale_coarse=sr.s_coarse,

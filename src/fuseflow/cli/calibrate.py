@@ -264,7 +264,7 @@ def _config(preset: str, backbone: str | None, backbone_path: str | None, refine
         overrides["refine"] = refine
     config = CalibConfig.preset(preset, **overrides)
     if config.matcher != "sift":
-        from fuseflow.calib.matchers import get_matcher
+        from fuseflow.calib.backbones.rgbd import get_matcher
 
         get_matcher(config.matcher)
     return config
