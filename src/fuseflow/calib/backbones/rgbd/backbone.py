@@ -63,7 +63,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     subject = subject_route(frames, rig, order, cams, cfg)
     ids = [rig.cameras[k].id for k in order]
     with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
-        edges, pairs_info, hyps = pair_edges(cams, cfg, people, subject)
+        edges, pairs_info, hyps, room = pair_edges(cams, cfg, people, subject)
         joint, ambiguous = {}, set()
         if cfg.pair_hypotheses > 1 and edges:
             edges, joint, ambiguous = joint_choice(cams, edges, hyps, pairs_info, ids, cfg)
@@ -92,6 +92,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     info = {
         "metric": True,
         "joint_choice": joint,
+        "room": room,
         "frames": len(frames),
         "pairs": [{**p, "cameras": [ids[p["pair"][0]], ids[p["pair"][1]]]} for p in pairs_info + geo_info],
         "cycle_dropped": [[ids[d["edge"][0]], ids[d["edge"][1]]] for d in dropped],

@@ -10,12 +10,22 @@ import torch
 from fuseflow.calib import progress
 from fuseflow.calib.backbones.rgbd.candidates import floor_candidates, pooled_matches, sift3d_candidates
 from fuseflow.calib.backbones.rgbd.config import RGBDConfig
-from fuseflow.calib.backbones.rgbd.evidence import CameraEvidence, PairCheck, plausible, verify_pose
+from fuseflow.calib.backbones.rgbd.evidence import CLOSE_DEPTH_SHARE, CameraEvidence, PairCheck, plausible, verify_pose
 from fuseflow.calib.backbones.rgbd.judge import subject_judge, subject_ok
 from fuseflow.calib.geometric import kabsch
 from fuseflow.calib.posegraph import Edge
-from fuseflow.calib.symmetry import Hypothesis, distinct_hypotheses
-from fuseflow.types import Frame, Rig
+from fuseflow.calib.symmetry import (
+    SUBJECT_MAX_FREE_SPACE,
+    SUBJECT_MIN_POINTS,
+    Hypothesis,
+    RoomOrbits,
+    colocated,
+    distinct_hypotheses,
+    pose_gap,
+    room_orbits,
+    subject_free_space,
+)
+from fuseflow.types import Frame, Rig, invert_rigid
 
 #: Verified candidates of a pair are ranked by their agreeing samples at this share of tau (the
 #: pass / fail test stays at tau): tau = 5 % cannot tell 0.1 deg from 1 deg (``geometric_route._better``).
@@ -52,12 +62,15 @@ def subject_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[Ca
 
 def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None):
     """Candidates, verification and the accepted edge of every camera pair (canonical order);
-    ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. Returns (edges:
-    the best plausible candidate of each pair, per-pair info, hypotheses: pair -> its distinct
-    plausible verified poses, best first, for the joint choice)."""
+    ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. In a room that
+    repeats (``symmetry.room_orbits`` on the verified floor and image poses), a pair with no
+    pose the subject confirms also gets its verified poses' turns about the room's axis
+    (``turned_candidates``). Returns (edges: the best plausible candidate of each pair, per-pair
+    info, hypotheses: pair -> its distinct plausible verified poses, best first, for the joint
+    choice, the room's ``RoomOrbits`` info or None)."""
     edges: dict[tuple[int, int], Edge] = {}
     hyps: dict[tuple[int, int], list[Hypothesis]] = {}
-    info = []
+    info, work = [], []
     for i in range(len(cams)):
         for j in range(i + 1, len(cams)):
             a, b = cams[i], cams[j]
@@ -66,41 +79,116 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             cands += people.pair(i, j) if people is not None else []
             cands += subject.pair(i, j) if subject is not None else []
             judge = subject_judge(a, b, cands, cfg, subject, i, j)
-            rows, passing = [], []
+            rows, passing, verified = [], [], []
             for c in cands:
-                chk = verify_pose(a, b, c["T_ba"], cfg.tau)
-                ok = chk.passes(cfg) or (c["route"] == "subject" and judge is not None)
-                rows.append({"route": c["route"], "inliers": c["inliers"], "ok": ok, **check_row(chk),
-                             "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
-                if judge is not None and (verdict := judge(c["T_ba"])) is not None:
-                    rows[-1]["subject_m"] = round(verdict, 4)
-                    if ok and verdict > judge.limit:  # the person says no (calib.subject)
-                        rows[-1].update(ok=False, rejected="subject")
-                        ok = False
-                if ok and not plausible(c["T_ba"], chk, cfg, median_depth(a, b)):
-                    # stacked on the other camera: rejected, not scored (calib.symmetry)
-                    rows[-1].update(ok=False, rejected="co-located")
-                    ok = False
-                if ok and not subject_ok(a, b, c["T_ba"], cfg, rows[-1]):
-                    ok = False  # the other camera sees through its subject: an alias (calib.symmetry)
-                # rank by how much depth confirms the pose, not by the share alone: a wrong pose
-                # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
-                # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98); counted at
-                # RANK_TAU_SHARE of tau, which tells a 0.5-deg pose from a 2.3-deg one (at tau
-                # the 2.3-deg one agreed on more samples than the true pose: docs/gmac.md)
-                if ok:
-                    fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
-                    rows[-1]["agree_fine"] = fine
-                    passing.append(Hypothesis(i, j, c["T_ba"], float(fine), (c, chk, cands)))
+                row, h, static_ok = judge_candidate(a, b, c, cands, cfg, judge, (i, j))
+                rows.append(row)
+                passing += [h] if h is not None else []
+                verified += [c] if static_ok and c["route"] in ORBIT_ROUTES else []
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
-            progress.report("rgbd: pairs", len(info) + 1, len(cams) * (len(cams) - 1) // 2)
-            kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
-            if kept:
-                hyps[(i, j)] = kept
-                edges[(i, j)], entry["edge"] = edge_of(a, b, kept[0], cfg)
-                entry["hypotheses"] = len(kept)
-            info.append(entry)
-    return edges, info, hyps
+            work.append((i, j, cands, judge, passing, _distinct(verified), entry))
+            progress.report("rgbd: pairs", len(work), len(cams) * (len(cams) - 1) // 2)
+    ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
+    room = room_orbits({(w[0], w[1]): [c["T_ba"] for c in w[5]] for w in work}, ups)
+    for i, j, cands, judge, passing, verified, entry in work:
+        a, b = cams[i], cams[j]
+        confirmed = any(r["ok"] and "subject_free_space" in r for r in entry["candidates"])
+        if room is not None and verified and not confirmed:
+            passing = passing + turned_candidates(a, b, room, (i, j), cands, judge, verified, entry, cfg)
+        kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
+        if kept:
+            hyps[(i, j)] = kept
+            edges[(i, j)], entry["edge"] = edge_of(a, b, kept[0], cfg)
+            entry["hypotheses"] = len(kept)
+        info.append(entry)
+    return edges, info, hyps, (room.info() if room is not None else None)
+
+
+def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[dict], cfg: RGBDConfig, judge,
+                    pair: tuple[int, int]) -> tuple[dict, Hypothesis | None, bool]:  # fmt: skip
+    """Verify candidate ``c`` of ``pair`` and apply every rejection (the moving subject's
+    ``judge``, physical plausibility, the subject check). Returns (its info row, its Hypothesis
+    when it passes all, else None, whether it passed the static depth checks alone)."""
+    chk = verify_pose(a, b, c["T_ba"], cfg.tau)
+    ok = chk.passes(cfg) or (c["route"] == "subject" and judge is not None)
+    row = {"route": c["route"], "inliers": c["inliers"], "ok": ok, **check_row(chk),
+           "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
+    if judge is not None and (verdict := judge(c["T_ba"])) is not None:
+        row["subject_m"] = round(verdict, 4)
+        if ok and verdict > judge.limit:  # the person says no (calib.subject)
+            row.update(ok=False, rejected="subject")
+            ok = False
+    if ok and not plausible(c["T_ba"], chk, cfg, median_depth(a, b)):
+        # stacked on the other camera: rejected, not scored (calib.symmetry)
+        row.update(ok=False, rejected="co-located")
+        ok = False
+    if ok and not subject_ok(a, b, c["T_ba"], cfg, row):
+        ok = False  # the other camera sees through its subject: an alias (calib.symmetry)
+    # rank by how much depth confirms the pose, not by the share alone: a wrong pose that turns
+    # the cameras apart leaves a sliver of overlap that agrees 100 % (ICL, 40 frames apart: 529
+    # samples at 1.0 against 7800 at 0.98); counted at RANK_TAU_SHARE of tau, which tells a
+    # 0.5-deg pose from a 2.3-deg one (at tau the 2.3-deg one agreed on more samples than the
+    # true pose: docs/gmac.md)
+    if not ok:
+        return row, None, chk.passes(cfg)
+    fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
+    row["agree_fine"] = fine
+    return row, Hypothesis(pair[0], pair[1], c["T_ba"], float(fine), (c, chk, cands)), chk.passes(cfg)
+
+
+#: Routes whose verified poses of a pair are turns of one another in a repeating room (the
+#: floor and image routes match the room's repeating texture; the subject, person and geometry
+#: routes do not).
+ORBIT_ROUTES = ("floor", "sift4", "sift3d")
+#: Of a pair's turned poses the subject confirms, those whose seen-through share is within this
+#: of the smallest are verified (symstudio seeds 12 and 14: the true pose 0.000-0.036, the next
+#: turn that passed 0.065, 0.037 more than the true pose of its pair).
+ORBIT_MARGIN = 0.02
+
+
+def _distinct(cands: list[dict]) -> list[dict]:
+    """Candidates whose poses differ pairwise by more than the joint choice's tolerance, the
+    most inliers first."""
+    out: list[dict] = []
+    for c in sorted(cands, key=lambda c: -c["inliers"]):
+        gaps = [pose_gap(c["T_ba"], o["T_ba"]) for o in out]
+        if all(r > JOINT_ROT_DEG or t > JOINT_TRANS_M for r, t in gaps):
+            out.append(c)
+    return out
+
+
+def turned_candidates(a: CameraEvidence, b: CameraEvidence, room: RoomOrbits, pair: tuple[int, int], cands: list[dict],
+                      judge, verified: list[dict], entry: dict, cfg: RGBDConfig) -> list[Hypothesis]:  # fmt: skip
+    """The hypotheses among the turns of the pair's best-supported verified pose about the room's
+    axis (``RoomOrbits.members``): every turn fits the repeating walls alike, so the subject
+    chooses first (not stacked, at least SUBJECT_MIN_POINTS subject points seen, at most
+    SUBJECT_MAX_FREE_SPACE of them seen through, within ORBIT_MARGIN of the best turn); those
+    are verified and judged like any candidate (``judge_candidate``) and listed in the pair's
+    candidates with ``turn_deg``. A turned candidate carries its source's correspondences,
+    camera a's side turned back (T = A R, so T maps R^-1 X_a onto X_b)."""
+    src = verified[0]
+    near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(a, b))
+    scored = []
+    for angle, T in room.members(pair[0], src["T_ba"], [c["T_ba"] for c in verified]):
+        if colocated(T, near):
+            continue
+        share, seen = subject_free_space(a, b, T, cfg.tau)
+        if seen >= SUBJECT_MIN_POINTS and share <= SUBJECT_MAX_FREE_SPACE:
+            scored.append((share, angle, T))
+    entry["orbit"] = {"sides": room.sides, "subject_confirmed": len(scored)}
+    out = []
+    scored.sort(key=lambda x: x[0])
+    for share, angle, T in scored:
+        if share > scored[0][0] + ORBIT_MARGIN:
+            break
+        M = invert_rigid(T) @ src["T_ba"]
+        c = {**src, "route": src["route"] + "+turn", "T_ba": T, "X_a": src["X_a"] @ M[:3, :3].T + M[:3, 3]}
+        row, h, _ = judge_candidate(a, b, c, cands + [c], cfg, judge, pair)
+        entry["candidates"].append({**row, "turn_deg": round(angle, 1)})
+        if h is not None:
+            cands.append(c)
+            out.append(h)
+    return out
 
 
 def median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
