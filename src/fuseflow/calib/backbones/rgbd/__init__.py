@@ -23,7 +23,10 @@ COLMAP cannot match across cameras 90-120 deg apart; the depth can. Outline
    views (``fuseflow.geometry.project_votes``, visibility-aware, both directions), on all points
    and on the points off the floor (a 180-deg flip on the floor agrees on the floor), plus a
    free-space check (share of points that camera j sees through). Never by inlier count: wrong
-   flips had many inliers. The best candidate above the thresholds becomes an edge.
+   flips had many inliers. The best candidate above the thresholds becomes an edge. In a room
+   that repeats (:func:`fuseflow.calib.symmetry.room_orbits`: a pair's verified poses differ by
+   turns of the room about its vertical axis), a pair whose poses the subject check rejected
+   also gets their turns about that axis by every period; the subject picks, depth verifies.
 4. Global (:mod:`fuseflow.calib.posegraph`): cycle test on the metric relative poses, maximum-
    score spanning tree, joint robust least squares on the edges' 3-D correspondences.
 
