@@ -45,3 +45,23 @@ def test_a_point_budget_overrides_the_auto_grid():
     sim = Simulator(SimConfig(cameras=4, resolution=(96, 72), frames=1, seed=2))
     r = fuse_with_report(sim.render(0).frame, sim.rig, replace(PRESETS["auto"], target_points=3000))
     assert r.report.grid == ""
+
+
+def test_the_coarse_grid_fuses_as_its_settings_given_up_front(monkeypatch):
+    """Above the budget auto's cloud is that of the coarse settings as a plain config: the
+    neighbour graph _prepare built for 7 cameras is cut to auto_config's 4 (the best first)."""
+    from fuseflow.fuse import config
+    from fuseflow.synth import SimConfig, Simulator
+
+    sim = Simulator(SimConfig(cameras=6, resolution=(96, 72), frames=1, seed=3))
+    frame = sim.render(0).frame
+    monkeypatch.setattr(config, "AUTO_MAX_EVERY_PIXEL", 1000)
+    a = fuse_with_report(frame, sim.rig, PRESETS["auto"])
+    assert a.report.pixel_stride == 2
+    coarse = replace(
+        PRESETS["default"], pixel_stride=2, s0=1.0, depth_smoothing=2, k_neighbours=4, multiview_mean=False
+    )
+    b = fuse_with_report(frame, sim.rig, coarse)
+    assert np.array_equal(a.cloud.xyz.numpy(), b.cloud.xyz.numpy())
+    c = fuse_with_report(frame, sim.rig, replace(coarse, k_neighbours=7))
+    assert len(c.cloud) != len(b.cloud) or not np.array_equal(c.cloud.xyz.numpy(), b.cloud.xyz.numpy())
