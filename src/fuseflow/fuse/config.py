@@ -358,12 +358,12 @@ PRESETS: dict[str, FuseConfig] = {
 #: (docs/live.md's rate for 8 x 640x480) on the 2 cores the speed tables are measured on.
 AUTO_CORE_MS = 200.0
 #: CPU milliseconds per million valid depth pixels of every-pixel fusion (``dense``'s settings)
-#: on one core: the most measured on the real and simulated rigs (``fuseflow bench fuse-ratio REC
-#: --preset dense``, docs/fuse.md "Speed").
-AUTO_CORE_MS_PER_MPX = 305.0
+#: on one core: the most measured on the real and simulated rigs, 249 on the simulated 8-ring
+#: 320x240 (``fuseflow bench fuse-ratio REC --preset dense``; docs/fuse.md "Speed").
+AUTO_CORE_MS_PER_MPX = 250.0
 #: auto_config fuses every pixel of a frame with at most this many valid depth pixels (the
-#: budget over the cost: 0.66 M, a 4-camera 640x480 rig or 8 cameras at 320x240), and the
-#: coarse grid above it.
+#: budget over the cost: 0.8 M; the simulated 4-ring 640x480 has 0.62 M, the 8-ring 1.23 M),
+#: and the coarse grid above it.
 AUTO_MAX_EVERY_PIXEL = int(AUTO_CORE_MS / AUTO_CORE_MS_PER_MPX * 1e6)
 
 
