@@ -65,3 +65,6 @@ def test_the_coarse_grid_fuses_as_its_settings_given_up_front(monkeypatch):
     assert np.array_equal(a.cloud.xyz.numpy(), b.cloud.xyz.numpy())
     c = fuse_with_report(frame, sim.rig, replace(coarse, k_neighbours=7))
     assert len(c.cloud) != len(b.cloud) or not np.array_equal(c.cloud.xyz.numpy(), b.cloud.xyz.numpy())
+    t = fuse_with_report(frame, sim.rig, replace(PRESETS["auto"], backend="torch"))  # the reference cuts it too
+    tb = fuse_with_report(frame, sim.rig, replace(coarse, backend="torch"))
+    assert t.report.backend == "torch" and np.array_equal(t.cloud.xyz.numpy(), tb.cloud.xyz.numpy())
