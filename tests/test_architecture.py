@@ -145,8 +145,6 @@ MAX_BENCHMARK_LINES = 120
 # (issue 30 item 2). Each may not grow past its size today; the list only shrinks.
 PENDING_LONG_BENCHMARKS = {
     "calib_reference_check.py": 201,
-    "fuse_quality.py": 280,
-    "calib_wide.py": 343,
 }
 
 
@@ -175,9 +173,6 @@ def test_compiled_kernels_do_not_load_torch():
 PENDING_INTERNAL_BENCHMARKS = {
     "calib_reference_check.py",
     "calib_verdicts.py",
-    "calib_wide.py",
-    "fuse_completeness_bands.py",
-    "fuse_quality.py",
     "outputs_crop.py",
     "outputs_formats.py",
     "outputs_mesh.py",

@@ -232,6 +232,79 @@ def bench_fuse_quality(
         json_out.write_text(json.dumps({"command": cmd, "rows": rows, "summary": summary}, indent=1))
 
 
+def _int_list(text: str, option: str) -> tuple[int, ...]:
+    """A comma list of integers, or a one-line error naming ``option``."""
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        fail(f"{option}: expected a comma list of integers, got {text!r}")
+
+
+def _names(text: str) -> list[str]:
+    return [v.strip() for v in text.split(",") if v.strip()]
+
+
+def bench_calib_wide(
+    what: str = typer.Argument(..., help="sim, hocap, icl, pairs (2-camera rigs) or summary (table of --out)."),
+    out: Path = typer.Option(Path("benchmarks/results/calib_wide.jsonl"), "--out", help="JSON lines file (appended)."),
+    work: Path = typer.Option(Path("/tmp/fuseflow-calib-wide"), "--work", help="Folder for the recordings it makes."),
+    cameras: str = typer.Option("3,4,6,8", "--cameras", help="Comma list of ring sizes (sim, pairs)."),
+    scenes: str = typer.Option("room,studio", "--scenes", help="Comma list of simulated scenes."),
+    seeds: str = typer.Option("1,2,3", "--seeds", help="Comma list of simulator seeds."),
+    num_frames: int = typer.Option(5, "--num-frames", help="Frames simulated (runs use 1 and all of them)."),
+    only_frames: int = typer.Option(None, "--only-frames", help="Run only with this many frames."),
+    dynamic: bool = typer.Option(False, "--dynamic", help="Simulate moving objects."),
+    resolution: str = typer.Option("640x480", "--resolution", help="Simulated WxH."),
+    every: str = typer.Option("26", "--every", help="Comma list of ICL frame steps (icl, pairs)."),
+    backbone: str = typer.Option("raw", "--backbone", help="raw (rgbd_backbone alone), colmap, rgbd or auto."),
+    matcher: str = typer.Option("sift", "--matcher", help="The rgbd backbone's image matcher."),
+    data_dir: Path = typer.Option(
+        Path("../shared/data"),
+        "--data-dir",
+        envvar="FUSEFLOW_DATA",
+        help="The folder holding hocap-8rs and icl-livingroom1.",
+    ),
+) -> None:
+    """The metric RGB-D backbone on wide-baseline rigs against ground truth (rows as JSON lines)."""
+    from fuseflow.eval.bench.calib_wide import MATCHERS, WHAT, WideOptions, run_calib_wide
+
+    if what not in WHAT or backbone not in ("raw", "colmap", "rgbd", "auto") or matcher not in MATCHERS:
+        fail(f"expected WHAT in {', '.join(WHAT)}, --backbone raw|colmap|rgbd|auto, --matcher {'|'.join(MATCHERS)}")
+    opts = WideOptions(out=out, data=work, shared=data_dir, cameras=_int_list(cameras, "--cameras"),
+                       scenes=tuple(_names(scenes)), seeds=_int_list(seeds, "--seeds"), frames=num_frames,
+                       only_frames=only_frames, dynamic=dynamic, resolution=resolution,
+                       every=_int_list(every, "--every"), backbone=backbone, matcher=matcher)  # fmt: skip
+    run_calib_wide(what, opts, log=_echo)
+
+
+def bench_fuse_ablations(
+    num_frames: int = typer.Option(2, "--num-frames", help="Frames per rig (mean over them)."),
+    density_frames: int = typer.Option(1, "--density-frames", help="Frames of the density rows."),
+    seed: int = typer.Option(11, "--seed", help="Simulator seed."),
+    resolution: str = typer.Option("640x480", "--resolution", help="WxH."),
+    cameras: int = typer.Option(8, "--cameras", help="Cameras of the ring."),
+    no_density: bool = typer.Option(False, "--no-density", help="Skip the density / quality trade-off rows."),
+    only: str = typer.Option(None, "--only", help="Comma list of row names (default: every row)."),
+    json_out: Path = typer.Option(None, "--json", help="Write meta, rows and density rows as JSON."),
+) -> None:
+    """FUSE, its ablations and switches, VoxelBlockGrid and naive fusion against the GT surface."""
+    import json
+
+    from fuseflow.eval.bench.fuse_ablations import run_fuse_ablations
+
+    try:
+        w, h = (int(v) for v in resolution.lower().split("x"))
+    except ValueError:
+        fail(f"--resolution: expected WxH, got {resolution!r}")
+    command = "fuseflow bench " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+    out = run_fuse_ablations(num_frames, density_frames, seed, (w, h), cameras, not no_density,
+                             _names(only) if only else None, command, log=_echo)  # fmt: skip
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(out, indent=1) + "\n")
+        say(f"wrote {json_out}")
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
@@ -242,5 +315,7 @@ for _name, _command in (
     ("calib", bench_calib),
     ("paper", bench_paper),
     ("live", bench_live),
+    ("calib-wide", bench_calib_wide),
+    ("fuse-ablations", bench_fuse_ablations),
 ):
     bench_app.command(_name)(guarded(_command))
