@@ -141,20 +141,14 @@ def test_no_import_cycle_between_modules():
 
 
 MAX_BENCHMARK_LINES = 120
-# benchmarks/ keeps thin wrappers over fuseflow.eval.bench; these scripts still hold their logic
-# (issue 30 item 2). Each may not grow past its size today; the list only shrinks.
-PENDING_LONG_BENCHMARKS = {
-    "calib_reference_check.py": 201,
-}
 
 
 def test_benchmark_scripts_are_thin_wrappers():
     long = []
     for path in sorted((ROOT / "benchmarks").glob("*.py")):
         n = len(path.read_text().splitlines())
-        cap = PENDING_LONG_BENCHMARKS.get(path.name, MAX_BENCHMARK_LINES)
-        if n > cap:
-            long.append(f"benchmarks/{path.name}: {n} lines (at most {cap})")
+        if n > MAX_BENCHMARK_LINES:
+            long.append(f"benchmarks/{path.name}: {n} lines (at most {MAX_BENCHMARK_LINES})")
     assert not long, "benchmark scripts over their size (move the logic into fuseflow.eval.bench):\n" + "\n".join(long)
 
 
@@ -167,18 +161,9 @@ def test_compiled_kernels_do_not_load_torch():
 
 
 # benchmarks/*.py import the public API only: `fuseflow`, the names a subpackage's __init__ or a
-# top-level module (errors, types) exports (its __all__), or fuseflow.eval.bench (where a benchmark's logic lives). Scripts that
-# still reach into modules (issue 30 item 2); the list only shrinks. One-off studies live in
-# benchmarks/investigations/ under their own rule (test_investigations_are_cited_and_imported_by_nothing).
-PENDING_INTERNAL_BENCHMARKS = {
-    "calib_reference_check.py",
-    "calib_verdicts.py",
-    "outputs_crop.py",
-    "outputs_formats.py",
-    "outputs_mesh.py",
-    "sim_speed.py",
-    "sync_check.py",
-}
+# top-level module (errors, types) exports (its __all__), or fuseflow.eval.bench (where a
+# benchmark's logic lives). One-off studies live in benchmarks/investigations/ under their own
+# rule (test_investigations_are_cited_and_imported_by_nothing).
 
 
 def _public_names(module: str) -> set[str] | None:
@@ -217,10 +202,8 @@ def test_benchmarks_import_only_the_public_api():
     offenders = []
     for path in sorted((ROOT / "benchmarks").glob("*.py")):
         bad = _internal_imports(ast.parse(path.read_text()))
-        if bad and path.name not in PENDING_INTERNAL_BENCHMARKS:
+        if bad:
             offenders.append(f"benchmarks/{path.name}: {', '.join(bad)}")
-        elif not bad and path.name in PENDING_INTERNAL_BENCHMARKS:
-            offenders.append(f"benchmarks/{path.name} imports the public API only: drop it from the pending list")
     assert not offenders, "benchmarks reach into modules (use the public API or fuseflow.eval.bench):\n" + "\n".join(
         offenders
     )

@@ -305,6 +305,94 @@ def bench_fuse_ablations(
         say(f"wrote {json_out}")
 
 
+def bench_calib_reference(
+    data: list[str] = typer.Argument(..., help="hocap (hocap-8rs under --data-dir) or recording paths (frame 0)."),
+    per_camera: bool = typer.Option(
+        False, "--per-camera", help="Score each camera's pose against the reference's others."
+    ),
+    data_dir: Path = typer.Option(
+        Path("../shared/data"), "--data-dir", envvar="FUSEFLOW_DATA", help="The folder holding hocap-8rs."
+    ),
+) -> None:
+    """Calibration vs the data set's reference: which pose set fits the depth and the colours better."""
+    import json
+
+    from fuseflow.eval.bench.calib_reference import per_camera_table, reference_table
+
+    if per_camera:
+        for name in data:
+            per_camera_table(name, data_dir, log=_echo)
+        return
+    reference_table(data, data_dir, log=_echo, record=lambda row: typer.echo(json.dumps(row), err=True))
+
+
+def bench_outputs(
+    what: str = typer.Argument(..., help="crop (--crop auto), formats (--format sizes, Draco error) or mesh (--mesh)."),
+    recordings: list[str] = typer.Argument(..., help="Recordings (crop and mesh: simulated, with gt/)."),
+    error_mm: float = typer.Option(1.0, "--error-mm", help="formats: Draco's position error bound (mm)."),
+    methods: str = typer.Option("tsdf,poisson,bpa", "--methods", help="mesh: comma list of meshing methods."),
+    repeats: int = typer.Option(3, "--repeats", help="mesh: timed runs per method."),
+    threads: int = typer.Option(2, "--threads", help="mesh: torch threads."),
+) -> None:
+    """The output options on frame 0: crop keeps / drops, file sizes and Draco error, mesh time and accuracy."""
+    import json
+
+    from fuseflow.eval.bench import outputs
+
+    if what not in ("crop", "formats", "mesh"):
+        fail(f"expected WHAT crop, formats or mesh, got {what!r}")
+    if what == "mesh":
+        import torch
+
+        torch.set_num_threads(threads)
+    for r in recordings:
+        if what == "crop":
+            m = outputs.crop_quality(r)
+            _echo(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in m.items()}))
+            continue
+        rows = (
+            outputs.format_sizes(r, error_mm)
+            if what == "formats"
+            else outputs.mesh_quality(r, _names(methods), repeats)
+        )
+        for row in rows:
+            _echo(json.dumps(row))
+
+
+def bench_sync_check(
+    root: Path = typer.Argument(..., help="Folder for the simulated recordings (kept and reused)."),
+    seeds: int = typer.Option(5, "--seeds", help="Seeds per config."),
+    fps: float = typer.Option(30.0, "--fps", help="Simulated frame rate."),
+    num_frames: int = typer.Option(20, "--num-frames", help="Frames per recording."),
+    configs: str = typer.Option(None, "--configs", help="Comma list of configs (default: all of them)."),
+    method: str = typer.Option("auto", "--method", help="auto, covisible or agreement."),
+    first_seed: int = typer.Option(0, "--first-seed", help="First seed."),
+) -> None:
+    """The camera-sync check against simulated offsets: exact, false alarms, seconds per check."""
+    from fuseflow.eval.bench.sync_check import CONFIGS, run_sync_check
+
+    names = _names(configs) if configs else list(CONFIGS)
+    run_sync_check(root, seeds, fps, num_frames, names, method, first_seed, log=_echo)
+
+
+def bench_calib_verdicts(
+    cameras: str = typer.Option("4,6", "--cameras", help="Comma list of ring sizes."),
+    seeds: str = typer.Option("1,2", "--seeds", help="Comma list of simulator seeds."),
+    json_out: Path = typer.Option(None, "--json", help="Write the per-camera rows as JSON."),
+) -> None:
+    """Per-camera verdict and expected accuracy of calibrate against the true error (simulated rings)."""
+    import json
+
+    from fuseflow.eval.bench.calib_verdicts import run_calib_verdicts, verdict_summary
+
+    rows = run_calib_verdicts(_int_list(cameras, "--cameras"), _int_list(seeds, "--seeds"), log=lambda r: _echo(str(r)))
+    line = verdict_summary(rows)
+    if line is not None:
+        say(line)
+    if json_out is not None:
+        json_out.write_text(json.dumps(rows, indent=1))
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
@@ -317,5 +405,9 @@ for _name, _command in (
     ("live", bench_live),
     ("calib-wide", bench_calib_wide),
     ("fuse-ablations", bench_fuse_ablations),
+    ("calib-reference", bench_calib_reference),
+    ("outputs", bench_outputs),
+    ("sync-check", bench_sync_check),
+    ("calib-verdicts", bench_calib_verdicts),
 ):
     bench_app.command(_name)(guarded(_command))
