@@ -2,7 +2,9 @@
 
 ``bench_app`` is the group; its subcommands are registered in the list at the end of this module:
 ``fuse`` (fuseflow.eval.bench.fuse_speed), ``calib`` (fuseflow.eval.bench.calib_accuracy),
-``paper`` (fuseflow.eval.paper) and ``live`` (fuseflow.eval.bench.live).
+``paper`` (fuseflow.eval.paper), ``live`` (fuseflow.eval.bench.live), and one per module of
+fuseflow.eval.bench whose program in ``benchmarks/`` is a thin wrapper (``calib-wide``,
+``fuse-ablations``, ``calib-reference``, ``outputs``, ``sync-check``, ``calib-verdicts``, ...).
 """
 
 from __future__ import annotations
