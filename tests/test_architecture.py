@@ -235,3 +235,24 @@ def test_investigations_are_cited_and_imported_by_nothing():
                 if m.split(".")[0] in {p.stem for p in studies} or "investigations" in m
             ]
     assert not bad, "\n".join(bad)
+
+
+def test_rgbd_backbone_is_imported_through_its_package():
+    """Code outside calib/backbones/rgbd/ imports the rgbd backbone's public names
+    (``fuseflow.calib.backbones.rgbd``), never one of its modules."""
+    inside = "fuseflow.calib.backbones.rgbd"
+    offenders = []
+    for path, tree in _modules():
+        if _module_name(path).startswith(inside):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 0:
+                mods = [node.module or ""]
+            elif isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            else:
+                continue
+            offenders += [
+                f"{path.relative_to(ROOT)}:{node.lineno} imports {m}" for m in mods if m.startswith(inside + ".")
+            ]
+    assert not offenders, "\n".join(offenders)

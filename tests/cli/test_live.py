@@ -31,12 +31,14 @@ def test_port_in_use_and_bad_options(dynamic_rec, tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
-        res = _invoke("live", dynamic_rec, "--serve", s.getsockname()[1], "--frames", "2")
+        res = _invoke("live", dynamic_rec, "--serve", s.getsockname()[1], "--num-frames", "2")
     assert res.exit_code == 2 and "is in use" in res.output and "Traceback" not in res.output
     res = _invoke("live", dynamic_rec, "--serve", "nohost:port")
     assert res.exit_code == 2 and "--serve expects" in res.output
-    res = _invoke("live", dynamic_rec, "--frames", "0")
-    assert res.exit_code == 2 and "--frames must be positive" in res.output
+    res = _invoke("live", dynamic_rec, "--num-frames", "0")
+    assert res.exit_code == 2 and "--num-frames must be positive" in res.output
+    res = _invoke("live", dynamic_rec, "--frames", "0")  # the deprecated count spelling
+    assert res.exit_code == 2 and "deprecated" in res.output and "--num-frames must be positive" in res.output
     res = _invoke("live", dynamic_rec, "--rate", "-1")
     assert res.exit_code == 2 and "--rate" in res.output
     res = _invoke("live", dynamic_rec, "--codec", "draco")
@@ -47,7 +49,7 @@ def test_port_in_use_and_bad_options(dynamic_rec, tmp_path):
 
 def test_no_extrinsics_and_open_host_warning(tmp_path, dynamic_rec):
     pytest.importorskip("websockets")
-    res = _invoke("live", dynamic_rec, "--serve", "0.0.0.0:0", "--frames", "1", "--rate", "20")
+    res = _invoke("live", dynamic_rec, "--serve", "0.0.0.0:0", "--num-frames", "1", "--rate", "20")
     assert res.exit_code == 0, res.output
     assert "serving on 0.0.0.0" in res.output and "no authentication" in res.output
     (tmp_path / "rec").mkdir()
@@ -58,5 +60,5 @@ def test_no_extrinsics_and_open_host_warning(tmp_path, dynamic_rec):
     for c in doc["cameras"]:
         c["T_cam_world"] = None
     (tmp_path / "rec" / "rig.json").write_text(json.dumps(doc))
-    res = _invoke("live", tmp_path / "rec", "--frames", "1")
+    res = _invoke("live", tmp_path / "rec", "--num-frames", "1")
     assert res.exit_code == 2 and "pass --calib" in res.output

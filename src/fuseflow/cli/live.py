@@ -7,7 +7,17 @@ from pathlib import Path
 import typer
 
 from fuseflow.cli import output_options as oo
-from fuseflow.cli.app import POINTS_HELP, check_device, check_fuse_options, fail, print_table, say, warn
+from fuseflow.cli.app import (
+    OLD_FRAMES_COUNT,
+    POINTS_HELP,
+    check_device,
+    check_fuse_options,
+    fail,
+    frame_count,
+    print_table,
+    say,
+    warn,
+)
 
 
 def _print_summary(result, source: str) -> None:
@@ -44,7 +54,8 @@ def command(
     preset: str = typer.Option("live", "--preset", help="FUSE preset: live (every 2nd pixel), default, fast, ..."),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda."),
-    frames: int = typer.Option(None, "--frames", help="Stop after N frames from the source."),
+    num_frames: int = typer.Option(None, "--num-frames", help="Stop after N frames from the source."),
+    old_frames: int = OLD_FRAMES_COUNT,
     duration: float = typer.Option(None, "--duration", help="Stop after this many seconds."),
     loop: bool = typer.Option(False, "--loop", help="Replay: start again after the last frame."),
     rate: float = typer.Option(None, "--rate", help="Replay: frames per second (default: the recording's timestamps)."),
@@ -78,7 +89,8 @@ def command(
 
         parse_crop(crop)  # a bad box fails in one line before the source opens
     check_fuse_options(preset, points)
-    for name, value in (("--frames", frames), ("--duration", duration)):
+    frames = num_frames if old_frames is None else frame_count(num_frames, old_frames)
+    for name, value in (("--num-frames", frames), ("--duration", duration)):
         if value is not None and value <= 0:
             fail(f"{name} must be positive, got {value}")
     from fuseflow.live.codec import CompactParams
@@ -106,5 +118,5 @@ EXAMPLES = """\b
 Examples:
   fuseflow live /tmp/studio --serve 8080 --loop                 # replay a recording; open http://127.0.0.1:8080/
   fuseflow live realsense --calib calib.json --serve 8080 --crop auto
-  fuseflow live /tmp/studio --record /tmp/live-clouds --frames 30 --preset default
+  fuseflow live /tmp/studio --record /tmp/live-clouds --num-frames 30 --preset default
 """

@@ -44,8 +44,7 @@ import numpy as np
 import torch
 
 import fuseflow
-from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
-from fuseflow.calib.matchers import MATCHERS
+from fuseflow.calib.backbones.rgbd import MATCHERS, RGBDConfig, relative_error, rgbd_backbone
 from fuseflow.eval.bench.calib_refine import load_hocap
 from fuseflow.eval.metrics import pose_errors
 from fuseflow.types import Frame, Rig, invert_rigid
