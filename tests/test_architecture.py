@@ -1,6 +1,8 @@
 """The architecture of docs/architecture.md, checked: import layering (import-linter contracts in
 pyproject.toml), no private name imported across modules, no function over 80 lines outside
-the compiled kernels, commands registered in one list."""
+the compiled kernels, commands registered in one list; benchmarks/*.py thin wrappers (120 lines,
+public API or fuseflow.eval.bench), benchmarks/investigations/ named by a doc and imported by
+nothing."""
 
 from __future__ import annotations
 
