@@ -17,3 +17,6 @@ def test_fuse_ratio_reports_the_median_of_its_rounds(static_rec):
     assert row["fuse_ms"] > 0 and row["vbg_ms"] > 0
     assert row["grid"].startswith("auto: stride 1")  # 4 cameras at 200x150: every pixel
     assert len(lines) == 1 and "VBG / FUSE median" in lines[0]
+    assert row["valid_pixels"] > 0 and row["core_ms"] > 0
+    assert row["core_ms_per_mpx"] == pytest.approx(row["core_ms"] * 1e6 / row["valid_pixels"])
+    assert "per million valid depth pixels" in lines[0]

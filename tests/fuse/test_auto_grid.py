@@ -7,21 +7,24 @@ from dataclasses import replace
 import numpy as np
 
 from fuseflow.fuse import PRESETS, fuse_with_report
-from fuseflow.fuse.config import AUTO_MIN_VALID_PER_VIEW, AUTO_MIN_VIEWS, auto_config
+from fuseflow.fuse.config import AUTO_CORE_MS, AUTO_CORE_MS_PER_MPX, AUTO_MAX_EVERY_PIXEL, auto_config
 
 
-def test_auto_config_takes_lives_grid_only_where_pixels_are_plentiful():
+def test_auto_config_fuses_every_pixel_within_the_time_budget_and_a_coarse_grid_above():
     cfg = PRESETS["auto"]
-    plenty = AUTO_MIN_VIEWS * AUTO_MIN_VALID_PER_VIEW
-    out, why = auto_config(cfg, AUTO_MIN_VIEWS, plenty)
-    live = PRESETS["live"]
-    assert (out.pixel_stride, out.s0, out.mcm_max_missing) == (live.pixel_stride, live.s0, live.mcm_max_missing)
-    assert "stride 2" in why and "plentiful" in why
-    assert out.depth_smoothing == cfg.depth_smoothing == 1 and live.depth_smoothing == 0  # live's grid, smoothed
-    for views, valid in ((AUTO_MIN_VIEWS - 1, 10 * plenty), (AUTO_MIN_VIEWS, plenty - 1), (8, 8 * 320 * 240)):
+    assert AUTO_MAX_EVERY_PIXEL == int(AUTO_CORE_MS / AUTO_CORE_MS_PER_MPX * 1e6)
+    assert 4 * 320 * 240 < AUTO_MAX_EVERY_PIXEL < 8 * 640 * 480 // 2  # the rigs of docs/fuse.md fall either side
+    dense = PRESETS["dense"]
+    for views, valid in ((8, AUTO_MAX_EVERY_PIXEL), (3, 1000), (16, 16 * 320 * 240 // 2)):
         out, why = auto_config(cfg, views, valid)
-        dense = PRESETS["dense"]
         assert out == replace(cfg, s0=dense.s0, depth_smoothing=dense.depth_smoothing) and "stride 1" in why
+    for views, valid in ((8, AUTO_MAX_EVERY_PIXEL + 1), (4, 2 * AUTO_MAX_EVERY_PIXEL)):
+        out, why = auto_config(cfg, views, valid)
+        live = PRESETS["live"]
+        assert (out.pixel_stride, out.s0, out.mcm_max_missing) == (live.pixel_stride, live.s0, live.mcm_max_missing)
+        assert (out.depth_smoothing, out.k_neighbours, out.multiview_mean) == (2, 4, False)
+        assert out == replace(cfg, pixel_stride=2, s0=1.0, depth_smoothing=2, k_neighbours=4, multiview_mean=False)
+        assert "stride 2" in why and "10 frames/s" in why
 
 
 def test_auto_preset_on_a_small_rig_is_dense_and_says_so():
@@ -42,3 +45,26 @@ def test_a_point_budget_overrides_the_auto_grid():
     sim = Simulator(SimConfig(cameras=4, resolution=(96, 72), frames=1, seed=2))
     r = fuse_with_report(sim.render(0).frame, sim.rig, replace(PRESETS["auto"], target_points=3000))
     assert r.report.grid == ""
+
+
+def test_the_coarse_grid_fuses_as_its_settings_given_up_front(monkeypatch):
+    """Above the budget auto's cloud is that of the coarse settings as a plain config: the
+    neighbour graph _prepare built for 7 cameras is cut to auto_config's 4 (the best first)."""
+    from fuseflow.fuse import config
+    from fuseflow.synth import SimConfig, Simulator
+
+    sim = Simulator(SimConfig(cameras=6, resolution=(96, 72), frames=1, seed=3))
+    frame = sim.render(0).frame
+    monkeypatch.setattr(config, "AUTO_MAX_EVERY_PIXEL", 1000)
+    a = fuse_with_report(frame, sim.rig, PRESETS["auto"])
+    assert a.report.pixel_stride == 2
+    coarse = replace(
+        PRESETS["default"], pixel_stride=2, s0=1.0, depth_smoothing=2, k_neighbours=4, multiview_mean=False
+    )
+    b = fuse_with_report(frame, sim.rig, coarse)
+    assert np.array_equal(a.cloud.xyz.numpy(), b.cloud.xyz.numpy())
+    c = fuse_with_report(frame, sim.rig, replace(coarse, k_neighbours=7))
+    assert len(c.cloud) != len(b.cloud) or not np.array_equal(c.cloud.xyz.numpy(), b.cloud.xyz.numpy())
+    t = fuse_with_report(frame, sim.rig, replace(PRESETS["auto"], backend="torch"))  # the reference cuts it too
+    tb = fuse_with_report(frame, sim.rig, replace(coarse, backend="torch"))
+    assert t.report.backend == "torch" and np.array_equal(t.cloud.xyz.numpy(), tb.cloud.xyz.numpy())

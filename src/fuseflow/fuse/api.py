@@ -296,6 +296,9 @@ def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, i
     With ``target_points`` both search s0 with density.fit_s0: the numba path counts on its
     candidates, the reference, which is not split into stages, with whole passes.
     The depth is smoothed first (FuseConfig.depth_smoothing) at this grid's pixels."""
+    if p.graph.index.shape[1] > cfg.k_neighbours:  # auto_config's grid takes fewer than _prepare's
+        g = p.graph  # the k most-overlapping neighbours come first (neighbour_graph)
+        p = replace(p, graph=NeighbourGraph(g.index[:, : cfg.k_neighbours], g.overlap[:, : cfg.k_neighbours]))
     if cfg.depth_smoothing > 0:
         smoothed = smooth_depth(p.depth, cfg.depth_smoothing, cfg.smoothing_gate, cfg.noise_sigma, cfg.pixel_stride)
         p = replace(p, depth=smoothed)

@@ -349,31 +349,40 @@ PRESETS: dict[str, FuseConfig] = {
     "live": replace(_DEFAULT, pixel_stride=2, s0=1.0, mcm_max_missing=4, depth_smoothing=0),
     # completeness first: every pixel, nearly every candidate kept, 5x5 smoothing
     "dense": replace(_DEFAULT, s0=1.0, depth_smoothing=2),
-    # the CLI's default: "live" on frames with many well-filled views, "default" otherwise (auto_config)
+    # the CLI's default: every pixel ("dense") while the frame's valid pixels fit a time budget, a coarser grid above (auto_config)
     "auto": replace(_DEFAULT, auto_grid=True),
     **ABLATIONS,
 }
 
-#: auto_config takes the coarse grid for frames of at least this many present views ...
-AUTO_MIN_VIEWS = 6
-#: ... with at least this many valid depth pixels per present view on average.
-AUTO_MIN_VALID_PER_VIEW = 100_000
+#: auto_config's time budget for fusing every pixel of a frame, in CPU milliseconds: 10 frames/s
+#: (docs/live.md's rate for 8 x 640x480) on the 2 cores the speed tables are measured on.
+AUTO_CORE_MS = 200.0
+#: CPU milliseconds per million valid depth pixels of every-pixel fusion (``dense``'s settings)
+#: on one core: the most measured on the real and simulated rigs, 249 on the simulated 8-ring
+#: 320x240 (``fuseflow bench fuse-ratio REC --preset dense``; docs/fuse.md "Speed").
+AUTO_CORE_MS_PER_MPX = 250.0
+#: auto_config fuses every pixel of a frame with at most this many valid depth pixels (the
+#: budget over the cost: 0.8 M; the simulated 4-ring 640x480 has 0.62 M, the 8-ring 1.23 M),
+#: and the coarse grid above it.
+AUTO_MAX_EVERY_PIXEL = int(AUTO_CORE_MS / AUTO_CORE_MS_PER_MPX * 1e6)
 
 
 def auto_config(cfg: FuseConfig, views: int, valid_pixels: int) -> tuple[FuseConfig, str]:
     """FuseConfig.auto_grid: the settings for a frame of ``views`` present views with
-    ``valid_pixels`` valid depth pixels, and a one-line account of the choice. Pixels are
-    plentiful (8 views x 640x480: ~2.4 M on ICL) when there are >= AUTO_MIN_VIEWS views with
-    >= AUTO_MIN_VALID_PER_VIEW valid pixels each on average: then ``live``'s grid, s0 and
-    gap-tolerant MCM (every 2nd pixel of every 2nd row); otherwise (3-4 cameras, 320x240,
-    sparse depth) ``dense``'s s0 and smoothing on ``cfg``'s grid (every pixel, nearly every
-    candidate kept)."""
-    live = PRESETS["live"]
-    per_view = valid_pixels / max(views, 1)
+    ``valid_pixels`` valid depth pixels, and a one-line account of the choice. While
+    ``valid_pixels`` <= AUTO_MAX_EVERY_PIXEL (every pixel fits the time budget) ``dense``'s s0
+    and smoothing on ``cfg``'s grid: every pixel, nearly every candidate kept. Above it
+    (8 x 640x480: 1.2-2.4 M) every 2nd pixel of every 2nd row with s0 = 1 (``live``'s grid),
+    5x5 smoothing, 4 neighbour cameras and no multi-view mean: on the simulated 8-ring 640x480
+    that is 25-28 % less time than the default's 7 neighbours, multi-view mean and 3x3 smoothing
+    on that grid, with higher precision and recall at 1 cm (docs/fuse.md)."""
     what = f"{views} views, {valid_pixels / 1e6:.2f} M valid depth pixels"
-    if views >= AUTO_MIN_VIEWS and per_view >= AUTO_MIN_VALID_PER_VIEW:
-        out = replace(cfg, pixel_stride=live.pixel_stride, s0=live.s0, mcm_max_missing=live.mcm_max_missing)
-        return out, f"auto: stride {out.pixel_stride}, s0 {out.s0:g} ({what}: pixels plentiful)"
+    if valid_pixels > AUTO_MAX_EVERY_PIXEL:
+        live = PRESETS["live"]
+        out = replace(cfg, pixel_stride=live.pixel_stride, s0=live.s0, mcm_max_missing=live.mcm_max_missing,
+                      depth_smoothing=2, k_neighbours=4, multiview_mean=False)  # fmt: skip
+        why = f"more than {AUTO_MAX_EVERY_PIXEL / 1e6:.2f} M: every pixel would not fit 10 frames/s"
+        return out, f"auto: stride {out.pixel_stride}, s0 {out.s0:g} ({what}; {why})"
     dense = PRESETS["dense"]
     out = replace(cfg, s0=dense.s0, depth_smoothing=dense.depth_smoothing)
     return out, f"auto: stride {out.pixel_stride}, s0 {out.s0:g} ({what}: every pixel counts)"

@@ -76,7 +76,7 @@ class FuseRunSummary:
     (FuseReport.pixel_stride: FuseConfig.pixel_stride, or a coarser one a point budget picked)."""
     grid_choices: list[str] = field(default_factory=list)
     """With the ``auto`` preset, each distinct choice of grid it made (FuseReport.grid), e.g.
-    "auto: stride 2, s0 1 (8 views, 2.41 M valid depth pixels: pixels plentiful)"."""
+    "auto: stride 2, s0 1 (8 views, 2.41 M valid depth pixels; more than 0.80 M: every pixel would not fit 10 frames/s)"."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

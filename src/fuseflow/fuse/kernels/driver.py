@@ -62,7 +62,7 @@ def _candidates(p, prm: PixelParams, ws: Workspace) -> _Cells:
     Kf = np.asarray(p.K, dtype=np.float32)
     M_rel = relative_transforms(np.asarray(p.T_cam_world))
     T_wc = np.asarray(p.T_world_cam, dtype=np.float32)
-    nbr = np.asarray(p.graph.index, dtype=np.int64)
+    nbr = np.ascontiguousarray(p.graph.index, dtype=np.int64)
     present = np.asarray(p.present, dtype=np.bool_)
     rank = ws.rank(prm.range_priority)
     with numba.parallel_chunksize(8):  # rows differ in cost (and a shared core may stall)
