@@ -15,13 +15,16 @@ def test_auto_config_takes_lives_grid_only_where_pixels_are_plentiful():
     plenty = AUTO_MIN_VIEWS * AUTO_MIN_VALID_PER_VIEW
     out, why = auto_config(cfg, AUTO_MIN_VIEWS, plenty)
     live = PRESETS["live"]
-    assert (out.pixel_stride, out.s0, out.mcm_max_missing) == (live.pixel_stride, live.s0, live.mcm_max_missing)
+    assert (out.pixel_stride, out.ash.s0, out.mcm.max_missing) == (live.pixel_stride, live.ash.s0, live.mcm.max_missing)
     assert "stride 2" in why and "plentiful" in why
-    assert out.depth_smoothing == cfg.depth_smoothing == 1 and live.depth_smoothing == 0  # live's grid, smoothed
+    assert out.smoothing.radius == cfg.smoothing.radius == 1 and live.smoothing.radius == 0  # live's grid, smoothed
     for views, valid in ((AUTO_MIN_VIEWS - 1, 10 * plenty), (AUTO_MIN_VIEWS, plenty - 1), (8, 8 * 320 * 240)):
         out, why = auto_config(cfg, views, valid)
         dense = PRESETS["dense"]
-        assert out == replace(cfg, s0=dense.s0, depth_smoothing=dense.depth_smoothing) and "stride 1" in why
+        assert (
+            out == cfg.replace(ash={"s0": dense.ash.s0}, smoothing={"radius": dense.smoothing.radius})
+            and "stride 1" in why
+        )
 
 
 def test_auto_preset_on_a_small_rig_is_dense_and_says_so():

@@ -108,7 +108,7 @@ class OutputManifest:
 
     def differences(self, other: OutputManifest) -> list[str]:
         """Human-readable differences that forbid resuming ``other`` as ``self`` (path excluded);
-        changed settings are named one by one ("settings: fuse.s0 was 5.0, now 1.0")."""
+        changed settings are named one by one ("settings: fuse.ash.s0 was 5.0, now 1.0")."""
         names = {
             "command": "command",
             "recording_fingerprint": "recording content (rig.json, frame list, or a file's size or modification time)",
