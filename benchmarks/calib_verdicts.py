@@ -1,10 +1,7 @@
 #!/usr/bin/env python
-"""The per-camera verdicts and expected accuracy of ``calibrate`` against the truth (issue 27).
-
-Simulated room rings (``fuseflow.synth``, 320x240, one frame, default config: auto backbone and
-joint refinement); per camera the verdict, the expected accuracy the report gives
-(``report.camera_verdicts``) and the true error (``fuseflow.calib.reference.compare_to_reference``
-against the recording's rig.json: robust rigid alignment of the worlds, then deg / mm per camera).
+"""The per-camera verdicts and expected accuracy of ``calibrate`` against the truth: a thin wrapper
+around ``fuseflow.eval.bench.calib_verdicts`` (also ``fuseflow bench calib-verdicts``), whose
+docstring says what is measured (simulated room rings, 320x240, one frame, default config).
 Prints one line per camera and a summary; --out writes the rows as JSON.
 
     python benchmarks/calib_verdicts.py --cameras 4 6 --seeds 1 2 --out /tmp/verdicts.json
@@ -14,34 +11,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
-
-import fuseflow
-from fuseflow.calib import CalibConfig, calibrate
-from fuseflow.calib.reference import compare_to_reference
-from fuseflow.synth import SimConfig, simulate_recording
-
-
-def run(n: int, seed: int, work: Path) -> list[dict]:
-    out = work / f"ring{n}_{seed}"
-    simulate_recording(out, SimConfig(cameras=n, frames=1, scene="room", resolution=(320, 240), seed=seed))
-    rec = fuseflow.open_recording(out)
-    rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
-    t = time.perf_counter()
-    cal = calibrate(rec[0], rig, CalibConfig())
-    dt = time.perf_counter() - t
-    truth = {c.id: c.T_cam_world for c in rec.rig.cameras}
-    err = compare_to_reference(cal.T_cam_world, truth, rig.ids)["cameras"]
-    return [
-        {"cameras": n, "seed": seed, "camera": c, "verdict": v["verdict"], "accuracy_deg": v.get("accuracy_deg"),
-         "accuracy_mm": v.get("accuracy_mm"), "error_deg": err[c].get("rotation_deg"),
-         "error_mm": err[c].get("position_mm"), "cycles": v.get("cycles"), "time_s": round(dt, 1)}
-        for c, v in cal.report.camera_verdicts.items()
-    ]  # fmt: skip
+from fuseflow.eval.bench.calib_verdicts import run_calib_verdicts, verdict_summary
 
 
 def main() -> None:
@@ -50,20 +22,10 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    rows = []
-    with tempfile.TemporaryDirectory() as work:
-        for n in a.cameras:
-            for seed in a.seeds:
-                for r in run(n, seed, Path(work)):
-                    print(r, flush=True)
-                    rows.append(r)
-    placed = [r for r in rows if r["error_deg"] is not None and r["accuracy_deg"] is not None]
-    if placed:
-        d = np.array([[r["accuracy_deg"], r["error_deg"], r["accuracy_mm"], r["error_mm"]] for r in placed])
-        print(f"{len(rows)} cameras, verdicts {sorted({r['verdict'] for r in rows})}; expected "
-              f"{d[:, 0].min():.3f}-{d[:, 0].max():.3f} deg / {d[:, 2].min():.1f}-{d[:, 2].max():.1f} mm, true "
-              f"{d[:, 1].min():.3f}-{d[:, 1].max():.3f} deg / {d[:, 3].min():.2f}-{d[:, 3].max():.2f} mm; true <= 2x "
-              f"expected: {(d[:, 1] <= 2 * d[:, 0]).sum()}/{len(d)} (deg), {(d[:, 3] <= 2 * d[:, 2]).sum()}/{len(d)} (mm)")  # fmt: skip
+    rows = run_calib_verdicts(a.cameras, a.seeds, log=lambda r: print(r, flush=True))
+    line = verdict_summary(rows)
+    if line is not None:
+        print(line)
     if a.out:
         a.out.write_text(json.dumps(rows, indent=1))
 

@@ -1,58 +1,18 @@
-"""Camera-sync check accuracy over a grid of simulated recordings (issue 19).
-
-For each config and seed: simulate a dynamic (or static) studio, desynchronise the listed cameras
-with ``synth.desync.apply_desync``, run ``pipeline.sync.check_sync`` with the ground-truth rig and
-compare the offsets found with the truth (a static scene must report nothing). Prints one row per
-recording and a table per config: exact / of seeds, false alarms, seconds per check.
+"""Camera-sync check accuracy over a grid of simulated recordings: a thin wrapper around
+``fuseflow.eval.bench.sync_check`` (also ``fuseflow bench sync-check``), whose docstring says what
+is measured and lists the configs. Prints one row per recording and a table per config: exact /
+of seeds, false alarms, seconds per check. Recordings are kept in the folder and reused.
 
     PYTHONPATH=src python benchmarks/sync_check.py /tmp/sync-grid --seeds 5 [--fps 30 --frames 90]
         [--method auto|covisible|agreement] [--configs c4_160_late2,c4_160_sync,c3_160_early1]
-
-Recordings are kept in the folder and reused on a second run (their ground-truth surface files
-are sampled at 100 points per m^2, not 10000: a 90-frame dynamic recording would hold 1.9 GB of
-them; depth and colour do not depend on it).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import platform
-import shutil
-import time
 from pathlib import Path
 
-import numpy as np
-import torch
-
-from fuseflow.io import open_recording
-from fuseflow.pipeline.sync import check_sync
-from fuseflow.synth import SimConfig, simulate_recording
-from fuseflow.synth.desync import apply_desync
-
-# name: (cameras, (W, H), dynamic, desync)
-CONFIGS = {
-    "c4_160_late2": (4, (160, 120), True, "cam03:2"),
-    "c3_160_early1": (3, (160, 120), True, "cam01:-1"),
-    "c4_160_sync": (4, (160, 120), True, ""),
-    "c8_160_mixed": (8, (160, 120), True, "cam02:1,cam05:-2"),
-    "c4_160_static": (4, (160, 120), False, "cam03:2"),
-    "c4_320_late2": (4, (320, 240), True, "cam03:2"),
-    "c4_320_sync": (4, (320, 240), True, ""),
-    "c4_320_two": (4, (320, 240), True, "cam00:-2,cam02:1"),
-}
-
-
-def make(root: Path, name: str, seed: int, fps: float, frames: int) -> Path:
-    n, res, dynamic, desync = CONFIGS[name]
-    out = root / f"{name}_fps{fps:g}_f{frames}_s{seed}"
-    if not (out / "gt.json").exists() or (desync and "desync" not in json.loads((out / "gt.json").read_text())):
-        shutil.rmtree(out, ignore_errors=True)  # an unfinished one (interrupted run)
-        simulate_recording(out, SimConfig(cameras=n, frames=frames, scene="studio", dynamic=dynamic, resolution=res,
-                                          seed=seed, fps=fps, surface_density=100.0))  # fmt: skip
-        if desync:
-            apply_desync(out, desync)
-    return out
+from fuseflow.eval.bench.sync_check import CONFIGS, METHODS, run_sync_check
 
 
 def main() -> None:
@@ -62,34 +22,11 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--configs", default=",".join(CONFIGS))
-    ap.add_argument("--method", default="auto", choices=["auto", "covisible", "agreement"])
+    ap.add_argument("--method", default="auto", choices=list(METHODS))
     ap.add_argument("--first-seed", type=int, default=0)
     a = ap.parse_args()
-    print(
-        f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, fps {a.fps:g}, {a.frames} frames, "
-        f"method {a.method}"
-    )
-    rows: dict[str, list[tuple[bool, bool, float]]] = {}
-    for name in a.configs.split(","):
-        for seed in range(a.first_seed, a.first_seed + a.seeds):
-            rec_dir = make(a.root, name, seed, a.fps, a.frames)
-            gt = json.loads((rec_dir / "gt.json").read_text())
-            dynamic = CONFIGS[name][2]
-            truth = {c: k for c, k in gt.get("desync", {}).items() if k} if dynamic else {}
-            rec = open_recording(rec_dir)
-            t0 = time.perf_counter()
-            report = check_sync(rec, rec.rig, list(range(len(rec.rig))), method=a.method)
-            dt = time.perf_counter() - t0
-            found = report.late()
-            false_alarm = any(c not in truth for c in found)
-            rows.setdefault(name, []).append((found == truth, false_alarm, dt))
-            sub = {c: round(v, 2) for c, v in (report.sub_frame or {}).items()}  # co-visible: sub-frame solve
-            print(f"{name:14s} seed {seed}: truth {truth} found {found} {'OK' if found == truth else 'WRONG'} "
-                  f"({dt:.1f} s, {report.method}{f', sub-frame {sub}' if sub else ''})", flush=True)  # fmt: skip
-    print("\n| config | exact | false alarm | s / check (median) |\n|---|---|---|---|")
-    for name, r in rows.items():
-        ok, fa, dt = zip(*r, strict=True)
-        print(f"| {name} | {sum(ok)}/{len(r)} | {sum(fa)}/{len(r)} | {np.median(dt):.1f} |")
+    run_sync_check(a.root, a.seeds, a.fps, a.frames, a.configs.split(","), a.method, a.first_seed,
+                   log=lambda line: print(line, flush=True))  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 """The architecture of docs/architecture.md, checked: import layering (import-linter contracts in
 pyproject.toml), no private name imported across modules, no function over 80 lines outside
-the compiled kernels, commands registered in one list."""
+the compiled kernels, commands registered in one list; benchmarks/*.py thin wrappers (120 lines,
+public API or fuseflow.eval.bench), benchmarks/investigations/ named by a doc and imported by
+nothing."""
 
 from __future__ import annotations
 
@@ -141,22 +143,14 @@ def test_no_import_cycle_between_modules():
 
 
 MAX_BENCHMARK_LINES = 120
-# benchmarks/ keeps thin wrappers over fuseflow.eval.bench; these scripts still hold their logic
-# (issue 30 item 2). Each may not grow past its size today; the list only shrinks.
-PENDING_LONG_BENCHMARKS = {
-    "calib_reference_check.py": 201,
-    "fuse_quality.py": 280,
-    "calib_wide.py": 343,
-}
 
 
 def test_benchmark_scripts_are_thin_wrappers():
     long = []
     for path in sorted((ROOT / "benchmarks").glob("*.py")):
         n = len(path.read_text().splitlines())
-        cap = PENDING_LONG_BENCHMARKS.get(path.name, MAX_BENCHMARK_LINES)
-        if n > cap:
-            long.append(f"benchmarks/{path.name}: {n} lines (at most {cap})")
+        if n > MAX_BENCHMARK_LINES:
+            long.append(f"benchmarks/{path.name}: {n} lines (at most {MAX_BENCHMARK_LINES})")
     assert not long, "benchmark scripts over their size (move the logic into fuseflow.eval.bench):\n" + "\n".join(long)
 
 
@@ -169,25 +163,9 @@ def test_compiled_kernels_do_not_load_torch():
 
 
 # benchmarks/*.py import the public API only: `fuseflow`, the names a subpackage's __init__ or a
-# top-level module (errors, types) exports (its __all__), or fuseflow.eval.bench (where a benchmark's logic lives). Scripts that
-# still reach into modules (issue 30 item 2); the list only shrinks.
-PENDING_INTERNAL_BENCHMARKS = {
-    "calib_hocap_diagnose.py",
-    "calib_match_threshold.py",
-    "calib_reference_check.py",
-    "calib_scale_source.py",
-    "calib_verdicts.py",
-    "calib_wide.py",
-    "fuse_completeness_bands.py",
-    "fuse_mcm_floor.py",
-    "fuse_quality.py",
-    "outputs_crop.py",
-    "outputs_formats.py",
-    "outputs_mesh.py",
-    "run_throughput.py",
-    "sim_speed.py",
-    "sync_check.py",
-}
+# top-level module (errors, types) exports (its __all__), or fuseflow.eval.bench (where a
+# benchmark's logic lives). One-off studies live in benchmarks/investigations/ under their own
+# rule (test_investigations_are_cited_and_imported_by_nothing).
 
 
 def _public_names(module: str) -> set[str] | None:
@@ -226,10 +204,57 @@ def test_benchmarks_import_only_the_public_api():
     offenders = []
     for path in sorted((ROOT / "benchmarks").glob("*.py")):
         bad = _internal_imports(ast.parse(path.read_text()))
-        if bad and path.name not in PENDING_INTERNAL_BENCHMARKS:
+        if bad:
             offenders.append(f"benchmarks/{path.name}: {', '.join(bad)}")
-        elif not bad and path.name in PENDING_INTERNAL_BENCHMARKS:
-            offenders.append(f"benchmarks/{path.name} imports the public API only: drop it from the pending list")
     assert not offenders, "benchmarks reach into modules (use the public API or fuseflow.eval.bench):\n" + "\n".join(
         offenders
     )
+
+
+def test_investigations_are_cited_and_imported_by_nothing():
+    """benchmarks/investigations/ holds one-off studies: they may reach into any module and have
+    no size cap, but each is named by a doc (docs/, README.md or benchmarks/, so the number it
+    measured can be re-run) and nothing in src/, tests/ or benchmarks/*.py imports one."""
+    docs = "\n".join(
+        p.read_text() for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks").glob("*.md")]
+    )
+    code = [*(SRC.rglob("*.py")), *(ROOT / "tests").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
+    studies = sorted((ROOT / "benchmarks" / "investigations").glob("*.py"))
+    assert studies
+    bad = [f"benchmarks/investigations/{p.name}: no doc names it" for p in studies if p.name not in docs]
+    for path in code:
+        for node in ast.walk(ast.parse(path.read_text())):
+            mods = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else []
+            )
+            bad += [
+                f"{path.relative_to(ROOT)} imports {m}"
+                for m in mods
+                if m.split(".")[0] in {p.stem for p in studies} or "investigations" in m
+            ]
+    assert not bad, "\n".join(bad)
+
+
+def test_rgbd_backbone_is_imported_through_its_package():
+    """Code outside calib/backbones/rgbd/ imports the rgbd backbone's public names
+    (``fuseflow.calib.backbones.rgbd``), never one of its modules."""
+    inside = "fuseflow.calib.backbones.rgbd"
+    offenders = []
+    for path, tree in _modules():
+        if _module_name(path).startswith(inside):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 0:
+                mods = [node.module or ""]
+            elif isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            else:
+                continue
+            offenders += [
+                f"{path.relative_to(ROOT)}:{node.lineno} imports {m}" for m in mods if m.startswith(inside + ".")
+            ]
+    assert not offenders, "\n".join(offenders)

@@ -108,3 +108,21 @@ def test_old_report_without_new_fields_reads(scene5):
         d.pop(k)
     r = CalibReport.from_json(d)
     assert r.placed_by == {} and r.scale_check is None and r.unplaced_reasons == {}
+
+
+def test_scale_check_warning_is_dropped_only_when_every_verdict_is_good():
+    """The check's warning is for poses the verdicts cannot vouch for: with every camera "good"
+    it goes (the value stays in scale_check); one camera "check it" keeps it, as do other warnings."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib.placement import SCALE_CHECK_WARNING, drop_answered_scale_warning
+
+    scale = f"{SCALE_CHECK_WARNING} 0.7584, more than 15% from 1"
+    for verdicts, kept in (
+        ({"a": {"verdict": "good"}, "b": {"verdict": "good"}}, ["other"]),
+        ({"a": {"verdict": "good"}, "b": {"verdict": "check it"}}, [scale, "other"]),
+        ({}, [scale, "other"]),
+    ):
+        report = SimpleNamespace(camera_verdicts=verdicts, warnings=[scale, "other"], scale_check=0.7584)
+        drop_answered_scale_warning(report)
+        assert report.warnings == kept and report.scale_check == 0.7584

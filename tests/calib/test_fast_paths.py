@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fuseflow.calib.backbones.rgbd import nanmedian_frames
-from fuseflow.calib.ransac_kernels import planar_counts, rigid_counts
+from fuseflow.calib.backbones.rgbd.ransac_kernels import planar_counts, rigid_counts
 
 
 def _rotations(rng, n):

@@ -139,7 +139,7 @@ def test_route_c_tries_an_unplaced_cameras_pairs_by_consensus(monkeypatch):
     from types import SimpleNamespace
 
     from fuseflow.calib import geometric
-    from fuseflow.calib.backbones import rgbd
+    from fuseflow.calib.backbones.rgbd import geometric_route as rgbd
     from fuseflow.calib.posegraph import Edge
 
     rng = np.random.default_rng(0)
@@ -173,20 +173,20 @@ def test_route_c_tries_an_unplaced_cameras_pairs_by_consensus(monkeypatch):
     monkeypatch.setattr(rgbd, "_geometric_pair", fake_pair)
     T0 = np.stack([T_cw[0], T_cw[1], np.eye(4)])
     placed = np.array([True, True, False])
-    out, info, solved = rgbd._geometric_edges([None] * 3, T0, placed, edges, RGBDConfig())
+    out, info, solved = rgbd.geometric_edges([None] * 3, T0, placed, edges, RGBDConfig())
     assert run == [(1, 2)] and list(out) == [(1, 2)]
     assert solved[4].all()  # camera 2 placed by the one edge
     run.clear()
-    out, _, _ = rgbd._geometric_edges([None] * 3, T0, placed, edges, RGBDConfig(geometric_edges_per_camera=3))
+    out, _, _ = rgbd.geometric_edges([None] * 3, T0, placed, edges, RGBDConfig(geometric_edges_per_camera=3))
     assert run == [(0, 2), (1, 2)] and sorted(out) == [(0, 2), (1, 2)]
 
 
 def test_prepared_ransac_starts_give_the_same_candidates(textureless):
-    from fuseflow.calib.backbones.rgbd import _backproject
+    from fuseflow.calib.backbones.rgbd.evidence import backproject
     from fuseflow.calib.geometric import cloud_features, geometric_candidates, ransac_starts
 
     frame, rig, _, _ = textureless
-    f = [cloud_features(_backproject(frame.depth[k].numpy(), rig.cameras[k].K, 2), 0.02) for k in range(2)]
+    f = [cloud_features(backproject(frame.depth[k].numpy(), rig.cameras[k].K, 2), 0.02) for k in range(2)]
     rs = ransac_starts(f[0], f[1], 3, seed=2)
     assert rs.consensus == rs.hypotheses[0][1] > 0
     a = geometric_candidates(f[0], f[1], 3, seed=2)

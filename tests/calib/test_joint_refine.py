@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fuseflow.calib import CalibConfig, calibrate
-from fuseflow.calib.joint_refine import _exp_se3, joint_refine
+from fuseflow.calib.joint_refine import _exp_se3, depth_fit, joint_refine
 from fuseflow.eval.metrics import pose_errors
 
 
@@ -145,3 +145,16 @@ def test_truth_is_a_fixed_point_on_exact_depth(scene):
     res = joint_refine(dict(zip(ids, T_true)), [frame], rig, tracks=_tracks(T_true, ids))
     e = pose_errors(res.T_refined, dict(zip(ids, T_true)))
     assert e.rotation_deg < 0.005 and e.translation_mm < 0.5, e
+
+
+def test_depth_fit_prefers_the_true_poses(scene):
+    frame, rig, T_true = scene
+    ids = list(rig.ids)
+    truth = dict(zip(ids, T_true))
+    share, median_mm = depth_fit(frame, rig, truth)
+    share_off, median_off = depth_fit(frame, rig, _perturbed(T_true, ids, 1.0, 0.02))
+    assert share > 0.95 and median_mm < 1.0, (share, median_mm)  # exact depth: the truth fits
+    assert share_off < share and median_off > median_mm
+    one, _ = depth_fit(frame, rig, _perturbed(T_true, ids, 1.0, 0.02), only=ids[0])
+    assert 0 <= one <= 1
+    assert np.isnan(depth_fit(frame, rig, {ids[0]: T_true[0]})[0])  # one camera: no pair

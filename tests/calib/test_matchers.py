@@ -1,4 +1,4 @@
-"""Image matchers of the rgbd backbone (fuseflow.calib.matchers).
+"""Image matchers of the rgbd backbone (fuseflow.calib.backbones.rgbd.matchers).
 
 Always run: SIFT, names and config validation, the one-line error when ``fuseflow[matchers]`` is
 missing (simulated by hiding the package), and the pure-torch deformable convolution that stands
@@ -18,7 +18,7 @@ import torch.nn.functional as F
 
 from fuseflow.calib import CalibConfig
 from fuseflow.calib.backbones.rgbd import RGBDConfig
-from fuseflow.calib.matchers import MATCHERS, deform_conv2d, get_matcher, match_sift
+from fuseflow.calib.backbones.rgbd.matchers import MATCHERS, deform_conv2d, get_matcher, match_sift
 from fuseflow.errors import FuseFlowError, ValidationError
 
 HAVE = {

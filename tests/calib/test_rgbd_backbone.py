@@ -145,7 +145,7 @@ def test_median_depth_drops_pixels_something_moved_through():
     """Multi-frame evidence of a static rig: where a person walked, the per-pixel median mixes
     person and floor into a surface that never existed; such pixels get no depth, the static
     scene keeps its median (the verification compares median depths)."""
-    from fuseflow.calib.backbones.rgbd import _median_images
+    from fuseflow.calib.backbones.rgbd.evidence import _median_images
 
     floor = np.full((4, 6), 3.0, np.float32)
     depths = [floor.copy() for _ in range(4)]

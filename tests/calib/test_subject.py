@@ -175,14 +175,15 @@ def test_route_pairs_carry_floor_points_and_step_aside_without_motion():
 
 @pytest.mark.parametrize("frames", [1, 2])
 def test_rgbd_backbone_skips_the_route_with_few_frames(frames):
-    from fuseflow.calib.backbones.rgbd import RGBDConfig, _subject_route
+    from fuseflow.calib.backbones.rgbd import RGBDConfig
+    from fuseflow.calib.backbones.rgbd.pairs import subject_route
 
-    assert _subject_route([object()] * frames, None, [0, 1], [], RGBDConfig()) is None
-    assert _subject_route([object()] * 5, None, [0, 1], [], RGBDConfig(subject=False)) is None
+    assert subject_route([object()] * frames, None, [0, 1], [], RGBDConfig()) is None
+    assert subject_route([object()] * 5, None, [0, 1], [], RGBDConfig(subject=False)) is None
 
 
 def test_the_judge_refutes_relative_to_the_subject_pose():
-    from fuseflow.calib.backbones.rgbd import SUBJECT_MARGIN_M, SUBJECT_REFUTE_M, _SubjectJudge
+    from fuseflow.calib.backbones.rgbd.judge import SUBJECT_MARGIN_M, SUBJECT_REFUTE_M, _SubjectJudge
 
     cams = _cams()
     tracks, planes = _cached("walk")

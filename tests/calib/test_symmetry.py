@@ -182,7 +182,7 @@ def test_the_subject_check_rejects_a_turn_of_the_room_that_the_walls_confirm():
 def test_a_camera_off_the_checked_group_stays_placed_only_when_the_subject_confirms_its_one_link():
     """In a repeating room a camera outside the cycle-checked group is ambiguous unless its
     link is its pair's only remaining hypothesis and the subject confirms it."""
-    from fuseflow.calib.backbones.rgbd import _subject_held
+    from fuseflow.calib.backbones.rgbd.choice import _subject_held
 
     T = [look_at([2.6 * math.cos(a), 2.6 * math.sin(a), 1.4], [0, 0, 1.0]) for a in np.radians([0.0, 72.0])]
     cams, cfg = [_view(T[0]), _view(T[1])], RGBDConfig()

@@ -145,3 +145,31 @@ def test_default_frame_is_the_first_with_every_camera(ring_rec, tmp_path):
     assert "cameras ['cam02'] have no view in the frames to calibrate from" in text, res.output
     assert "(--frame 1)" in text
     assert "not 'good' from one frame; --frames 0:3 pools 3 frames" in text  # cam02 is left unplaced
+
+
+def test_default_pools_frames_when_one_frame_places_too_few(ring_rec, tmp_path, monkeypatch):
+    """No --frame/--frames: a first frame that places too few cameras (here: a GMAC that fails on
+    any single frame) makes calibrate pool the recording's frames, spread over it, and say so;
+    an explicit --frame does not pool and fails as GMAC does."""
+    import fuseflow.calib as calib_mod
+    from fuseflow.calib import CalibrationError
+
+    real, calls = calib_mod.calibrate, []
+
+    def one_frame_fails(views, rig, config, progress=None):
+        calls.append([v.index for v in views])
+        if len(views) == 1:
+            raise CalibrationError("the backbone placed fewer than two cameras")
+        return real(views, rig, config, progress=progress)
+
+    monkeypatch.setattr(calib_mod, "calibrate", one_frame_fails)
+    out = tmp_path / "c.json"
+    args = ["calibrate", str(ring_rec), "--out", str(out), "--backbone", "rgbd"]
+    res = CliRunner().invoke(cli_app, args)
+    assert res.exit_code == 0, res.output
+    assert calls == [[0], [0, 1, 2]], calls
+    assert "one frame placed too few cameras" in res.output and "pooling 3 frames spread over the recording (0..2)" in res.output
+    assert fuseflow.read_calibration(out).report["backbone_info"]["frames"] == 3
+    calls.clear()
+    res = CliRunner().invoke(cli_app, [*args, "--frame", "1"])
+    assert res.exit_code == 2 and "fewer than two cameras" in res.output and calls == [[1]], res.output

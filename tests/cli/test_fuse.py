@@ -79,7 +79,7 @@ def test_fuse_set_changes_one_setting_over_the_preset(rec, tmp_path):
     assert len(direct) != len(fuse(recording[1], recording.rig, PRESETS["default"]))  # the settings took effect
     assert np.array_equal(np.sort(direct.xyz.numpy(), axis=0), np.sort(cloud.xyz.numpy(), axis=0))
     recorded = json.loads((out / "manifest.json").read_text())["settings"]["fuse"]
-    assert recorded["rps"]["k_max"] == 1 and recorded["ash"]["s0"] == 3.0 and recorded["cvgc"]["k_neighbours"] == 7
+    assert recorded["k_max"] == 1 and recorded["s0"] == 3.0 and recorded["k_neighbours"] == 7  # FuseConfig.as_dict
 
 
 def test_fuse_errors_are_one_line(rec, tmp_path):

@@ -92,7 +92,7 @@ def test_resume_mismatch_names_the_settings_that_differ(rec, tmp_path):
     r = _invoke("fuse", rec, "--out", out, "--frames", "0:1", "--preset", "live")
     assert r.exit_code == 2
     text = " ".join(r.output.split())
-    assert "fuse.pixel_stride was 1, now 2" in text and "fuse.ash.s0 was 5.0, now 1.0" in text, text
+    assert "fuse.pixel_stride was 1, now 2" in text and "fuse.s0 was 5.0, now 1.0" in text, text
 
 
 def test_mismatch_with_an_old_manifest_falls_back_to_digests(tmp_path):

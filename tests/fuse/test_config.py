@@ -88,3 +88,19 @@ def test_kernel_params_read_each_stage_config():
     # the lone-point confirmation needs the multi-view mean, which needs CVGC
     assert kernel_params(cfg.replace(cvgc={"enabled": False})).select.lone_keep == 0
     assert kernel_params(cfg.replace(ash={"enabled": False})).cell.s_c == np.float32(cfg.ash.fixed_size)
+
+
+def test_as_dict_keeps_the_recorded_flat_names():
+    """manifest.json records and digests ``as_dict()``: its names are the recorded ones, so outputs
+    written before keep resuming (a renamed key changes every resume digest)."""
+    cfg = FuseConfig()
+    flat = cfg.as_dict()
+    assert len(flat) == len(cfg.describe())  # one flat name per setting
+    assert flat["s0"] == cfg.ash.s0 and flat["use_mcm"] is True and flat["depth_smoothing"] == cfg.smoothing.radius
+    assert set(flat) == set(
+        "alpha beta delta z_max window use_mcm mcm_max_missing mcm_noise k_neighbours min_overlap tau "
+        "visibility_aware use_cvgc coarse_size s0 s_min s_max use_ash fixed_size k0 ratio k_max r_c min_weight "
+        "use_rps k_fixed range_priority lone_cell_mean lone_cell_keep multiview_mean multiview_gate consensus "
+        "consensus_gate depth_smoothing smoothing_gate noise_sigma target_points pixel_stride budget_stride "
+        "backend eps auto_grid".split()
+    )

@@ -192,3 +192,27 @@ def test_stream_leaves_out_cameras_the_calibration_does_not_place(static_rec):
     assert len(clouds) == len(rec)
     # camera indices refer to the recording's rig, not to the fused subset
     assert set(clouds[0].camera.tolist()) == {0, 2, 3} and len(clouds[0]) > 1000
+
+
+def test_run_pools_frames_when_gmac_fails_on_one(static_rec, tmp_path, monkeypatch):
+    """`run` without --calib-frame: a GMAC that places too few cameras from the first good frame
+    is run again on frames spread over the recording (pipeline.calibration.calibrate_frames);
+    with --calib-frame it is not, and the error stays."""
+    import fuseflow.calib as calib_mod
+    from fuseflow.calib import CalibrationError
+
+    true_rig, calls = open_recording(static_rec).rig, []
+
+    def one_frame_fails(frames, rig, config=None, progress=None):
+        calls.append([f.index for f in frames])
+        if len(frames) == 1:
+            raise CalibrationError("the backbone placed fewer than two cameras")
+        return Calibration({c.id: c.T_cam_world for c in true_rig}, {"oracle": True})
+
+    monkeypatch.setattr(calib_mod, "calibrate", one_frame_fails)
+    s = run(static_rec, tmp_path / "a", frames=range(2))
+    assert calls == [[0], [0, 1, 2, 3, 4, 5]] and s.calibration == "GMAC on 6 frames from frame 0", (calls, s)
+    calls.clear()
+    with pytest.raises(CalibrationError):
+        run(static_rec, tmp_path / "b", frames=range(2), calib_frame=1)
+    assert calls == [[1]]

@@ -25,6 +25,7 @@ from fuseflow.calib.placement import (
     Placement,
     anchor_world,
     as_frames,
+    drop_answered_scale_warning,
     finish_report,
     place_with_backbone,
     refine_jointly,
@@ -152,6 +153,7 @@ def _calibrate(frame, rig: Rig, config: CalibConfig, backbone_result: BackboneRe
         report = finish_report(pl, frames[0].camera_ids, config)
         report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
         report.camera_verdicts = camera_verdicts(report, pl.T, frames[0].camera_ids)
+        drop_answered_scale_warning(report)
         pl.timings["report"] = time.perf_counter() - t
     pl.timings["total"] = time.perf_counter() - t_start
     return Calibration(pl.T, report)

@@ -16,9 +16,10 @@ Presets (``CalibConfig.preset(name)``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Literal
 
+from fuseflow.calib.backbones.rgbd import RGBDConfig
 from fuseflow.errors import ValidationError
 
 __all__ = ["CalibConfig", "PRESETS"]
@@ -161,12 +162,20 @@ class CalibConfig:
     ``suspect_cameras`` with a warning. Default 0.8 (docs/gmac.md, item 8); [0, 1], 0 = off."""
 
     seed: int = 0
-    """Seed of every random choice (ablation sampling, pixel jitter)."""
+    """Seed of every random choice (ablation sampling, pixel jitter, the rgbd backbone's RANSAC)."""
+
+    rgbd: RGBDConfig = field(default_factory=RGBDConfig)
+    """Settings of the ``rgbd`` backbone (also inside ``auto``), :class:`RGBDConfig`. Its ``matcher``
+    and ``seed`` are this config's ``matcher`` and ``seed``: the values given here are replaced."""
 
     def __post_init__(self) -> None:
         def need(cond: bool, what: str) -> None:
             if not cond:
                 raise ValidationError(f"CalibConfig: {what}")
+
+        need(isinstance(self.rgbd, RGBDConfig), f"rgbd must be an RGBDConfig, got {type(self.rgbd).__name__}")
+        if (self.rgbd.matcher, self.rgbd.seed) != (self.matcher, self.seed):
+            object.__setattr__(self, "rgbd", replace(self.rgbd, matcher=self.matcher, seed=self.seed))
 
         need(
             self.closed_form in ("plane", "full3d", "zonly"),
@@ -201,6 +210,14 @@ class CalibConfig:
         need(
             0 <= self.min_depth_agreement <= 1, f"min_depth_agreement must be in [0, 1], got {self.min_depth_agreement}"
         )
+
+    def as_dict(self) -> dict:
+        """The fields as a dict (calib.json's ``report.config``), ``rgbd`` only when it differs from
+        ``RGBDConfig``'s defaults (other than ``matcher`` and ``seed``, which are this config's)."""
+        out = asdict(self)
+        if self.rgbd == RGBDConfig(matcher=self.matcher, seed=self.seed):
+            del out["rgbd"]
+        return out
 
     @staticmethod
     def preset(name: str, **overrides) -> CalibConfig:

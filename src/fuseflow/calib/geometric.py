@@ -17,7 +17,7 @@ the pairwise depth verification (agreement 0.80-0.98 on small overlaps; FPFH + R
 70-180 deg off on every simulated pair of ../shared/notes/wide-baseline-calibration.md, with ICP
 fitness that looked fine). So a pose is proposed only when its basin is wide
 (``min_starts``) and at least twice as wide as any other pose that also passes; the caller
-(``rgbd._geometric_edges``) verifies it (``verify_pose``) and the cycle test sees it with
+(``backbones.rgbd.geometric_route``) verifies it (``verify_pose``) and the cycle test sees it with
 every other edge. Inlier counts and ICP fitness never decide.
 
 Conventions as in :mod:`fuseflow.calib.backbones.rgbd`: camera frames (OpenCV axes), metres,

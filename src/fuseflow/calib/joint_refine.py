@@ -46,7 +46,7 @@ import numpy as np
 from fuseflow.geometry.noise import SENSOR_NOISE, camera_noise, sigma
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["JointRefineResult", "joint_refine", "SIGMA_A", "SIGMA_B"]
+__all__ = ["JointRefineResult", "depth_fit", "joint_refine", "SIGMA_A", "SIGMA_B"]
 
 #: Axial depth noise sigma(z) = SIGMA_A + SIGMA_B (z - SIGMA_Z0)^2 (metres): the Kinect v1 row of
 #: fuseflow.geometry.noise.SENSOR_NOISE, used as a relative weight between near and far samples.
@@ -500,3 +500,32 @@ def _motion(W_before: np.ndarray, W_after: np.ndarray) -> tuple[float, float]:
     D = W_after @ invert_rigid(W_before)
     ang = float(np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1))))
     return ang, float(np.linalg.norm(W_after[:3, 3] - W_before[:3, 3]) * 1000)
+
+
+def depth_fit(
+    frame: Frame, rig: Rig, T_cam_world: Mapping[str, np.ndarray], only: str | None = None
+) -> tuple[float, float]:
+    """How well camera-from-world poses fit the depth of one frame, with the acceptance check's
+    association (``CHECK_M`` gate, ``SAMPLES`` samples per camera, the default sensor noise):
+    (mean over overlapping ordered camera pairs of the share of samples within ``CHECK_M`` point
+    to plane of the neighbour's surface, median |point-to-plane| residual in mm). Pairs with
+    fewer than 50 associated samples are left out; ``only`` keeps the pairs of that camera (both
+    directions). Cameras not in ``T_cam_world`` are left out. NaN when no pair overlaps."""
+    ids = [c for c in frame.camera_ids if c in T_cam_world]
+    depth = frame.depth.numpy()
+    views = [_view(depth[frame.camera_ids.index(c)], rig[c].K, rig[c].depth_range, SAMPLES) for c in ids]
+    W = [invert_rigid(T_cam_world[c]) for c in ids]
+    res, shares = [], []
+    for i in range(len(ids)):
+        for j in range(len(ids)):
+            if i == j or (only is not None and only not in (ids[i], ids[j])):
+                continue
+            a = _associate(views[i], views[j], W[i], W[j], 3 * CHECK_M)
+            if a is None or len(a[0]) < 50:
+                continue
+            r = np.abs(np.sum(a[2] * (a[0] - a[1]), axis=1))
+            res.append(r)
+            shares.append(float(np.mean(r < CHECK_M)))
+    if not shares:
+        return float("nan"), float("nan")
+    return float(np.mean(shares)), float(np.median(np.concatenate(res)) * 1000)

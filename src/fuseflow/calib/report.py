@@ -31,7 +31,7 @@ class CalibReport(Mapping[str, Any]):
     backbone_info: dict[str, Any]
     """The backbone's own notes: mode, keypoints per camera, timings (JSON data, backbone-specific)."""
     config: dict[str, Any]
-    """The :class:`~fuseflow.calib.config.CalibConfig` used, as a dict of its fields."""
+    """The :class:`~fuseflow.calib.config.CalibConfig` used, as a dict of its fields (``CalibConfig.as_dict``)."""
     scale: float
     """s*: the global metric scale, metres per backbone unit (eq. 14: T_i = [R_i | s* t_i])."""
     scale_before_pruning: float

@@ -2,7 +2,9 @@
 
 ``bench_app`` is the group; its subcommands are registered in the list at the end of this module:
 ``fuse`` (fuseflow.eval.bench.fuse_speed), ``calib`` (fuseflow.eval.bench.calib_accuracy),
-``paper`` (fuseflow.eval.paper) and ``live`` (fuseflow.eval.bench.live).
+``paper`` (fuseflow.eval.paper), ``live`` (fuseflow.eval.bench.live), and one per module of
+fuseflow.eval.bench whose program in ``benchmarks/`` is a thin wrapper (``calib-wide``,
+``fuse-ablations``, ``calib-reference``, ``outputs``, ``sync-check``, ``calib-verdicts``, ...).
 """
 
 from __future__ import annotations
@@ -232,6 +234,167 @@ def bench_fuse_quality(
         json_out.write_text(json.dumps({"command": cmd, "rows": rows, "summary": summary}, indent=1))
 
 
+def _int_list(text: str, option: str) -> tuple[int, ...]:
+    """A comma list of integers, or a one-line error naming ``option``."""
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        fail(f"{option}: expected a comma list of integers, got {text!r}")
+
+
+def _names(text: str) -> list[str]:
+    return [v.strip() for v in text.split(",") if v.strip()]
+
+
+def bench_calib_wide(
+    what: str = typer.Argument(..., help="sim, hocap, icl, pairs (2-camera rigs) or summary (table of --out)."),
+    out: Path = typer.Option(Path("benchmarks/results/calib_wide.jsonl"), "--out", help="JSON lines file (appended)."),
+    work: Path = typer.Option(Path("/tmp/fuseflow-calib-wide"), "--work", help="Folder for the recordings it makes."),
+    cameras: str = typer.Option("3,4,6,8", "--cameras", help="Comma list of ring sizes (sim, pairs)."),
+    scenes: str = typer.Option("room,studio", "--scenes", help="Comma list of simulated scenes."),
+    seeds: str = typer.Option("1,2,3", "--seeds", help="Comma list of simulator seeds."),
+    num_frames: int = typer.Option(5, "--num-frames", help="Frames simulated (runs use 1 and all of them)."),
+    only_frames: int = typer.Option(None, "--only-frames", help="Run only with this many frames."),
+    dynamic: bool = typer.Option(False, "--dynamic", help="Simulate moving objects."),
+    resolution: str = typer.Option("640x480", "--resolution", help="Simulated WxH."),
+    every: str = typer.Option("26", "--every", help="Comma list of ICL frame steps (icl, pairs)."),
+    backbone: str = typer.Option("raw", "--backbone", help="raw (rgbd_backbone alone), colmap, rgbd or auto."),
+    matcher: str = typer.Option("sift", "--matcher", help="The rgbd backbone's image matcher."),
+    data_dir: Path = typer.Option(
+        Path("../shared/data"),
+        "--data-dir",
+        envvar="FUSEFLOW_DATA",
+        help="The folder holding hocap-8rs and icl-livingroom1.",
+    ),
+) -> None:
+    """The metric RGB-D backbone on wide-baseline rigs against ground truth (rows as JSON lines)."""
+    from fuseflow.eval.bench.calib_wide import MATCHERS, WHAT, WideOptions, run_calib_wide
+
+    if what not in WHAT or backbone not in ("raw", "colmap", "rgbd", "auto") or matcher not in MATCHERS:
+        fail(f"expected WHAT in {', '.join(WHAT)}, --backbone raw|colmap|rgbd|auto, --matcher {'|'.join(MATCHERS)}")
+    opts = WideOptions(out=out, data=work, shared=data_dir, cameras=_int_list(cameras, "--cameras"),
+                       scenes=tuple(_names(scenes)), seeds=_int_list(seeds, "--seeds"), frames=num_frames,
+                       only_frames=only_frames, dynamic=dynamic, resolution=resolution,
+                       every=_int_list(every, "--every"), backbone=backbone, matcher=matcher)  # fmt: skip
+    run_calib_wide(what, opts, log=_echo)
+
+
+def bench_fuse_ablations(
+    num_frames: int = typer.Option(2, "--num-frames", help="Frames per rig (mean over them)."),
+    density_frames: int = typer.Option(1, "--density-frames", help="Frames of the density rows."),
+    seed: int = typer.Option(11, "--seed", help="Simulator seed."),
+    resolution: str = typer.Option("640x480", "--resolution", help="WxH."),
+    cameras: int = typer.Option(8, "--cameras", help="Cameras of the ring."),
+    no_density: bool = typer.Option(False, "--no-density", help="Skip the density / quality trade-off rows."),
+    only: str = typer.Option(None, "--only", help="Comma list of row names (default: every row)."),
+    json_out: Path = typer.Option(None, "--json", help="Write meta, rows and density rows as JSON."),
+) -> None:
+    """FUSE, its ablations and switches, VoxelBlockGrid and naive fusion against the GT surface."""
+    import json
+
+    from fuseflow.eval.bench.fuse_ablations import run_fuse_ablations
+
+    try:
+        w, h = (int(v) for v in resolution.lower().split("x"))
+    except ValueError:
+        fail(f"--resolution: expected WxH, got {resolution!r}")
+    command = "fuseflow bench " + " ".join(shlex.quote(a) for a in sys.argv[2:])
+    out = run_fuse_ablations(num_frames, density_frames, seed, (w, h), cameras, not no_density,
+                             _names(only) if only else None, command, log=_echo)  # fmt: skip
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(out, indent=1) + "\n")
+        say(f"wrote {json_out}")
+
+
+def bench_calib_reference(
+    data: list[str] = typer.Argument(..., help="hocap (hocap-8rs under --data-dir) or recording paths (frame 0)."),
+    per_camera: bool = typer.Option(
+        False, "--per-camera", help="Score each camera's pose against the reference's others."
+    ),
+    data_dir: Path = typer.Option(
+        Path("../shared/data"), "--data-dir", envvar="FUSEFLOW_DATA", help="The folder holding hocap-8rs."
+    ),
+) -> None:
+    """Calibration vs the data set's reference: which pose set fits the depth and the colours better."""
+    import json
+
+    from fuseflow.eval.bench.calib_reference import per_camera_table, reference_table
+
+    if per_camera:
+        for name in data:
+            per_camera_table(name, data_dir, log=_echo)
+        return
+    reference_table(data, data_dir, log=_echo, record=lambda row: typer.echo(json.dumps(row), err=True))
+
+
+def bench_outputs(
+    what: str = typer.Argument(..., help="crop (--crop auto), formats (--format sizes, Draco error) or mesh (--mesh)."),
+    recordings: list[str] = typer.Argument(..., help="Recordings (crop and mesh: simulated, with gt/)."),
+    error_mm: float = typer.Option(1.0, "--error-mm", help="formats: Draco's position error bound (mm)."),
+    methods: str = typer.Option("tsdf,poisson,bpa", "--methods", help="mesh: comma list of meshing methods."),
+    repeats: int = typer.Option(3, "--repeats", help="mesh: timed runs per method."),
+    threads: int = typer.Option(2, "--threads", help="mesh: torch threads."),
+) -> None:
+    """The output options on frame 0: crop keeps / drops, file sizes and Draco error, mesh time and accuracy."""
+    import json
+
+    from fuseflow.eval.bench import outputs
+
+    if what not in ("crop", "formats", "mesh"):
+        fail(f"expected WHAT crop, formats or mesh, got {what!r}")
+    if what == "mesh":
+        import torch
+
+        torch.set_num_threads(threads)
+    for r in recordings:
+        if what == "crop":
+            m = outputs.crop_quality(r)
+            _echo(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in m.items()}))
+            continue
+        rows = (
+            outputs.format_sizes(r, error_mm)
+            if what == "formats"
+            else outputs.mesh_quality(r, _names(methods), repeats)
+        )
+        for row in rows:
+            _echo(json.dumps(row))
+
+
+def bench_sync_check(
+    root: Path = typer.Argument(..., help="Folder for the simulated recordings (kept and reused)."),
+    seeds: int = typer.Option(5, "--seeds", help="Seeds per config."),
+    fps: float = typer.Option(30.0, "--fps", help="Simulated frame rate."),
+    num_frames: int = typer.Option(20, "--num-frames", help="Frames per recording."),
+    configs: str = typer.Option(None, "--configs", help="Comma list of configs (default: all of them)."),
+    method: str = typer.Option("auto", "--method", help="auto, covisible or agreement."),
+    first_seed: int = typer.Option(0, "--first-seed", help="First seed."),
+) -> None:
+    """The camera-sync check against simulated offsets: exact, false alarms, seconds per check."""
+    from fuseflow.eval.bench.sync_check import CONFIGS, run_sync_check
+
+    names = _names(configs) if configs else list(CONFIGS)
+    run_sync_check(root, seeds, fps, num_frames, names, method, first_seed, log=_echo)
+
+
+def bench_calib_verdicts(
+    cameras: str = typer.Option("4,6", "--cameras", help="Comma list of ring sizes."),
+    seeds: str = typer.Option("1,2", "--seeds", help="Comma list of simulator seeds."),
+    json_out: Path = typer.Option(None, "--json", help="Write the per-camera rows as JSON."),
+) -> None:
+    """Per-camera verdict and expected accuracy of calibrate against the true error (simulated rings)."""
+    import json
+
+    from fuseflow.eval.bench.calib_verdicts import run_calib_verdicts, verdict_summary
+
+    rows = run_calib_verdicts(_int_list(cameras, "--cameras"), _int_list(seeds, "--seeds"), log=lambda r: _echo(str(r)))
+    line = verdict_summary(rows)
+    if line is not None:
+        say(line)
+    if json_out is not None:
+        json_out.write_text(json.dumps(rows, indent=1))
+
+
 bench_app = typer.Typer(
     help="Benchmarks: speed / quality tables measured on this machine.", no_args_is_help=True, rich_markup_mode=None
 )
@@ -242,5 +405,11 @@ for _name, _command in (
     ("calib", bench_calib),
     ("paper", bench_paper),
     ("live", bench_live),
+    ("calib-wide", bench_calib_wide),
+    ("fuse-ablations", bench_fuse_ablations),
+    ("calib-reference", bench_calib_reference),
+    ("outputs", bench_outputs),
+    ("sync-check", bench_sync_check),
+    ("calib-verdicts", bench_calib_verdicts),
 ):
     bench_app.command(_name)(guarded(_command))

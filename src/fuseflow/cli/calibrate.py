@@ -55,8 +55,8 @@ def command(
 ) -> None:
     """Target-free metric extrinsics (GMAC) from one multi-view RGB-D frame."""
     import fuseflow
-    from fuseflow.calib import calibrate as run_gmac
     from fuseflow.io.paths import check_output_file
+    from fuseflow.pipeline.calibration import calibrate_frames
 
     check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
     replaced = out.exists()
@@ -65,10 +65,14 @@ def command(
     config = _config(preset, backbone, backbone_path, refine, matcher)
     ref = _read_reference(reference, recording.rig) if reference is not None else None  # before minutes of GMAC
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
-    views = [recording[t] for t in indices]
-    _check_views(views)
+    _check_views([recording[t] for t in indices])
+    pool = frame is None and not frames
     with StageProgress("calibrate: ") as on_progress:
-        calib = run_gmac(views, rig, config, progress=on_progress)
+        done = calibrate_frames(recording, indices, config, pool, progress=on_progress)
+    calib, indices = done.calibration, done.positions
+    for note in done.notes:
+        say(note)
+    views = [recording[indices[0]]]
     r = calib.report
     if ref is not None:
         from fuseflow.calib.reference import compare_to_reference
@@ -88,7 +92,7 @@ def command(
     for w in r.warnings:
         warn(w)
     unsure = [c for c, v in (r.camera_verdicts or {}).items() if v.get("verdict") != "good"]
-    if unsure and len(indices) == 1 and len(recording) >= 3:
+    if unsure and len(indices) == 1 and len(recording) >= 3 and not pool:
         k = min(len(recording), 10)
         say(
             f"hint: {len(unsure)} camera(s) not 'good' from one frame; --frames 0:{k} pools {k} frames, and a person "
@@ -107,7 +111,9 @@ def _chosen_frames(recording, frame: int | None, frames: str | None) -> list[int
     checks use the first), and cameras absent from every chosen frame are named before GMAC runs:
     they cannot be placed from those frames."""
     n = len(recording)
-    missing = _missing_positions(recording)
+    from fuseflow.pipeline.calibration import missing_positions
+
+    missing = missing_positions(recording)
     complete = [t for t in range(n) if t not in missing]
     if frames:
         indices = frame_indices(frames, n)
@@ -127,22 +133,6 @@ def _chosen_frames(recording, frame: int | None, frames: str | None) -> list[int
         hint = f"; every camera is present in frame {complete[0]} (--frame {complete[0]})" if complete else ""
         warn(f"cameras {absent} have no view in the frames to calibrate from, so they cannot be placed{hint}")
     return indices
-
-
-def _missing_positions(recording) -> dict[int, set[str]]:
-    """Frame position -> ids of the cameras with no view there, from the file listings (empty when
-    the reader cannot tell without decoding)."""
-    try:
-        by_camera = recording.missing_views()
-    except NotImplementedError:
-        return {}
-    position = {number: t for t, number in enumerate(recording.frame_numbers)}
-    out: dict[int, set[str]] = {}
-    for cam, numbers in by_camera.items():
-        for number in numbers:
-            if number in position:
-                out.setdefault(position[number], set()).add(cam)
-    return out
 
 
 def _stage_times(r) -> str:
@@ -274,7 +264,7 @@ def _config(preset: str, backbone: str | None, backbone_path: str | None, refine
         overrides["refine"] = refine
     config = CalibConfig.preset(preset, **overrides)
     if config.matcher != "sift":
-        from fuseflow.calib.matchers import get_matcher
+        from fuseflow.calib.backbones.rgbd import get_matcher
 
         get_matcher(config.matcher)
     return config

@@ -284,6 +284,19 @@ class RPSConfig:
         _check_bools(self, "rps.", ("enabled", "range_priority", "consensus"))
 
 
+#: ``FuseConfig.as_dict``'s flat name of each setting whose field name alone is not unique or not
+#: the recorded one (every other setting: its field name).
+FLAT_NAMES: dict[str, str] = {
+    "smoothing.radius": "depth_smoothing",
+    "smoothing.gate": "smoothing_gate",
+    "mcm.enabled": "use_mcm",
+    "mcm.max_missing": "mcm_max_missing",
+    "mcm.noise_aware": "mcm_noise",
+    "cvgc.enabled": "use_cvgc",
+    "ash.enabled": "use_ash",
+    "rps.enabled": "use_rps",
+}
+
 #: The per-stage parts of a FuseConfig, by field name, in pipeline order.
 STAGES: dict[str, type] = {
     "smoothing": SmoothingConfig,
@@ -377,6 +390,11 @@ class FuseConfig:
                 value = replace(stage, **value)
             out[name] = value
         return replace(self, **out)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every setting under one flat name (the field's own, or ``FLAT_NAMES``' for the ones
+        several stages share): the form ``manifest.json`` records and digests for a resume."""
+        return {FLAT_NAMES.get(k, k.rpartition(".")[2]): v for k, v in self.describe().items()}
 
     def describe(self) -> dict[str, Any]:
         """Every setting by its dotted name (``"rps.k_max"``, ``"pixel_stride"``), as ``--set`` takes

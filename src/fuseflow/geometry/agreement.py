@@ -121,7 +121,7 @@ def one_torch_thread():
     per view: with torch's thread pool beside numba's (the pipeline fuses with numba), each tiny
     op paid for waking and spinning threads. Measured on a 4-camera 320x240 frame, 2 cores: 7-8 ms
     per frame on one thread, 194-509 ms on two while other processes loaded the cores
-    (``benchmarks/run_throughput.py`` measures ``run`` against FUSE alone)."""
+    (``benchmarks/investigations/run_throughput.py`` measures ``run`` against FUSE alone)."""
     import torch
 
     n = torch.get_num_threads()

@@ -108,7 +108,7 @@ class OutputManifest:
 
     def differences(self, other: OutputManifest) -> list[str]:
         """Human-readable differences that forbid resuming ``other`` as ``self`` (path excluded);
-        changed settings are named one by one ("settings: fuse.ash.s0 was 5.0, now 1.0")."""
+        changed settings are named one by one ("settings: fuse.s0 was 5.0, now 1.0")."""
         names = {
             "command": "command",
             "recording_fingerprint": "recording content (rig.json, frame list, or a file's size or modification time)",
@@ -207,7 +207,7 @@ def calibration_digest(T_cam_world: dict[str, np.ndarray]) -> str:
 def settings_doc(**configs: Any) -> dict[str, Any]:
     """The settings of a run by name, each a dataclass config (as its fields) or a plain value:
     what ``OutputManifest.settings`` records and ``settings_digest`` digests."""
-    return {k: dataclasses.asdict(c) if dataclasses.is_dataclass(c) else c for k, c in configs.items()}
+    return {k: _plain(c) for k, c in configs.items()}
 
 
 def settings_digest(doc: dict[str, Any]) -> str:
@@ -217,7 +217,15 @@ def settings_digest(doc: dict[str, Any]) -> str:
 
 def config_digest(*configs: Any) -> str:
     """Digest of dataclass configs (None for defaults is spelled out by the caller)."""
-    return _digest([dataclasses.asdict(c) if dataclasses.is_dataclass(c) else c for c in configs])
+    return _digest([_plain(c) for c in configs])
+
+
+def _plain(config: Any) -> Any:
+    """A config as plain data: its ``as_dict()`` where it has one (the form its files record, e.g.
+    CalibConfig's, which leaves default sub-configs out), else its dataclass fields, else itself."""
+    if hasattr(config, "as_dict"):
+        return config.as_dict()
+    return dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
 
 
 def _used(out: Path) -> bool:

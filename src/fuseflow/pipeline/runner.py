@@ -78,7 +78,8 @@ def choose_calibration(
     use_rig_extrinsics: bool,
 ) -> CalibrationChoice:
     """Given extrinsics, else OUT/calib.json of an earlier run, else rig.json's (when asked),
-    else GMAC on ``calib_frame`` (default: the first good frame). Writes OUT/calib.json."""
+    else GMAC on ``calib_frame`` (default: the first good frame, pooling frames when it is not
+    enough: ``pipeline.calibration.calibrate_frames``). Writes OUT/calib.json."""
     calib_json = out / "calib.json"
     if calib_json.exists():  # an earlier run of the same manifest (open_output checked it)
         earlier = read_calibration(calib_json)
@@ -96,20 +97,20 @@ def choose_calibration(
             calib_json, Calibration({c.id: c.T_cam_world for c in rec.rig}, {"source": "rig.json"}), rig=rec.rig
         )
         return CalibrationChoice(rec.rig, "rig.json")
-    from fuseflow.calib import calibrate
+    from fuseflow.pipeline.calibration import calibrate_frames
 
     t = calib_frame if calib_frame is not None else first_good_frame(rec, config.min_valid_depth)
-    cal = calibrate(rec[t], rec.rig, config.calib_config())
-    warnings = []
+    done = calibrate_frames(rec, [t], config.calib_config(), pool=calib_frame is None)
+    cal, used = done.calibration, done.positions
+    warnings = []  # done.notes: the pooling shows in the choice's description
     unplaced = [c for c in rec.rig.ids if c not in cal.T_cam_world]
     if unplaced:
         warnings.append(f"GMAC could not place cameras {unplaced}; they are left out of fusion")
-    warnings.extend(str(w) for w in cal.report.warnings)
+    warnings.extend(str(w) for w in getattr(cal.report, "warnings", ()))  # a Calibration's report may be a dict
     write_calibration(calib_json, cal, rig=rec.rig)
-    number = rec.frame_numbers[t]
-    return CalibrationChoice(
-        placed_rig(rec.rig, cal), f"GMAC on frame {number}", number, warnings, _measured_agreement(cal.report)
-    )
+    number = rec.frame_numbers[used[0]]
+    how = f"GMAC on frame {number}" if len(used) == 1 else f"GMAC on {len(used)} frames from frame {number}"
+    return CalibrationChoice(placed_rig(rec.rig, cal), how, number, warnings, _measured_agreement(cal.report))
 
 
 def _placed(rig: Rig, calibration: Calibration) -> tuple[Rig, list[str]]:

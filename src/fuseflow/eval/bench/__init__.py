@@ -1,6 +1,7 @@
-"""Benchmark programs as library code: ``fuseflow bench fuse`` and ``fuseflow bench calib`` call
-:mod:`fuseflow.eval.bench.fuse_speed` and :mod:`fuseflow.eval.bench.calib_accuracy`; the
-programs in the source tree's ``benchmarks/`` folder are thin wrappers around the same functions.
+"""Benchmark programs as library code: each ``fuseflow bench ...`` command calls one module here
+(``fuse`` :mod:`fuseflow.eval.bench.fuse_speed`, ``calib`` :mod:`fuseflow.eval.bench.calib_accuracy`,
+``calib-wide`` :mod:`fuseflow.eval.bench.calib_wide`, ...); the programs in the source tree's
+``benchmarks/`` folder are thin wrappers around the same functions.
 
 Nothing here prints: report lines go to a ``log`` callback the caller chooses (the CLI and the
 wrappers print them). This ``__init__`` imports nothing heavy.

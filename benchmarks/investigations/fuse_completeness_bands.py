@@ -4,28 +4,25 @@
 cloud, split by distance to the nearest camera centre and by height (floor / above), for FUSE
 and four variants; "share of completeness sum" says which band the mean distance comes from.
 
-    python benchmarks/fuse_completeness_bands.py > benchmarks/results/fuse_completeness_bands.txt
+    python benchmarks/investigations/fuse_completeness_bands.py > benchmarks/results/fuse_completeness_bands.txt
 """
 
-import sys
 import warnings
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 warnings.simplefilter("ignore", RuntimeWarning)
 
 import numpy as np  # noqa: E402
-from fuse_quality import _reference  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from fuseflow.eval.baselines import naive_fusion  # noqa: E402
+from fuseflow.eval.bench.fuse_ablations import seen_reference  # noqa: E402
 from fuseflow.fuse import ABLATIONS, FuseConfig, fuse  # noqa: E402
 from fuseflow.synth import SimConfig, Simulator  # noqa: E402
 
 sim = Simulator(SimConfig(cameras=8, frames=1, scene="studio", resolution=(640, 480), seed=11))
 sf = sim.render(0)
 rig = sim.rig
-gt = _reference(sf, sim).samples
+gt = seen_reference(sf, sim).samples
 C = np.stack([np.linalg.inv(c.T_cam_world)[:3, 3] for c in rig.cameras])
 dcam = cKDTree(C).query(gt)[0]  # distance of each GT sample to the nearest camera centre
 naive = naive_fusion(sf.frame, rig).xyz.numpy()

@@ -6,7 +6,7 @@ This runs the colmap backbone once per simulated frame and GMAC's default preset
 threshold on that same backbone result, printing the translation error (mm, docs/design.md
 section 4) and the cameras placed.
 
-    python benchmarks/calib_match_threshold.py                  # 20, 10, 6, 5, 3 on three frames
+    python benchmarks/investigations/calib_match_threshold.py                  # 20, 10, 6, 5, 3 on three frames
 """
 
 from __future__ import annotations

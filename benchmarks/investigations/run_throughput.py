@@ -1,8 +1,8 @@
 """End-to-end throughput of `fuseflow run` (FUSE + health monitor + writing) against FUSE alone
 (`fuse_recording`: FUSE + writing) on one recording, in one process.
 
-    python benchmarks/run_throughput.py REC [--frames A:B] [--repeats 2]
-    python benchmarks/run_throughput.py --icl ../shared/data/icl-livingroom1 [--icl-frames 20]
+    python benchmarks/investigations/run_throughput.py REC [--frames A:B] [--repeats 2]
+    python benchmarks/investigations/run_throughput.py --icl ../shared/data/icl-livingroom1 [--icl-frames 20]
 
 REC: any recording with extrinsics in rig.json (e.g. `fuseflow simulate R --cameras 4
 --frames 150 --resolution 320x240 --dynamic`, or an ICL virtual rig from `fuseflow convert`).

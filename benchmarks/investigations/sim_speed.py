@@ -4,7 +4,7 @@ Runs the CLI in a fresh process (imports, texture synthesis, numba's cached kern
 writing included) into a temporary directory, ``--repeat`` times, and reports the wall time of
 each run, plus an in-process breakdown of one frame. Run it alone on the machine:
 
-    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/sim_speed.py
+    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/investigations/sim_speed.py
 """
 
 from __future__ import annotations

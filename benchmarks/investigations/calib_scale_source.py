@@ -6,7 +6,7 @@ the naive median depth ratio and the best scale any method could pick for those 
 least-squares fit of the backbone's camera centres to the true ones). Translation errors in mm
 (docs/design.md section 4, no scale alignment).
 
-    python benchmarks/calib_scale_source.py
+    python benchmarks/investigations/calib_scale_source.py
 """
 
 from __future__ import annotations

@@ -6,20 +6,20 @@ the *reference* relative pose to every other camera pass the backbone's own veri
 If the reference passes, the verification is not what stops the camera: no route proposed a
 right candidate (candidate generation is the gap).
 
-    python benchmarks/calib_hocap_diagnose.py
+    python benchmarks/investigations/calib_hocap_diagnose.py
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fuseflow.calib.backbones.rgbd import RGBDConfig, prepare_camera, rgbd_backbone, verify_pose
+from fuseflow.eval.bench.calib_refine import load_hocap
+from fuseflow.types import invert_rigid
 
-from calib_wide import SHARED, load_hocap  # noqa: E402
-
-from fuseflow.calib.backbones.rgbd import RGBDConfig, prepare_camera, rgbd_backbone, verify_pose  # noqa: E402
-from fuseflow.types import invert_rigid  # noqa: E402
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+if not SHARED.exists():
+    SHARED = Path("/work/shared/data")
 
 
 def main() -> None:

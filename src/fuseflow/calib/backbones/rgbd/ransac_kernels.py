@@ -1,4 +1,4 @@
-"""Compiled residuals of the rgbd backbone's RANSAC (``backbones/rgbd._ransac_sequential``).
+"""Compiled residuals of the rgbd backbone's RANSAC (``backbones.rgbd.candidates``).
 
 A RANSAC round scores up to ``RGBDConfig.ransac_iterations`` (2000) models against every match
 of a pair: as a (H, K) residual table of ``numpy.einsum`` and ``numpy.linalg.norm`` that was

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from fuseflow.calib.backbones.rgbd.config import MATCHERS
 from fuseflow.errors import FuseFlowError, ValidationError, require
 
 __all__ = [
@@ -51,9 +52,6 @@ __all__ = [
     "SIFT_PT_OFFSET",
     "sift_uv",
 ]
-
-MATCHERS = ("sift", "xfeat", "aliked", "disk")
-"""Names accepted by ``get_matcher`` (``RGBDConfig.matcher``, ``fuseflow calibrate --matcher``)."""
 
 DEFAULT_KEYPOINTS = {"sift": 3000, "xfeat": 1024, "aliked": 1024, "disk": 1024}
 """Keypoints per image when none is given. SIFT: the backbone's ``sift_features``; the learned

@@ -1,0 +1,167 @@
+"""Per camera pair (steps 2 and 3 of the package outline): the candidates of every route
+(``candidates``, the people and subject routes), each verified, the best plausible one kept as
+the pair's edge with the correspondences that support it."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from fuseflow.calib import progress
+from fuseflow.calib.backbones.rgbd.candidates import floor_candidates, pooled_matches, sift3d_candidates
+from fuseflow.calib.backbones.rgbd.config import RGBDConfig
+from fuseflow.calib.backbones.rgbd.evidence import CameraEvidence, PairCheck, plausible, verify_pose
+from fuseflow.calib.backbones.rgbd.judge import subject_judge, subject_ok
+from fuseflow.calib.geometric import kabsch
+from fuseflow.calib.posegraph import Edge
+from fuseflow.calib.symmetry import Hypothesis, distinct_hypotheses
+from fuseflow.types import Frame, Rig
+
+#: Verified candidates of a pair are ranked by their agreeing samples at this share of tau (the
+#: pass / fail test stays at tau): tau = 5 % cannot tell 0.1 deg from 1 deg (``geometric_route._better``).
+RANK_TAU_SHARE = 0.2
+
+#: Tolerance of the joint choice (hypotheses closer than this are one; a pair agrees with a
+#: solution within it): wider than the cycle test's (2 deg / 8 cm), since a growth chains
+#: unrefined poses (hocap-8rs: at 2 deg / 8 cm 5 right pairs fell out); an alias of a 12-fold room
+#: is 30 deg away.
+JOINT_ROT_DEG, JOINT_TRANS_M = 5.0, 0.2
+
+
+def person_route(frames: list[Frame], rig: Rig, order: list[int], cfg: RGBDConfig):
+    """(``people.PersonRoute`` over the frames, None) or (None, the one-line reason it is skipped)."""
+    if not cfg.people:
+        return None, "skipped: RGBDConfig.people is off"
+    from fuseflow.calib.people import MediapipePoseDetector, PeopleConfig, PersonRoute, people_unavailable
+
+    reason = people_unavailable()
+    if reason is not None:
+        return None, f"skipped: {reason}"
+    detector = MediapipePoseDetector()
+    return PersonRoute(frames, rig, order, detector, PeopleConfig(seed=cfg.seed)), None
+
+
+def subject_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[CameraEvidence], cfg: RGBDConfig):
+    """``subject.SubjectRoute`` over the frames (route (e)), or None (off, or under 3 frames)."""
+    from fuseflow.calib.subject import MIN_FRAMES, SubjectRoute
+
+    if not cfg.subject or len(frames) < MIN_FRAMES:
+        return None
+    return SubjectRoute.build(frames, rig, order, [c.plane for c in cams])
+
+
+def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None):
+    """Candidates, verification and the accepted edge of every camera pair (canonical order);
+    ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. Returns (edges:
+    the best plausible candidate of each pair, per-pair info, hypotheses: pair -> its distinct
+    plausible verified poses, best first, for the joint choice)."""
+    edges: dict[tuple[int, int], Edge] = {}
+    hyps: dict[tuple[int, int], list[Hypothesis]] = {}
+    info = []
+    for i in range(len(cams)):
+        for j in range(i + 1, len(cams)):
+            a, b = cams[i], cams[j]
+            Xa, Xb = pooled_matches(a, b, cfg)
+            cands = floor_candidates(a, b, cfg, (Xa, Xb)) + sift3d_candidates(Xa, Xb, cfg)
+            cands += people.pair(i, j) if people is not None else []
+            cands += subject.pair(i, j) if subject is not None else []
+            judge = subject_judge(a, b, cands, cfg, subject, i, j)
+            rows, passing = [], []
+            for c in cands:
+                chk = verify_pose(a, b, c["T_ba"], cfg.tau)
+                ok = chk.passes(cfg) or (c["route"] == "subject" and judge is not None)
+                rows.append({"route": c["route"], "inliers": c["inliers"], "ok": ok, **check_row(chk),
+                             "T_ji": np.round(c["T_ba"], 6).tolist()})  # fmt: skip
+                if judge is not None and (verdict := judge(c["T_ba"])) is not None:
+                    rows[-1]["subject_m"] = round(verdict, 4)
+                    if ok and verdict > judge.limit:  # the person says no (calib.subject)
+                        rows[-1].update(ok=False, rejected="subject")
+                        ok = False
+                if ok and not plausible(c["T_ba"], chk, cfg, median_depth(a, b)):
+                    # stacked on the other camera: rejected, not scored (calib.symmetry)
+                    rows[-1].update(ok=False, rejected="co-located")
+                    ok = False
+                if ok and not subject_ok(a, b, c["T_ba"], cfg, rows[-1]):
+                    ok = False  # the other camera sees through its subject: an alias (calib.symmetry)
+                # rank by how much depth confirms the pose, not by the share alone: a wrong pose
+                # that turns the cameras apart leaves a sliver of overlap that agrees 100 %
+                # (ICL, 40 frames apart: 529 samples at 1.0 against 7800 at 0.98); counted at
+                # RANK_TAU_SHARE of tau, which tells a 0.5-deg pose from a 2.3-deg one (at tau
+                # the 2.3-deg one agreed on more samples than the true pose: docs/gmac.md)
+                if ok:
+                    fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
+                    rows[-1]["agree_fine"] = fine
+                    passing.append(Hypothesis(i, j, c["T_ba"], float(fine), (c, chk, cands)))
+            entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
+            progress.report("rgbd: pairs", len(info) + 1, len(cams) * (len(cams) - 1) // 2)
+            kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
+            if kept:
+                hyps[(i, j)] = kept
+                edges[(i, j)], entry["edge"] = edge_of(a, b, kept[0], cfg)
+                entry["hypotheses"] = len(kept)
+            info.append(entry)
+    return edges, info, hyps
+
+
+def median_depth(a: CameraEvidence, b: CameraEvidence) -> float:
+    """The median depth (metres) of two cameras' verification points."""
+    z = torch.cat([a.samples_X[:, 2], b.samples_X[:, 2]])
+    return float(z.median()) if len(z) else 0.0
+
+
+def edge_of(a: CameraEvidence, b: CameraEvidence, h: Hypothesis, cfg: RGBDConfig) -> tuple[Edge, dict]:
+    """The edge of hypothesis ``h`` (refit on every route's correspondences it explains) and its
+    info entry."""
+    c, chk, cands = h.ref
+    # route (e)'s floor points restate its own pose: evidence for its edge only
+    cands = [x for x in cands if x["route"] != "subject" or x is c]
+    c, chk = _refit(a, b, c, chk, cands, cfg)
+    X_i, X_j = _support(c["T_ba"], cands, cfg)
+    sigma = cfg.sigma0 + cfg.sigma2 * X_j[:, 2] ** 2
+    entry = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
+             "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
+    entry.update({k: round(c[k], 4) for k in ("expected_m", "spread_m", "track_frames") if k in c})  # route (e)
+    return Edge(h.i, h.j, c["T_ba"], float(chk.agree), X_i, X_j, sigma), entry
+
+
+def check_row(chk: PairCheck) -> dict:
+    return {
+        "agreement": round(chk.agreement, 4),
+        "structure_agreement": None if np.isnan(chk.structure_agreement) else round(chk.structure_agreement, 4),
+        "free_space": round(chk.free_space, 4),
+        "agree": chk.agree,
+        "structure_votes": chk.structure_votes,
+    }
+
+
+def _refit(a: CameraEvidence, b: CameraEvidence, c: dict, chk: PairCheck, cands: list[dict], cfg: RGBDConfig):
+    """Refit the accepted pose on the correspondences of every route that it explains (6-DoF
+    Kabsch, three times, re-collecting): the verified candidates of a pair are all roughly right
+    (depth agreement at tau = 5 % cannot tell 0.1 deg from 1 deg), their pooled evidence is more
+    precise than any one of them (the 4-DoF floor poses are). Kept when it still passes, agrees
+    within 0.02 of the candidate and keeps at least 90 % of its agreeing samples."""
+    T = c["T_ba"]
+    if c["route"] == "subject":  # head centres and both floors: other routes' matches are coarser
+        return c, chk
+    for _ in range(3):
+        Xa, Xb = _support(T, cands, cfg)
+        if len(Xa) < 6:
+            return c, chk
+        T = kabsch(Xa[None], Xb[None])[0]
+    new = verify_pose(a, b, T, cfg.tau)
+    if new.passes(cfg) and new.agreement >= chk.agreement - 0.02 and new.agree >= 0.9 * chk.agree:
+        return {**c, "T_ba": T, "route": c["route"] + "+refit"}, new
+    return c, chk
+
+
+def _support(T_ba: np.ndarray, cands: list[dict], cfg: RGBDConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Every candidate's correspondences (all routes) that the accepted pose explains: the
+    edge's evidence for the joint solve."""
+    XA = np.concatenate([c["X_a"] for c in cands])
+    XB = np.concatenate([c["X_b"] for c in cands])
+    r = np.linalg.norm(XA @ T_ba[:3, :3].T + T_ba[:3, 3] - XB, axis=1)
+    ok = r < cfg.inlier_m + cfg.inlier_rel * XB[:, 2]
+    XA, XB = XA[ok], XB[ok]
+    _, first = np.unique(np.round(np.c_[XA, XB], 6), axis=0, return_index=True)  # a match seen twice counts once
+    first.sort()
+    return XA[first], XB[first]
