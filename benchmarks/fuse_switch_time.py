@@ -1,12 +1,12 @@
 """Time cost of FuseConfig settings on the ICL-NUIM 8-view frame: settings interleaved.
 
     flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_switch_time.py \
-        --settings "multiview_mean=0;k_neighbours=7;k_neighbours=7,multiview_mean=0" --runs 7
+        --settings "cvgc.multiview_mean=0;cvgc.k_neighbours=7;cvgc.k_neighbours=7,cvgc.multiview_mean=0" --runs 7
 
 The rig is fuse_speed's ``--data icl`` frame 0 (ICL living room frames 0, 25, ..., 175 as 8
 cameras, reference trajectory as extrinsics; real depth, 640x480). ``fuse()`` with the default
-config and with each setting (``;``-separated; each a ``,``-separated list of NAME=INT, bool
-fields as 0 / 1) is called in turn in one process, ``--runs`` rounds, after one untimed
+config and with each setting (``;``-separated; each a ``,``-separated list of NAME=VALUE, NAME
+as ``FuseConfig.describe()`` spells it, bool fields as 0 / 1) is called in turn in one process, ``--runs`` rounds, after one untimed
 warm-up call each (compilation); the report is the median per setting and the point count.
 """
 
@@ -16,24 +16,18 @@ import argparse
 import statistics
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 
 def _config(text: str):
-    from fuseflow.fuse import FuseConfig
+    from fuseflow.fuse import FuseConfig, parse_settings
 
-    cfg = FuseConfig()
-    for kv in (t for t in text.split(",") if t):
-        name, value = kv.split("=")
-        old = getattr(cfg, name)
-        cfg = replace(cfg, **{name: bool(int(value)) if isinstance(old, bool) else type(old)(value)})
-    return cfg
+    return FuseConfig().replace(**parse_settings(t for t in text.split(",") if t))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--settings", default="multiview_mean=0", help="';'-separated settings besides the default")
+    ap.add_argument("--settings", default="cvgc.multiview_mean=0", help="';'-separated settings besides the default")
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--data-dir", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
     args = ap.parse_args(argv)

@@ -10,7 +10,6 @@ and four variants; "share of completeness sum" says which band the mean distance
 import warnings
 
 warnings.simplefilter("ignore", RuntimeWarning)
-from dataclasses import replace  # noqa: E402
 
 import numpy as np  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
@@ -31,9 +30,9 @@ dn = cKDTree(naive).query(gt)[0]
 variants = {
     "FUSE": FuseConfig(),
     "w/o MCM": ABLATIONS["w/o MCM"],
-    "lone_cell_mean=0": replace(FuseConfig(), lone_cell_mean=0.0),
+    "lone_cell_mean=0": FuseConfig().replace(rps={"lone_cell_mean": 0.0}),
     "w/o CVGC": ABLATIONS["w/o CVGC"],
-    "visibility_aware=False": replace(FuseConfig(), visibility_aware=False),
+    "visibility_aware=False": FuseConfig().replace(cvgc={"visibility_aware": False}),
 }
 print("GT samples", len(gt), "z (height) range", gt[:, 2].min().round(2), gt[:, 2].max().round(2))
 bands = [(0, 2), (2, 3), (3, 4), (4, 9)]

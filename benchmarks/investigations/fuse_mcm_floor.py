@@ -24,9 +24,9 @@ for i, cam in enumerate(rig.cameras):
     lo, hi = cam.depth_range
     D[i] = torch.where((D[i] > lo) & (D[i] < hi), D[i], torch.zeros_like(D[i]))
 g, v, full = gradient_and_variance(D)
-c = confidence(D, cfg.alpha, cfg.beta)
+c = confidence(D, cfg.mcm.alpha, cfg.mcm.beta)
 K = rig.K().numpy()
-print("depth ranges", set(c_.depth_range for c_ in rig.cameras), "r_c", cfg.r_c)
+print("depth ranges", set(c_.depth_range for c_ in rig.cameras), "r_c", cfg.rps.r_c)
 for lo_r, hi_r in [(0, 2.5), (2.5, 3.5), (3.5, 4.5), (4.5, 9)]:
     tot = full_n = low = valid = 0
     for i, cam in enumerate(rig.cameras):
@@ -41,7 +41,7 @@ for lo_r, hi_r in [(0, 2.5), (2.5, 3.5), (3.5, 4.5), (4.5, 9)]:
         band = floor & (zf >= lo_r) & (zf < hi_r)
         valid += band.sum()
         full_n += (band & full[i].numpy()).sum()
-        low += (band & full[i].numpy() & (c[i].numpy() <= cfg.r_c)).sum()
+        low += (band & full[i].numpy() & (c[i].numpy() <= cfg.rps.r_c)).sum()
     print(
         f"floor pixels at {lo_r}-{hi_r} m: {valid}, window incomplete {1 - full_n / max(valid, 1):.1%}, complete but c<=r_c {low / max(full_n, 1):.1%}"
     )

@@ -6,7 +6,6 @@ from __future__ import annotations
 import statistics
 import sys
 import time
-from dataclasses import replace
 
 import fuseflow
 from fuseflow.fuse import PRESETS, fuse
@@ -17,7 +16,7 @@ def main(paths: list[str]) -> None:
         rec = fuseflow.open_recording(path)
         frame, rig = rec[0], rec.rig
         plain = PRESETS["live"]
-        smoothed = replace(plain, depth_smoothing=1)
+        smoothed = plain.replace(smoothing={"radius": 1})
         for cfg in (plain, smoothed):
             fuse(frame, rig, cfg)  # compile and warm
         t_s, t_p = [], []

@@ -538,7 +538,7 @@ class FusedCloud:
         weight: (M,) float32 in [0, 1], the joint fusion weight of eq. (22).
         camera: (M,) int16 index (rig order) of the camera each point came from.
         support: optional (M,) int16, how many cameras measured the point's surface (FUSE's
-            multi-view consensus, ``FuseConfig.consensus``); None when not computed.
+            multi-view consensus, ``FuseConfig.rps.consensus``); None when not computed.
     """
 
     xyz: torch.Tensor

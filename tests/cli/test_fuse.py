@@ -64,6 +64,24 @@ def test_fuse_with_calib_frames_and_preset(rec, tmp_path):
     assert json.loads((out / "summary.json").read_text())["preset"] == "w/o CVGC"
 
 
+def test_fuse_set_changes_one_setting_over_the_preset(rec, tmp_path):
+    from fuseflow.fuse import PRESETS, fuse
+    from fuseflow.io import open_recording
+
+    out = tmp_path / "out"
+    res = _invoke("fuse", rec, "--out", out, "--frames", "1:2", "--preset", "default", "--set", "rps.k_max=1",
+                  "--set", "ash.s0=3")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    cloud = read_ply(out / "clouds" / "000001.ply")
+    recording = open_recording(rec)
+    cfg = PRESETS["default"].replace(rps={"k_max": 1}, ash={"s0": 3.0})
+    direct = fuse(recording[1], recording.rig, cfg)
+    assert len(direct) != len(fuse(recording[1], recording.rig, PRESETS["default"]))  # the settings took effect
+    assert np.array_equal(np.sort(direct.xyz.numpy(), axis=0), np.sort(cloud.xyz.numpy(), axis=0))
+    recorded = json.loads((out / "manifest.json").read_text())["settings"]["fuse"]
+    assert recorded["k_max"] == 1 and recorded["s0"] == 3.0 and recorded["k_neighbours"] == 7  # FuseConfig.as_dict
+
+
 def test_fuse_errors_are_one_line(rec, tmp_path):
     # no extrinsics in rig.json and no --calib
     bare = tmp_path / "bare"
@@ -81,6 +99,9 @@ def test_fuse_errors_are_one_line(rec, tmp_path):
         (("--frames", "5:9"), "selects no frame"),
         (("--device", "tpu"), "--device must be cpu or cuda"),
         (("--preset", "fastest"), "no FUSE preset 'fastest'"),
+        (("--set", "rps.kmax=2"), "expected NAME=VALUE with NAME one of"),
+        (("--set", "rps.k_max=two"), "--set rps.k_max=two: expected a value like 3"),
+        (("--set", "rps.k_max=17"), "FuseConfig.rps.k_max: expected an integer in 1..16"),
         (("--calib", tmp_path / "missing.json"), "missing.json"),
     ):
         res = _invoke("fuse", rec, "--out", tmp_path / "o", *args)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from fuseflow.fuse import PRESETS, fuse_with_report
@@ -17,13 +15,24 @@ def test_auto_config_fuses_every_pixel_within_the_time_budget_and_a_coarse_grid_
     dense = PRESETS["dense"]
     for views, valid in ((8, AUTO_MAX_EVERY_PIXEL), (3, 1000), (16, 16 * 320 * 240 // 2)):
         out, why = auto_config(cfg, views, valid)
-        assert out == replace(cfg, s0=dense.s0, depth_smoothing=dense.depth_smoothing) and "stride 1" in why
+        assert out == cfg.replace(ash={"s0": dense.ash.s0}, smoothing={"radius": dense.smoothing.radius})
+        assert "stride 1" in why
     for views, valid in ((8, AUTO_MAX_EVERY_PIXEL + 1), (4, 2 * AUTO_MAX_EVERY_PIXEL)):
         out, why = auto_config(cfg, views, valid)
         live = PRESETS["live"]
-        assert (out.pixel_stride, out.s0, out.mcm_max_missing) == (live.pixel_stride, live.s0, live.mcm_max_missing)
-        assert (out.depth_smoothing, out.k_neighbours, out.multiview_mean) == (2, 4, False)
-        assert out == replace(cfg, pixel_stride=2, s0=1.0, depth_smoothing=2, k_neighbours=4, multiview_mean=False)
+        assert (out.pixel_stride, out.ash.s0, out.mcm.max_missing) == (
+            live.pixel_stride,
+            live.ash.s0,
+            live.mcm.max_missing,
+        )
+        assert (out.smoothing.radius, out.cvgc.k_neighbours, out.cvgc.multiview_mean) == (2, 4, False)
+        assert out == cfg.replace(
+            pixel_stride=2,
+            ash={"s0": 1.0},
+            smoothing={"radius": 2},
+            cvgc={"k_neighbours": 4, "multiview_mean": False},
+            mcm={"max_missing": live.mcm.max_missing},
+        )
         assert "stride 2" in why and "10 frames/s" in why
 
 
@@ -43,7 +52,7 @@ def test_a_point_budget_overrides_the_auto_grid():
     from fuseflow.synth import SimConfig, Simulator
 
     sim = Simulator(SimConfig(cameras=4, resolution=(96, 72), frames=1, seed=2))
-    r = fuse_with_report(sim.render(0).frame, sim.rig, replace(PRESETS["auto"], target_points=3000))
+    r = fuse_with_report(sim.render(0).frame, sim.rig, PRESETS["auto"].replace(target_points=3000))
     assert r.report.grid == ""
 
 
@@ -58,13 +67,13 @@ def test_the_coarse_grid_fuses_as_its_settings_given_up_front(monkeypatch):
     monkeypatch.setattr(config, "AUTO_MAX_EVERY_PIXEL", 1000)
     a = fuse_with_report(frame, sim.rig, PRESETS["auto"])
     assert a.report.pixel_stride == 2
-    coarse = replace(
-        PRESETS["default"], pixel_stride=2, s0=1.0, depth_smoothing=2, k_neighbours=4, multiview_mean=False
+    coarse = PRESETS["default"].replace(
+        pixel_stride=2, ash={"s0": 1.0}, smoothing={"radius": 2}, cvgc={"k_neighbours": 4, "multiview_mean": False}
     )
     b = fuse_with_report(frame, sim.rig, coarse)
     assert np.array_equal(a.cloud.xyz.numpy(), b.cloud.xyz.numpy())
-    c = fuse_with_report(frame, sim.rig, replace(coarse, k_neighbours=7))
+    c = fuse_with_report(frame, sim.rig, coarse.replace(cvgc={"k_neighbours": 7}))
     assert len(c.cloud) != len(b.cloud) or not np.array_equal(c.cloud.xyz.numpy(), b.cloud.xyz.numpy())
-    t = fuse_with_report(frame, sim.rig, replace(PRESETS["auto"], backend="torch"))  # the reference cuts it too
-    tb = fuse_with_report(frame, sim.rig, replace(coarse, backend="torch"))
+    t = fuse_with_report(frame, sim.rig, PRESETS["auto"].replace(backend="torch"))  # the reference cuts it too
+    tb = fuse_with_report(frame, sim.rig, coarse.replace(backend="torch"))
     assert t.report.backend == "torch" and np.array_equal(t.cloud.xyz.numpy(), tb.cloud.xyz.numpy())

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -23,20 +22,22 @@ from fuseflow.geometry import project_votes, relative_transforms
 
 def test_config_presets_and_validation():
     assert PRESETS["default"] == FuseConfig()
-    assert PRESETS["paper"].visibility_aware is False and PRESETS["paper"].min_weight == 0.0
-    assert PRESETS["paper"].tau == 0.05
-    assert not ABLATIONS["w/o CVGC"].use_cvgc and not ABLATIONS["w/o MCM"].use_mcm
-    assert not ABLATIONS["w/o ASH"].use_ash and not ABLATIONS["w/o RPS"].use_rps
+    assert PRESETS["paper"].cvgc.visibility_aware is False and PRESETS["paper"].rps.min_weight == 0.0
+    assert PRESETS["paper"].cvgc.tau == 0.05
+    assert not ABLATIONS["w/o CVGC"].cvgc.enabled and not ABLATIONS["w/o MCM"].mcm.enabled
+    assert not ABLATIONS["w/o ASH"].ash.enabled and not ABLATIONS["w/o RPS"].rps.enabled
     with pytest.raises(ValidationError, match="tau"):
-        FuseConfig(tau=0.0)
+        FuseConfig().replace(cvgc={"tau": 0.0})
     with pytest.raises(ValidationError, match="window"):
-        FuseConfig(window=4)
-    assert PRESETS["paper"].range_priority is False  # eq. (28) ranks by omega alone
-    assert PRESETS["paper"].lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
-    assert PRESETS["paper"].multiview_mean is False  # candidates are the pixels' own points
-    assert PRESETS["quality"] == FuseConfig() and (FuseConfig().k_neighbours, FuseConfig().s0) == (7, 5.0)
-    assert PRESETS["fast"] == replace(FuseConfig(), k_neighbours=4, s0=6.3)
-    assert PRESETS["live"] == replace(FuseConfig(), pixel_stride=2, s0=1.0, mcm_max_missing=4, depth_smoothing=0)
+        FuseConfig().replace(mcm={"window": 4})
+    assert PRESETS["paper"].rps.range_priority is False  # eq. (28) ranks by omega alone
+    assert PRESETS["paper"].rps.lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
+    assert PRESETS["paper"].cvgc.multiview_mean is False  # candidates are the pixels' own points
+    assert PRESETS["quality"] == FuseConfig() and (FuseConfig().cvgc.k_neighbours, FuseConfig().ash.s0) == (7, 5.0)
+    assert PRESETS["fast"] == FuseConfig().replace(cvgc={"k_neighbours": 4}, ash={"s0": 6.3})
+    assert PRESETS["live"] == FuseConfig().replace(
+        pixel_stride=2, ash={"s0": 1.0}, mcm={"max_missing": 4}, smoothing={"radius": 0}
+    )
     assert PRESETS["paper"].pixel_stride == 1 and FuseConfig().pixel_stride == 1
     with pytest.raises(ValidationError, match="noise_sigma"):
         FuseConfig(noise_sigma=(0.0, 0.0019, 0.4))
@@ -69,14 +70,14 @@ def test_mcm_defaults_meet_the_design_targets():
     plane = z0 * (1 + u / f)[None, :].repeat(64, 0)  # slope of one pixel footprint per pixel
     plane = plane * (1 + 0.003 * rng.standard_normal(plane.shape))
     cfg = FuseConfig()
-    c = confidence(torch.tensor(plane[None], dtype=torch.float32), cfg.alpha, cfg.beta)
+    c = confidence(torch.tensor(plane[None], dtype=torch.float32), cfg.mcm.alpha, cfg.mcm.beta)
     assert float(c[0, 1:-1, 1:-1].median()) > 0.8
     edge = np.full((16, 16), z0)
     edge[:, 8:] *= 1.05
-    c = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.alpha, cfg.beta)
+    c = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.mcm.alpha, cfg.mcm.beta)
     assert float(c[0, 2:-2, 7:9].max()) < 0.05
     assert float(c[0, 2:-2, 2:5].min()) > 0.99
-    off = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.alpha, cfg.beta, use_mcm=False)
+    off = confidence(torch.tensor(edge[None], dtype=torch.float32), cfg.mcm.alpha, cfg.mcm.beta, use_mcm=False)
     assert bool((off == 1).all())
 
 
@@ -84,7 +85,7 @@ def test_mcm_defaults_meet_the_design_targets():
 def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
     """mcm_noise: a smooth 45-degree surface with Kinect noise sigma(z) keeps c > 0.8 and a 5 % depth
     edge gets c < 0.05 at every range of the Kinect's 0.4-4.5 m (config.py, above MCM_ALPHA)."""
-    cfg = FuseConfig(mcm_noise=True)
+    cfg = FuseConfig().replace(mcm={"noise_aware": True})
     assert cfg.noise_sigma == NOISE_SIGMA["kinect"]
     a, b, zc = cfg.noise_sigma
     sigma = a + b * (z0 - zc) ** 2
@@ -97,7 +98,7 @@ def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
 
     def conf(d, noise):
         t = torch.tensor(d[None], dtype=torch.float32)
-        return confidence(t, cfg.alpha, cfg.beta, noise_sigma=cfg.noise_sigma if noise else None)[0]
+        return confidence(t, cfg.mcm.alpha, cfg.mcm.beta, noise_sigma=cfg.noise_sigma if noise else None)[0]
 
     smooth = conf(plane, True)[1:-1, 1:-1]
     assert float(smooth.median()) > 0.9 and float(smooth.quantile(0.1)) > 0.75
@@ -107,8 +108,10 @@ def test_noise_aware_mcm_meets_the_targets_at_every_range(z0):
     # sigma = 0 changes nothing: the noise-free edge of the design test
     clean = np.full((16, 16), z0)
     clean[:, 8:] *= 1.05
-    c = confidence(torch.tensor(clean[None], dtype=torch.float32), cfg.alpha, cfg.beta, noise_sigma=(0.0, 0.0, 0.0))
-    c0 = confidence(torch.tensor(clean[None], dtype=torch.float32), cfg.alpha, cfg.beta)
+    c = confidence(
+        torch.tensor(clean[None], dtype=torch.float32), cfg.mcm.alpha, cfg.mcm.beta, noise_sigma=(0.0, 0.0, 0.0)
+    )
+    c0 = confidence(torch.tensor(clean[None], dtype=torch.float32), cfg.mcm.alpha, cfg.mcm.beta)
     assert torch.equal(c, c0)
 
 
@@ -129,16 +132,17 @@ def test_gap_tolerant_window_keeps_surfaces_with_dropouts_and_still_rejects_edge
     hp = np.pad(holes, 1).astype(int)
     n_missing = sum(hp[1 + dv : 65 + dv, 1 + du : 65 + du] for dv in (-1, 0, 1) for du in (-1, 0, 1))
     near_hole = torch.from_numpy((~holes & (n_missing >= 1) & (n_missing <= 3))[1:-1, 1:-1])
-    strict = confidence(t(plane), cfg.alpha, cfg.beta)[0, 1:-1, 1:-1]
-    tolerant = confidence(t(plane), cfg.alpha, cfg.beta, max_missing=3)[0, 1:-1, 1:-1]
+    strict = confidence(t(plane), cfg.mcm.alpha, cfg.mcm.beta)[0, 1:-1, 1:-1]
+    tolerant = confidence(t(plane), cfg.mcm.alpha, cfg.mcm.beta, max_missing=3)[0, 1:-1, 1:-1]
     assert float(strict[near_hole].max()) == 0.0
     assert float(tolerant[near_hole].median()) > 0.8
-    ce = confidence(t(edge), cfg.alpha, cfg.beta, max_missing=3)[0, 2:-2, 7:9]
+    ce = confidence(t(edge), cfg.mcm.alpha, cfg.mcm.beta, max_missing=3)[0, 2:-2, 7:9]
     # an edge pixel whose far-side neighbours are missing can look smoother (here up to 0.19), so
     # the target is the median, and no edge pixel may pass the candidate threshold r_c
-    assert float(ce.median()) < 0.05 and float(ce.max()) < cfg.r_c
+    assert float(ce.median()) < 0.05 and float(ce.max()) < cfg.rps.r_c
     assert torch.equal(
-        confidence(t(plane), cfg.alpha, cfg.beta, max_missing=0), confidence(t(plane), cfg.alpha, cfg.beta)
+        confidence(t(plane), cfg.mcm.alpha, cfg.mcm.beta, max_missing=0),
+        confidence(t(plane), cfg.mcm.alpha, cfg.mcm.beta),
     )
 
 
@@ -149,7 +153,7 @@ def test_noise_sigma_presets_mirror_the_simulator():
     assert NOISE_SIGMA["kinect"] == (k.a, k.b, k.z0)
     r = REALSENSE_D435
     assert NOISE_SIGMA["realsense"][1] == pytest.approx(r.axial.stereo_rms / (r.focal_px * r.baseline_m))
-    assert PRESETS["paper"].mcm_noise is False
+    assert PRESETS["paper"].mcm.noise_aware is False
 
 
 def test_consensus_hand_computed():
@@ -265,7 +269,6 @@ def test_range_priority_selects_the_near_point_of_equal_omega_first():
 
 @pytest.mark.parametrize("backend", ["torch", "numba"])
 def test_range_priority_prefers_the_near_camera_and_keeps_weights(backend):
-    from dataclasses import replace
 
     from fuseflow.fuse import fuse
 
@@ -273,9 +276,9 @@ def test_range_priority_prefers_the_near_camera_and_keeps_weights(backend):
     # in input order, so ties (equal omega) go to the far camera without the switch
     rig = make_rig([(0.05, 0.0, 0.0), (-0.05, 0.0, 1.0)])
     frame = render(rig, [Rect(PLANE_Z)], noise=0.0005, seed=2)
-    base = FuseConfig(k_max=1, backend=backend)
+    base = FuseConfig().replace(backend=backend, rps={"k_max": 1})
     off = fuse(frame, rig, base)
-    on = fuse(frame, rig, replace(base, range_priority=True))
+    on = fuse(frame, rig, base.replace(rps={"range_priority": True}))
 
     # the near camera's footprint on the wall: |x|, |y| < ~0.6 m
     def near_share(cloud):
@@ -287,8 +290,8 @@ def test_range_priority_prefers_the_near_camera_and_keeps_weights(backend):
     # only the selection changes: with every point of every cell kept, same points and weights
     # (multiview_mean off: it pulls the two cameras' points of a patch together, so some cells
     # then hold more than 16 points and "keep all" would not keep them all)
-    keep_all = replace(base, k_max=16, k0=1000.0, multiview_mean=False)
-    a, b = fuse(frame, rig, keep_all), fuse(frame, rig, replace(keep_all, range_priority=True))
+    keep_all = base.replace(rps={"k_max": 16, "k0": 1000.0}, cvgc={"multiview_mean": False})
+    a, b = fuse(frame, rig, keep_all), fuse(frame, rig, keep_all.replace(rps={"range_priority": True}))
     oa, ob = np.lexsort(a.xyz.numpy().T), np.lexsort(b.xyz.numpy().T)
     assert np.array_equal(a.xyz.numpy()[oa], b.xyz.numpy()[ob])
     assert np.array_equal(a.weight.numpy()[oa], b.weight.numpy()[ob])
@@ -351,4 +354,4 @@ def test_lone_cell_mean_drops_only_lone_points_of_dense_coarse_cells():
     sel = select_representatives(P, torch.rand(len(key)), inv, k_on, 3)
     assert 12 not in sel.tolist() and 13 in sel.tolist()  # sparse coarse cell's lone point stays
     with pytest.raises(ValidationError, match="lone_cell_mean"):
-        FuseConfig(lone_cell_mean=-1.0)
+        FuseConfig().replace(rps={"lone_cell_mean": -1.0})

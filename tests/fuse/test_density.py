@@ -66,9 +66,11 @@ def test_small_budget_takes_a_coarser_grid(frame_and_rig, backend, monkeypatch):
         monkeypatch.setattr(sys.modules["fuseflow.fuse.density"], "BUDGET_SHORT", tol)
     # without depth smoothing: on this small frame it moves the stride-2 grid's step (11 % short),
     # so the search falls back to every pixel, which meets the budget too (6486 of 6315)
-    valid = fuse_with_report(frame, rig, FuseConfig(backend=backend, depth_smoothing=0)).report.valid_pixels
+    valid = fuse_with_report(
+        frame, rig, FuseConfig().replace(backend=backend, smoothing={"radius": 0})
+    ).report.valid_pixels
     target = int(0.1 * valid)
-    cfg = FuseConfig(backend=backend, target_points=target, depth_smoothing=0)
+    cfg = FuseConfig().replace(backend=backend, target_points=target, smoothing={"radius": 0})
     auto = fuse_with_report(frame, rig, cfg).report
     assert auto.pixel_stride == 2 and abs(auto.points - target) <= tol * target, (target, auto)
     off = fuse_with_report(frame, rig, replace(cfg, budget_stride=False)).report
@@ -104,10 +106,10 @@ def test_search_s0_on_a_known_power_law():
 
 def test_with_s0_scales_the_clips_and_stays_valid():
     cfg = FuseConfig()
-    big = with_s0(cfg, cfg.s0 * 10)
-    assert big.s_max == cfg.coarse_size and big.target_points is None
-    small = with_s0(cfg, cfg.s0 / 10)
-    assert small.s_min >= cfg.coarse_size / 127 and small.s_max == cfg.s_max
+    big = with_s0(cfg, cfg.ash.s0 * 10)
+    assert big.ash.s_max == cfg.ash.coarse_size and big.target_points is None
+    small = with_s0(cfg, cfg.ash.s0 / 10)
+    assert small.ash.s_min >= cfg.ash.coarse_size / 127 and small.ash.s_max == cfg.ash.s_max
     with pytest.raises(ValidationError, match="target_points"):
         FuseConfig(target_points=0)
 

@@ -5,7 +5,6 @@ test_numba.py shows both backends give the same cloud."""
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -52,7 +51,7 @@ def test_plane_seen_by_several_cameras_fuses_to_the_plane(n_cams):
 
 
 def test_multiview_mean_averages_the_noise_without_crossing_depth_edges():
-    """FuseConfig.multiview_mean: a noisy plane seen by 3 cameras fuses to the plane with
+    """FuseConfig.cvgc.multiview_mean: a noisy plane seen by 3 cameras fuses to the plane with
     clearly less spread than with the switch off (each point averages the agreeing
     neighbours' measurements), and at a box's silhouette no point is pulled between the box
     and the wall behind it (only neighbours within the noise gate count)."""
@@ -60,14 +59,14 @@ def test_multiview_mean_averages_the_noise_without_crossing_depth_edges():
     frame = render(rig, [Rect(PLANE_Z)], noise=NOISE, seed=7)
     std = {}
     for on in (False, True):
-        cloud = fuse(frame, rig, replace(FuseConfig(), multiview_mean=on))
+        cloud = fuse(frame, rig, FuseConfig().replace(cvgc={"multiview_mean": on}))
         resid = cloud.xyz.numpy()[:, 2] - PLANE_Z
         assert abs(resid.mean()) < 0.2 * NOISE * PLANE_Z
         std[on] = resid.std()
     assert std[True] < 0.85 * std[False], std  # measured 5.2 vs 6.6 mm
     box = Rect(1.5, -0.25, 0.25, -0.25, 0.25)
     edge = render(rig, [Rect(PLANE_Z), box], noise=0.002, seed=3)
-    cloud = fuse(edge, rig, replace(FuseConfig(), multiview_mean=True, use_mcm=False))
+    cloud = fuse(edge, rig, FuseConfig().replace(cvgc={"multiview_mean": True}, mcm={"enabled": False}))
     assert len(cloud) > 2000 and _off_surface(cloud.xyz.numpy(), box).sum() == 0
 
 
@@ -105,7 +104,7 @@ def test_flying_pixel_edge_is_suppressed():
     assert _off_surface(cloud.xyz.numpy(), box).sum() == 0
     assert len(cloud) > 2000
     # with both reliability terms removed the flying pixels come through: the test can fail
-    bare = fuse(frame, rig, replace(FuseConfig(), use_mcm=False, use_cvgc=False))
+    bare = fuse(frame, rig, FuseConfig().replace(mcm={"enabled": False}, cvgc={"enabled": False}))
     assert _off_surface(bare.xyz.numpy(), box).sum() > 50
 
 
@@ -126,7 +125,9 @@ def test_cvgc_alone_removes_most_flying_pixels_but_not_along_the_baseline():
     that land on the box in every neighbour are merely occluded there: no vote, omega_geo = c.
     MCM is what removes both kinds (test above)."""
     rig, box, frame = _flying_pixel_scene()
-    bare = _off_surface(fuse(frame, rig, replace(FuseConfig(), use_mcm=False, use_cvgc=False)).xyz.numpy(), box)
+    bare = _off_surface(
+        fuse(frame, rig, FuseConfig().replace(mcm={"enabled": False}, cvgc={"enabled": False})).xyz.numpy(), box
+    )
     xyz = fuse(frame, rig, ABLATIONS["w/o MCM"]).xyz.numpy()
     off = _off_surface(xyz, box)
     assert off.sum() <= 0.6 * bare.sum()
@@ -156,8 +157,8 @@ def test_occluder_seen_by_one_camera_does_not_delete_surface_with_visibility_awa
         sel = (xyz[:, 0] > x0) & (xyz[:, 0] < x1) & (np.abs(xyz[:, 1]) < 0.12) & (np.abs(xyz[:, 2] - PLANE_Z) < 0.02)
         return int(sel.sum())
 
-    aware = wall_in_shadow(FuseConfig(visibility_aware=True))
-    literal = wall_in_shadow(FuseConfig(visibility_aware=False))
+    aware = wall_in_shadow(FuseConfig().replace(cvgc={"visibility_aware": True}))
+    literal = wall_in_shadow(FuseConfig().replace(cvgc={"visibility_aware": False}))
     assert aware > 30, (aware, literal)
     assert literal < 0.1 * aware, (aware, literal)  # eq. (20)-(21) as written: cam0's occluder votes the wall away
 
@@ -174,9 +175,9 @@ def test_repeated_runs_are_identical():
 def test_output_respects_candidate_filters():
     """Eq. (27) plus the minimum joint weight: every output point has omega >= min_weight."""
     rig, _, frame = _flying_pixel_scene()
-    for cfg in (FuseConfig(), FuseConfig(min_weight=0.6)):
+    for cfg in (FuseConfig(), FuseConfig().replace(rps={"min_weight": 0.6})):
         w = fuse(frame, rig, cfg).weight
-        assert float(w.min()) >= cfg.min_weight and float(w.max()) <= 1.0
+        assert float(w.min()) >= cfg.rps.min_weight and float(w.max()) <= 1.0
 
 
 def test_missing_camera_is_reported_and_fused_without(caplog):

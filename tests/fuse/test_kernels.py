@@ -19,7 +19,7 @@ F = np.float32
 def _params(**kw):
     from fuseflow.fuse.kernels import kernel_params
 
-    return kernel_params(FuseConfig(**kw))
+    return kernel_params(FuseConfig().replace(**kw))
 
 
 # --- MCM (eq. 16-18) ---------------------------------------------------------------------
@@ -57,7 +57,7 @@ def test_mcm_row_is_eq_16_to_18(max_missing):
     w = 24
     depth = (1.5 + 0.01 * rng.standard_normal((3, w))).astype(F)
     depth[rng.random((3, w)) < 0.15] = 0.0  # holes: incomplete windows
-    prm = _params(mcm_max_missing=max_missing).pixel
+    prm = _params(mcm={"max_missing": max_missing}).pixel
     cc, gq, vr = np.empty(w, F), np.empty(w, F), np.empty(w, F)
     mcm_row(depth.reshape(-1), w, w, prm, gq, vr, cc)
     for u in range(1, w - 1):
@@ -156,7 +156,7 @@ def test_fine_pass_is_eq_23_to_25():
     fine_pass(Pc, start, cell_key, prm, chunks, n, True, members, fkey, csize, rho_sum, fine_n, om, om, False,
               n, omc, omc, camc, sup)  # fmt: skip
     rho = n / F(s_c) ** 3  # eq. (23)
-    sf = np.clip(cfg.s0 / np.sqrt(rho + cfg.eps), cfg.s_min, cfg.s_max)  # eq. (24)
+    sf = np.clip(cfg.ash.s0 / np.sqrt(rho + cfg.eps), cfg.ash.s_min, cfg.ash.s_max)  # eq. (24)
     assert csize[0] == pytest.approx(sf, rel=1e-6)
     origin = (q * F(s_c)).astype(F)
     idx = np.clip(np.floor((P - origin) / csize[0]), 0, 127).astype(np.int64)  # eq. (25)
@@ -175,7 +175,7 @@ def test_fine_pass_is_eq_23_to_25():
 def test_cell_k_and_count_are_eq_26():
     from fuseflow.fuse.kernels.rps import cell_k, count_kept
 
-    sel = _params(lone_cell_mean=0.0).select._replace(rho_bar=F(2.0e5))
+    sel = _params(rps={"lone_cell_mean": 0.0}).select._replace(rho_bar=F(2.0e5))
     sf3 = F(0.01) ** 3
     for n in (1, 2, 3, 5, 9):
         ref = int(np.clip(np.ceil(sel.k0 * (n / sf3) / sel.rho_bar * sel.ratio), 1, sel.k_max))

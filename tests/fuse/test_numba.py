@@ -53,9 +53,9 @@ def both(frame, rig, cfg: FuseConfig, share: float | None = None, tol: float | N
     # with consensus a candidate that float rounding of exp() admits in one backend only moves
     # the mean of its cell: a looser position tolerance (10 um) and share
     if share is None:
-        share = 0.995 if cfg.consensus else 0.998
+        share = 0.995 if cfg.rps.consensus else 0.998
     if tol is None:
-        tol = 1e-5 if cfg.consensus else 1e-6
+        tol = 1e-5 if cfg.rps.consensus else 1e-6
     rt = fuse_with_report(frame, rig, replace(cfg, backend="torch"))
     rn = fuse_with_report(frame, rig, replace(cfg, backend="numba"))
     assert rn.report.backend == "numba" and rt.report.backend == "torch"
@@ -74,10 +74,10 @@ def both(frame, rig, cfg: FuseConfig, share: float | None = None, tol: float | N
 def test_numba_equals_torch_consensus_switch(sim_frame):
     frame, rig = sim_frame
     on = FuseConfig()
-    assert on.consensus
+    assert on.rps.consensus
     rt, rn = both(frame, rig, on)
-    off, _ = both(frame, rig, replace(on, consensus=False))
-    noise, _ = both(frame, rig, replace(on, mcm_noise=True))  # the noise-aware MCM branch, both backends
+    off, _ = both(frame, rig, on.replace(rps={"consensus": False}))
+    noise, _ = both(frame, rig, on.replace(mcm={"noise_aware": True}))  # the noise-aware MCM branch, both backends
     assert noise.report.candidates != rt.report.candidates
     assert off.cloud.support is None and rt.cloud.support.dtype == torch.int16
     sup = rt.cloud.support
@@ -89,26 +89,26 @@ def test_numba_equals_torch_consensus_switch(sim_frame):
 
 
 def test_numba_equals_torch_gap_tolerant_mcm(sim_frame):
-    """FuseConfig.mcm_max_missing: both backends agree with and without the gap-tolerant
+    """FuseConfig.mcm.max_missing: both backends agree with and without the gap-tolerant
     window, and tolerating missing neighbours adds candidates (the simulator drops pixels)."""
     frame, rig = sim_frame
     on = FuseConfig()
-    assert on.mcm_max_missing == 4
+    assert on.mcm.max_missing == 4
     rt, _ = both(frame, rig, on)
-    strict, _ = both(frame, rig, replace(on, mcm_max_missing=0))
+    strict, _ = both(frame, rig, on.replace(mcm={"max_missing": 0}))
     assert rt.report.candidates > strict.report.candidates
-    noisy, _ = both(frame, rig, replace(on, mcm_noise=True))  # both branches of the kernel
+    noisy, _ = both(frame, rig, on.replace(mcm={"noise_aware": True}))  # both branches of the kernel
     assert noisy.report.candidates != rt.report.candidates
 
 
 def test_numba_equals_torch_multiview_mean(sim_frame):
-    """FuseConfig.multiview_mean: both backends agree with and without the multi-view mean,
+    """FuseConfig.cvgc.multiview_mean: both backends agree with and without the multi-view mean,
     and the switch really moves the candidates (not a no-op on a simulated rig)."""
     frame, rig = sim_frame
     on = FuseConfig()
-    assert on.multiview_mean
+    assert on.cvgc.multiview_mean
     rt, _ = both(frame, rig, on)
-    off, _ = both(frame, rig, replace(on, multiview_mean=False))
+    off, _ = both(frame, rig, on.replace(cvgc={"multiview_mean": False}))
     assert rt.report.candidates == off.report.candidates  # it moves points, never filters
     a, b = rt.cloud.xyz.numpy().astype(np.float64), off.cloud.xyz.numpy().astype(np.float64)
     assert (cKDTree(b).query(a)[0] > 1e-4).mean() > 0.1
@@ -122,15 +122,16 @@ def test_numba_equals_torch_with_pixel_stride(sim_frame, stride):
     frame, rig = sim_frame
     full, _ = both(frame, rig, FuseConfig())
     rt, rn = both(frame, rig, replace(FuseConfig(), pixel_stride=stride))
-    both(frame, rig, replace(FuseConfig(), pixel_stride=stride, use_mcm=False))
-    both(frame, rig, replace(FuseConfig(), pixel_stride=stride, consensus=False, multiview_mean=False))
+    both(frame, rig, FuseConfig().replace(pixel_stride=stride, mcm={"enabled": False}))
+    both(
+        frame, rig, FuseConfig().replace(pixel_stride=stride, rps={"consensus": False}, cvgc={"multiview_mean": False})
+    )
     assert rt.report.valid_pixels == full.report.valid_pixels  # the gate is unchanged
     share = rt.report.candidates / full.report.candidates
     assert 0.6 / stride**2 < share < 1.4 / stride**2, share
     assert 0 < len(rt.cloud) < len(full.cloud)
     # without averaging every output point is a grid pixel's own back-projection
-    plain = fuse_with_report(frame, rig, replace(FuseConfig(), pixel_stride=stride, consensus=False,
-                                                multiview_mean=False, backend="numba")).cloud  # fmt: skip
+    plain = fuse_with_report(frame, rig, FuseConfig().replace(pixel_stride=stride, backend="numba", rps={"consensus": False}, cvgc={"multiview_mean": False})).cloud  # fmt: skip
     for k in range(len(rig.cameras)):
         cam = rig.cameras[k]
         mine = plain.camera.numpy() == rig.index(cam.id)
@@ -168,9 +169,9 @@ def test_numba_equals_torch_on_simulated_rig(sim_frame, name):
 @pytest.mark.parametrize("k_max", [1, 3])
 def test_numba_equals_torch_with_range_priority(sim_frame, k_max):
     frame, rig = sim_frame
-    cfg = replace(FuseConfig(), range_priority=True, k_max=k_max)
+    cfg = FuseConfig().replace(rps={"range_priority": True, "k_max": k_max})
     rt, _ = both(frame, rig, cfg)
-    off = fuse_with_report(frame, rig, replace(cfg, range_priority=False, backend="torch"))
+    off = fuse_with_report(frame, rig, cfg.replace(backend="torch", rps={"range_priority": False}))
     # the switch changes which points win (not a no-op on a real scene), not how many cells
     a, b = rt.cloud.xyz.numpy(), off.cloud.xyz.numpy()
     moved = cKDTree(b.astype(np.float64)).query(a.astype(np.float64))[0] > 1e-6
@@ -181,16 +182,16 @@ def test_numba_equals_torch_with_range_priority(sim_frame, k_max):
 @pytest.mark.parametrize("keep", [0, 1, 2])
 def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone, keep):
     frame, rig = sim_frame
-    cfg = replace(FuseConfig(), lone_cell_mean=lone, lone_cell_keep=keep, consensus=False)
+    cfg = FuseConfig().replace(rps={"lone_cell_mean": lone, "lone_cell_keep": keep, "consensus": False})
     rt, _ = both(frame, rig, cfg)
-    off = fuse_with_report(frame, rig, replace(cfg, lone_cell_mean=0.0, backend="torch"))
+    off = fuse_with_report(frame, rig, cfg.replace(backend="torch", rps={"lone_cell_mean": 0.0}))
     # it only removes points (lone ones), never adds or moves one
     a, b = rt.cloud.xyz.numpy().astype(np.float64), off.cloud.xyz.numpy().astype(np.float64)
     assert len(a) < len(b)
     assert (cKDTree(b).query(a)[0] <= 1e-7).all()
     if keep:  # sparing the confirmed lone points keeps more, and no fewer with a lower bar
-        fewer = fuse_with_report(frame, rig, replace(cfg, lone_cell_keep=keep + 1, backend="torch"))
-        drop_all = fuse_with_report(frame, rig, replace(cfg, lone_cell_keep=0, backend="torch"))
+        fewer = fuse_with_report(frame, rig, cfg.replace(backend="torch", rps={"lone_cell_keep": keep + 1}))
+        drop_all = fuse_with_report(frame, rig, cfg.replace(backend="torch", rps={"lone_cell_keep": 0}))
         assert len(drop_all.cloud) <= len(fewer.cloud) <= len(rt.cloud)
         if keep == 1:  # every sampled configuration has confirmed lone points
             assert len(drop_all.cloud) < len(rt.cloud)
@@ -199,10 +200,10 @@ def test_numba_equals_torch_with_lone_cell_mean(sim_frame, lone, keep):
 def test_lone_cell_keep_needs_the_multiview_support(sim_frame):
     """Without the multi-view mean no point counts as confirmed: lone_cell_keep changes nothing."""
     frame, rig = sim_frame
-    base = replace(FuseConfig(), multiview_mean=False, consensus=False)
+    base = FuseConfig().replace(cvgc={"multiview_mean": False}, rps={"consensus": False})
     for backend in ("torch", "numba"):
-        a = fuse_with_report(frame, rig, replace(base, lone_cell_keep=0, backend=backend)).cloud
-        b = fuse_with_report(frame, rig, replace(base, lone_cell_keep=3, backend=backend)).cloud
+        a = fuse_with_report(frame, rig, base.replace(backend=backend, rps={"lone_cell_keep": 0})).cloud
+        b = fuse_with_report(frame, rig, base.replace(backend=backend, rps={"lone_cell_keep": 3})).cloud
         assert torch.equal(a.xyz, b.xyz)
 
 
@@ -218,7 +219,7 @@ def test_numba_select_prefers_the_near_point_like_torch():
     for z in ([3.5, 2.0], [2.0, 3.5]):
         pr = selection_priority(omega, torch.tensor(z), FuseConfig().noise_sigma).numpy()
         # k = 1 in every cell (fixed_k), lone_cell_mean off
-        prm = kernel_params(FuseConfig(lone_cell_mean=0.0)).select._replace(fixed_k=True, k_const=1)
+        prm = kernel_params(FuseConfig().replace(rps={"lone_cell_mean": 0.0})).select._replace(fixed_k=True, k_const=1)
         src, nsel = np.full(2, -1, dtype=np.int64), np.zeros(1, dtype=np.int64)
         select(
             P,  # the points in slot order (here slot = pixel)
@@ -250,8 +251,15 @@ def test_numba_equals_torch_on_analytic_scene_with_noise_and_edges():
     rig = make_rig(eyes)
     rects = [Rect(PLANE_Z), Rect(1.5, -0.2, 0.2, -0.2, 0.2)]  # wall and a box in front (depth edges)
     frame = render(rig, rects, noise=0.003, seed=1)
-    configs = (FuseConfig(), FuseConfig(visibility_aware=False), FuseConfig(k_max=5, k0=2.0))
-    for cfg in configs + (FuseConfig(range_priority=True), FuseConfig(range_priority=True, k_max=5, k0=2.0)):
+    configs = (
+        FuseConfig(),
+        FuseConfig().replace(cvgc={"visibility_aware": False}),
+        FuseConfig().replace(rps={"k_max": 5, "k0": 2.0}),
+    )
+    for cfg in configs + (
+        FuseConfig().replace(rps={"range_priority": True}),
+        FuseConfig().replace(rps={"range_priority": True, "k_max": 5, "k0": 2.0}),
+    ):
         rt, _ = both(frame, rig, cfg)
         assert len(rt.cloud) > 100
 
@@ -317,7 +325,7 @@ def test_density_search_count_is_the_output_count(sim_frame, monkeypatch, factor
     # by module object: the attribute fuseflow.fuse is the function fuse, not the package
     monkeypatch.setattr(sys.modules["fuseflow.fuse.density"], "search_s0", spy)
     cloud = fuse_with_report(frame, rig, FuseConfig(backend="numba", target_points=int(base * factor))).cloud
-    assert seen["s0"] != FuseConfig().s0 and len(cloud) == seen["count"]
+    assert seen["s0"] != FuseConfig().ash.s0 and len(cloud) == seen["count"]
 
 
 def test_numba_equals_torch_with_skewed_intrinsics():
@@ -335,7 +343,7 @@ def test_numba_equals_torch_with_skewed_intrinsics():
     rig = type(base)(tuple(cams))
     rects = [Rect(PLANE_Z), Rect(1.5, -0.2, 0.2, -0.2, 0.2)]
     frame = render(rig, rects, noise=0.003, seed=2)
-    for cfg in (FuseConfig(), FuseConfig(multiview_mean=False)):
+    for cfg in (FuseConfig(), FuseConfig().replace(cvgc={"multiview_mean": False})):
         rt, _ = both(frame, rig, cfg)
         assert len(rt.cloud) > 100
 
@@ -364,7 +372,7 @@ def test_numba_workspace_reuse_across_shapes():
     b0 = _arrays(fuse_with_report(frame_b, rig_b, cfg).cloud)
     assert nk._LOCAL.ws.shape != shape_a
     a1 = _arrays(fuse_with_report(frame_a, rig_a, cfg).cloud)
-    a2 = _arrays(fuse_with_report(frame_a, rig_a, replace(cfg, consensus=False)).cloud)
+    a2 = _arrays(fuse_with_report(frame_a, rig_a, cfg.replace(rps={"consensus": False})).cloud)
     a3 = _arrays(fuse_with_report(frame_a, rig_a, cfg).cloud)
     nk.release_workspace()
     b1 = _arrays(fuse_with_report(frame_b, rig_b, cfg).cloud)

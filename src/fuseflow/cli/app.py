@@ -134,14 +134,28 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
 POINTS_HELP = "About N points per frame: s0 is searched per frame; a small budget also takes a coarser pixel grid."
 
 
-def check_fuse_options(preset: str, points: int | None) -> None:
-    """`fuse` and `run`'s --preset (a name of fuseflow.fuse.PRESETS) and --points (>= 1)."""
+#: Help of `fuse` and `run`'s --set.
+SET_HELP = (
+    "NAME=VALUE: one FUSE setting over the preset, as FuseConfig.describe() names it "
+    "(rps.k_max=2, ash.s0=3, cvgc.multiview_mean=false, pixel_stride=2); repeat for more."
+)
+
+
+def check_fuse_options(preset: str, points: int | None, settings: list[str] | None = None) -> None:
+    """`fuse` and `run`'s --preset (a name of fuseflow.fuse.PRESETS), --points (>= 1) and --set
+    (``fuseflow.fuse.parse_settings``, checked against the preset)."""
+    from fuseflow.errors import ValidationError
     from fuseflow.fuse import PRESETS
+    from fuseflow.fuse.config import preset_config
 
     if points is not None and points < 1:
         fail(f"--points must be a positive integer, got {points}")
     if preset not in PRESETS:
         fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
+    try:
+        preset_config(preset, points, settings or ())
+    except ValidationError as e:
+        fail(str(e))
 
 
 def check_device(device: str) -> str:

@@ -11,6 +11,7 @@ from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
     FRAMES_OPTION_HELP,
     POINTS_HELP,
+    SET_HELP,
     check_device,
     check_fuse_options,
     parse_range,
@@ -43,6 +44,7 @@ def command(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
+    settings: list[str] = typer.Option(None, "--set", metavar="NAME=VALUE", help=SET_HELP),
     crop: str = oo.CROP,
     fmt: str = oo.FORMAT,
     drc_error_mm: float = oo.DRC_ERROR,
@@ -55,7 +57,7 @@ def command(
     from fuseflow.pipeline import fuse_recording
 
     check_device(device)
-    check_fuse_options(preset, points)
+    check_fuse_options(preset, points, settings)
     outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
     recording = open_recording(rec)
     calibration = read_calibration(calib) if calib is not None else None
@@ -66,7 +68,7 @@ def command(
             recording, out, calibration, positions, preset, device,
             on_frame=lambda done, total: bar.update(task, completed=done),
             calibration_source=str(calib) if calib is not None else None, force=force, points=points,
-            outputs=outputs,
+            outputs=outputs, settings=settings or (),
         )  # fmt: skip
     ppf, ms = s.points_per_frame, s.fuse_ms_per_frame
     print_table(

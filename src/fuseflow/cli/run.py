@@ -10,6 +10,7 @@ from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
     FRAMES_OPTION_HELP,
     POINTS_HELP,
+    SET_HELP,
     check_device,
     check_fuse_options,
     fail,
@@ -79,6 +80,7 @@ def command(
         help="FUSE preset: auto (the grid fits the rig), default (= quality), live (every 2nd pixel), fast, paper, ...",
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
+    settings: list[str] = typer.Option(None, "--set", metavar="NAME=VALUE", help=SET_HELP),
     recalibrate: str = typer.Option("off", "--recalibrate", help="off | auto: re-run GMAC when a camera is bumped."),
     ray: bool = typer.Option(False, "--ray", help="Fuse frames as Ray tasks (pip install 'fuseflow[ray]')."),
     ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local Ray)."),
@@ -105,7 +107,7 @@ def command(
     from fuseflow.pipeline import PipelineConfig, RayOptions, run
 
     check_device(device)
-    check_fuse_options(preset, points)
+    check_fuse_options(preset, points, settings)
     outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
     if calib is not None and use_rig:
         fail("--calib and --use-rig both choose the extrinsics; pass one")
@@ -115,7 +117,11 @@ def command(
     if sync_offsets == "auto" and ray_opts is not None:
         fail("--sync-offsets auto re-times views in this process; use check or off with --ray")
     cfg = PipelineConfig(
-        device=device, recalibrate=recalibrate, sync=sync_offsets, fuse=preset_config(preset, points), outputs=outputs
+        device=device,
+        recalibrate=recalibrate,
+        sync=sync_offsets,
+        fuse=preset_config(preset, points, settings or ()),
+        outputs=outputs,
     )
     positions = parse_range(frames, len(recording))
     gmac = calibration is None and not (use_rig and recording.rig.is_calibrated) and not (out / "calib.json").exists()

@@ -7,11 +7,28 @@ only when that path runs). See design.md and docs/fuse.md.
 """
 
 from fuseflow.fuse.api import FuseReport, FuseResult, fuse, fuse_with_report, resolve_backend
-from fuseflow.fuse.config import ABLATIONS, NOISE_SIGMA, PRESETS, FuseConfig, preset
+from fuseflow.fuse.config import (
+    ABLATIONS,
+    NOISE_SIGMA,
+    PRESETS,
+    ASHConfig,
+    CVGCConfig,
+    FuseConfig,
+    MCMConfig,
+    RPSConfig,
+    SmoothingConfig,
+    parse_settings,
+    preset,
+)
 from fuseflow.fuse.neighbours import NeighbourGraph, neighbour_graph
 
 __all__ = [
     "ABLATIONS",
+    "ASHConfig",
+    "CVGCConfig",
+    "MCMConfig",
+    "RPSConfig",
+    "SmoothingConfig",
     "NOISE_SIGMA",
     "PRESETS",
     "FuseConfig",
@@ -21,6 +38,7 @@ __all__ = [
     "fuse",
     "fuse_with_report",
     "neighbour_graph",
+    "parse_settings",
     "preset",
     "resolve_backend",
 ]

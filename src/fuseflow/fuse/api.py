@@ -1,7 +1,7 @@
 """``fuse(frame, rig, config) -> FusedCloud``: FUSE (paper III-C), stateless, one frame at a time.
 
 Stages, each in its own module: MCM (mcm.py, eq. 16-18) -> back-projection -> CVGC over the
-neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``multiview_mean`` each candidate also
+neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``cvgc.multiview_mean`` each candidate also
 becomes the mean of its agreeing neighbours' measurements) -> joint weight (weights.py, eq. 22) ->
 ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
 (the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
@@ -130,15 +130,15 @@ def _prepare(frame: Frame, rig: Rig, config: FuseConfig, backend: str = "torch")
             f"cameras without extrinsics (T_cam_world is null): {missing_T}; FUSE needs a calibrated rig "
             "(run `fuseflow calibrate` or pass a calib.json)"
         )
-    lo = np.array([max(c.depth_range[0], config.delta) for c in cams], dtype=np.float32)
-    hi = np.array([min(c.depth_range[1], config.z_max) for c in cams], dtype=np.float32)
+    lo = np.array([max(c.depth_range[0], config.mcm.delta) for c in cams], dtype=np.float32)
+    hi = np.array([min(c.depth_range[1], config.mcm.z_max) for c in cams], dtype=np.float32)
     arrays = {
         "K": np.stack([c.K for c in cams]).astype(np.float32),
         "T_cam_world": np.stack([c.T_cam_world for c in cams]).astype(np.float32),
         "T_world_cam": np.stack([c.T_world_cam for c in cams])[:, :3, :].astype(np.float32),
         "rig_index": np.array([rig.index(c.id) for c in cams], dtype=np.int16),
     }
-    graph = neighbour_graph(Rig(tuple(cams)), config.k_neighbours, config.min_overlap)
+    graph = neighbour_graph(Rig(tuple(cams)), config.cvgc.k_neighbours, config.cvgc.min_overlap)
     if backend == "numba":  # numpy arrays throughout (CPU), no torch
         from fuseflow.fuse.kernels import gate_depth
 
@@ -186,10 +186,11 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     depth = p.depth
     dev = depth.device
     n, h, w = depth.shape
-    ns = cfg.noise_sigma if cfg.mcm_noise else None
-    c = confidence(depth, cfg.alpha, cfg.beta, cfg.window, cfg.eps, cfg.use_mcm, ns, cfg.mcm_max_missing)  # (16)-(18)
+    mcm, cvgc, ash, rps = cfg.mcm, cfg.cvgc, cfg.ash, cfg.rps
+    ns = cfg.noise_sigma if mcm.noise_aware else None
+    c = confidence(depth, mcm.alpha, mcm.beta, mcm.window, cfg.eps, mcm.enabled, ns, mcm.max_missing)  # (16)-(18)
     valid_pixels = int((depth > 0).sum())
-    cand = (c > cfg.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
+    cand = (c > rps.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
     if cfg.pixel_stride > 1:  # every s-th pixel of every s-th row (FuseConfig.pixel_stride)
         s = cfg.pixel_stride
         on_grid = torch.zeros((h, w), dtype=torch.bool, device=dev)
@@ -201,28 +202,28 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
     nz = torch.nonzero(cand)
     cam, pix = nz[:, 0], nz[:, 1] * w + nz[:, 2]
     c_m = c[cand]
-    if cfg.use_cvgc:
+    if cvgc.enabled:
         agree, votes = cvgc_counts(
-            X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.tau, cfg.visibility_aware, cfg.eps
+            X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cvgc.tau, cvgc.visibility_aware, cfg.eps
         )
         w_geo = omega_geo(agree, votes, c_m)  # eq. (21)
     else:
         w_geo = c_m  # "w/o CVGC": eq. (21)'s no-vote case for every point
     omega = joint_weight(c_m, w_geo, cfg.eps)  # eq. (22)
-    keep = omega >= cfg.min_weight
+    keep = omega >= rps.min_weight
     X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
     z_s = X[:, 2]  # the pixel's own depth ranks it (range_priority), before any averaging
-    kept = None  # points the lone-cell rule spares (FuseConfig.lone_cell_keep)
-    if cfg.multiview_mean and cfg.use_cvgc:
-        X, support = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cfg.multiview_gate,
+    kept = None  # points the lone-cell rule spares (rps.lone_cell_keep)
+    if cvgc.multiview_mean and cvgc.enabled:
+        X, support = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cvgc.multiview_gate,
                                     cfg.noise_sigma, cfg.eps, with_support=True)  # fmt: skip
-        if cfg.lone_cell_keep > 0:
-            kept = support >= cfg.lone_cell_keep
+        if rps.lone_cell_keep > 0:
+            kept = support >= rps.lone_cell_keep
     P = _to_world(X, cam, p.T_world_cam)
-    if cfg.use_ash:
-        cells = adaptive_hash(P, cfg.coarse_size, cfg.s0, cfg.s_min, cfg.s_max, cfg.eps)  # eq. (23)-(25)
+    if ash.enabled:
+        cells = adaptive_hash(P, ash.coarse_size, ash.s0, ash.s_min, ash.s_max, cfg.eps)  # eq. (23)-(25)
     else:
-        cells = fixed_hash(P, cfg.fixed_size)
+        cells = fixed_hash(P, ash.fixed_size)
     candidates = int(P.shape[0])
     out_of_range = int((~cells.keep).sum())
     if out_of_range:
@@ -231,20 +232,20 @@ def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, in
         key, size = cells.key[cells.keep], cells.cell_size[cells.keep]
     else:
         key, size = cells.key, cells.cell_size
-    if cfg.use_rps and cfg.use_ash:
-        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, True, 0, cfg.lone_cell_mean, kept)  # eq. (26)
-    elif cfg.use_rps:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
-        k_const = int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
-        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, k_const)
+    if rps.enabled and ash.enabled:
+        inv, _, k = cell_counts(key, size, rps.k0, rps.ratio, rps.k_max, True, 0, rps.lone_cell_mean, kept)  # eq. (26)
+    elif rps.enabled:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
+        k_const = int(min(max(np.ceil(rps.k0 * rps.ratio), 1), rps.k_max))
+        inv, _, k = cell_counts(key, size, rps.k0, rps.ratio, rps.k_max, False, k_const)
     else:  # w/o RPS: fixed k
-        inv, _, k = cell_counts(key, size, cfg.k0, cfg.ratio, cfg.k_max, False, cfg.k_fixed)
-    rank = selection_priority(omega, z_s, cfg.noise_sigma) if cfg.range_priority else omega
-    sel = select_representatives(P, rank, inv, k, cfg.k_max)  # eq. (28)
+        inv, _, k = cell_counts(key, size, rps.k0, rps.ratio, rps.k_max, False, rps.k_fixed)
+    rank = selection_priority(omega, z_s, cfg.noise_sigma) if rps.range_priority else omega
+    sel = select_representatives(P, rank, inv, k, rps.k_max)  # eq. (28)
     cam_s = cam[sel]
     rgb = p.color.reshape(n, h * w, 3)[cam_s, pix[sel]]
-    if cfg.consensus:
+    if rps.consensus:
         xyz, support = consensus(
-            P, omega, cam, p.T_world_cam, p.T_cam_world, inv, sel, cfg.consensus_gate, cfg.noise_sigma
+            P, omega, cam, p.T_world_cam, p.T_cam_world, inv, sel, rps.consensus_gate, cfg.noise_sigma
         )
     else:
         xyz, support = P[sel].contiguous(), None
@@ -295,12 +296,13 @@ def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, i
     """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference.
     With ``target_points`` both search s0 with density.fit_s0: the numba path counts on its
     candidates, the reference, which is not split into stages, with whole passes.
-    The depth is smoothed first (FuseConfig.depth_smoothing) at this grid's pixels."""
-    if p.graph.index.shape[1] > cfg.k_neighbours:  # auto_config's grid takes fewer than _prepare's
+    The depth is smoothed first (FuseConfig.smoothing) at this grid's pixels."""
+    k = cfg.cvgc.k_neighbours
+    if p.graph.index.shape[1] > k:  # auto_config's grid takes fewer than _prepare's
         g = p.graph  # the k most-overlapping neighbours come first (neighbour_graph)
-        p = replace(p, graph=NeighbourGraph(g.index[:, : cfg.k_neighbours], g.overlap[:, : cfg.k_neighbours]))
-    if cfg.depth_smoothing > 0:
-        smoothed = smooth_depth(p.depth, cfg.depth_smoothing, cfg.smoothing_gate, cfg.noise_sigma, cfg.pixel_stride)
+        p = replace(p, graph=NeighbourGraph(g.index[:, :k], g.overlap[:, :k]))
+    if cfg.smoothing.radius > 0:
+        smoothed = smooth_depth(p.depth, cfg.smoothing.radius, cfg.smoothing.gate, cfg.noise_sigma, cfg.pixel_stride)
         p = replace(p, depth=smoothed)
     if backend == "numba":
         from fuseflow.fuse.kernels import fuse_numba
@@ -310,9 +312,9 @@ def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, i
         return _fuse_torch(p, cfg)
     from fuseflow.fuse.density import fit_s0, with_s0
 
-    first = _fuse_torch(p, with_s0(cfg, cfg.s0))
+    first = _fuse_torch(p, with_s0(cfg, cfg.ash.s0))
     fit = fit_s0(cfg, lambda s: len(_fuse_torch(p, with_s0(cfg, s))[0]), len(first[0]), whole_passes=True)
-    return first if fit.s0 == cfg.s0 else _fuse_torch(p, fit)
+    return first if fit.ash.s0 == cfg.ash.s0 else _fuse_torch(p, fit)
 
 
 def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int, int]:

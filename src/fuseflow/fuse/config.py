@@ -9,10 +9,10 @@ switch: docs/fuse.md. Presets:
 * ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
   depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
 * ``PRESETS["quality"]``: the same as the default (an older name, kept).
-* ``PRESETS["fast"]``: ``k_neighbours = 4``, ``s0 = 6.3``: less time, fewer points.
-* ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``s0 = 1`` and no depth smoothing: candidates on every
+* ``PRESETS["fast"]``: ``cvgc.k_neighbours = 4``, ``ash.s0 = 6.3``: less time, fewer points.
+* ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``ash.s0 = 1`` and no depth smoothing: candidates on every
   2nd pixel of every 2nd row, nearly all of them kept; for full frames from ~8-camera rigs.
-* ``PRESETS["dense"]``: the default with ``s0 = 1`` and 5x5 depth smoothing: every pixel, nearly
+* ``PRESETS["dense"]``: the default with ``ash.s0 = 1`` and 5x5 depth smoothing: every pixel, nearly
   every candidate kept; the most complete cloud, about twice the default's points.
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
@@ -21,13 +21,28 @@ switch: docs/fuse.md. Presets:
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields, replace
-from typing import Literal
+from typing import Any, Literal
 
 from fuseflow.errors import ValidationError
 from fuseflow.geometry.noise import DEFAULT_SENSOR, SENSOR_NOISE, sensor_noise
 
-__all__ = ["FuseConfig", "PRESETS", "ABLATIONS", "NOISE_SIGMA", "preset", "auto_config"]
+__all__ = [
+    "FuseConfig",
+    "SmoothingConfig",
+    "MCMConfig",
+    "CVGCConfig",
+    "ASHConfig",
+    "RPSConfig",
+    "STAGES",
+    "PRESETS",
+    "ABLATIONS",
+    "NOISE_SIGMA",
+    "preset",
+    "auto_config",
+    "parse_settings",
+]
 
 Backend = Literal["auto", "torch", "numba"]
 
@@ -51,10 +66,10 @@ Backend = Literal["auto", "torch", "numba"]
 # = 0.84 > 0.8, edge c = exp(-3.86) = 0.021 < 0.05. tests/fuse/test_components.py::test_mcm_defaults_meet_the_design_targets checks both numbers
 # on synthetic depth maps.
 #
-# Noise-aware MCM (FuseConfig.mcm_noise, beyond the paper). The numbers above hold at 1.5-2.5 m
+# Noise-aware MCM (MCMConfig.noise_aware, beyond the paper). The numbers above hold at 1.5-2.5 m
 # only: Kinect noise is 0.47 % of depth at 3 m and 0.65 % at 4 m, so a smooth surface there gets
 # v ~ (0.0065)^2 = 4.2e-5 and g ~ 0.006 from noise alone -> c = exp(-0.25 - 0.12) = 0.69 < 0.8
-# (measured: median c 0.74 at 4 m, 0.70 at 4.45 m on the 45-degree test plane). With mcm_noise
+# (measured: median c 0.74 at 4 m, 0.70 at 4.45 m on the 45-degree test plane). With noise_aware
 # the expected noise is removed before dividing by z (mcm.py): gx^2 + gy^2 - sigma(z)^2
 # (central differences: E = 2 (sigma^2 / 2)) and Var - sigma(z)^2 (3x3: E = (8/9) sigma^2, the
 # 1/9 extra is margin). What is left of a smooth 45-degree surface is its geometry, g = 1 / f =
@@ -79,220 +94,269 @@ NOISE_SIGMA: dict[str, tuple[float, float, float]] = {
 }
 
 
+def _fail(path: str, value: object, want: str) -> None:
+    raise ValidationError(f"FuseConfig.{path}: expected {want}, got {value!r}")
+
+
+def _check_numbers(cfg: object, stage: str, names: tuple[str, ...], positive: bool) -> None:
+    """Each field of ``names`` is a finite number > 0 (``positive``) or >= 0."""
+    for name in names:
+        v = getattr(cfg, name)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or v < 0 or (positive and v == 0):
+            _fail(f"{stage}{name}", v, "a finite number > 0" if positive else "a finite number >= 0")
+
+
+def _check_ints(cfg: object, stage: str, bounds: tuple[tuple[str, int, int, str], ...]) -> None:
+    """Each (name, lo, hi, note) field is an integer in lo..hi (a bool is not one)."""
+    for name, lo, hi, note in bounds:
+        v = getattr(cfg, name)
+        if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+            _fail(f"{stage}{name}", v, f"an integer in {lo}..{hi}{note}")
+
+
+def _check_bools(cfg: object, stage: str, names: tuple[str, ...]) -> None:
+    for name in names:
+        if not isinstance(getattr(cfg, name), bool):
+            _fail(f"{stage}{name}", getattr(cfg, name), "a bool")
+
+
 @dataclass(frozen=True)
-class FuseConfig:
-    """All parameters of FUSE (paper III-C). Frozen; build variants with ``dataclasses.replace``."""
+class SmoothingConfig:
+    """Noise-aware depth smoothing before MCM (beyond the paper; fuse/smooth.py)."""
 
-    # ---- MCM, eq. (16)-(18)
-    alpha: float = MCM_ALPHA
-    """Weight of the relative depth gradient g(x) in eq. (18). Derivation above (MCM_ALPHA). >= 0."""
-    beta: float = MCM_BETA
-    """Weight of the normalised local variance v(x) in eq. (18). Derivation above (MCM_BETA). >= 0."""
-    delta: float = 0.1
-    """Minimum depth (m) in eq. (18): the closest range of Kinect/RealSense-class sensors is
-    0.1-0.4 m. Each camera's own ``depth_range`` also gates. > 0."""
-    z_max: float = 10.0
-    """Maximum depth (m), docs/design.md 2.1 (1[z < z_max]); beyond 10 m these sensors return noise.
-    > delta."""
-    window: int = 3
-    """r of the r x r variance window of eq. (17) (docs/design.md 2.1: r = 3). Odd, 3..7."""
-    use_mcm: bool = True
-    """False = the "w/o MCM" ablation of Table VII: c(x) = 1 for every valid pixel."""
-    mcm_max_missing: int = 4
-    """Beyond the paper: a 3x3 window with at most this many of its 8 neighbours without depth is
-    measured on the pixels it has (mcm.py, gap-tolerant window); 0 = a missing neighbour makes
-    an edge pixel (design.md 2.1, the ``paper`` preset). Default 4, 0..8; > 0 needs ``window`` = 3."""
-    mcm_noise: bool = False
-    """Beyond the paper: g(x) and v(x) of eq. (16)-(17) are measured after removing the sensor's
-    expected axial noise sigma(z) (``noise_sigma``; derivation above MCM_ALPHA), so smooth
-    surfaces keep c > 0.8 at every range. Default False (eq. 16-17 as written)."""
-
-    # ---- neighbour graph (paper III-C-2, docs/design.md 2.2)
-    k_neighbours: int = 7
-    """K_max, the most neighbour cameras per camera; CVGC and the multi-view mean cost O(K_max) per
-    point. Default 7, 1..16 (docs/fuse.md, Presets)."""
-    min_overlap: float = 0.05
-    """Overlap floor: a camera j is a neighbour of i only when at least this share of i's
-    frustum samples lands in j's image in front of it. 0..1."""
-
-    # ---- CVGC, eq. (19)-(21)
-    tau: float = 0.05
-    """Relative depth residual threshold of eq. (21); paper: tau = 0.05. > 0."""
-    visibility_aware: bool = True
-    """Beyond the paper (docs/design.md 2.3): when D_j is in front of the projected point by more
-    than tau (the point is only occluded in j), j casts no vote; only D_j behind the point
-    (free-space violation) votes against. False = eq. (20)-(21) as written."""
-    use_cvgc: bool = True
-    """False = the "w/o CVGC" ablation of Table VII: omega_geo(x) = c(x) (eq. 21's no-vote case),
-    so the joint weight of eq. (22) reduces to c(x)."""
-
-    # ---- ASH, eq. (23)-(25)
-    coarse_size: float = 0.2
-    """s_c (m), the coarse cell of eq. (23). 20 cm holds ~10^3-10^4 points of a surface 1-3 m
-    away at 640x480, enough for a stable density estimate. 0.02..2."""
-    s0: float = 5.0
-    """s_0 of eq. (24), in m^(1/2): a fine cell of a surface holds about s_0^2 s_c points (a coarse
-    cell with n surface points has rho = n / s_c^3). Default 5 (about a 1 cm TSDF's point
-    count); ``target_points`` picks it per frame for a point budget. > 0."""
-    s_min: float = 0.002
-    """Lower clip of s_f in eq. (24) (m): about one pixel footprint at 1 m (1 / 525 m). > 0."""
-    s_max: float = 0.05
-    """Upper clip of s_f in eq. (24) (m): sparse regions get at most 5 cm cells. s_min..s_c."""
-    use_ash: bool = True
-    """False = the "w/o ASH" ablation of Table VII: one fixed grid of cell ``fixed_size`` and
-    rho_bar in place of the fine-cell density in eq. (26)."""
-    fixed_size: float = 0.01
-    """Cell size (m) of the single fixed grid used when use_ash is False (1 cm, the TSDF
-    baseline's voxel). > 0."""
-
-    # ---- RPS, eq. (26)-(28)
-    k0: float = 1.0
-    """k_0 of eq. (26): base count of representatives per fine cell. > 0."""
-    ratio: float = 1.0
-    """r of eq. (26), the selection ratio. > 0."""
-    k_max: int = 3
-    """k_max of eq. (26): at most this many points per fine cell (and FPS rounds). 1..16."""
-    r_c: float = 0.3
-    """r_c of eq. (27): candidates need c(x) > r_c. 0.3 drops depth edges (c < 0.05 by the MCM
-    derivation) and keeps smooth surfaces (c > 0.8) with margin. 0..1."""
-    min_weight: float = 0.3
-    """Beyond the paper: candidates also need the joint weight omega(x) of eq. (22) > this.
-    Eq. (27) filters on c only, so a point that every neighbour contradicts would still win a
-    cell where it is alone (a flying pixel usually is); 0.3 rejects omega_geo < ~0.2 for c ~ 0.9.
-    0 = eq. (27) as written. 0..1."""
-    use_rps: bool = True
-    """False = the "w/o RPS" ablation of Table VII: a fixed ``k_fixed`` points per cell instead
-    of eq. (26), keeping the candidate filter (27) and the weighted FPS (28)."""
-    k_fixed: int = 1
-    """Points per cell when use_rps is False. 1..k_max."""
-    range_priority: bool = False
-    """Beyond the paper: eq. (28) ranks the points of a fine cell by omega(x) / sigma(z(x))
-    (``noise_sigma``, z the depth in the source camera) instead of omega(x), so a near camera's
-    point is preferred; only *which* points are selected changes. Default False."""
-    lone_cell_mean: float = 2.0
-    """Beyond the paper: a fine cell holding a single candidate gets k = 0 in eq. (26) when its
-    coarse cell holds at least this many candidates per occupied fine cell (a lone point on a
-    densely sampled surface is off it), unless ``lone_cell_keep`` neighbours confirm it. Needs
-    use_ash and use_rps. Default 2; 0 = off (eq. 26 as written, ``paper``). >= 0."""
-    lone_cell_keep: int = 1
-    """Beyond the paper: ``lone_cell_mean`` spares a lone point that at least this many neighbour
-    cameras confirm (depth within ``multiview_gate``; needs ``multiview_mean``). Default 1;
-    0 = drop every lone point of a dense coarse cell. 0..16."""
-    multiview_mean: bool = True
-    """Beyond the paper (cvgc.multiview_mean): each candidate becomes the inverse-variance
-    (1 / sigma(z)^2, ``noise_sigma``) weighted 3-D mean of itself and the measured points Q_j of
-    the neighbours whose depth at x_ij (eq. 19) agrees within ``multiview_gate``; CVGC's votes
-    use the unaveraged point. Needs ``use_cvgc``. Default True; False = the pixels' own
-    back-projections (``paper``)."""
-    multiview_gate: float = 3.0
-    """Agreement gate of ``multiview_mean`` in units of the combined expected noise
-    sqrt(sigma(z_ij)^2 + sigma(D_j)^2) of the two depths compared: 3 keeps 99.7 % of the same
-    surface's Gaussian noise. > 0."""
-    consensus: bool = True
-    """Beyond the paper (rps.consensus): after selection each representative moves along its ray to
-    the omega-weighted mean of its fine cell's candidates that agree within ``consensus_gate``
-    sigma(z); the cloud carries ``support`` (cameras among them). Default True; False = points
-    are selected, never moved (``paper``)."""
-    consensus_gate: float = 3.0
-    """Agreement gate of ``consensus`` in units of the sensor's sigma(z) at the
-    representative's depth: 3 sigma keeps 99.7 % of the same surface's Gaussian noise and
-    rejects a second surface more than 3 sigma away (Kinect: 18 mm at 2 m, 42 mm at 3 m). > 0."""
-    depth_smoothing: int = 1
-    """Beyond the paper (fuse/smooth.py): before MCM each depth becomes the mean of the depths of
-    its (2r+1)^2 window within ``smoothing_gate`` sigma(z) of it (r = this radius in pixels), so
-    smooth surfaces lose up to 2r+1 times their axial noise and edges keep their own depths.
-    Default 1 (3x3); 0 = off (``paper``). 0..3."""
-    smoothing_gate: float = 2.5
-    """Gate of ``depth_smoothing`` in units of the sensor's sigma(z) at the pixel's depth. > 0."""
-    noise_sigma: tuple[float, float, float] = tuple(SENSOR_NOISE[DEFAULT_SENSOR])
-    """(a, b, z0) of the axial noise model sigma(z) = a + b (z - z0)^2 (metres) used by ``mcm_noise``,
-    ``range_priority``, ``multiview_mean`` and ``consensus`` (fuseflow.geometry.noise). Default:
-    the Kinect v1 row of ``SENSOR_NOISE`` (structured light). a > 0, b >= 0."""
-
-    target_points: int | None = None
-    """Density control (beyond the paper): ``s0`` is searched per frame for about this many output
-    points (fuse/density.py); with ``budget_stride`` a small budget also coarsens the pixel
-    grid. Default None (s0 as given); >= 1."""
-
-    pixel_stride: int = 1
-    """Beyond the paper: candidates on every ``pixel_stride``-th pixel of every ``pixel_stride``-th
-    row; MCM, CVGC lookups and the multi-view mean still read the full-resolution depth.
-    Default 1 (every pixel), 1..8."""
-
-    budget_stride: bool = True
-    """Beyond the paper, with ``target_points`` only: candidates on the coarsest grid s <= 3 (and
-    >= ``pixel_stride``) with target_points <= 0.75 V / s^2, V the frame's valid depth pixels
-    (fuse/density.py); a grid more than 10 % short is fused again on ``pixel_stride``'s grid.
-    Default True; False = ``pixel_stride`` whatever the budget."""
-
-    # ---- execution
-    backend: Backend = "auto"
-    """"torch": the PyTorch reference (any device); "numba": fused compiled CPU kernels;
-    "auto": numba on CPU tensors when numba is installed, torch otherwise (CUDA)."""
-    eps: float = 1e-6
-    """epsilon of eq. (16), (17), (20), (22), (24). > 0."""
-
-    # ---- rig-adaptive grid
-    auto_grid: bool = False
-    """Grid and s0 per frame from the rig (``auto_config``; ``PRESETS["auto"]``, the CLI's default);
-    ignored with ``target_points``."""
+    radius: int = 1
+    """r: each depth becomes the mean of its (2r+1)^2 window's depths within ``gate`` sigma(z) of it.
+    Pixels; default 1 (3x3), 0 = off (``paper``); 0..3."""
+    gate: float = 2.5
+    """Agreement gate in units of the sensor's sigma(z) at the pixel's depth. Default 2.5; > 0."""
 
     def __post_init__(self) -> None:
-        def bad(name: str, want: str) -> None:
-            raise ValidationError(f"FuseConfig.{name}: expected {want}, got {getattr(self, name)!r}")
+        _check_ints(self, "smoothing.", (("radius", 0, 3, " (0 = off)"),))
+        _check_numbers(self, "smoothing.", ("gate",), positive=True)
 
-        for name in ("alpha", "beta", "r_c", "min_weight"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                bad(name, "a finite number >= 0")
-        for name in (
-            "delta",
-            "z_max",
-            "tau",
-            "coarse_size",
-            "s0",
-            "s_min",
-            "s_max",
-            "fixed_size",
-            "k0",
-            "ratio",
-            "consensus_gate",
-            "multiview_gate",
-            "smoothing_gate",
-            "eps",
-        ):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                bad(name, "a finite number > 0")
-        if self.target_points is not None and (not isinstance(self.target_points, int) or self.target_points < 1):
-            bad("target_points", "None or an integer >= 1")
+
+@dataclass(frozen=True)
+class MCMConfig:
+    """Measurement confidence c(x), eq. (16)-(18) (fuse/mcm.py)."""
+
+    alpha: float = MCM_ALPHA
+    """Weight of the relative depth gradient g(x) in eq. (18); derivation above MCM_ALPHA. Default 20; >= 0."""
+    beta: float = MCM_BETA
+    """Weight of the normalised local variance v(x) in eq. (18); derivation above MCM_ALPHA. Default 6000; >= 0."""
+    delta: float = 0.1
+    """Minimum depth of eq. (18), metres (the closest range of Kinect/RealSense-class sensors; each
+    camera's ``depth_range`` also gates). Default 0.1; > 0."""
+    z_max: float = 10.0
+    """Maximum depth, metres (docs/design.md 2.1; beyond 10 m these sensors return noise). Default 10; > delta."""
+    window: int = 3
+    """r of the r x r variance window of eq. (17), pixels. Default 3; odd, 3..7."""
+    enabled: bool = True
+    """False = the "w/o MCM" ablation of Table VII: c(x) = 1 for every valid pixel. Default True."""
+    max_missing: int = 4
+    """Beyond the paper: a 3x3 window missing at most this many of its 8 neighbours is measured on the
+    pixels it has (mcm.py); 0 = a missing neighbour makes an edge (``paper``). Default 4; 0..8, > 0 needs window 3."""
+    noise_aware: bool = False
+    """Beyond the paper: g(x), v(x) measured after removing the expected noise sigma(z)^2 (mcm.py;
+    derivation above MCM_ALPHA). Default False (eq. 16-17 as written)."""
+
+    def __post_init__(self) -> None:
+        _check_numbers(self, "mcm.", ("alpha", "beta"), positive=False)
+        _check_numbers(self, "mcm.", ("delta", "z_max"), positive=True)
         if self.z_max <= self.delta:
-            bad("z_max", f"> delta ({self.delta})")
+            _fail("mcm.z_max", self.z_max, f"> delta ({self.delta})")
         if not isinstance(self.window, int) or self.window % 2 == 0 or not 3 <= self.window <= 7:
-            bad("window", "an odd integer in 3..7")
-        for name, lo, hi, note in (
-            ("mcm_max_missing", 0, 8, ""),
-            ("pixel_stride", 1, 8, ""),
-            ("k_neighbours", 1, 16, ""),
-            ("k_max", 1, 16, ""),
-            ("lone_cell_keep", 0, 16, " (0 = drop every lone point)"),
-            ("depth_smoothing", 0, 3, " (0 = off)"),
-        ):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:  # a bool is an int
-                bad(name, f"an integer in {lo}..{hi}{note}")
-        if self.mcm_max_missing > 0 and self.window != 3:
-            bad("mcm_max_missing", f"0 with window = {self.window} (the gap-tolerant window is 3x3)")
-        if not 0 <= self.min_overlap <= 1:
-            bad("min_overlap", "a number in [0, 1]")
-        if self.r_c >= 1 or self.min_weight >= 1:
-            bad("r_c" if self.r_c >= 1 else "min_weight", "a number < 1")
-        if not isinstance(self.k_fixed, int) or not 1 <= self.k_fixed <= self.k_max:
-            bad("k_fixed", f"an integer in 1..k_max ({self.k_max})")
+            _fail("mcm.window", self.window, "an odd integer in 3..7")
+        _check_ints(self, "mcm.", (("max_missing", 0, 8, ""),))
+        if self.max_missing > 0 and self.window != 3:
+            _fail(
+                "mcm.max_missing", self.max_missing, f"0 with window = {self.window} (the gap-tolerant window is 3x3)"
+            )
+        _check_bools(self, "mcm.", ("enabled", "noise_aware"))
+
+
+@dataclass(frozen=True)
+class CVGCConfig:
+    """Cross-view geometric consistency, eq. (19)-(21), its neighbour graph (paper III-C-2) and
+    the multi-view mean (fuse/cvgc.py, fuse/neighbours.py)."""
+
+    k_neighbours: int = 7
+    """K_max, the most neighbour cameras per camera; CVGC and the multi-view mean cost O(K_max) per
+    point. Default 7; 1..16."""
+    min_overlap: float = 0.05
+    """Camera j is a neighbour of i when at least this share of i's frustum samples lands in j's
+    image in front of it. Default 0.05; 0..1."""
+    tau: float = 0.05
+    """Relative depth residual threshold of eq. (21) (the paper's value). Default 0.05; > 0."""
+    visibility_aware: bool = True
+    """Beyond the paper (docs/design.md 2.3): a neighbour whose depth is in front of the point by
+    more than tau casts no vote. Default True; False = eq. (20)-(21) as written."""
+    enabled: bool = True
+    """False = the "w/o CVGC" ablation of Table VII: omega_geo(x) = c(x), so omega = c. Default True."""
+    multiview_mean: bool = True
+    """Beyond the paper: each candidate becomes the 1 / sigma(z)^2-weighted mean of itself and the
+    neighbours' agreeing points (cvgc.multiview_mean). Default True; needs ``enabled``."""
+    multiview_gate: float = 3.0
+    """Agreement gate of ``multiview_mean`` in units of sqrt(sigma(z_ij)^2 + sigma(D_j)^2). Default 3; > 0."""
+
+    def __post_init__(self) -> None:
+        _check_ints(self, "cvgc.", (("k_neighbours", 1, 16, ""),))
+        if not (isinstance(self.min_overlap, (int, float)) and 0 <= self.min_overlap <= 1):
+            _fail("cvgc.min_overlap", self.min_overlap, "a number in [0, 1]")
+        _check_numbers(self, "cvgc.", ("tau", "multiview_gate"), positive=True)
+        _check_bools(self, "cvgc.", ("visibility_aware", "enabled", "multiview_mean"))
+
+
+@dataclass(frozen=True)
+class ASHConfig:
+    """Adaptive spatial hashing, eq. (23)-(25) (fuse/ash.py)."""
+
+    coarse_size: float = 0.2
+    """s_c of eq. (23), metres: holds ~10^3-10^4 points of a surface 1-3 m away at 640x480. Default 0.2; 0.02..2."""
+    s0: float = 5.0
+    """s_0 of eq. (24), m^(1/2): a fine cell holds about s_0^2 s_c points. Default 5 (about a 1 cm
+    TSDF's point count); > 0 (FuseConfig.target_points searches it per frame)."""
+    s_min: float = 0.002
+    """Lower clip of s_f in eq. (24), metres (about one pixel footprint at 1 m). Default 0.002; >= coarse_size / 127."""
+    s_max: float = 0.05
+    """Upper clip of s_f in eq. (24), metres. Default 0.05; s_min..coarse_size."""
+    enabled: bool = True
+    """False = the "w/o ASH" ablation of Table VII: one fixed grid of ``fixed_size`` cells, rho_bar in eq. (26)."""
+    fixed_size: float = 0.01
+    """Cell size of the fixed grid when ``enabled`` is False, metres (the TSDF baseline's voxel). Default 0.01; > 0."""
+
+    def __post_init__(self) -> None:
+        _check_numbers(self, "ash.", ("coarse_size", "s0", "s_min", "s_max", "fixed_size"), positive=True)
+        _check_bools(self, "ash.", ("enabled",))
         if self.s_min > self.s_max or self.s_max > self.coarse_size:
-            bad("s_max", f"s_min ({self.s_min}) <= s_max <= coarse_size ({self.coarse_size})")
+            _fail("ash.s_max", self.s_max, f"s_min ({self.s_min}) <= s_max <= coarse_size ({self.coarse_size})")
         if self.coarse_size / self.s_min > 127 or self.coarse_size / self.fixed_size > 1e6:
-            bad("s_min", f">= coarse_size / 127 ({self.coarse_size / 127:.4g}) so a fine index fits 7 bits")
+            _fail(
+                "ash.s_min",
+                self.s_min,
+                f">= coarse_size / 127 ({self.coarse_size / 127:.4g}) so a fine index fits 7 bits",
+            )
+
+
+@dataclass(frozen=True)
+class RPSConfig:
+    """Representative point selection, eq. (26)-(28), and the consensus step (fuse/rps.py)."""
+
+    r_c: float = 0.3
+    """r_c of eq. (27): candidates need c(x) > r_c (drops depth edges, c < 0.05; keeps smooth
+    surfaces, c > 0.8). Default 0.3; 0..1."""
+    min_weight: float = 0.3
+    """Beyond the paper: candidates also need omega(x) of eq. (22) >= this (rejects points every
+    neighbour contradicts). Default 0.3; 0 = eq. (27) as written; 0..1."""
+    k0: float = 1.0
+    """k_0 of eq. (26): base count of representatives per fine cell. Default 1; > 0."""
+    ratio: float = 1.0
+    """r of eq. (26), the selection ratio. Default 1; > 0."""
+    k_max: int = 3
+    """k_max of eq. (26): at most this many points per fine cell (and FPS rounds). Default 3; 1..16."""
+    enabled: bool = True
+    """False = the "w/o RPS" ablation of Table VII: ``k_fixed`` points per cell instead of eq. (26),
+    same filter (27) and FPS (28). Default True."""
+    k_fixed: int = 1
+    """Points per cell when ``enabled`` is False. Default 1; 1..k_max."""
+    range_priority: bool = False
+    """Beyond the paper: eq. (28) ranks a cell's points by omega / sigma(z) (z in the source camera)
+    instead of omega, preferring near cameras. Default False."""
+    lone_cell_mean: float = 2.0
+    """Beyond the paper: k = 0 for a one-candidate fine cell whose coarse cell holds at least this many
+    candidates per occupied fine cell (needs ASH). Default 2; 0 = off (``paper``); >= 0."""
+    lone_cell_keep: int = 1
+    """A lone point that at least this many neighbour cameras confirm is kept (needs
+    cvgc.multiview_mean). Default 1; 0 = drop every lone point of a dense coarse cell; 0..16."""
+    consensus: bool = True
+    """Beyond the paper (rps.consensus): each representative moves along its ray to the omega-weighted
+    mean of its fine cell's agreeing candidates. Default True; False = points never move (``paper``)."""
+    consensus_gate: float = 3.0
+    """Agreement gate of ``consensus`` in units of sigma(z) at the representative's depth. Default 3; > 0."""
+
+    def __post_init__(self) -> None:
+        _check_numbers(self, "rps.", ("r_c", "min_weight", "lone_cell_mean"), positive=False)
+        if self.r_c >= 1 or self.min_weight >= 1:
+            _fail("rps.r_c" if self.r_c >= 1 else "rps.min_weight", max(self.r_c, self.min_weight), "a number < 1")
+        _check_numbers(self, "rps.", ("k0", "ratio", "consensus_gate"), positive=True)
+        _check_ints(self, "rps.", (("k_max", 1, 16, ""), ("lone_cell_keep", 0, 16, " (0 = drop every lone point)")))
+        _check_ints(self, "rps.", (("k_fixed", 1, self.k_max, " (1..k_max)"),))
+        _check_bools(self, "rps.", ("enabled", "range_priority", "consensus"))
+
+
+#: ``FuseConfig.as_dict``'s flat name of each setting whose field name alone is not unique or not
+#: the recorded one (every other setting: its field name).
+FLAT_NAMES: dict[str, str] = {
+    "smoothing.radius": "depth_smoothing",
+    "smoothing.gate": "smoothing_gate",
+    "mcm.enabled": "use_mcm",
+    "mcm.max_missing": "mcm_max_missing",
+    "mcm.noise_aware": "mcm_noise",
+    "cvgc.enabled": "use_cvgc",
+    "ash.enabled": "use_ash",
+    "rps.enabled": "use_rps",
+}
+
+#: The per-stage parts of a FuseConfig, by field name, in pipeline order.
+STAGES: dict[str, type] = {
+    "smoothing": SmoothingConfig,
+    "mcm": MCMConfig,
+    "cvgc": CVGCConfig,
+    "ash": ASHConfig,
+    "rps": RPSConfig,
+}
+
+
+@dataclass(frozen=True)
+class FuseConfig:
+    """All parameters of FUSE (paper III-C): one frozen config per stage plus the settings that
+    span stages. Frozen; change a setting with ``cfg.replace(rps={"k_max": 2}, pixel_stride=2)``."""
+
+    smoothing: SmoothingConfig = SmoothingConfig()
+    """Depth smoothing before MCM (``SmoothingConfig``)."""
+    mcm: MCMConfig = MCMConfig()
+    """Measurement confidence, eq. (16)-(18) (``MCMConfig``)."""
+    cvgc: CVGCConfig = CVGCConfig()
+    """Cross-view consistency, eq. (19)-(21), the neighbour graph and the multi-view mean (``CVGCConfig``)."""
+    ash: ASHConfig = ASHConfig()
+    """Adaptive spatial hashing, eq. (23)-(25) (``ASHConfig``)."""
+    rps: RPSConfig = RPSConfig()
+    """Representative selection, eq. (26)-(28), and consensus (``RPSConfig``)."""
+
+    noise_sigma: tuple[float, float, float] = tuple(SENSOR_NOISE[DEFAULT_SENSOR])
+    """(a, b, z0) of the axial noise sigma(z) = a + b (z - z0)^2, metres (fuseflow.geometry.noise), used by
+    every noise-gated stage. Default: the Kinect v1 row (a camera's rig.json ``sensor`` overrides it); a > 0, b >= 0."""
+    pixel_stride: int = 1
+    """Beyond the paper: candidates on every ``pixel_stride``-th pixel of every ``pixel_stride``-th row
+    (MCM, CVGC and the multi-view mean still read full-resolution depth). Default 1; 1..8."""
+    target_points: int | None = None
+    """Beyond the paper: ``ash.s0`` is searched per frame for about this many points (fuse/density.py).
+    Default None (s0 as given); >= 1."""
+    budget_stride: bool = True
+    """With ``target_points``: candidates on the coarsest grid s <= 3 with target_points <= 0.75 V / s^2
+    (V valid depth pixels; fuse/density.py). Default True; False = ``pixel_stride`` whatever the budget."""
+    auto_grid: bool = False
+    """Grid and s0 per frame from the rig (``auto_config``; ``PRESETS["auto"]``, the CLI's default);
+    ignored with ``target_points``. Default False."""
+    backend: Backend = "auto"
+    """"torch": the PyTorch reference (any device); "numba": compiled CPU kernels; "auto" (default):
+    numba on CPU tensors when numba is installed, torch otherwise."""
+    eps: float = 1e-6
+    """epsilon of eq. (16), (17), (20), (22), (24). Default 1e-6; > 0."""
+
+    def __post_init__(self) -> None:
+        for name, kind in STAGES.items():
+            if not isinstance(getattr(self, name), kind):
+                _fail(
+                    name,
+                    getattr(self, name),
+                    f"type {kind.__name__} (change one setting with cfg.replace({name}={{...}}))",
+                )
+        _check_numbers(self, "", ("eps",), positive=True)
+        _check_ints(self, "", (("pixel_stride", 1, 8, ""),))
+        tp = self.target_points
+        if tp is not None and (not isinstance(tp, int) or isinstance(tp, bool) or tp < 1):
+            _fail("target_points", tp, "None or an integer >= 1")
         ns = self.noise_sigma
         if (
             not isinstance(ns, tuple)
@@ -301,56 +365,120 @@ class FuseConfig:
             or not ns[0] > 0
             or ns[1] < 0
         ):
-            bad("noise_sigma", "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
-        if not (isinstance(self.lone_cell_mean, (int, float)) and 0 <= self.lone_cell_mean < float("inf")):
-            bad("lone_cell_mean", "a finite number >= 0 (0 = off)")
-        for name in ("range_priority", "mcm_noise", "consensus", "multiview_mean", "budget_stride", "auto_grid"):
-            if not isinstance(getattr(self, name), bool):
-                bad(name, "a bool")
+            _fail("noise_sigma", ns, "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
+        _check_bools(self, "", ("budget_stride", "auto_grid"))
         if self.backend not in ("auto", "torch", "numba"):
-            bad("backend", "'auto', 'torch' or 'numba'")
+            _fail("backend", self.backend, "'auto', 'torch' or 'numba'")
 
-    def describe(self) -> dict:
-        """The fields as a plain dict (for benchmark rows and logs)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+    def replace(self, **changes: Any) -> FuseConfig:
+        """A copy with ``changes``: a cross-stage setting by name (``pixel_stride=2``), a stage by
+        a dict of its settings merged into it (``rps={"k_max": 2}``) or by a whole stage config.
+        Unknown names raise ValidationError listing the valid ones."""
+        out: dict[str, Any] = {}
+        names = {f.name for f in fields(self)}
+        for name, value in changes.items():
+            if name not in names:
+                raise ValidationError(f"FuseConfig has no setting {name!r}; settings are {sorted(names)}")
+            if name in STAGES and isinstance(value, Mapping):
+                stage = getattr(self, name)
+                known = {f.name for f in fields(stage)}
+                unknown = sorted(set(value) - known)
+                if unknown:
+                    raise ValidationError(
+                        f"FuseConfig.{name} has no setting {unknown[0]!r}; settings are {sorted(known)}"
+                    )
+                value = replace(stage, **value)
+            out[name] = value
+        return replace(self, **out)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every setting under one flat name (the field's own, or ``FLAT_NAMES``' for the ones
+        several stages share): the form ``manifest.json`` records and digests for a resume."""
+        return {FLAT_NAMES.get(k, k.rpartition(".")[2]): v for k, v in self.describe().items()}
+
+    def describe(self) -> dict[str, Any]:
+        """Every setting by its dotted name (``"rps.k_max"``, ``"pixel_stride"``), as ``--set`` takes
+        it: for benchmark rows and logs."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in STAGES:
+                out.update({f"{f.name}.{g.name}": getattr(value, g.name) for g in fields(value)})
+            else:
+                out[f.name] = value
+        return out
+
+
+def parse_settings(assignments: Iterable[str]) -> dict[str, Any]:
+    """``cfg.replace`` keyword arguments from ``NAME=VALUE`` strings (the CLI's ``--set``): NAME is
+    a setting of ``FuseConfig().describe()`` (``rps.k_max``, ``pixel_stride``); VALUE is read as the
+    setting's type (bool: true/false/1/0/on/off; noise_sigma: a,b,z0; target_points: none or an int)."""
+    known = FuseConfig().describe()
+    out: dict[str, Any] = {}
+    for text in assignments:
+        name, sep, raw = text.partition("=")
+        name, raw = name.strip(), raw.strip()
+        if not sep or name not in known:
+            raise ValidationError(f"--set {text!r}: expected NAME=VALUE with NAME one of {', '.join(known)}")
+        value = _parse_value(name, raw, known[name])
+        stage, dot, field_name = name.partition(".")
+        if dot:
+            out.setdefault(stage, {})[field_name] = value
+        else:
+            out[name] = value
+    return out
+
+
+def _parse_value(name: str, raw: str, default: Any) -> Any:
+    """``raw`` as the type of ``default`` (the setting's default value)."""
+    low = raw.lower()
+    try:
+        if isinstance(default, bool):
+            if low not in ("true", "false", "1", "0", "on", "off", "yes", "no"):
+                raise ValueError(raw)
+            return low in ("true", "1", "on", "yes")
+        if name == "target_points":
+            return None if low == "none" else int(raw)
+        if isinstance(default, tuple):
+            return tuple(float(v) for v in raw.split(","))
+        if isinstance(default, int):
+            return int(raw)
+        if isinstance(default, float):
+            return float(raw)
+        return raw
+    except ValueError:
+        raise ValidationError(f"--set {name}={raw}: expected a value like {default!r}") from None
 
 
 _DEFAULT = FuseConfig()
 
 #: Table VII ablations, each the default with one component removed.
 ABLATIONS: dict[str, FuseConfig] = {
-    "w/o CVGC": replace(_DEFAULT, use_cvgc=False),
-    "w/o MCM": replace(_DEFAULT, use_mcm=False),
-    "w/o ASH": replace(_DEFAULT, use_ash=False),
-    "w/o RPS": replace(_DEFAULT, use_rps=False),
+    "w/o CVGC": _DEFAULT.replace(cvgc={"enabled": False}),
+    "w/o MCM": _DEFAULT.replace(mcm={"enabled": False}),
+    "w/o ASH": _DEFAULT.replace(ash={"enabled": False}),
+    "w/o RPS": _DEFAULT.replace(rps={"enabled": False}),
 }
 
 PRESETS: dict[str, FuseConfig] = {
     "default": _DEFAULT,
-    "paper": replace(
-        _DEFAULT,
-        k_neighbours=4,  # the paper fixes neither k_neighbours nor s0
-        s0=6.3,
-        visibility_aware=False,
-        min_weight=0.0,
-        range_priority=False,
-        lone_cell_mean=0.0,
-        mcm_max_missing=0,
-        mcm_noise=False,
-        consensus=False,
-        multiview_mean=False,
-        depth_smoothing=0,
+    "paper": _DEFAULT.replace(
+        smoothing={"radius": 0},
+        mcm={"max_missing": 0, "noise_aware": False},
+        cvgc={"k_neighbours": 4, "visibility_aware": False, "multiview_mean": False},  # the paper fixes neither
+        ash={"s0": 6.3},  # k_neighbours nor s0
+        rps={"min_weight": 0.0, "range_priority": False, "lone_cell_mean": 0.0, "consensus": False},
     ),
     "quality": _DEFAULT,
-    "fast": replace(_DEFAULT, k_neighbours=4, s0=6.3),
+    "fast": _DEFAULT.replace(cvgc={"k_neighbours": 4}, ash={"s0": 6.3}),
     # candidates on every 2nd pixel of every 2nd row (4x fewer); every stage costs per candidate,
     # so s0 is low enough that selection keeps nearly all of them
     # no depth smoothing: it costs `live` 14-25 % of its time (ICL, HO-Cap), which is its point
-    "live": replace(_DEFAULT, pixel_stride=2, s0=1.0, mcm_max_missing=4, depth_smoothing=0),
+    "live": _DEFAULT.replace(pixel_stride=2, ash={"s0": 1.0}, mcm={"max_missing": 4}, smoothing={"radius": 0}),
     # completeness first: every pixel, nearly every candidate kept, 5x5 smoothing
-    "dense": replace(_DEFAULT, s0=1.0, depth_smoothing=2),
+    "dense": _DEFAULT.replace(ash={"s0": 1.0}, smoothing={"radius": 2}),
     # the CLI's default: every pixel ("dense") while the frame's valid pixels fit a time budget, a coarser grid above (auto_config)
-    "auto": replace(_DEFAULT, auto_grid=True),
+    "auto": _DEFAULT.replace(auto_grid=True),
     **ABLATIONS,
 }
 
@@ -379,21 +507,29 @@ def auto_config(cfg: FuseConfig, views: int, valid_pixels: int) -> tuple[FuseCon
     what = f"{views} views, {valid_pixels / 1e6:.2f} M valid depth pixels"
     if valid_pixels > AUTO_MAX_EVERY_PIXEL:
         live = PRESETS["live"]
-        out = replace(cfg, pixel_stride=live.pixel_stride, s0=live.s0, mcm_max_missing=live.mcm_max_missing,
-                      depth_smoothing=2, k_neighbours=4, multiview_mean=False)  # fmt: skip
+        out = cfg.replace(
+            pixel_stride=live.pixel_stride,
+            ash={"s0": live.ash.s0},
+            mcm={"max_missing": live.mcm.max_missing},
+            smoothing={"radius": 2},
+            cvgc={"k_neighbours": 4, "multiview_mean": False},
+        )
         why = f"more than {AUTO_MAX_EVERY_PIXEL / 1e6:.2f} M: every pixel would not fit 10 frames/s"
-        return out, f"auto: stride {out.pixel_stride}, s0 {out.s0:g} ({what}; {why})"
+        return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {why})"
     dense = PRESETS["dense"]
-    out = replace(cfg, s0=dense.s0, depth_smoothing=dense.depth_smoothing)
-    return out, f"auto: stride {out.pixel_stride}, s0 {out.s0:g} ({what}: every pixel counts)"
+    out = cfg.replace(ash={"s0": dense.ash.s0}, smoothing={"radius": dense.smoothing.radius})
+    return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}: every pixel counts)"
 
 
-def preset_config(name: str, target_points: int | None = None) -> FuseConfig:
-    """``PRESETS[name]``, with ``target_points`` when given (the `fuse` / `run` commands' --preset
-    and --points); ValidationError naming the presets for an unknown name."""
+def preset_config(name: str, target_points: int | None = None, settings: Iterable[str] = ()) -> FuseConfig:
+    """``PRESETS[name]``, with ``target_points`` when given and then the ``NAME=VALUE`` settings
+    (``parse_settings``): the `fuse` / `run` commands' --preset, --points and --set.
+    ValidationError naming the presets for an unknown name, or the settings for a bad one."""
     if name not in PRESETS:
         raise ValidationError(f"no FUSE preset {name!r}; presets are {sorted(PRESETS)}")
-    return PRESETS[name] if target_points is None else replace(PRESETS[name], target_points=target_points)
+    cfg = PRESETS[name] if target_points is None else PRESETS[name].replace(target_points=target_points)
+    changes = parse_settings(settings)
+    return cfg.replace(**changes) if changes else cfg
 
 
 def preset(name: str) -> FuseConfig:

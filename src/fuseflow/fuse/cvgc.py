@@ -8,7 +8,7 @@ omega_geo = (1 / |V_i|) sum_{j in V_i} 1[r_ij < tau], or c(x) when V_i is empty 
 
 The projection, depth lookup and vote of eq. (19)-(20) are shared with GMAC and the pipeline:
 they live in :mod:`fuseflow.geometry.agreement` (``project_votes``, with its conventions:
-nearest pixel, no depth = no vote, ``visibility_aware``). This module counts those votes per
+nearest pixel, no depth = no vote, ``cvgc.visibility_aware``). This module counts those votes per
 point and turns them into omega_geo (eq. 21).
 """
 
@@ -107,7 +107,7 @@ def multiview_mean(
     eps: float = 1e-6,
     with_support: bool = False,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
-    """Multi-view depth averaging (beyond the paper, ``FuseConfig.multiview_mean``).
+    """Multi-view depth averaging (beyond the paper, ``FuseConfig.cvgc.multiview_mean``).
 
     Each point X of camera i becomes X + sum_j r_j (Q_j - X) / (1 + sum_j r_j) over its present
     neighbours j (graph order) whose depth D_j at x_ij (eq. 19) satisfies
@@ -121,7 +121,7 @@ def multiview_mean(
         (M, 3) float32 averaged points in each point's own camera frame. Same float32
         operations in the same order as the compiled kernel (kernels.pixels). With
         ``with_support`` also (M,) int32 ``support``: how many neighbours passed the gate
-        (FuseConfig.lone_cell_keep).
+        (FuseConfig.rps.lone_cell_keep).
     """
     import torch
 

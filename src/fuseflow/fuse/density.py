@@ -56,12 +56,11 @@ def with_s0(cfg, s0: float):
     scaled along (s_max up to the coarse cell when s_0 grows, s_min down to coarse / 127 when it
     shrinks): with fixed clips the count stops following s_0 (an 8-camera studio frame never
     went below ~18 k points with s_max = 5 cm)."""
-    from dataclasses import replace
-
-    f = s0 / cfg.s0
-    s_max = min(cfg.coarse_size, cfg.s_max * max(1.0, f))
-    s_min = max(cfg.coarse_size / 127.0, cfg.s_min * min(1.0, f))
-    return replace(cfg, s0=s0, s_min=min(s_min, s_max), s_max=s_max, target_points=None)
+    ash = cfg.ash
+    f = s0 / ash.s0
+    s_max = min(ash.coarse_size, ash.s_max * max(1.0, f))
+    s_min = max(ash.coarse_size / 127.0, ash.s_min * min(1.0, f))
+    return cfg.replace(ash={"s0": s0, "s_min": min(s_min, s_max), "s_max": s_max}, target_points=None)
 
 
 def search_s0(
@@ -113,12 +112,12 @@ def search_s0(
 
 def fit_s0(cfg, count_at: Callable[[float], int], first_count: int | None = None, whole_passes: bool = False):
     """The policy of FuseConfig.target_points, for every backend: ``cfg`` (a FuseConfig with
-    target_points) at the s_0 of ``search_s0`` from cfg.s0 (``with_s0``: clips scaled, target
-    cleared). ``count_at(s_0)``: the frame's point count at s_0; ``first_count``: count_at(cfg.s0)
+    target_points) at the s_0 of ``search_s0`` from cfg.ash.s0 (``with_s0``: clips scaled, target
+    cleared). ``count_at(s_0)``: the frame's point count at s_0; ``first_count``: count_at(cfg.ash.s0)
     when already known; ``whole_passes``: each count is a whole FUSE pass (PASS_EVALS
     evaluations, else COUNT_EVALS)."""
     evals = PASS_EVALS if whole_passes else COUNT_EVALS
-    s0, _ = search_s0(count_at, cfg.s0, cfg.target_points, first_count, max_evals=evals)
+    s0, _ = search_s0(count_at, cfg.ash.s0, cfg.target_points, first_count, max_evals=evals)
     return with_s0(cfg, s0)
 
 

@@ -8,7 +8,7 @@ A pixel whose gradient stencil or variance window touches a pixel with no depth 
 the valid range, or outside the image) is an edge pixel: c = 0 (docs/design.md 2.1: it must not
 look smooth). The parameter derivation is next to the defaults in config.py.
 
-Noise-aware MCM (``FuseConfig.mcm_noise``, beyond the paper): the sensor's expected axial
+Noise-aware MCM (``FuseConfig.mcm.noise_aware``, beyond the paper): the sensor's expected axial
 noise sigma(z) = a + b (z - z0)^2 (``FuseConfig.noise_sigma``) is taken out of both measures
 before they are divided by z, so that range noise alone does not read as roughness:
 
@@ -18,7 +18,7 @@ v_n(x) = max(Var - sigma^2, 0) / (z^2 + eps)                  (E[Var] = (8/9) si
 A slope or an edge keeps its geometric part (it is many sigma), a smooth surface far away
 (Kinect sigma / z = 0.6 % at 4 m) no longer loses c to its noise. Derivation in config.py.
 
-Gap-tolerant window (``FuseConfig.mcm_max_missing`` = m > 0, beyond the paper and docs/design.md's
+Gap-tolerant window (``FuseConfig.mcm.max_missing`` = m > 0, beyond the paper and docs/design.md's
 "a neighbour with no depth makes the pixel an edge pixel"): a 3x3 window with at most m of its
 8 neighbours missing is measured on the pixels it has: mean and variance over the valid pixels
 (in row-major order), each central difference replaced by the one-sided difference with the
@@ -163,8 +163,8 @@ def confidence(
             0 = no depth (the 1[z > delta] 1[z < z_max] factors of eq. 18).
         alpha, beta: eq. (18) weights. window: r of eq. (17). eps: eq. (16)-(17).
         use_mcm: False = "w/o MCM" (Table VII): c = 1 wherever there is depth.
-        noise_sigma: (a, b, z0) for the noise-aware g_n, v_n (FuseConfig.mcm_noise); None = off.
-        max_missing: FuseConfig.mcm_max_missing (gap-tolerant 3x3 window, module docstring);
+        noise_sigma: (a, b, z0) for the noise-aware g_n, v_n (FuseConfig.mcm.noise_aware); None = off.
+        max_missing: FuseConfig.mcm.max_missing (gap-tolerant 3x3 window, module docstring);
             0 = docs/design.md's rule (any missing neighbour: c = 0). > 0 needs window = 3.
 
     Returns:

@@ -1,7 +1,7 @@
 """RPS, Representative Point Selection (paper III-C-3, eq. 26-28), PyTorch reference.
 
 k(C_f) = clip(ceil(k_0 rho(C_f) / rho_bar * r), 1, k_max)                      (26)
-S      = {P : c(P) > r_c}  (the caller filters; see config.min_weight)          (27)
+S      = {P : c(P) > r_c}  (the caller filters; see rps.min_weight)             (27)
 score  = d(P, S_sel) * omega(P)   confidence-weighted farthest point sampling   (28)
 
 rho(C_f) = |{P in C_f}| / s_f^3 and rho_bar is its mean over the occupied fine cells of the
@@ -9,7 +9,7 @@ frame. The first pick of a cell is its highest-omega point; each further pick ma
 Points are selected, never averaged. Vectorised over all cells at once: one pass per round,
 k_max rounds (no per-cell Python loop).
 
-With ``FuseConfig.range_priority`` the ranking value of eq. (28) (first pick and FPS score)
+With ``FuseConfig.rps.range_priority`` the ranking value of eq. (28) (first pick and FPS score)
 is omega / sigma(z) (``selection_priority``) instead of omega; the output weight stays omega.
 
 Tie-break (shared with the compiled kernel): equal omega or equal score -> the point that
@@ -45,11 +45,11 @@ def cell_counts(
 
     Args:
         key: (M,) int64 cell keys. cell_size: (M,) float32 s_f of each point's cell.
-        density_adaptive: True = eq. (26) with the fine-cell density; False with ``k_fixed``
+        density_adaptive: True = eq. (26) with the fine-cell density; False with ``rps.k_fixed``
             (the "w/o RPS" ablation) or, when k_fixed is None-like (0), with rho_bar (w/o ASH).
-        lone_cell_mean: FuseConfig.lone_cell_mean (adaptive keys only): k = 0 for a one-point fine
+        lone_cell_mean: FuseConfig.rps.lone_cell_mean (adaptive keys only): k = 0 for a one-point fine
             cell whose coarse cell averages at least this many points per occupied fine cell.
-        kept: (M,) bool or None: points the lone-cell rule spares (FuseConfig.lone_cell_keep).
+        kept: (M,) bool or None: points the lone-cell rule spares (FuseConfig.rps.lone_cell_keep).
 
     Returns:
         inverse (M,) int64 cell index of each point, counts (C,) int64, k (C,) int64.
@@ -168,7 +168,7 @@ def consensus(
     gate: float,
     noise_sigma: tuple[float, float, float],
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Multi-view consensus (beyond the paper, ``FuseConfig.consensus``) for the selected points.
+    """Multi-view consensus (beyond the paper, ``FuseConfig.rps.consensus``) for the selected points.
 
     Each representative s (source camera i, centre C_i, unit ray u = (P_s - C_i) / t_s with
     t_s = |P_s - C_i|) is moved along its ray to the omega-weighted mean of t_q = (P_q - C_i) . u

@@ -1,4 +1,4 @@
-"""Noise-aware depth smoothing before MCM (beyond the paper; ``FuseConfig.depth_smoothing``).
+"""Noise-aware depth smoothing before MCM (beyond the paper; ``FuseConfig.smoothing``).
 
 Each valid depth z becomes the mean of the valid depths in its (2r+1) x (2r+1) window that lie
 within ``gate`` * sigma(z) of it (sigma: the sensor's axial noise, ``FuseConfig.noise_sigma``).

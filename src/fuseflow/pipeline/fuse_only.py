@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -196,6 +196,7 @@ def fuse_recording(
     force: bool = False,
     points: int | None = None,
     outputs: OutputOptions | None = None,
+    settings: Sequence[str] = (),
 ) -> FuseRunSummary:
     """FUSE the frames at positions ``frames`` (default all) of ``rec`` into OUT/clouds.
 
@@ -210,13 +211,15 @@ def fuse_recording(
             preset's density.
         outputs: crop, cloud format and meshes (``OutputOptions``; default: every point, PLY,
             no mesh).
+        settings: ``NAME=VALUE`` FUSE settings over the preset (``fuseflow.fuse.parse_settings``,
+            the CLI's --set).
         force: start over in a used ``out_dir`` whose manifest does not match (see
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
     """
     from fuseflow.fuse.config import preset_config
 
-    cfg = preset_config(preset, points)
+    cfg = preset_config(preset, points, settings)
     rec = rec if isinstance(rec, Recording) else open_recording(rec)
     rig = rig_for_fusion(rec, calibration)
     positions = list(frames if frames is not None else range(len(rec)))

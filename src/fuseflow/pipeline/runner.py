@@ -196,7 +196,9 @@ def _check_inputs(rec: Recording, rig: Rig, positions: list[int], config: Pipeli
     sel = [rec.rig.index(c) for c in rig.ids]
     frame = rec[positions[0]].subset(sel)
     cfg = config.fuse_config()
-    return check_depth_range(frame, rig, cfg.delta, cfg.z_max) + check_scale(frame, rig, cfg.delta, cfg.z_max)
+    return check_depth_range(frame, rig, cfg.mcm.delta, cfg.mcm.z_max) + check_scale(
+        frame, rig, cfg.mcm.delta, cfg.mcm.z_max
+    )
 
 
 @dataclass

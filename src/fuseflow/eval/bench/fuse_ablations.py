@@ -35,7 +35,6 @@ from __future__ import annotations
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Any
 
 from fuseflow.errors import ValidationError
@@ -52,42 +51,42 @@ def _quiet(line: str) -> None:
 def ablation_methods() -> dict[str, Callable[[Any, Any], Any]]:
     """Row name -> ``(frame, rig) -> FusedCloud``: every row of the table (module docstring)."""
     from fuseflow.eval.baselines import naive_fusion, tsdf_fusion, voxel_downsampled_fusion
-    from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, fuse
+    from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, fuse, parse_settings
 
     def f(cfg):
         return lambda frame, rig: fuse(frame, rig, cfg)
 
     rows = {"FUSE": f(FuseConfig()), "FUSE paper preset": f(PRESETS["paper"])}
     rows.update({f"FUSE {k}": f(v) for k, v in ABLATIONS.items()})
-    rows["FUSE visibility_aware=False"] = f(replace(FuseConfig(), visibility_aware=False))
-    rows["FUSE min_weight=0"] = f(replace(FuseConfig(), min_weight=0.0))
+    rows["FUSE visibility_aware=False"] = f(FuseConfig().replace(cvgc={"visibility_aware": False}))
+    rows["FUSE min_weight=0"] = f(FuseConfig().replace(rps={"min_weight": 0.0}))
     # each switch flipped from the default
-    for switch in ("range_priority", "mcm_noise", "consensus", "multiview_mean"):
-        flip = not getattr(FuseConfig(), switch)
-        rows[f"FUSE {switch}={flip}"] = f(replace(FuseConfig(), **{switch: flip}))
+    for switch in ("rps.range_priority", "mcm.noise_aware", "rps.consensus", "cvgc.multiview_mean"):
+        flip = not FuseConfig().describe()[switch]
+        rows[f"FUSE {switch}={flip}"] = f(FuseConfig().replace(**parse_settings([f"{switch}={flip}"])))
     for k in (7,):  # more neighbours: more votes and more measurements for multiview_mean
-        rows[f"FUSE k_neighbours={k}"] = f(replace(FuseConfig(), k_neighbours=k))
-        off = replace(FuseConfig(), k_neighbours=k, multiview_mean=False)
+        rows[f"FUSE k_neighbours={k}"] = f(FuseConfig().replace(cvgc={"k_neighbours": k}))
+        off = FuseConfig().replace(cvgc={"k_neighbours": k, "multiview_mean": False})
         rows[f"FUSE k_neighbours={k} multiview_mean=False"] = f(off)
-        rows[f"FUSE k_neighbours={k} s0=5"] = f(replace(FuseConfig(), k_neighbours=k, s0=5.0))
-    rows["FUSE s0=5"] = f(replace(FuseConfig(), s0=5.0))  # about VBG's point count (~430 k)
+        rows[f"FUSE k_neighbours={k} s0=5"] = f(FuseConfig().replace(cvgc={"k_neighbours": k}, ash={"s0": 5.0}))
+    rows["FUSE s0=5"] = f(FuseConfig().replace(ash={"s0": 5.0}))  # about VBG's point count (~430 k)
     for mm in (0, 1, 2, 3, 4):  # beyond the paper: gap-tolerant MCM window (mcm.py)
-        if mm != FuseConfig().mcm_max_missing:
-            rows[f"FUSE mcm_max_missing={mm}"] = f(replace(FuseConfig(), mcm_max_missing=mm))
+        if mm != FuseConfig().mcm.max_missing:
+            rows[f"FUSE mcm_max_missing={mm}"] = f(FuseConfig().replace(mcm={"max_missing": mm}))
     for lone in (0.0, 1.5, 2.0, 3.0):  # beyond the paper: drop lone points of densely sampled coarse cells
-        if lone != FuseConfig().lone_cell_mean:
-            rows[f"FUSE lone_cell_mean={lone:g}"] = f(replace(FuseConfig(), lone_cell_mean=lone))
+        if lone != FuseConfig().rps.lone_cell_mean:
+            rows[f"FUSE lone_cell_mean={lone:g}"] = f(FuseConfig().replace(rps={"lone_cell_mean": lone}))
     # beyond the paper: candidates on a pixel grid (the live preset: stride 2, s0 1, mcm_max_missing 4)
     rows["FUSE live preset"] = f(PRESETS["live"])
-    rows["FUSE pixel_stride=2 s0=5"] = f(replace(FuseConfig(), pixel_stride=2))
+    rows["FUSE pixel_stride=2 s0=5"] = f(FuseConfig().replace(pixel_stride=2))
     for npt in (100_000, 200_000):  # a point budget, on the grid budget_stride picks and on every pixel
-        rows[f"FUSE points={npt}"] = f(replace(FuseConfig(), target_points=npt))
-        rows[f"FUSE points={npt} budget_stride=False"] = f(
-            replace(FuseConfig(), target_points=npt, budget_stride=False)
-        )
-    rows["FUSE lone_cell_keep=0"] = f(replace(FuseConfig(), lone_cell_keep=0))  # one lone point per cell dropped
+        rows[f"FUSE points={npt}"] = f(FuseConfig().replace(target_points=npt))
+        rows[f"FUSE points={npt} budget_stride=False"] = f(FuseConfig().replace(target_points=npt, budget_stride=False))
+    rows["FUSE lone_cell_keep=0"] = f(
+        FuseConfig().replace(rps={"lone_cell_keep": 0})
+    )  # one lone point per cell dropped
     for s_max in (0.01, 0.02):  # the fine cell's upper clip (eq. 24), 5 cm by default
-        rows[f"FUSE s_max={s_max:g}"] = f(replace(FuseConfig(), s_max=s_max))
+        rows[f"FUSE s_max={s_max:g}"] = f(FuseConfig().replace(ash={"s_max": s_max}))
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
     rows["naive"] = naive_fusion
     rows["naive + voxel 1 cm"] = lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)
@@ -100,7 +99,7 @@ def density_methods() -> dict[str, Callable[[Any, Any], Any]]:
 
     out = {}
     for s0, k_max in ((3.2, 3), (4.5, 3), (6.3, 3), (9.0, 3), (6.3, 1)):  # (6.3, 3) = the default
-        cfg = replace(FuseConfig(), s0=s0, k_max=k_max)
+        cfg = FuseConfig().replace(ash={"s0": s0}, rps={"k_max": k_max})
         out[f"FUSE s0={s0} k_max={k_max}"] = (lambda c: lambda frame, rig: fuse(frame, rig, c))(cfg)
     return out
 

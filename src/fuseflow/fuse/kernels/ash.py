@@ -139,7 +139,7 @@ def fine_pass(Pc, start, cell_key, prm, chunks, largest, reorder, members, fkey,
     (for rho_bar) and fine-cell count. prm: CellParams. ``reorder`` False (a count only, for
     density control): Pc and members untouched, fkey[start[c] + g] = size of fine cell g instead
     and camc[start[c] + g] = sup (per pixel, pixels' out_sup) of its last point (of its only
-    point for a lone cell: the count's FuseConfig.lone_cell_keep test).
+    point for a lone cell: the count's FuseConfig.rps.lone_cell_keep test).
     With ``reorder`` also the weight and ranking value of each slot, in slot order:
     omc, camc (the camera, p // hw) and rkc (only when ``copy_rank``: without
     range_priority the ranking value is omega and the selection reads omc), so that the

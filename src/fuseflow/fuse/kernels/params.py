@@ -42,9 +42,9 @@ class PixelParams(NamedTuple):
     tau: np.float32
     """tau of eq. (21)."""
     min_weight: np.float32
-    """FuseConfig.min_weight: candidates also need omega(x) >= this."""
+    """rps.min_weight: candidates also need omega(x) >= this."""
     cell: np.float32
-    """Cell size (m) of the first hash level: s_c with ASH, fixed_size without."""
+    """Cell size (m) of the first hash level: ash.coarse_size with ASH, ash.fixed_size without."""
     use_mcm: bool
     use_cvgc: bool
     visibility_aware: bool
@@ -57,13 +57,13 @@ class PixelParams(NamedTuple):
     noise_b: np.float32
     noise_z0: np.float32
     mcm_noise: bool
-    """Noise-aware MCM (FuseConfig.mcm_noise): sigma(z)^2 taken out of g and v (mcm.py)."""
+    """Noise-aware MCM (mcm.noise_aware): sigma(z)^2 taken out of g and v (mcm.py)."""
     mcm_max_missing: int
-    """FuseConfig.mcm_max_missing: gap-tolerant 3x3 window (mcm.py); 0 = any missing -> c = 0."""
+    """mcm.max_missing: gap-tolerant 3x3 window (mcm.py); 0 = any missing -> c = 0."""
     mv_mean: bool
-    """Multi-view depth averaging (FuseConfig.multiview_mean; cvgc.multiview_mean)."""
+    """Multi-view depth averaging (FuseConfig.cvgc.multiview_mean)."""
     mv_gate2: np.float32
-    """FuseConfig.multiview_gate squared."""
+    """cvgc.multiview_gate squared."""
     stride: int
     """FuseConfig.pixel_stride: candidates only at u % stride == 0 of rows v % stride == 0."""
     offset: int
@@ -108,9 +108,9 @@ class SelectParams(NamedTuple):
     """True: k = k_const in every cell (w/o ASH or w/o RPS); False: eq. (26)."""
     k_const: int
     lone_cell_mean: float
-    """FuseConfig.lone_cell_mean (0 = off)."""
+    """rps.lone_cell_mean (0 = off)."""
     lone_keep: int
-    """FuseConfig.lone_cell_keep: a lone point confirmed by at least this many neighbours is kept
+    """rps.lone_cell_keep: a lone point confirmed by at least this many neighbours is kept
     (0 = never; also 0 without the multi-view mean, which counts the confirmations)."""
 
 
@@ -123,36 +123,40 @@ class KernelParams(NamedTuple):
 
 
 def kernel_params(cfg: FuseConfig) -> KernelParams:
-    """The kernels' parameters from ``cfg`` (``select.rho_bar`` is 1 until ``fine_pass`` ran)."""
-    adaptive = cfg.use_ash
-    s_c = cfg.coarse_size if adaptive else cfg.fixed_size
+    """The kernels' parameters from ``cfg``'s stage configs (``select.rho_bar`` is 1 until
+    ``fine_pass`` ran): ``pixel`` from mcm, cvgc and rps's candidate filter (27), ``cell`` from
+    ash, ``select`` from rps."""
+    mcm, cvgc, ash, rps = cfg.mcm, cfg.cvgc, cfg.ash, cfg.rps
+    adaptive = ash.enabled
+    s_c = ash.coarse_size if adaptive else ash.fixed_size
     offset = COARSE_OFFSET if adaptive else FIXED_OFFSET
     bits = COARSE_BITS if adaptive else FIXED_BITS
     qlim = offset - 1
     a, b, z0 = cfg.noise_sigma
+    mv_mean = bool(cvgc.multiview_mean and cvgc.enabled)
     pixel = PixelParams(
-        alpha=_F(cfg.alpha), beta=_F(cfg.beta), eps=_F(cfg.eps), r_c=_F(cfg.r_c), tau=_F(cfg.tau),
-        min_weight=_F(cfg.min_weight), cell=_F(s_c), use_mcm=bool(cfg.use_mcm), use_cvgc=bool(cfg.use_cvgc),
-        visibility_aware=bool(cfg.visibility_aware), qlim=_F(qlim), range_priority=bool(cfg.range_priority),
-        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(cfg.mcm_noise),
-        mcm_max_missing=int(cfg.mcm_max_missing), mv_mean=bool(cfg.multiview_mean and cfg.use_cvgc),
-        mv_gate2=_F(cfg.multiview_gate * cfg.multiview_gate), stride=int(cfg.pixel_stride), offset=offset,
+        alpha=_F(mcm.alpha), beta=_F(mcm.beta), eps=_F(cfg.eps), r_c=_F(rps.r_c), tau=_F(cvgc.tau),
+        min_weight=_F(rps.min_weight), cell=_F(s_c), use_mcm=bool(mcm.enabled), use_cvgc=bool(cvgc.enabled),
+        visibility_aware=bool(cvgc.visibility_aware), qlim=_F(qlim), range_priority=bool(rps.range_priority),
+        noise_a=_F(a), noise_b=_F(b), noise_z0=_F(z0), mcm_noise=bool(mcm.noise_aware),
+        mcm_max_missing=int(mcm.max_missing), mv_mean=mv_mean,
+        mv_gate2=_F(cvgc.multiview_gate * cvgc.multiview_gate), stride=int(cfg.pixel_stride), offset=offset,
         bits=bits,
     )  # fmt: skip
     cell = CellParams(
-        s_c=_F(s_c), s0=_F(cfg.s0), s_min=_F(cfg.s_min), s_max=_F(cfg.s_max), eps=_F(cfg.eps),
-        adaptive=bool(adaptive), fixed_size=_F(cfg.fixed_size), s_c3=_F(s_c**3), offset=offset, bits=bits,
+        s_c=_F(s_c), s0=_F(ash.s0), s_min=_F(ash.s_min), s_max=_F(ash.s_max), eps=_F(cfg.eps),
+        adaptive=bool(adaptive), fixed_size=_F(ash.fixed_size), s_c3=_F(s_c**3), offset=offset, bits=bits,
     )  # fmt: skip
-    if cfg.use_rps and adaptive:
+    if rps.enabled and adaptive:
         fixed_k, k_const = False, 0
-    elif cfg.use_rps:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
-        fixed_k, k_const = True, int(min(max(np.ceil(cfg.k0 * cfg.ratio), 1), cfg.k_max))
+    elif rps.enabled:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
+        fixed_k, k_const = True, int(min(max(np.ceil(rps.k0 * rps.ratio), 1), rps.k_max))
     else:  # w/o RPS
-        fixed_k, k_const = True, int(cfg.k_fixed)
+        fixed_k, k_const = True, int(rps.k_fixed)
     select = SelectParams(
-        k0=_F(cfg.k0), ratio=_F(cfg.ratio), k_max=int(cfg.k_max), rho_bar=_F(1.0), fixed_k=fixed_k,
-        k_const=k_const, lone_cell_mean=float(cfg.lone_cell_mean),
-        lone_keep=int(cfg.lone_cell_keep) if (cfg.multiview_mean and cfg.use_cvgc) else 0,
+        k0=_F(rps.k0), ratio=_F(rps.ratio), k_max=int(rps.k_max), rho_bar=_F(1.0), fixed_k=fixed_k,
+        k_const=k_const, lone_cell_mean=float(rps.lone_cell_mean),
+        lone_keep=int(rps.lone_cell_keep) if mv_mean else 0,
     )  # fmt: skip
     return KernelParams(pixel, cell, select)
 
@@ -162,14 +166,14 @@ class ConsensusParams(NamedTuple):
 
     on: bool
     gate: np.float32
-    """Gate in sigma(z) (FuseConfig.consensus_gate)."""
+    """Gate in sigma(z) (rps.consensus_gate)."""
     noise_a: np.float32
     noise_b: np.float32
     noise_z0: np.float32
 
 
 def consensus_params(cfg: FuseConfig, on: bool | None = None) -> ConsensusParams:
-    """ConsensusParams of ``cfg`` (``on`` overrides cfg.consensus)."""
+    """ConsensusParams of ``cfg`` (``on`` overrides cfg.rps.consensus)."""
     a, b, z0 = cfg.noise_sigma
-    on = bool(cfg.consensus) if on is None else bool(on)
-    return ConsensusParams(on, _F(cfg.consensus_gate), _F(a), _F(b), _F(z0))
+    on = bool(cfg.rps.consensus) if on is None else bool(on)
+    return ConsensusParams(on, _F(cfg.rps.consensus_gate), _F(a), _F(b), _F(z0))

@@ -51,7 +51,7 @@ def pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out_
     other pixel: a dropped pixel or a candidate beyond the hash's range) and, when
     prm.range_priority, out_pr[p] (omega / sigma(z), rps.selection_priority) and, with the
     multi-view mean, out_sup[p] (how many neighbours agree within its gate, at most 255;
-    FuseConfig.lone_cell_keep). Also the row's *runs*: maximal stretches of in-range candidates of one coarse cell,
+    FuseConfig.rps.lone_cell_keep). Also the row's *runs*: maximal stretches of in-range candidates of one coarse cell,
     runs[row, r] = the cell key, r_n[row, r] = its candidates (both (N H, W), in buffers that
     are free until ``scatter``); row_info[row] = (candidates, beyond range, runs).
 

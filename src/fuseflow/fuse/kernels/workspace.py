@@ -27,7 +27,7 @@ class Workspace:
     - ``om`` (4 B): omega by pixel (1-4; NaN = no in-range candidate, sign = a run's first
       point, so no flags), then ``stage_src`` (5-6).
     - ``sup`` (1 B): the neighbours confirming each candidate within the multi-view mean's
-      gate (1-5; FuseConfig.lone_cell_keep).
+      gate (1-5; FuseConfig.rps.lone_cell_keep).
     - with ``range_priority`` only: ``pr`` (omega / sigma by pixel) and ``rkc`` (by slot), 8 B.
 
     The only per-frame arrays besides the cloud are sized by cells or runs (``cells``)."""
