@@ -1,6 +1,8 @@
 """`fuseflow calibrate REC --out calib.json [--reference REF.json]`: GMAC on one frame (``--frame``)
-or several frames (``--frames A:B[:step]``) of a recording; prints the per-camera verdicts (and
-the differences to a reference) and writes the report picture beside calib.json."""
+or several frames (``--frames A:B[:step]``) of a recording; by default the first frame with every
+camera, then frames pooled over the recording when it is not enough (``pipeline.calibration``).
+Prints the per-camera verdicts (and the differences to a reference) and writes the report picture
+beside calib.json."""
 
 from __future__ import annotations
 
@@ -53,7 +55,7 @@ def command(
     matcher: str = MATCHER_OPTION,
     reference: Path = REFERENCE_OPTION,
 ) -> None:
-    """Target-free metric extrinsics (GMAC) from one multi-view RGB-D frame."""
+    """Target-free metric extrinsics (GMAC) from one frame of a recording, or several pooled."""
     import fuseflow
     from fuseflow.io.paths import check_output_file
     from fuseflow.pipeline.calibration import calibrate_frames
