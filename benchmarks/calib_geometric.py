@@ -1,21 +1,9 @@
 #!/usr/bin/env python
-"""Route (c) of the rgbd backbone, geometry only (``fuseflow.calib.geometric``): where does it
-place cameras that no image or floor match places?
-
-* ``primitives``: ``fuseflow.synth.primitives`` (random boxes, spheres, cylinders on a floor,
-  ray-cast, uniform grey images: no texture at all), two cameras ``--angles`` apart, seeds
-  ``--seeds``; the backbone alone (``rgbd_backbone``), error of the relative pose vs the truth.
-* ``sim``: the simulator's rings (``--cameras``, room and studio, 320x240, Kinect noise) with
-  every image replaced by uniform grey: what depth alone does on those scenes.
-* ``hocap``: ``shared/data/hocap-8rs`` (real, 8 RealSense, one frame), the backbone alone;
-  errors of each camera against the target-based reference (mean over the other cameras).
-
-Rows: JSON lines appended to ``--out``; a markdown table is printed per data set.
+"""Route (c) of the rgbd backbone, geometry only: a thin wrapper around
+``fuseflow.eval.bench.calib_geometric`` (its docstring, shown by ``--help``, says what each data
+set measures); appends its rows to --out and prints its tables.
 
     python benchmarks/calib_geometric.py primitives sim hocap --out benchmarks/results/calib_geometric.jsonl
-
-The benchmark is fuseflow.eval.bench.calib_geometric; this program appends its rows to --out and
-prints its tables.
 """
 
 from __future__ import annotations
@@ -30,7 +18,7 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=bench.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", nargs="+", choices=["primitives", "sim", "hocap"])
     ap.add_argument("--out", type=Path, default=Path("/tmp/calib_geometric.jsonl"))
     ap.add_argument("--angles", type=float, nargs="+", default=[15, 25, 35, 45, 60])
