@@ -67,14 +67,14 @@ def command(
     config = _config(preset, backbone, backbone_path, refine, matcher)
     ref = _read_reference(reference, recording.rig) if reference is not None else None  # before minutes of GMAC
     rig = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
-    _check_views([recording[t] for t in indices])
+    views = [recording[t] for t in indices]
+    _check_views(views)
     pool = frame is None and not frames
     with StageProgress("calibrate: ") as on_progress:
-        done = calibrate_frames(recording, indices, config, pool, progress=on_progress)
-    calib, indices = done.calibration, done.positions
+        done = calibrate_frames(recording, indices, config, pool, progress=on_progress, frames=views)
+    calib, indices, views = done.calibration, done.positions, done.frames
     for note in done.notes:
         say(note)
-    views = [recording[indices[0]]]
     r = calib.report
     if ref is not None:
         from fuseflow.calib.reference import compare_to_reference

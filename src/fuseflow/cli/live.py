@@ -89,7 +89,7 @@ def command(
 
         parse_crop(crop)  # a bad box fails in one line before the source opens
     check_fuse_options(preset, points)
-    frames = num_frames if old_frames is None else frame_count(num_frames, old_frames)
+    frames = frame_count(num_frames, old_frames)
     for name, value in (("--num-frames", frames), ("--duration", duration)):
         if value is not None and value <= 0:
             fail(f"{name} must be positive, got {value}")

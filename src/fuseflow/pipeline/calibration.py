@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fuseflow.io.recording import Recording
-from fuseflow.types import Calibration, Rig
+from fuseflow.types import Calibration, Frame, Rig
 
 __all__ = ["POOLED_FRAMES", "Calibrated", "calibrate_frames", "missing_positions", "spread_positions"]
 
@@ -20,10 +20,12 @@ POOLED_FRAMES = 10
 
 @dataclass
 class Calibrated:
-    """GMAC's result, the frame positions it used, and what the pooling did (lines for a user)."""
+    """GMAC's result, the frame positions it used, those frames, and what the pooling did (lines
+    for a user)."""
 
     calibration: Calibration
     positions: list[int]
+    frames: list[Frame]
     notes: list[str] = field(default_factory=list)
 
 
@@ -66,20 +68,27 @@ def _rank(calibration: Calibration) -> tuple[int, int]:
 
 
 def calibrate_frames(
-    rec: Recording, positions: list[int], config, pool: bool, progress: Callable | None = None
+    rec: Recording,
+    positions: list[int],
+    config,
+    pool: bool,
+    progress: Callable | None = None,
+    frames: list[Frame] | None = None,
 ) -> Calibrated:
     """GMAC (``fuseflow.calib.calibrate``) on the frames at ``positions``. With ``pool`` (the user
     chose no frame) and 3 or more frames in the recording: when the one frame places fewer than
     two cameras or leaves a camera not "good", GMAC runs again on up to POOLED_FRAMES frames spread
     over the recording (a person moving through a static rig is then a target: the moving-subject
     route), and the result with more "good" cameras (then more placed) is kept; a tie keeps the
-    one frame's. Raises CalibrationError when no attempt places two cameras."""
+    one frame's. ``frames``: the frames at ``positions`` when the caller has read them already.
+    Raises CalibrationError when no attempt places two cameras."""
     from fuseflow.calib import CalibrationError, calibrate
 
     rig = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
     spread = spread_positions(rec, positions[0]) if pool and len(positions) == 1 else []
+    frames = frames if frames is not None else [rec[t] for t in positions]
     try:
-        single = calibrate([rec[t] for t in positions], rig, config, progress=progress)
+        single = calibrate(frames, rig, config, progress=progress)
     except CalibrationError as exc:
         if len(spread) < 3:
             raise
@@ -87,16 +96,18 @@ def calibrate_frames(
     else:
         good = good_count(single)
         if len(spread) < 3 or good == len(rig):
-            return Calibrated(single, positions)
+            return Calibrated(single, positions, frames)
         why = f"frame {positions[0]} left {len(rig) - good} camera(s) not 'good'"
     notes = [f"{why}: pooling {len(spread)} frames spread over the recording ({spread[0]}..{max(spread)})"]
+    pooled_frames = [frames[0]] + [rec[t] for t in spread[1:]]  # spread starts at positions[0]
     try:
-        pooled = calibrate([rec[t] for t in spread], rig, config, progress=progress)
+        pooled = calibrate(pooled_frames, rig, config, progress=progress)
     except CalibrationError:
         if single is None:
             raise
-        return Calibrated(single, positions, [*notes, "the pooled frames placed too few cameras: kept one frame's"])
+        kept = "the pooled frames placed too few cameras: kept one frame's"
+        return Calibrated(single, positions, frames, [*notes, kept])
     if single is not None and _rank(pooled) <= _rank(single):
         kept = f"the pooled frames were no better ({good_count(pooled)} 'good'): kept one frame's result"
-        return Calibrated(single, positions, [*notes, kept])
-    return Calibrated(pooled, spread, notes)
+        return Calibrated(single, positions, frames, [*notes, kept])
+    return Calibrated(pooled, spread, pooled_frames, notes)
