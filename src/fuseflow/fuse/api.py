@@ -360,9 +360,15 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
     cfg, sensor_note = _sensor_noise(cfg, rig, p.ids)
     grid = ""
     if cfg.auto_grid and cfg.target_points is None:
-        from fuseflow.fuse.config import auto_config
+        from fuseflow.fuse.config import AUTO_COARSE_STRIDE, AUTO_SPACING_QUANTILE, auto_config
+        from fuseflow.fuse.density import grid_spacing
 
-        cfg, grid = auto_config(cfg, sum(1 for ok in p.present.tolist() if ok), sum(p.valid_per_view))
+        views = sum(1 for ok in p.present.tolist() if ok)
+
+        def spacing() -> float:
+            return grid_spacing(p.depth, p.K, AUTO_COARSE_STRIDE, AUTO_SPACING_QUANTILE)
+
+        cfg, grid = auto_config(cfg, views, sum(p.valid_per_view), spacing)
     cloud, valid, cand, oor, stride = _fuse_prepared(p, cfg, backend)
     if frame.is_numpy != cloud.is_numpy:  # the cloud holds what the frame held
         cloud = cloud.numpy() if frame.is_numpy else cloud.to("cpu")

@@ -12,8 +12,8 @@ switch: docs/fuse.md. Presets:
 * ``PRESETS["fast"]``: ``cvgc.k_neighbours = 4``, ``ash.s0 = 6.3``: less time, fewer points.
 * ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``ash.s0 = 1`` and no depth smoothing: candidates on every
   2nd pixel of every 2nd row, nearly all of them kept; for full frames from ~8-camera rigs.
-* ``PRESETS["dense"]``: the default with ``ash.s0 = 1`` and 5x5 depth smoothing: every pixel, nearly
-  every candidate kept; the most complete cloud, about twice the default's points.
+* ``PRESETS["dense"]``: the default with ``ash.s0 = 1``, 5x5 depth smoothing and ``mcm.max_missing = 6``:
+  every pixel, nearly every candidate kept; the most complete cloud, about twice the default's points.
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
 """
@@ -21,7 +21,7 @@ switch: docs/fuse.md. Presets:
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any, Literal
 
@@ -476,8 +476,11 @@ PRESETS: dict[str, FuseConfig] = {
     # no depth smoothing: it costs `live` 14-25 % of its time (ICL, HO-Cap), which is its point
     "live": _DEFAULT.replace(pixel_stride=2, ash={"s0": 1.0}, mcm={"max_missing": 4}, smoothing={"radius": 0}),
     # completeness first: every pixel, nearly every candidate kept, 5x5 smoothing
-    "dense": _DEFAULT.replace(ash={"s0": 1.0}, smoothing={"radius": 2}),
-    # the CLI's default: every pixel ("dense") while the frame's valid pixels fit a time budget, a coarser grid above (auto_config)
+    # an MCM window missing up to 6 of its 8 neighbours is measured on the ones it has: pixels
+    # beside depth holes count (docs/fuse.md, Quality)
+    "dense": _DEFAULT.replace(ash={"s0": 1.0}, smoothing={"radius": 2}, mcm={"max_missing": 6}),
+    # the CLI's default: every pixel ("dense") while the frame's valid pixels fit a time budget or a
+    # coarser grid would sample the surface more coarsely than 1 cm, the coarser grid otherwise (auto_config)
     "auto": _DEFAULT.replace(auto_grid=True),
     **ABLATIONS,
 }
@@ -490,35 +493,64 @@ AUTO_CORE_MS = 200.0
 #: 320x240 (``fuseflow bench fuse-ratio REC --preset dense``; docs/fuse.md "Speed").
 AUTO_CORE_MS_PER_MPX = 250.0
 #: auto_config fuses every pixel of a frame with at most this many valid depth pixels (the
-#: budget over the cost: 0.8 M; the simulated 4-ring 640x480 has 0.62 M, the 8-ring 1.23 M),
-#: and the coarse grid above it.
+#: budget over the cost: 0.8 M; the simulated 4-ring 640x480 has 0.62 M, the 8-ring 1.23 M).
 AUTO_MAX_EVERY_PIXEL = int(AUTO_CORE_MS / AUTO_CORE_MS_PER_MPX * 1e6)
+#: The output resolution, metres: the coarse grid is taken only where it samples the surface at
+#: least this finely. 1 cm: the scale the default s0 is set to (about a 1 cm TSDF's point count),
+#: VoxelBlockGrid's voxel in the comparisons and the distance recall counts at.
+AUTO_RESOLUTION = 0.01
+#: The share of a frame's valid depth pixels the coarse grid must sample within AUTO_RESOLUTION
+#: (``fuse.density.grid_spacing`` at this quantile): "nearly all of the seen surface".
+AUTO_SPACING_QUANTILE = 0.9
+#: The coarse grid's stride.
+AUTO_COARSE_STRIDE = 2
 
 
-def auto_config(cfg: FuseConfig, views: int, valid_pixels: int) -> tuple[FuseConfig, str]:
+def auto_config(
+    cfg: FuseConfig, views: int, valid_pixels: int, coarse_spacing: Callable[[], float]
+) -> tuple[FuseConfig, str]:
     """FuseConfig.auto_grid: the settings for a frame of ``views`` present views with
-    ``valid_pixels`` valid depth pixels, and a one-line account of the choice. While
-    ``valid_pixels`` <= AUTO_MAX_EVERY_PIXEL (every pixel fits the time budget) ``dense``'s s0
-    and smoothing on ``cfg``'s grid: every pixel, nearly every candidate kept. Above it
-    (8 x 640x480: 1.2-2.4 M) every 2nd pixel of every 2nd row with s0 = 1 (``live``'s grid),
-    5x5 smoothing, 4 neighbour cameras and no multi-view mean: on the simulated 8-ring 640x480
-    that is 25-28 % less time than the default's 7 neighbours, multi-view mean and 3x3 smoothing
-    on that grid, with higher precision and recall at 1 cm (docs/fuse.md)."""
+    ``valid_pixels`` valid depth pixels, on which the coarse grid (every AUTO_COARSE_STRIDE-th
+    pixel of every AUTO_COARSE_STRIDE-th row) would place candidates ``coarse_spacing`` metres
+    apart on a facing surface at AUTO_SPACING_QUANTILE of the pixels (fuse.density.grid_spacing),
+    and a one-line account of the choice.
+
+    * ``valid_pixels`` <= AUTO_MAX_EVERY_PIXEL (every pixel fits the time budget): ``dense``'s
+      settings on ``cfg``'s grid: every pixel, nearly every candidate kept.
+    * above it, ``coarse_spacing`` > AUTO_RESOLUTION (far surfaces: the coarse grid would sample
+      them more coarsely than the output's 1 cm and lose surface): every pixel with ``dense``'s
+      settings and the coarse grid's cheaper cross-view check (4 neighbour cameras, no multi-view
+      mean), whatever the time.
+    * else (8 x 640x480 at arm's or room range: 1.2-2.4 M) the coarse grid with s0 = 1
+      (``live``'s), 5x5 smoothing, 4 neighbour cameras and no multi-view mean.
+    Measured per rig in docs/fuse.md (Presets, Quality, Speed)."""
     what = f"{views} views, {valid_pixels / 1e6:.2f} M valid depth pixels"
-    if valid_pixels > AUTO_MAX_EVERY_PIXEL:
-        live = PRESETS["live"]
-        out = cfg.replace(
-            pixel_stride=live.pixel_stride,
-            ash={"s0": live.ash.s0},
-            mcm={"max_missing": live.mcm.max_missing},
-            smoothing={"radius": 2},
-            cvgc={"k_neighbours": 4, "multiview_mean": False},
-        )
-        why = f"more than {AUTO_MAX_EVERY_PIXEL / 1e6:.2f} M: every pixel would not fit 10 frames/s"
-        return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {why})"
     dense = PRESETS["dense"]
-    out = cfg.replace(ash={"s0": dense.ash.s0}, smoothing={"radius": dense.smoothing.radius})
-    return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}: every pixel counts)"
+    every = cfg.replace(
+        ash={"s0": dense.ash.s0},
+        smoothing={"radius": dense.smoothing.radius},
+        mcm={"max_missing": dense.mcm.max_missing},
+    )
+    if valid_pixels <= AUTO_MAX_EVERY_PIXEL:
+        return every, f"auto: stride {every.pixel_stride}, s0 {every.ash.s0:g} ({what}: every pixel counts)"
+    budget = f"more than {AUTO_MAX_EVERY_PIXEL / 1e6:.2f} M: every pixel would not fit 10 frames/s"
+    gap = coarse_spacing()
+    spacing = (
+        f"stride {AUTO_COARSE_STRIDE} samples {AUTO_SPACING_QUANTILE:.0%} of the surface within {gap * 1000:.1f} mm"
+    )
+    cheap = {"k_neighbours": 4, "multiview_mean": False}
+    if gap > AUTO_RESOLUTION:
+        out = every.replace(cvgc=cheap)
+        why = f"{spacing}, coarser than {AUTO_RESOLUTION * 1000:g} mm: every pixel, though {budget}"
+        return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {why})"
+    out = cfg.replace(
+        pixel_stride=AUTO_COARSE_STRIDE,
+        ash={"s0": PRESETS["live"].ash.s0},
+        mcm={"max_missing": PRESETS["live"].mcm.max_missing},
+        smoothing={"radius": 2},
+        cvgc=cheap,
+    )
+    return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {budget}; {spacing})"
 
 
 def preset_config(name: str, target_points: int | None = None, settings: Iterable[str] = ()) -> FuseConfig:

@@ -25,6 +25,7 @@ __all__ = [
     "fit_s0",
     "with_s0",
     "budget_stride",
+    "grid_spacing",
     "BUDGET_FILL",
     "BUDGET_MAX_STRIDE",
     "BUDGET_SHORT",
@@ -132,3 +133,27 @@ def budget_stride(stride: int, target: int, valid_pixels: int) -> int:
     while s < BUDGET_MAX_STRIDE and target <= BUDGET_FILL * valid_pixels / (s + 1) ** 2:
         s += 1
     return s
+
+
+def grid_spacing(depth, K, stride: int, quantile: float, step: int = 8) -> float:
+    """How far apart, in metres, the candidates of a ``stride``-pixel grid lie on a surface
+    facing the camera, ``stride`` z / f, at ``quantile`` of the frame's valid depth pixels
+    (``depth``: (N, H, W) metres, 0 = none; ``K``: (N, 3, 3); numpy arrays or tensors on any
+    device; f = sqrt(fx fy) per view), counted on every ``step``-th pixel of every ``step``-th
+    row. 0.0 for a frame without depth."""
+    import numpy as np
+
+    sub = depth[:, ::step, ::step]
+    if not isinstance(sub, np.ndarray):  # a tensor: the quantile on its device, one number back
+        import torch
+
+        f = torch.sqrt(K[:, 0, 0] * K[:, 1, 1]).to(sub.dtype).view(-1, 1, 1)
+        ok = sub > 0
+        if not bool(ok.any()):
+            return 0.0
+        return float(torch.quantile((sub / f)[ok].float(), quantile)) * stride
+    f = np.sqrt(np.asarray(K[:, 0, 0], np.float64) * np.asarray(K[:, 1, 1], np.float64)).reshape(-1, 1, 1)
+    ok = sub > 0
+    if not ok.any():
+        return 0.0
+    return float(np.quantile((sub / f)[ok], quantile)) * stride
