@@ -37,3 +37,15 @@ def test_unknown_method_and_bad_options_are_clear_errors(tmp_path):
     assert res.exit_code == 0, res.output
     doc = json.loads(out.read_text())
     assert len(doc["rows"]) == 2 and doc["summary"][0]["cameras"] == 3
+
+
+def test_a_method_can_change_settings_of_its_preset():
+    from fuseflow.synth import SimConfig, Simulator
+
+    fns = fusion_methods(["dense", "dense+mcm.max_missing=0+smoothing.radius=0"])
+    sim = Simulator(SimConfig(cameras=3, resolution=(80, 60), frames=1, seed=1))
+    frame = sim.render(0).frame
+    a, b = (fns[m](frame, sim.rig) for m in fns)
+    assert len(a) != len(b) or not (a.xyz.numpy() == b.xyz.numpy()).all()
+    with pytest.raises(ValidationError, match="--set"):
+        fusion_methods(["dense+mcm.nope=1"])

@@ -11,7 +11,9 @@ completeness, share of points beyond 2 cm), with the fusion time of each call (m
 process, after one warm-up call per method and rig).
 
 Methods: a FUSE preset name (``auto``, ``default``, ``live``, ... of ``fuseflow.fuse.PRESETS``),
-``vbg`` (Open3D VoxelBlockGrid TSDF, 1 cm) or ``naive`` (every valid pixel).
+optionally with settings changed as ``--set`` changes them, joined by ``+``
+(``dense+mcm.max_missing=4+smoothing.radius=1``), ``vbg`` (Open3D VoxelBlockGrid TSDF, 1 cm)
+or ``naive`` (every valid pixel).
 :func:`summarize_quality` gives, per rig, the mean over cells and the number of cells where the
 first method's F at 1 cm is at least VoxelBlockGrid's.
 """
@@ -35,15 +37,19 @@ def fusion_methods(names: Sequence[str]) -> dict[str, Callable[[Any, Any], Any]]
     """Name -> ``(frame, rig) -> FusedCloud`` for each of ``names`` (module docstring)."""
     from fuseflow.eval.baselines import naive_fusion, tsdf_fusion
     from fuseflow.fuse import PRESETS, fuse
+    from fuseflow.fuse.config import parse_settings
 
     out: dict[str, Callable[[Any, Any], Any]] = {}
     for name in names:
+        preset, *settings = name.split("+")
         if name == "vbg":
             out[name] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
         elif name == "naive":
             out[name] = naive_fusion
-        elif name in PRESETS:
-            out[name] = (lambda cfg: lambda frame, rig: fuse(frame, rig, cfg))(PRESETS[name])
+        elif preset in PRESETS:
+            out[name] = (lambda c: lambda frame, rig: fuse(frame, rig, c))(
+                PRESETS[preset].replace(**parse_settings(settings))
+            )
         else:
             raise ValidationError(f"unknown method {name!r}: a FUSE preset {sorted(PRESETS)}, 'vbg' or 'naive'")
     return out
