@@ -137,23 +137,27 @@ def budget_stride(stride: int, target: int, valid_pixels: int) -> int:
 
 def grid_spacing(depth, K, stride: int, quantile: float, step: int = 8) -> float:
     """How far apart, in metres, the candidates of a ``stride``-pixel grid lie on a surface
-    facing the camera, ``stride`` z / f, at ``quantile`` of the frame's valid depth pixels
-    (``depth``: (N, H, W) metres, 0 = none; ``K``: (N, 3, 3); numpy arrays or tensors on any
-    device; f = sqrt(fx fy) per view), counted on every ``step``-th pixel of every ``step``-th
-    row. 0.0 for a frame without depth."""
+    facing the camera, ``stride`` z / f, at ``quantile`` of the frame's valid depth pixels (the
+    value of rank floor(quantile (n - 1)) of the n counted), counted on every ``step``-th pixel
+    of every ``step``-th row. ``depth``: (N, H, W) metres, 0 = none; ``K``: (N, 3, 3); numpy
+    arrays, or tensors on any device; f = sqrt(fx fy) per view. 0.0 for a frame without depth."""
     import numpy as np
 
     sub = depth[:, ::step, ::step]
-    if not isinstance(sub, np.ndarray):  # a tensor: the quantile on its device, one number back
-        import torch
-
-        f = torch.sqrt(K[:, 0, 0] * K[:, 1, 1]).to(sub.dtype).view(-1, 1, 1)
-        ok = sub > 0
-        if not bool(ok.any()):
+    if isinstance(sub, np.ndarray):
+        f = np.sqrt(np.asarray(K[:, 0, 0], np.float32) * np.asarray(K[:, 1, 1], np.float32)).reshape(-1, 1, 1)
+        v = (sub / f).ravel()
+        v = v[v > 0]
+        if v.size == 0:
             return 0.0
-        return float(torch.quantile((sub / f)[ok].float(), quantile)) * stride
-    f = np.sqrt(np.asarray(K[:, 0, 0], np.float64) * np.asarray(K[:, 1, 1], np.float64)).reshape(-1, 1, 1)
-    ok = sub > 0
-    if not ok.any():
+        k = int(quantile * (v.size - 1))
+        return float(np.partition(v, k)[k]) * stride
+    import torch  # a tensor: the rank on its device, one number back
+
+    f = torch.sqrt(K[:, 0, 0] * K[:, 1, 1]).to(sub.dtype).view(-1, 1, 1)
+    v = (sub / f).reshape(-1)
+    v = v[v > 0]
+    if v.numel() == 0:
         return 0.0
-    return float(np.quantile((sub / f)[ok], quantile)) * stride
+    k = int(quantile * (v.numel() - 1))
+    return float(torch.kthvalue(v.float(), k + 1).values) * stride
