@@ -130,8 +130,8 @@ def pixels(depth, Kf, M_rel, T_wc, nbr, present, prm, out_P, out_w, out_pr, out_
                 row_info[row, 2] = 0
                 continue
             if use_mcm:
-                mcm_row(dflat, rb, w, prm, gq, vr, cc)
                 u0 = 1 if stride == 1 else stride  # the first column u >= 1 with u % stride == 0
+                mcm_row(dflat[rb - w : rb], dflat[rb : rb + w], dflat[rb + w : rb + 2 * w], prm, u0, stride, gq, vr, cc)
                 for u in range(u0, w - 1, stride):
                     c = cc[u]
                     if c >= zero and c > r_c:  # -1: no depth or a failed window

@@ -52,10 +52,22 @@ def _window_rows(flat, base0, y, H, W, r, stride, q, zc, lim, ss, nn, ph):
                 _add(flat[base + k0 + dx : base + k1 + dx], np.uint64(0), np.uint64(k1 - k0), zc[k0:k1], lim[k0:k1],
                      ss[k0:k1], nn[k0:k1])  # fmt: skip
             continue
-        for p in range(stride):  # phase p: ph[p, t] = column (t - q) stride + p, zero outside
+        src = flat[base : base + W]  # a contiguous row: no offsets into the whole map in the loops
+        if stride == 2:  # both phases in one loop of constant stride, which the compiler vectorises
+            ev = ph[0]
+            od = ph[1]
+            for t in range(W // 2):
+                ev[q + t] = src[2 * t]
+                od[q + t] = src[2 * t + 1]
+            if W % 2:
+                ev[q + W // 2] = src[W - 1]
+            phases = 0
+        else:
+            phases = stride
+        for p in range(phases):  # phase p: ph[p, t] = column (t - q) stride + p, zero outside
             t1 = min(q + (W - p + stride - 1) // stride, ph.shape[1])
             for t in range(q, t1):
-                ph[p, t] = flat[base + (t - q) * stride + p]
+                ph[p, t] = src[(t - q) * stride + p]
         for dx in range(-r, r + 1):
             p = dx % stride
             _add(ph[p], np.uint64((dx - p) // stride + q), np.uint64(m), zc, lim, ss, nn)
@@ -83,8 +95,7 @@ def smooth_depth_kernel(depth, r, gate, a, b, z0, stride):  # pragma: no cover -
         for row in range(blk * rows_per, min((blk + 1) * rows_per, N * H)):
             y = row % H
             rb = row * W
-            for u in range(W):
-                of[rb + u] = flat[rb + u]
+            of[rb : rb + W] = flat[rb : rb + W]
             if y % stride != 0:
                 continue
             for k in range(m):
