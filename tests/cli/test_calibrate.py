@@ -168,7 +168,10 @@ def test_default_pools_frames_when_one_frame_places_too_few(ring_rec, tmp_path, 
     res = CliRunner().invoke(cli_app, args)
     assert res.exit_code == 0, res.output
     assert calls == [[0], [0, 1, 2]], calls
-    assert "one frame placed too few cameras" in res.output and "pooling 3 frames spread over the recording (0..2)" in res.output
+    assert (
+        "one frame placed too few cameras" in res.output
+        and "pooling 3 frames spread over the recording (0..2)" in res.output
+    )
     assert fuseflow.read_calibration(out).report["backbone_info"]["frames"] == 3
     calls.clear()
     res = CliRunner().invoke(cli_app, [*args, "--frame", "1"])

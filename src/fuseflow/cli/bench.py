@@ -200,7 +200,11 @@ def bench_fuse_quality(
     resolutions: str = typer.Option("320x240,640x480", "--resolutions", help="Comma list of WxH."),
     seeds: str = typer.Option("11,29,47,61,73,89", "--seeds", help="Comma list of simulator seeds."),
     kinds: str = typer.Option("static,dynamic", "--kinds", help="static, dynamic or both."),
-    methods: str = typer.Option("auto,vbg,naive", "--methods", help="FUSE presets (PRESET+NAME=VALUE changes a setting), vbg, naive; the first is compared."),
+    methods: str = typer.Option(
+        "auto,vbg,naive",
+        "--methods",
+        help="FUSE presets (PRESET+NAME=VALUE changes a setting), vbg, naive; the first is compared.",
+    ),
     num_frames: int = typer.Option(1, "--num-frames", help="Frames per cell (mean over them)."),
     json_out: Path = typer.Option(None, "--json", help="Write the rows and the per-rig summary as JSON."),
 ) -> None:

@@ -511,13 +511,13 @@ def auto_config(
 ) -> tuple[FuseConfig, str]:
     """FuseConfig.auto_grid: the settings for a frame of ``views`` present views with
     ``valid_pixels`` valid depth pixels, on which the coarse grid (every AUTO_COARSE_STRIDE-th
-    pixel of every AUTO_COARSE_STRIDE-th row) would place candidates ``coarse_spacing`` metres
-    apart on a facing surface at AUTO_SPACING_QUANTILE of the pixels (fuse.density.grid_spacing),
-    and a one-line account of the choice.
+    pixel of every AUTO_COARSE_STRIDE-th row) would place candidates ``coarse_spacing()`` metres
+    apart on a facing surface at AUTO_SPACING_QUANTILE of the pixels (fuse.density.grid_spacing;
+    called only above the time budget), and a one-line account of the choice.
 
     * ``valid_pixels`` <= AUTO_MAX_EVERY_PIXEL (every pixel fits the time budget): ``dense``'s
       settings on ``cfg``'s grid: every pixel, nearly every candidate kept.
-    * above it, ``coarse_spacing`` > AUTO_RESOLUTION (far surfaces: the coarse grid would sample
+    * above it, ``coarse_spacing()`` > AUTO_RESOLUTION (far surfaces: the coarse grid would sample
       them more coarsely than the output's 1 cm and lose surface): every pixel with ``dense``'s
       settings and the coarse grid's cheaper cross-view check (4 neighbour cameras, no multi-view
       mean), whatever the time.
