@@ -502,8 +502,8 @@ AUTO_RESOLUTION = 0.01
 #: The share of a frame's valid depth pixels the coarse grid must sample within AUTO_RESOLUTION
 #: (``fuse.density.grid_spacing`` at this quantile): "nearly all of the seen surface".
 AUTO_SPACING_QUANTILE = 0.9
-#: The coarse grid's stride.
-AUTO_COARSE_STRIDE = 2
+#: The coarse grid's stride: ``live``'s grid, whose s0 and MCM window the coarse grid also takes.
+AUTO_COARSE_STRIDE = PRESETS["live"].pixel_stride
 
 
 def auto_config(
