@@ -6,7 +6,7 @@ camera-from-world; batched tensors put the camera axis first.
 
 from fuseflow.calib import calibrate
 from fuseflow.errors import FormatError, FuseFlowError, RecordingError, ValidationError
-from fuseflow.fuse import fuse
+from fuseflow.fuse.api import fuse_frame as fuse
 from fuseflow.io import (
     Recording,
     make_virtual_rig,

@@ -638,6 +638,31 @@ class Calibration:
     def camera_ids(self) -> tuple[str, ...]:
         return tuple(self.T_cam_world)
 
+    def __repr__(self) -> str:
+        """A few lines: the placed cameras, the report's kind, source, verdicts and warnings (the
+        matrices: ``T_cam_world``; the whole report: ``report``)."""
+        ids = list(self.T_cam_world)
+        shown = ", ".join(ids[:8]) + (f", ... ({len(ids) - 8} more)" if len(ids) > 8 else "")
+        rep = self.report
+        lines = [f"Calibration of {len(ids)} cameras ({shown}): T_cam_world, camera-from-world, metres"]
+        about = [f"report ({type(rep).__name__}, {len(list(rep))} entries)"]
+        source = rep.get("source") if isinstance(rep, Mapping) else None
+        if source:
+            about.append(f"source: {source}")
+        verdicts = getattr(rep, "camera_verdicts", None) or (
+            rep.get("camera_verdicts") if isinstance(rep, Mapping) else None
+        )
+        if isinstance(verdicts, Mapping) and verdicts:
+            counts: dict[str, int] = {}
+            for v in verdicts.values():
+                key = str(v.get("verdict", "?")) if isinstance(v, Mapping) else "?"
+                counts[key] = counts.get(key, 0) + 1
+            about.append("verdicts " + ", ".join(f"{n} {k}" for k, n in counts.items()))
+        warned = getattr(rep, "warnings", None) if not isinstance(rep, Mapping) else rep.get("warnings")
+        if warned:
+            about.append(f"{len(warned)} warnings")
+        return "\n".join([lines[0], "  " + "; ".join(about)])
+
     def apply(self, rig: Rig) -> Rig:
         """The rig with these extrinsics; cameras this calibration does not place keep theirs."""
         return rig.with_extrinsics(self.T_cam_world)

@@ -169,20 +169,20 @@ def test_two_runs_into_one_out_at_once(small_rec, tmp_path, invoke, expect):
     out = tmp_path / "o"
     out.mkdir()
     holder = subprocess.Popen(  # another process holding OUT's lock, as a running `run` does
-        [sys.executable, "-c", "import fcntl,os,sys,time; fd=os.open(sys.argv[1], os.O_RDWR|os.O_CREAT); "
-         "fcntl.flock(fd, fcntl.LOCK_EX); os.write(fd, b'4242'); print('held', flush=True); time.sleep(60)",
-         str(out / ".fuseflow.lock")],
+        [sys.executable, "-c", "import fcntl,os,sys,time; fd=os.open(sys.argv[1], os.O_RDONLY); "
+         "fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); time.sleep(60)", str(out)],
         stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         assert holder.stdout.readline().strip() == "held"
-        expect(invoke("run", small_rec, "--out", out, "--use-rig"), 2, "another fuseflow process", "4242")
+        expect(invoke("run", small_rec, "--out", out, "--use-rig"), 2, "another fuseflow process")
         expect(invoke("fuse", small_rec, "--out", out), 2, "another fuseflow process")
         assert not (out / "frames.jsonl").exists()
     finally:
         holder.kill()
         holder.wait()
     expect(invoke("run", small_rec, "--out", out, "--use-rig"), 0, "2 fused now")  # the lock died with it
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == []  # no lock file left behind
 
 
 def test_recording_changed_after_a_run_is_not_resumed(small_rec, tmp_path, invoke, expect):

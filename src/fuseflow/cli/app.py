@@ -120,7 +120,9 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
                 raise
             where = exc.filename or "standard output or an output file"
             fail(f"cannot write {where}: {os.strerror(exc.errno).lower()}; free some space or write elsewhere")
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as exc:
+            if isinstance(exc, SystemError) and not _interrupted(exc):
+                raise
             fail(
                 "interrupted; every output written so far is complete: run the same command again "
                 "to resume (run and fuse skip the frames already written)",
@@ -129,6 +131,30 @@ def guarded(command: Callable[..., None]) -> Callable[..., None]:
 
     return wrapper
 
+
+def _interrupted(exc: BaseException) -> bool:
+    """A SystemError that wraps Ctrl-C: numba's dispatcher reports a KeyboardInterrupt raised
+    inside a compiled kernel as "returned a result with an exception set"."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+#: Help of `fuse` and `run`'s --preset auto (FuseConfig.auto_grid, fuse.config.auto_config).
+AUTO_HELP = (
+    "FUSE preset: auto (default): per frame, every pixel when the frame has at most 0.8 M valid depth "
+    "pixels, else every 2nd pixel where that still samples the surface within 1 cm (every pixel otherwise);"
+)
+
+#: Help of `fuse` and `run`'s --out.
+OUT_HELP = (
+    "Output directory: clouds/<frame>.ply (or --format's), calib.json, summary.json, manifest.json; "
+    "run also frames.jsonl (a line per frame); --mesh adds meshes/<frame>.glb."
+)
 
 #: Help of `fuse` and `run`'s --points.
 POINTS_HELP = "About N points per frame: s0 is searched per frame; a small budget also takes a coarser pixel grid."

@@ -34,7 +34,7 @@ def command(
     rec: Path = typer.Argument(..., help="Recording directory (any layout `fuseflow info` reads)."),
     out: Path = typer.Option(..., "--out", "-o", help="calib.json to write (and the report picture, same stem, .png)."),
     frame: int = typer.Option(
-        None, "--frame", "-t", help="Frame index to calibrate from (default: the first with every camera present)."
+        None, "--frame", help="Frame index to calibrate from (default: the first with every camera present)."
     ),
     frames: str = typer.Option(
         None,
@@ -62,6 +62,7 @@ def command(
 
     check_output_file(out)  # before GMAC runs: a bad --out fails in one line, not after minutes
     replaced = out.exists()
+    picture_replaced = _picture_path(out).exists()
     recording = fuseflow.open_recording(rec)
     indices = _chosen_frames(recording, frame, frames)
     config = _config(preset, backbone, backbone_path, refine, matcher)
@@ -91,6 +92,9 @@ def command(
     print_verdicts(r.camera_verdicts)
     if r.reference is not None:
         print_reference(r.reference)
+        hint = _units_hint(ref.T_cam_world, calib.T_cam_world)
+        if hint:
+            warn(hint)
     for w in r.warnings:
         warn(w)
     unsure = [c for c, v in (r.camera_verdicts or {}).items() if v.get("verdict") != "good"]
@@ -104,6 +108,7 @@ def command(
         f"wrote {out}"
         + (" (it replaced the file that was there)" if replaced else "")
         + (f" and {picture}" if picture else "")
+        + (" (it replaced the picture that was there)" if picture and picture_replaced else "")
     )
 
 
@@ -181,14 +186,46 @@ def _read_reference(path: Path, rig):
     return ref
 
 
+def _picture_path(out: Path) -> Path:
+    """The report picture beside calib.json: same stem, .png."""
+    return out.with_suffix(".png") if out.suffix != ".png" else out.with_name(out.stem + ".report.png")
+
+
+def _spread(T_cam_world) -> float:
+    """Median distance between the camera centres of a calibration (0 for fewer than 2)."""
+    import numpy as np
+
+    c = np.array([np.linalg.inv(T)[:3, 3] for T in T_cam_world.values()])
+    if len(c) < 2:
+        return 0.0
+    d = np.linalg.norm(c[:, None] - c[None], axis=-1)
+    return float(np.median(d[np.triu_indices(len(c), 1)]))
+
+
+def _units_hint(ref_T, est_T) -> str | None:
+    """A line when the reference's cameras stand about 1000 (or 100) times farther apart than the
+    calibration's: its translations are in millimetres (or centimetres), not metres."""
+    ref, est = _spread(ref_T), _spread(est_T)
+    if ref <= 0 or est <= 0:
+        return None
+    ratio = ref / est
+    for factor, unit in ((1000.0, "millimetres"), (100.0, "centimetres")):
+        if factor / 3 < ratio < factor * 3:
+            return (
+                f"the reference's cameras stand {ref:.4g} apart (median), this calibration's {est:.3g} m: the "
+                f"reference looks like {unit} ({ratio:.0f}x); calibration files are in metres, divide its "
+                f"translations by {factor:g}"
+            )
+    return None
+
+
 def _write_picture(out: Path, frame, rig, calib) -> Path | None:
     """``<stem>.png`` beside calib.json; a failure to draw it is a warning, not a lost calibration."""
     from fuseflow.errors import FuseFlowError
     from fuseflow.viz.calib_picture import calibration_picture
 
     try:
-        png = out.with_suffix(".png") if out.suffix != ".png" else out.with_name(out.stem + ".report.png")
-        return calibration_picture(png, frame, rig, calib.T_cam_world, calib.report)
+        return calibration_picture(_picture_path(out), frame, rig, calib.T_cam_world, calib.report)
     except FuseFlowError as exc:
         warn(str(exc))
         return None

@@ -9,7 +9,9 @@ import typer
 
 from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
+    AUTO_HELP,
     FRAMES_OPTION_HELP,
+    OUT_HELP,
     POINTS_HELP,
     SET_HELP,
     check_device,
@@ -30,15 +32,14 @@ def _grid(strides: list[int]) -> str:
 
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (fuseflow format, Open3D/ICL or TUM layout)."),
-    out: Path = typer.Option(..., "--out", help="Output directory: clouds/<frame>.ply, calib.json, summary.json."),
+    out: Path = typer.Option(..., "--out", help=OUT_HELP),
     calib: Path = typer.Option(None, "--calib", help="Extrinsics to use (calib.json); default: rig.json's."),
     frames: str = typer.Option(None, "--frames", help=FRAMES_OPTION_HELP),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (cpu runs the compiled numba path)."),
     preset: str = typer.Option(
         "auto",
         "--preset",
-        help="FUSE preset: auto (live's grid on frames of >= 6 well-filled views, default's otherwise), "
-        "default (= quality, every pixel), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
+        help=AUTO_HELP + " default (= quality, every pixel), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
     ),
     force: bool = typer.Option(
         False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
@@ -90,6 +91,8 @@ def command(
     )
     if s.left_out:
         warn(f"the calibration does not place cameras {s.left_out}; they are left out of fusion")
+    for w in s.input_warnings:
+        warn(w)
     for w, n in s.warnings.items():
         warn(f"{w} ({n} frames)")
 

@@ -44,6 +44,22 @@ def _print_summary(result, source: str) -> None:
         warn(w)
 
 
+def _check_replay(source, calibration, settings) -> list[str]:
+    """A replayed recording's first frame through ``pipeline.checks.validate_inputs`` (as fuse and
+    run check theirs) before the loop starts; a camera source is not read ahead."""
+    rec = getattr(source, "rec", None)
+    if rec is None or not len(rec):
+        return []
+    from fuseflow.fuse.config import preset_config
+    from fuseflow.live.app import rig_for_live
+    from fuseflow.pipeline.checks import validate_inputs
+    from fuseflow.pipeline.exports import resolve_crop
+
+    rig = rig_for_live(source.rig, calibration)
+    volume = resolve_crop(settings.crop, rig, calibration)
+    return validate_inputs(rec[0], rig, preset_config(settings.preset, settings.points), volume)
+
+
 def command(
     source: list[str] = typer.Argument(
         ..., help="realsense[:SERIAL,...] | orbbec[:SERIAL,...] | a recording directory | .bag/.mkv files."
@@ -103,9 +119,14 @@ def command(
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
     opened = open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))
+    try:
+        checked = _check_replay(opened.source, calibration, settings)
+    except BaseException:
+        opened.close()
+        raise
 
     def started(url, warnings) -> None:
-        for w in warnings:
+        for w in [*checked, *warnings]:
             warn(w)
         say(f"live: {opened.description}" + (f"; viewer at {url}" if url else "") + " (Ctrl-C stops)")
 

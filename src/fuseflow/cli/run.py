@@ -8,7 +8,9 @@ import typer
 
 from fuseflow.cli import output_options as oo
 from fuseflow.cli.app import (
+    AUTO_HELP,
     FRAMES_OPTION_HELP,
+    OUT_HELP,
     POINTS_HELP,
     SET_HELP,
     check_device,
@@ -66,7 +68,7 @@ def _print_summary(s) -> None:
 
 def command(
     rec: Path = typer.Argument(..., help="Recording directory (fuseflow format, Open3D/ICL or TUM layout)."),
-    out: Path = typer.Option(..., "--out", help="Output directory: calib.json, clouds/<frame>.ply, summary.json."),
+    out: Path = typer.Option(..., "--out", help=OUT_HELP),
     calib: Path = typer.Option(None, "--calib", help="Use these extrinsics (calib.json) instead of running GMAC."),
     use_rig: bool = typer.Option(False, "--use-rig", help="Use the extrinsics in rig.json instead of running GMAC."),
     calib_frame: int = typer.Option(
@@ -77,7 +79,7 @@ def command(
     preset: str = typer.Option(
         "auto",
         "--preset",
-        help="FUSE preset: auto (the grid fits the rig), default (= quality), live (every 2nd pixel), fast, paper, ...",
+        help=AUTO_HELP + " default (= quality, every pixel), live (every 2nd pixel), fast, paper, ...",
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
     settings: list[str] = typer.Option(None, "--set", metavar="NAME=VALUE", help=SET_HELP),

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +28,7 @@ from fuseflow.types import Frame, FusedCloud, Rig, to_numpy
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["fuse", "fuse_with_report", "FuseResult", "FuseReport", "resolve_backend"]
+__all__ = ["fuse", "fuse_frame", "fuse_with_report", "FuseResult", "FuseReport", "resolve_backend"]
 
 log = logging.getLogger("fuseflow.fuse")
 
@@ -406,3 +407,41 @@ def fuse(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FusedCloud
     for line in result.report.warnings:
         log.warning(line)
     return result.cloud
+
+
+def fuse_frame(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> FusedCloud:
+    """``fuseflow.fuse``: FUSE one frame as the CLI does, for a user of the Python API.
+
+    * ``config`` None is the ``auto`` preset (``PRESETS["auto"]``: the pixel grid chosen per frame,
+      the default of ``fuseflow fuse`` / ``run`` and of ``fuseflow.stream``).
+    * Cameras of the frame that ``rig`` does not place (no extrinsics, e.g. ``calib.apply(rig)``
+      of a calibration that left them unplaced) are left out, with a warning naming them; every
+      degraded input FUSE reports (missing or empty views, isolated cameras) is a warning too
+      (``warnings.warn``, UserWarning).
+    * The cloud holds numpy arrays unless the frame is on a GPU (a frame on ``cuda`` gives a
+      cloud there): ``cloud.xyz`` is an (M, 3) float32 array.
+
+    ``fuseflow.fuse.fuse`` / ``fuse_with_report`` are the engine underneath: FuseConfig() by
+    default, the cloud where the frame's tensors are, warnings in the report and the log."""
+    from fuseflow.fuse.config import PRESETS
+
+    if not isinstance(frame, Frame):
+        raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
+    if not isinstance(rig, Rig):
+        raise ValidationError(f"rig must be a fuseflow.Rig, got {type(rig).__name__}")
+    cfg = PRESETS["auto"] if config is None else config
+    known = [c for c in frame.camera_ids if c in rig.ids]
+    unplaced = [c for c in known if rig[c].T_cam_world is None]
+    if unplaced and len(unplaced) < len(known):
+        keep = [i for i, c in enumerate(frame.camera_ids) if c not in unplaced]
+        warnings.warn(
+            f"cameras {unplaced} have no extrinsics (the calibration did not place them): fused from "
+            f"{len(keep)} of {frame.num_views} cameras",
+            stacklevel=2,
+        )
+        frame = frame.subset(keep)
+    result = fuse_with_report(frame, rig, cfg)
+    for line in result.report.warnings:
+        warnings.warn(line, stacklevel=2)
+    cloud = result.cloud
+    return cloud if cloud.is_numpy or cloud.device.type != "cpu" else cloud.numpy()

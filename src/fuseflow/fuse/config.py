@@ -102,9 +102,9 @@ def _check_numbers(cfg: object, stage: str, names: tuple[str, ...], positive: bo
     """Each field of ``names`` is a finite number > 0 (``positive``) or >= 0."""
     for name in names:
         v = getattr(cfg, name)
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) < 3.4e38  # float32 kernels
         if not ok or v < 0 or (positive and v == 0):
-            _fail(f"{stage}{name}", v, "a finite number > 0" if positive else "a finite number >= 0")
+            _fail(f"{stage}{name}", v, "a finite float32 > 0" if positive else "a finite float32 >= 0")
 
 
 def _check_ints(cfg: object, stage: str, bounds: tuple[tuple[str, int, int, str], ...]) -> None:

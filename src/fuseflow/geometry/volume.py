@@ -38,6 +38,10 @@ RING_SHARE = 0.7
 _MAX_GAP_DEG = 150.0
 
 
+#: calib.json's ``capture_volume`` ``units`` and their size in metres (``from_json`` converts).
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+
 @dataclass(frozen=True)
 class CaptureVolume:
     """A box ``lo <= T_box_world @ X <= hi`` (metres); ``kind`` says how it was made."""
@@ -100,8 +104,9 @@ class CaptureVolume:
 
     @classmethod
     def from_json(cls, doc: Any, where: str = "capture_volume") -> CaptureVolume:
-        """Inverse of ``to_json``; ``T_box_world`` optional (identity: world axes). ValidationError
-        naming ``where`` on a malformed entry."""
+        """Inverse of ``to_json``; ``T_box_world`` optional (identity: world axes); ``units`` "m"
+        (default), "cm" or "mm" (bounds and the box's translation converted to metres).
+        ValidationError naming ``where`` on a malformed entry or other units."""
         if not isinstance(doc, dict) or "min" not in doc or "max" not in doc:
             raise ValidationError(f"{where}: expected an object with 'min' and 'max' (3 numbers each, metres)")
         try:
@@ -110,6 +115,13 @@ class CaptureVolume:
             T = np.array(doc.get("T_box_world", np.eye(4)), dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise ValidationError(f"{where}: min, max and T_box_world must be numbers ({exc})") from None
+        units = doc.get("units", "m")
+        if units not in UNITS:
+            raise ValidationError(f"{where}: units must be one of {sorted(UNITS)} (default m), got {units!r}")
+        lo, hi = lo * UNITS[units], hi * UNITS[units]
+        T = np.array(T)
+        if T.shape == (4, 4):
+            T[:3, 3] *= UNITS[units]
         try:
             return cls(lo, hi, T, str(doc.get("kind", "explicit")))
         except ValidationError as exc:

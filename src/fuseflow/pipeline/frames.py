@@ -6,6 +6,7 @@ Stateless: the same inputs give the same outputs, in any process (see pipeline/r
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,7 @@ from typing import Any
 from fuseflow.errors import FuseFlowError
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.recording import Recording
+from fuseflow.pipeline.checks import validate_inputs
 from fuseflow.pipeline.config import PipelineConfig
 from fuseflow.pipeline.extrinsics import placed_rig, reindex_cameras, resolve_rig
 from fuseflow.pipeline.health import frame_health
@@ -108,16 +110,22 @@ def stream(
     calibration: Calibration | Rig | None = None,
     config: PipelineConfig = PipelineConfig(),
 ) -> Iterator[FusedCloud]:
-    """Yield one FusedCloud per frame of ``source``, fused with FUSE.
+    """Yield one FusedCloud per frame of ``source``, fused with FUSE as ``fuseflow run`` does.
 
     Args:
         source: a Recording, a recording path, or any object with ``.rig`` that iterates
             Frames (a live source such as RealSenseSource).
         calibration: extrinsics to use (a Calibration, or a calibrated Rig); None = the
             source rig's own extrinsics. Cameras a Calibration does not place (GMAC reports
-            them unconnected) are left out of fusion.
+            them unconnected) are left out of fusion, with a warning naming them.
+        config: PipelineConfig; its ``fuse`` None is the ``auto`` preset (the CLI's default)
+            and its ``device`` where FUSE runs.
+
+    The first frame goes through ``pipeline.checks.validate_inputs`` (ValidationError when
+    every cloud would be empty; its other findings, and FUSE's per-frame ones, are warnings:
+    ``warnings.warn``). Clouds hold numpy arrays unless ``config.device`` is a GPU.
     """
-    from fuseflow.fuse import fuse
+    from fuseflow.fuse import fuse_with_report
 
     if isinstance(source, (str, Path)):
         source = open_recording(source)
@@ -125,10 +133,21 @@ def stream(
         rig = placed_rig(source.rig, calibration)
     else:
         rig = resolve_rig(source.rig, calibration)
+    left_out = [c for c in source.rig.ids if c not in rig.ids]
+    if left_out:
+        warnings.warn(
+            f"the calibration does not place cameras {left_out}: fusing {len(rig)} of {len(source.rig)} cameras",
+            stacklevel=2,
+        )
     cfg = config.fuse_config()
-    for frame in source:
-        if tuple(frame.camera_ids) == rig.ids:
-            yield fuse(frame.to(config.device), rig, cfg)
-            continue
+    for k, frame in enumerate(source):
         sel = [frame.camera_ids.index(c) for c in rig.ids if c in frame.camera_ids]
-        yield reindex_cameras(fuse(frame.subset(sel).to(config.device), rig, cfg), sel)
+        if k == 0:
+            for line in validate_inputs(frame, rig.subset([rig.index(frame.camera_ids[i]) for i in sel]), cfg):
+                warnings.warn(line, stacklevel=2)
+        same = tuple(frame.camera_ids) == rig.ids
+        result = fuse_with_report(select_views(frame, sel, config.device), rig, cfg)
+        for line in result.report.warnings:
+            warnings.warn(line, stacklevel=2)
+        cloud = result.cloud if same else reindex_cameras(result.cloud, sel)
+        yield cloud if cloud.is_numpy or cloud.device.type != "cpu" else cloud.numpy()

@@ -21,6 +21,7 @@ from fuseflow.io.exchange import read_cloud
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import ply_point_count
 from fuseflow.io.recording import Recording, write_json_atomic
+from fuseflow.pipeline.checks import validate_inputs
 from fuseflow.pipeline.config import OutputOptions
 from fuseflow.pipeline.exports import (
     FrameWriter,
@@ -69,14 +70,18 @@ class FuseRunSummary:
     the number of frames it happened in."""
     left_out: list[str] = field(default_factory=list)
     """Cameras of the recording the calibration does not place (not fused)."""
+    input_warnings: list[str] = field(default_factory=list)
+    """What ``pipeline.checks.validate_inputs`` found on the first frame (cameras outside their
+    depth_range, cameras that cannot share a point, two cameras exchanged)."""
     frames_resumed: int = 0
     """Frames whose cloud an earlier call with the same manifest had written (not fused again)."""
     pixel_strides: list[int] = field(default_factory=list)
     """The pixel grids the frames fused in this call took their candidates on
     (FuseReport.pixel_stride: FuseConfig.pixel_stride, or a coarser one a point budget picked)."""
     grid_choices: list[str] = field(default_factory=list)
-    """With the ``auto`` preset, each distinct choice of grid it made (FuseReport.grid), e.g.
-    "auto: stride 2, s0 1 (8 views, 2.41 M valid depth pixels; more than 0.80 M: every pixel would not fit 10 frames/s)"."""
+    """With the ``auto`` preset, each distinct choice of grid it made, with the number of frames
+    that took it and the first one's account (FuseReport.grid), e.g. "auto: stride 2, s0 1 in 30
+    frames (first: 8 views, 2.41 M valid depth pixels; more than 0.80 M: ...)"."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -127,6 +132,8 @@ def _warning_kinds(report) -> list[str]:
         kinds.append(f"cameras with no overlapping neighbour: {list(report.isolated)} (omega_geo = c, eq. 21)")
     if report.out_of_range:
         kinds.append("points beyond the spatial hash's range were dropped")
+    if report.points == 0:
+        kinds.append("the fused cloud is empty")
     return kinds
 
 
@@ -146,7 +153,20 @@ class _Fused:
     backend: str = ""
     resumed: int = 0
     strides: set[int] = field(default_factory=set)
-    grids: dict[str, None] = field(default_factory=dict)  # ordered set of FuseReport.grid
+    grids: dict[str, list] = field(default_factory=dict)  # choice -> [first account, frames]
+
+    def add_grid(self, grid: str) -> None:
+        """Count FuseReport.grid by its choice ("auto: stride 2, s0 1"): frames differ only in the
+        numbers of the account (valid pixels, spacing)."""
+        choice = grid.split(" (", 1)[0]
+        self.grids.setdefault(choice, [grid, 0])[1] += 1
+
+    def grid_lines(self) -> list[str]:
+        """One line per distinct choice: how many frames took it and the first frame's account."""
+        return [
+            grid if n == 1 else f"{grid.split(' (', 1)[0]} in {n} frames (first: {grid.split(' (', 1)[1]}"
+            for grid, n in self.grids.values()
+        ]
 
 
 def _fuse_positions(rec: Recording, positions: list[int], cfg, device: str, on_frame, writer: FrameWriter) -> _Fused:
@@ -176,7 +196,7 @@ def _fuse_positions(rec: Recording, positions: list[int], cfg, device: str, on_f
             done.backend = res.report.backend
             done.strides.add(res.report.pixel_stride)
             if res.report.grid:
-                done.grids[res.report.grid] = None
+                done.add_grid(res.report.grid)
             for kind in _warning_kinds(res.report):
                 done.warnings.setdefault(kind, []).append(rec.frame_numbers[t])
         if on_frame:
@@ -227,6 +247,7 @@ def fuse_recording(
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
     outputs = outputs if outputs is not None else OutputOptions()
     volume = resolve_crop(outputs.crop, rig, calibration)
+    checked = validate_inputs(rec[positions[0]], rig, cfg, volume)  # before anything is written
     out = prepare_output_dir(out_dir)
     open_output(out, _manifest(rec, rig, cfg, outputs), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
@@ -251,9 +272,10 @@ def fuse_recording(
         wall_s=time.perf_counter() - t0,
         warnings={f"{kind} at frames {_frame_list(nums)}": len(nums) for kind, nums in done.warnings.items()},
         left_out=[c for c in rec.rig.ids if c not in rig.ids],
+        input_warnings=checked,
         frames_resumed=done.resumed,
         pixel_strides=sorted(done.strides),
-        grid_choices=list(done.grids),
+        grid_choices=done.grid_lines(),
     )
     write_json_atomic(out / "summary.json", summary.to_json())
     return summary

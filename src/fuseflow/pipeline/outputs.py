@@ -10,8 +10,8 @@ import hashlib
 import importlib.metadata
 import json
 import os
+import re
 import resource
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -234,46 +234,48 @@ def _used(out: Path) -> bool:
     )
 
 
+_FRAME_FILE = re.compile(r"^\d{6}\.[a-z]+(\.tmp)?$")
+"""The per-frame files a run or fuse writes in clouds/ and meshes/ (<frame:06d>.<ext>)."""
+
+
 def _clear(out: Path) -> None:
+    """Remove the earlier outputs: the top-level files of ``_OUTPUTS`` and the frame files in
+    clouds/ and meshes/; any other file there (not FuseFlow's) is kept, and the folder with it."""
     for name in _OUTPUTS:
         p = out / name
         if p.is_dir():
-            shutil.rmtree(p)
+            for f in p.iterdir():
+                if f.is_file() and _FRAME_FILE.match(f.name):
+                    f.unlink()
+            if not any(p.iterdir()):
+                p.rmdir()
         elif p.exists():
             p.unlink()
 
 
-LOCK = ".fuseflow.lock"
-"""The file in OUT a run or fuse holds an exclusive lock on (``lock_output``) while it writes."""
-
-_HELD: dict[Path, int] = {}  # OUT -> descriptor of its lock file, held until the process ends
+_HELD: dict[Path, int] = {}  # OUT -> descriptor of OUT itself, locked until the process ends
 
 
 def lock_output(out: Path) -> None:
-    """Take OUT's lock (``fcntl.flock`` on OUT/.fuseflow.lock, released by the system when this
-    process ends, however it ends); OutputError when another process holds it. Taking it again
-    in the same process is a no-op."""
+    """Take OUT's lock (``fcntl.flock`` on the directory OUT itself, released by the system when
+    this process ends, however it ends: no file is left behind); OutputError when another process
+    holds it. Taking it again in the same process is a no-op."""
     import fcntl
 
     key = Path(out).resolve()
     if key in _HELD:
         return
-    path = Path(out) / LOCK
     try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:
-        raise OutputError(f"{path}: cannot create the lock file ({exc.strerror or exc})") from None
+        raise OutputError(f"{out}: cannot open the output directory to lock it ({exc.strerror or exc})") from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
-        holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
         os.close(fd)
         raise OutputError(
-            f"{out} is being written by another fuseflow process (pid {holder}): wait for it to finish, "
-            "or choose another --out"
+            f"{out} is being written by another fuseflow process: wait for it to finish, or choose another --out"
         ) from None
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode())
     _HELD[key] = fd
 
 

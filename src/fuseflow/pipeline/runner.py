@@ -21,7 +21,7 @@ from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.datasets import open_recording
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.recording import Recording, write_json_atomic
-from fuseflow.pipeline.checks import below_calibration, check_depth_range, check_scale, frame_notes, low_agreement
+from fuseflow.pipeline.checks import below_calibration, frame_notes, low_agreement, validate_inputs
 from fuseflow.pipeline.config import OutputOptions, PipelineConfig
 from fuseflow.pipeline.exports import FrameWriter, recording_centres, resolve_crop, with_volume, write_sequence
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
@@ -140,6 +140,9 @@ def run_manifest(
         frame = "first-good" if calib_frame is None else rec.frame_numbers[calib_frame]
         calib = f"gmac:{config_digest(config.calib_config())}:frame={frame}"
     pipeline = {k: v for k, v in asdict(config).items() if k not in ("fuse", "calib", "device")}
+    if config.sync != "auto":  # "off" and "check" fuse the same clouds: the same run
+        pipeline.pop("sync")
+        pipeline.pop("sync_max_shift")
     if config.outputs == OutputOptions():
         pipeline.pop("outputs")  # the default outputs are not recorded
     settings = settings_doc(fuse=config.fuse_config(), pipeline=pipeline)
@@ -188,17 +191,19 @@ def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tup
     return rec, offsets
 
 
-def _check_inputs(rec: Recording, rig: Rig, positions: list[int], config: PipelineConfig) -> list[str]:
-    """Before fusing, on the first frame to fuse: its depth against the depth_range and the
-    extrinsics' scale (``pipeline.checks``); ValidationError when every cloud would be empty."""
+def _check_inputs(rec: Recording, rig: Rig, positions: list[int], config: PipelineConfig, volume) -> list[str]:
+    """Before fusing, on the first frame to fuse: ``pipeline.checks.validate_inputs`` (depth_range,
+    the extrinsics' scale, the crop box, exchanged cameras); ValidationError when every cloud
+    would be empty."""
     if not positions:
         return []
-    sel = [rec.rig.index(c) for c in rig.ids]
-    frame = rec[positions[0]].subset(sel)
-    cfg = config.fuse_config()
-    return check_depth_range(frame, rig, cfg.mcm.delta, cfg.mcm.z_max) + check_scale(
-        frame, rig, cfg.mcm.delta, cfg.mcm.z_max
-    )
+    return validate_inputs(rec[positions[0]], rig, config.fuse_config(), volume)
+
+
+def _finished(rec: Recording, out: Path, positions: list[int], writer: FrameWriter) -> bool:
+    """Every frame asked for is in OUT already (logged in frames.jsonl, its file written)."""
+    previous = read_frame_log(out / "frames.jsonl")
+    return all(rec.frame_numbers[t] in previous and writer.done(rec.frame_numbers[t]) for t in positions)
 
 
 @dataclass
@@ -328,7 +333,9 @@ def summarise(rec: Recording, out: Path, state: _RunState, choice: CalibrationCh
     ]
     warnings += [f"camera {c} lost agreement with its neighbours from frame {n} (bumped?)" for c, n in bumped.items()]
     warnings += frame_notes(state.records)
-    warnings += [w for w in [low_agreement(state.records), below_calibration(state.records, choice.calibrated)] if w]
+    smallest = min((c.width * c.height for c in choice.rig), default=None)
+    checks = [low_agreement(state.records, view_pixels=smallest), below_calibration(state.records, choice.calibrated)]
+    warnings += [w for w in checks if w]
     pts = np.array([r.points for r in state.records], dtype=np.float64)
     stat = (lambda f: float(f(pts))) if pts.size else (lambda f: 0.0)  # noqa: E731
     return RunSummary(
@@ -409,8 +416,10 @@ def run(
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
     state.writer = _frame_writer(rec, out, calibration, choice, config.outputs)
     positions = list(frames if frames is not None else range(len(rec)))
-    state.warnings += _check_inputs(rec, choice.rig, positions, config)
-    rec, offsets = _check_sync(rec, state, config)
+    offsets: dict[str, int] = {}
+    if not _finished(rec, out, positions, state.writer):  # nothing to check when nothing is fused
+        state.warnings += _check_inputs(rec, choice.rig, positions, config, state.writer.volume)
+        rec, offsets = _check_sync(rec, state, config)
     t_start = time.perf_counter()
     _fuse_frames(rec, out, positions, state, config, ray, on_frame)
     summary = summarise(rec, out, state, choice, time.perf_counter() - t_start, config.device)
