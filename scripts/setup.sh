@@ -5,17 +5,24 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 extras="${1:-}"
+# Another apt-get or dpkg (unattended-upgrades on a fresh machine) holding the package lock:
+# wait for it, up to APT_LOCK_WAIT seconds, instead of failing at once with exit 100.
+APT_LOCK_WAIT="${APT_LOCK_WAIT:-600}"
+apt_get() {
+    echo "  (apt-get waits up to ${APT_LOCK_WAIT} s for the package lock if another package manager holds it)" >&2
+    $SUDO apt-get -o DPkg::Lock::Timeout="$APT_LOCK_WAIT" "$@"
+}
 if ! ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null; then  # not grep -q: under pipefail its early exit SIGPIPEs ldconfig
     if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
     echo "installing libusb-1.0-0 (needed by open3d)" >&2
-    $SUDO apt-get update -qq >/dev/null && $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+    apt_get update -qq >/dev/null && apt_get install -y -qq libusb-1.0-0 >/dev/null
 fi
 # The test extra's browser test of the live viewer (tests/live/test_browser.py) drives Debian's
 # headless Chromium through its chromedriver: install both when missing.
 if [ "$extras" = "test" ] && ! { command -v chromium >/dev/null && command -v chromedriver >/dev/null; }; then
     if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
     echo "installing chromium and chromium-driver (the live viewer's browser test)" >&2
-    $SUDO apt-get update -qq >/dev/null && $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
+    apt_get update -qq >/dev/null && apt_get install -y -qq chromium chromium-driver >/dev/null
 fi
 # The test extra installs about 4 GB into .venv (open3d 0.9 GB, torch 0.75 GB, rerun 0.5 GB, ray
 # 0.25 GB). pip's wheel cache would hold a second copy of what it downloads, so it is off: one CI

@@ -296,3 +296,58 @@ def test_fuse_table_merges_grid_choices():
     done.add_grid("auto: stride 1, s0 1.5 (8 views, 0.5 M valid depth pixels: every pixel counts)")
     lines = done.grid_lines()
     assert len(lines) == 2 and lines[0].startswith("auto: stride 2, s0 1 in 3 frames (first: 8 views"), lines
+
+
+# -------------------------------------------------------------------------------------- pictures
+
+
+def test_camera_labels_are_not_cut_to_a_shared_tail():
+    from fuseflow.viz.render import camera_labels
+
+    serials = ["105322251564", "113522250549", "117222250549", "cam01"]
+    labels = camera_labels(serials)
+    assert len(set(labels.values())) == 4 and labels["cam01"] == "cam01"
+    assert labels["113522250549"] != labels["117222250549"]
+
+
+def test_weight_picture_spreads_its_colour_scale_and_says_what_it_shows(tmp_path):
+    """Fusion weights crowd near 1: drawn on a 0-1 scale nearly every point is the same red."""
+    import cv2
+
+    from fuseflow.viz import save_cloud_png
+    from fuseflow.viz.render import weight_colors
+
+    g = np.linspace(-0.5, 0.5, 120)
+    x, y = np.meshgrid(g, g)
+    xyz = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    w = np.linspace(0.9, 1.0, len(xyz))
+    cloud = fuseflow.FusedCloud.from_numpy(xyz, np.full_like(xyz, 128), w, np.zeros(len(xyz)))
+    png = save_cloud_png(tmp_path / "w.png", cloud, color_by="weight", width=400, height=300)
+    img = cv2.imread(str(png))[20:-60, 60:-110]  # the cloud, without the bar, gizmo and captions
+    inked = img[np.abs(img.astype(int) - img[0, 0].astype(int)).sum(-1) > 30].tolist()  # not the background
+    top = {tuple(c) for c in weight_colors(np.linspace(0.9, 1.0, 1000))[:, ::-1].tolist()}  # 0-1 scale's red end
+    share = sum(tuple(c) in top for c in inked) / max(len(inked), 1)
+    assert len(inked) > 5000 and share < 0.3, f"{share:.0%} of the cloud in the red end of a 0-1 scale"
+    from fuseflow.viz.render import weight_caption, weight_range
+
+    lo, hi = weight_range(w)
+    assert 0.9 <= lo < 0.91 and 0.99 < hi <= 1.0
+    assert "fusion weight" in weight_caption((lo, hi)) and f"{lo:.2f}" in weight_caption((lo, hi))
+
+
+def test_setup_script_waits_for_the_apt_lock_and_says_so(tmp_path):
+    """Every apt-get of scripts/setup.sh goes through apt_get, which passes DPkg::Lock::Timeout
+    (exit 100 at once when another package manager holds the lock, otherwise)."""
+    import subprocess
+
+    script = (Path(__file__).resolve().parents[2] / "scripts" / "setup.sh").read_text()
+    calls = [ln for ln in script.splitlines() if "apt-get" in ln and not ln.lstrip().startswith(("#", "echo"))]
+    assert calls and all("DPkg::Lock::Timeout" in ln for ln in calls), calls
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "apt-get").write_text('#!/bin/sh\necho "apt-get $*"\n')
+    (fake / "apt-get").chmod(0o755)
+    func = script[script.index("APT_LOCK_WAIT=") : script.index("\n}\n") + 3]
+    res = subprocess.run(["bash", "-c", f"SUDO=''\n{func}\napt_get update"], capture_output=True, text=True,
+                         env={"PATH": f"{fake}:/usr/bin:/bin"})  # fmt: skip
+    assert "apt-get -o DPkg::Lock::Timeout=600 update" in res.stdout and "waits up to 600 s" in res.stderr

@@ -140,8 +140,9 @@ def save_cloud_png(
     volume=None,
     label: str = "",
 ) -> Path:
-    """Render ``cloud`` headless to a PNG; ``color_by`` is 'rgb' or 'weight' (TURBO colormap,
-    with a colour bar).
+    """Render ``cloud`` headless to a PNG; ``color_by`` is 'rgb' or 'weight' (TURBO colormap over
+    the 2nd-98th percentile of the frame's weights, ``weight_range``, with a colour bar and a
+    caption saying what the colours mean).
 
     Without K / T_cam_world, ``view_camera`` frames the cloud (inside ``volume``, a
     ``geometry.volume.CaptureVolume``, when given: points outside it are not drawn). With
@@ -153,7 +154,11 @@ def save_cloud_png(
         raise ValidationError(f"color_by must be 'rgb' or 'weight', got {color_by!r}")
     c = cloud.to("cpu")
     xyz = c.xyz.numpy()
-    colors = c.rgb.numpy() if color_by == "rgb" else weight_colors(c.weight.numpy())
+    span = weight_range(c.weight.numpy()) if color_by == "weight" else (0.0, 1.0)
+    if color_by == "rgb":
+        colors = c.rgb.numpy()
+    else:
+        colors = weight_colors((c.weight.numpy() - span[0]) / (span[1] - span[0]))
     shown = volume.contains(xyz) if volume is not None and len(xyz) else np.ones(len(xyz), bool)
     if K is None or T_cam_world is None:
         if len(xyz) == 0:
@@ -169,11 +174,61 @@ def save_cloud_png(
         size = float(np.clip(np.linalg.norm(hi - lo) / 20, 0.02, 0.3))
     if label and volume is not None and len(xyz):
         label = f"{label}; {int(shown.sum()):,} in the capture volume"
-    annotate(img, K, T_cam_world, rig, label, color_by == "weight", size)
+    annotate(img, K, T_cam_world, rig, label, color_by == "weight", size, span)
+    if color_by == "weight":
+        _caption(img, weight_caption(span))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     return path
+
+
+def weight_range(weight: np.ndarray) -> tuple[float, float]:
+    """The weights the colour scale spans: the 2nd to 98th percentile of ``weight`` (fusion weights
+    crowd near 1, where a 0-1 scale paints nearly every point red), at least 0.01 wide, in [0, 1]."""
+    w = np.asarray(weight, dtype=np.float64)
+    w = w[np.isfinite(w)]
+    if not w.size:
+        return 0.0, 1.0
+    lo, hi = (float(v) for v in np.percentile(w, [2, 98]))
+    if hi - lo < 0.01:
+        mid = (lo + hi) / 2
+        lo, hi = mid - 0.005, mid + 0.005
+    return max(0.0, lo), min(1.0, max(hi, lo + 0.01))
+
+
+def weight_caption(span: tuple[float, float]) -> str:
+    """What a weight picture shows, in one line."""
+    return (
+        f"colour: fusion weight of each point (eq. 22: measurement confidence x cross-view agreement); "
+        f"blue {span[0]:.2f} or less, red {span[1]:.2f} or more (2nd-98th percentile)"
+    )
+
+
+def _caption(img: np.ndarray, text: str) -> None:
+    """``text`` along the bottom edge, right of the axes gizmo, on the background colour."""
+    import cv2
+
+    h = img.shape[0]
+    scale = 0.45
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    room = img.shape[1] - 110
+    if tw > room:
+        scale *= room / tw
+        (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    cv2.rectangle(img, (96, h - 16 - th), (104 + tw, h - 6), BACKGROUND, -1)
+    cv2.putText(img, text, (100, h - 10), cv2.FONT_HERSHEY_SIMPLEX, scale, INK, 1, cv2.LINE_AA)
+
+
+def camera_labels(ids) -> dict[str, str]:
+    """A label per camera id: the shortest tail of 6 or more characters that no two ids share
+    (serial numbers differ at the end; two HO-Cap serials end in the same 6 digits)."""
+    ids = [str(i) for i in ids]
+    for k in range(6, max((len(i) for i in ids), default=6) + 1):
+        tails = [i[-k:] for i in ids]
+        if len(set(tails)) == len(tails):
+            return dict(zip(ids, tails))
+    return {i: i for i in ids}
 
 
 def _up(rig) -> np.ndarray:
@@ -226,6 +281,7 @@ BACKGROUND = (46, 50, 58)
 def _draw_cameras(img: np.ndarray, K: np.ndarray, T: np.ndarray, rig, size: float) -> None:
     import cv2
 
+    labels = camera_labels(rig.ids)
     for cam in rig:
         if not cam.is_calibrated:
             continue
@@ -240,7 +296,7 @@ def _draw_cameras(img: np.ndarray, K: np.ndarray, T: np.ndarray, rig, size: floa
         p = np.round(uv).astype(int)
         for i, j in ((0, 1), (0, 2), (0, 3), (0, 4), (1, 2), (2, 3), (3, 4), (4, 1)):
             cv2.line(img, tuple(map(int, p[i])), tuple(map(int, p[j])), INK, 1, cv2.LINE_AA)
-        cv2.putText(img, cam.id[-6:], tuple(map(int, p[0] + [4, -4])), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1,
+        cv2.putText(img, labels[cam.id], tuple(map(int, p[0] + [4, -4])), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1,
                     cv2.LINE_AA)  # fmt: skip
 
 
@@ -258,8 +314,9 @@ def _draw_axes(img: np.ndarray, T: np.ndarray) -> None:
                     cv2.LINE_AA)  # fmt: skip
 
 
-def _draw_colour_bar(img: np.ndarray) -> None:
-    """A vertical TURBO bar on the right: weight 1 at the top, 0 at the bottom, with ticks."""
+def _draw_colour_bar(img: np.ndarray, span: tuple[float, float] = (0.0, 1.0)) -> None:
+    """A vertical TURBO bar on the right: weight ``span[1]`` at the top, ``span[0]`` at the
+    bottom, with ticks."""
     import cv2
 
     h, w = img.shape[:2]
@@ -270,7 +327,8 @@ def _draw_colour_bar(img: np.ndarray) -> None:
     for val in (0.0, 0.25, 0.5, 0.75, 1.0):
         y = int(bottom - val * (bottom - top))
         cv2.line(img, (x0 - 4, y), (x0, y), INK, 1)
-        cv2.putText(img, f"{val:.2f}", (x0 - 42, y + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1, cv2.LINE_AA)
+        value = span[0] + val * (span[1] - span[0])
+        cv2.putText(img, f"{value:.2f}", (x0 - 42, y + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, INK, 1, cv2.LINE_AA)
     cv2.putText(img, "weight", (x0 - 20, top - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, INK, 1, cv2.LINE_AA)
 
 
@@ -282,10 +340,11 @@ def annotate(
     label: str = "",
     colour_bar: bool = False,
     camera_size: float = 0.15,
+    span: tuple[float, float] = (0.0, 1.0),
 ):
     """Draw the rig's cameras (frusta ``camera_size`` metres deep), the axes gizmo, ``label``
-    (top left) and, with ``colour_bar``, the weight colour bar onto ``img`` (H, W, 3) RGB uint8,
-    in place; returns it."""
+    (top left) and, with ``colour_bar``, the weight colour bar over the weights ``span`` onto
+    ``img`` (H, W, 3) RGB uint8, in place; returns it."""
     import cv2
 
     if rig is not None:
@@ -296,5 +355,5 @@ def annotate(
         cv2.rectangle(img, (6, 8), (18 + tw, 34), BACKGROUND, -1)  # over frusta that reach the top
         cv2.putText(img, label, (12, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.6, INK, 1, cv2.LINE_AA)
     if colour_bar:
-        _draw_colour_bar(img)
+        _draw_colour_bar(img, span)
     return img
