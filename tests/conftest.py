@@ -105,3 +105,16 @@ def bumped_rec(tmp_path_factory) -> tuple[Path, str, int, np.ndarray]:
                 old.unlink()
             shutil.copy(src, dst_dir / src.name)
     return rec, "cam01", 4, T_new
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """One `fuseflow demo --cameras 8 --num-frames 2 --seed 1` (the README's first command on 2 of
+    its 10 frames, 640x480) shared by the tests that need a demo run: (output folder, CLI result)."""
+    from typer.testing import CliRunner
+
+    from fuseflow.cli import app
+
+    out = tmp_path_factory.mktemp("demo") / "demo"
+    res = CliRunner().invoke(app, ["demo", "--out", str(out), "--cameras", "8", "--num-frames", "2", "--seed", "1"])
+    return out, res

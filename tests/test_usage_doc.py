@@ -77,3 +77,54 @@ def test_help_examples_use_real_options(name):
     assert res.exit_code == 0 and "Examples:" in res.output
     for opt in set(re.findall(r"\s(--[a-z][a-z-]*)", examples)):
         assert opt in res.output, f"{name} --help examples use {opt}, which it does not have"
+
+
+def test_help_tells_auto_and_the_outputs():
+    """`fuse` / `run --help` state auto's rule (0.8 M valid depth pixels, 1 cm spacing) and every
+    file --out gets; `calibrate` has no undocumented short form of --frame."""
+    runner = CliRunner()
+    for name in ("fuse", "run"):
+        flat = " ".join(runner.invoke(app, [name, "--help"], terminal_width=200).output.split())
+        for words in ("0.8 M valid depth pixels", "within 1 cm", "manifest.json", "frames.jsonl", "meshes/"):
+            assert words in flat, f"{name} --help: {words!r} missing"
+        assert ">= 6 well-filled views" not in flat and "the grid fits the rig" not in flat
+    calibrate = runner.invoke(app, ["calibrate", "--help"], terminal_width=200).output
+    assert " -t" not in calibrate
+
+
+#: Tolerances of the demo numbers usage.md quotes (section 0: the 10-frame demo) against the
+#: 2-frame demo run of tests/conftest.py (same rig, seed and settings; frames 0-1 of the 10):
+#: points per frame within 10 % (the dynamic scene changes little over 10 frames at this rate;
+#: measured: see the test), MB per PLY within 10 %, and exactly the PLY's bytes a point.
+POINTS_TOLERANCE = 0.10
+
+
+def _quoted(pattern: str, text: str) -> str:
+    m = re.search(pattern, " ".join(text.split()))
+    assert m, f"docs/usage.md no longer quotes {pattern!r}"
+    return m.group(1)
+
+
+def test_usage_doc_demo_numbers_match_a_demo_run(demo_run):
+    """The demo's size in section 0 (points per frame, MB per PLY) and in section 4's "Sizes"
+    (points per frame, bytes a point, MB per frame) agree with each other and with a demo run."""
+    from fuseflow.io.ply import ply_point_count
+
+    out, res = demo_run
+    assert res.exit_code == 0, res.output
+    text = USAGE.read_text()
+    demo = text[text.index("## 0. ") : text.index("\n## 1. ")]
+    sizes = text[text.index("Sizes: a PLY stores") :]
+    points = int(_quoted(r"([\d]+) points per frame, FUSE", demo))
+    mb_per_ply = float(_quoted(r"([\d.]+) MB per PLY", demo))
+    assert float(_quoted(r"demo's ([\d.]+) M points per frame", sizes)) == round(points / 1e6, 2)
+    assert float(_quoted(r"are ([\d.]+) MB per frame", sizes)) == mb_per_ply
+    per_point = int(_quoted(r"a PLY stores (\d+) bytes per point", sizes))
+    plys = sorted((out / "clouds").glob("*.ply"))
+    assert len(plys) == 2
+    for ply in plys:
+        n = ply_point_count(ply)
+        header = ply.read_bytes().index(b"end_header\n") + len(b"end_header\n")
+        assert (ply.stat().st_size - header) == per_point * n, "bytes a point"
+        assert abs(n - points) <= POINTS_TOLERANCE * points, f"{ply.name}: {n} points, usage.md says {points}"
+        assert abs(ply.stat().st_size / 1e6 - mb_per_ply) <= POINTS_TOLERANCE * mb_per_ply

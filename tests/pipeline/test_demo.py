@@ -7,16 +7,15 @@ import math
 
 import cv2
 import numpy as np
-from typer.testing import CliRunner
 
-from fuseflow.cli import app
 from fuseflow.io import read_calibration, read_ply
 
 
-def test_demo_writes_its_scores_pictures_and_clouds(tmp_path):
-    out = tmp_path / "demo"
-    res = CliRunner().invoke(app, ["demo", "--out", str(out), "--cameras", "8", "--num-frames", "2", "--seed", "1"])
+def test_demo_writes_its_scores_pictures_and_clouds(demo_run):
+    out, res = demo_run  # tests/conftest.py: one demo run shared with tests/test_usage_doc.py
     assert res.exit_code == 0, res.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["recording"] == "(temporary, removed)"  # not a path that no longer exists
     assert "GMAC rotation error" in res.output and "F-score" in res.output
     d = json.loads((out / "demo.json").read_text())
     assert d["cameras"] == 8 and d["frames"] == 2 and 2 <= d["cameras_placed"] <= 8

@@ -145,10 +145,23 @@ def run_demo(
             warnings=warnings,
         )
         write_json_atomic(out / "demo.json", result.to_json())
+        if tmp is not None:  # summary.json must not name a folder that is removed below
+            _unname_recording(out / "summary.json")
         return result
     finally:
         if tmp is not None:
             tmp.cleanup()
+
+
+def _unname_recording(path: Path) -> None:
+    """The run's summary.json with its ``recording`` marked as the removed temporary folder."""
+    import json
+
+    from fuseflow.io.recording import write_json_atomic
+
+    doc = json.loads(path.read_text())
+    doc["recording"] = "(temporary, removed)"
+    write_json_atomic(path, doc)
 
 
 def _simulate(rec_dir: Path, cfg: Any) -> tuple[Any, float]:
