@@ -92,11 +92,14 @@ def test_help_tells_auto_and_the_outputs():
     assert " -t" not in calibrate
 
 
-#: Tolerances of the demo numbers usage.md quotes (section 0: the 10-frame demo) against the
-#: 2-frame demo run of tests/conftest.py (same rig, seed and settings; frames 0-1 of the 10):
-#: points per frame within 10 % (the dynamic scene changes little over 10 frames at this rate;
-#: measured: see the test), MB per PLY within 10 %, and exactly the PLY's bytes a point.
-POINTS_TOLERANCE = 0.10
+#: Tolerance of the demo numbers usage.md quotes (section 0: the mean of the 10-frame demo)
+#: against the 2-frame demo run of tests/conftest.py (same rig, seed and settings; frames 0-1 of
+#: the 10): points per frame and MB per PLY within 5 %; the PLY's bytes a point exactly.
+#: Measured: frames 0 and 1 of `fuseflow demo --cameras 8 --num-frames 2 --seed 1` 1178085 and
+#: 1174940 points, 27.10 and 27.02 MB, against the quoted 1173555 and 27 MB (+0.4 %, +0.1 %);
+#: all 10 frames with the true extrinsics (`fuseflow simulate --cameras 8 --num-frames 10
+#: --scene studio --dynamic --seed 1`, `fuseflow run --use-rig`): 1168418-1175889.
+POINTS_TOLERANCE = 0.05
 
 
 def _quoted(pattern: str, text: str) -> str:
@@ -128,3 +131,24 @@ def test_usage_doc_demo_numbers_match_a_demo_run(demo_run):
         assert (ply.stat().st_size - header) == per_point * n, "bytes a point"
         assert abs(n - points) <= POINTS_TOLERANCE * points, f"{ply.name}: {n} points, usage.md says {points}"
         assert abs(ply.stat().st_size / 1e6 - mb_per_ply) <= POINTS_TOLERANCE * mb_per_ply
+
+
+def test_readme_api_snippet_shows_progress_and_verdicts(tmp_path, monkeypatch, capsys):
+    """README.md's Python API block run as written on a simulated 3-camera room (320x240): it
+    prints GMAC's stages while it works, the calibration in two lines, a verdict per camera, and
+    writes a PLY per frame."""
+    from fuseflow.synth import SimConfig, simulate_recording
+
+    rec = tmp_path / "rec"
+    simulate_recording(rec, SimConfig(cameras=3, frames=2, scene="room", resolution=(320, 240), seed=2))
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    code = re.search(r"```python\n(.*?)```", readme, flags=re.S).group(1)
+    assert '"REC"' in code
+    monkeypatch.chdir(tmp_path)
+    exec(code.replace('"REC"', repr(str(rec))), {})
+    out = capsys.readouterr().out
+    assert "calibrating: rgbd: pairs 3/3" in out or "calibrating: " in out, out
+    assert "Calibration of 3 cameras" in out and "verdicts" in out
+    verdicts = [ln.split()[1] for ln in out.splitlines() if ln.startswith("cam0")]
+    assert len(verdicts) == 3 and set(verdicts) <= {"good", "check", "unplaced"}, out
+    assert len(list(tmp_path.glob("cloud_*.ply"))) == 2
