@@ -42,7 +42,9 @@ def command(
         help=AUTO_HELP + " default (= quality, every pixel), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
     ),
     force: bool = typer.Option(
-        False, "--force", help="Delete the outputs of a different earlier fuse in --out and start over."
+        False,
+        "--force",
+        help="Delete the outputs of a different earlier fuse in --out (only the files fuse writes) and start over.",
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
     settings: list[str] = typer.Option(None, "--set", metavar="NAME=VALUE", help=SET_HELP),

@@ -88,7 +88,9 @@ def command(
     ray_address: str = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local Ray)."),
     ray_cpus: int = typer.Option(None, "--ray-cpus", help="CPUs of a local Ray (default all)."),
     force: bool = typer.Option(
-        False, "--force", help="Delete the outputs of a different earlier run in --out and start over."
+        False,
+        "--force",
+        help="Delete the outputs of a different earlier run in --out (only the files run writes) and start over.",
     ),
     sync_offsets: str = typer.Option(
         "check",

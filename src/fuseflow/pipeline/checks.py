@@ -195,16 +195,17 @@ def frame_notes(records) -> list[str]:
 SWAP_GAIN = 0.04
 """Two cameras look exchanged when exchanging their extrinsics raises the rig's mean depth
 agreement (``geometry.camera_agreement`` of one frame, ``SWAP_SAMPLES`` samples a view, tau 5 %)
-by more than this. Measured on frame 0 (/tmp scripts, seed 4): with the right extrinsics every
-exchange scores 0.06-0.20 below them (simulated 3-, 4-, 6- and 8-camera 160x120 studios: 0.82,
-0.80, 0.83, 0.82 against a best exchange of 0.63, 0.65, 0.74, 0.76; HO-Cap's 8 RealSense cameras
-with their reference extrinsics: 0.91 against 0.74); with cam00 and cam01 exchanged, exchanging
-them back scores 0.09-0.36 above (0.63 -> 0.82, 0.65 -> 0.80, 0.74 -> 0.83, 0.73 -> 0.82; HO-Cap
-0.55 -> 0.91). The threshold sits between the two."""
+by more than this. Measured on frame 0 of ``fuseflow simulate --scene studio --resolution
+160x120 --seed 4`` recordings and of HO-Cap's 8 RealSense cameras (``fuseflow convert
+--with-extrinsics``): with the right extrinsics every exchange scores 0.06-0.20 below them (3, 4,
+6 and 8 cameras: 0.82, 0.80, 0.83, 0.82 against a best exchange of 0.63, 0.65, 0.74, 0.76;
+HO-Cap 0.91 against 0.74); with cam00 and cam01 exchanged, exchanging them back scores 0.09-0.36
+above (0.63 -> 0.82, 0.65 -> 0.80, 0.74 -> 0.83, 0.73 -> 0.82; HO-Cap 0.55 -> 0.91). The
+threshold sits between the two; ``tests/faults/test_checks.py`` holds it on 3, 6 and 12 cameras."""
 
 SWAP_SAMPLES = 1500
-"""Depth samples a view for the exchange test: about 12 ms a tested pair for 8 cameras at
-640x480 on one core, 0.35 s for HO-Cap's 28 pairs."""
+"""Depth samples a view for the exchange test: HO-Cap's 28 pairs (8 cameras, 640x480) took 0.35 s
+on the project's 2-core machine under load."""
 
 SWAP_ALL_PAIRS = 10
 """Rigs of up to this many cameras test every pair; larger rigs test the pairs among the
