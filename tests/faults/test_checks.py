@@ -194,7 +194,7 @@ def test_api_fuse_and_stream_warn_when_they_fuse_fewer_cameras(small_rec):
     calib = Calibration({c: rec.rig[c].T_cam_world for c in ("cam00", "cam01")})
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cloud = fuseflow.fuse(rec[0], calib.apply(bare))  # was: an error about missing extrinsics
+        cloud = fuseflow.fuse(rec[0], calib.apply(bare))  # cam02 has no extrinsics: left out
         clouds = list(fuseflow.stream(rec, calib))
     lines = [str(w.message) for w in caught]
     assert len(cloud) > 0 and set(np.unique(cloud.camera).tolist()) == {0, 1}
