@@ -204,9 +204,10 @@ above (0.63 -> 0.82, 0.65 -> 0.80, 0.74 -> 0.83, 0.73 -> 0.82; HO-Cap 0.55 -> 0.
 threshold sits between the two; ``tests/faults/test_checks.py`` holds it on 3, 6 and 12 cameras."""
 
 SWAP_SAMPLES = 1500
-"""Depth samples a view for the exchange test: HO-Cap's 28 pairs (8 cameras, 640x480) took
-0.35 s on the project's 2-core machine, 1.2-1.5 s with its load average at 17 (the whole
-``validate_inputs`` 1.3 s there, the process's first call 5.4 s with its imports)."""
+"""Depth samples a view for the exchange test: HO-Cap's 28 pairs (8 cameras, 640x480) took 0.35 s
+in one measurement and 1.2-1.5 s in another on the project's shared 2-core machine (load average
+17 during the second; the whole ``validate_inputs`` 1.3 s there, a process's first call 5.4 s
+with its imports)."""
 
 SWAP_ALL_PAIRS = 10
 """Rigs of up to this many cameras test every pair; larger rigs test the pairs among the
