@@ -351,3 +351,16 @@ def test_setup_script_waits_for_the_apt_lock_and_says_so(tmp_path):
     res = subprocess.run(["bash", "-c", f"SUDO=''\n{func}\napt_get update"], capture_output=True, text=True,
                          env={"PATH": f"{fake}:/usr/bin:/bin"})  # fmt: skip
     assert "apt-get -o DPkg::Lock::Timeout=600 update" in res.stdout and "waits up to 600 s" in res.stderr
+
+
+@pytest.mark.parametrize("command", ["fuse", "live"])
+def test_permuted_extrinsics_are_named_by_fuse_and_live(tmp_path, command, invoke, expect, make_recording):
+    """Six cameras in reverse order: `run` names them after fusing (probe); `fuse` and `live` on
+    the first frame, with the same words."""
+    rec = make_recording(tmp_path / "rec6", cameras=6, frames=1)
+    calib = _calib(rec, tmp_path / "c.json", lambda T: dict(zip(T, list(T.values())[::-1])))
+    if command == "live":
+        res = invoke("live", rec, "--num-frames", "1", "--rate", "50", "--calib", calib)
+    else:
+        res = invoke("fuse", rec, "--out", tmp_path / "o", "--calib", calib)
+    expect(res, 0, "disagrees with their neighbours", "does not fit this recording")

@@ -231,16 +231,27 @@ def _mean_agreement(frame: Frame, rig: Rig) -> tuple[float, np.ndarray]:
     return (float(finite.mean()) if finite.size else float("nan")), per_camera
 
 
-def check_swaps(frame: Frame, rig: Rig) -> list[str]:
+def check_swaps(frame: Frame, rig: Rig, absolute: bool = True) -> list[str]:
     """A warning naming two cameras whose extrinsics look exchanged (exchanging them raises the
-    mean depth agreement of ``frame`` by more than ``SWAP_GAIN``), or none. ``frame`` holds the
-    views of ``rig`` in its order; rigs of fewer than 2 cameras are not tested."""
+    mean depth agreement of ``frame`` by more than ``SWAP_GAIN``), and with ``absolute`` one
+    naming the cameras whose agreement in ``frame`` is below ``LOW_AGREEMENT`` (views of at
+    least ``MIN_AGREEMENT_PIXELS``), or none. ``frame`` holds the views of ``rig`` in its
+    order; rigs of fewer than 2 cameras are not tested."""
     placed = [c for c in rig if c.T_cam_world is not None]
     if len(placed) < 2 or len(placed) != len(rig):
         return []
     base, per_camera = _mean_agreement(frame, rig)
     if not np.isfinite(base):
         return []
+    out = []
+    low = {c: float(a) for c, a in zip(rig.ids, per_camera) if np.isfinite(a) and a < LOW_AGREEMENT}
+    if absolute and low and min(c.width * c.height for c in rig) >= MIN_AGREEMENT_PIXELS:
+        named = ", ".join(f"{c} {a:.2f}" for c, a in low.items())
+        out.append(
+            f"cameras whose depth disagrees with their neighbours in frame {frame.index} (agreement {named}; "
+            "about 0.8 or more when the extrinsics fit): the calibration does not fit this recording (cameras "
+            "swapped or renamed, another rig's calibration, or moved since); check it, or calibrate this recording"
+        )
     ids = rig.ids
     order = list(range(len(ids)))
     if len(ids) > SWAP_ALL_PAIRS:
@@ -254,8 +265,8 @@ def check_swaps(frame: Frame, rig: Rig) -> list[str]:
         if np.isfinite(score) and score > best:
             best, pair = score, (ids[min(i, j)], ids[max(i, j)])
     if pair is None or best - base <= SWAP_GAIN:
-        return []
-    return [
+        return out
+    return out + [
         f"cameras {pair[0]} and {pair[1]} look exchanged: their depth agrees with their neighbours' "
         f"{best:.2f} with their extrinsics swapped, {base:.2f} as given (mean over the rig, frame {frame.index}); "
         "check the camera ids in calib.json (cables or serial numbers exchanged?) or calibrate this recording"
@@ -304,18 +315,25 @@ def check_crop(frame: Frame, rig: Rig, volume: CaptureVolume | None, delta: floa
 
 
 def validate_inputs(
-    frame: Frame, rig: Rig, cfg: FuseConfig, volume: CaptureVolume | None = None, swaps: bool = True
+    frame: Frame,
+    rig: Rig,
+    cfg: FuseConfig,
+    volume: CaptureVolume | None = None,
+    swaps: bool = True,
+    agreement: bool = True,
 ) -> list[str]:
     """Every check before fusing, on one frame (the first to fuse) of the views of ``rig``'s
     cameras: ValidationError when every cloud would be empty (depth_range or the settings'
     delta / z_max exclude every pixel, translations in millimetres, a crop box with no point),
-    else the warnings (cameras outside their range, cameras that cannot share a point, two
-    cameras exchanged, with ``swaps``). What ``fuse``, ``run``, ``live`` and ``stream`` run."""
+    else the warnings (cameras outside their range, cameras that cannot share a point; with
+    ``swaps`` two cameras exchanged, and with ``agreement`` cameras whose depth disagrees with
+    their neighbours in this frame: ``run`` judges that over all its frames instead). What
+    ``fuse``, ``run``, ``live`` and ``stream`` run."""
     frame = _subset(frame, rig)
     delta, z_max = cfg.mcm.delta, cfg.mcm.z_max
     warnings = check_depth_range(frame, rig, delta, z_max)
     warnings += check_scale(frame, rig, delta, z_max)
     check_crop(frame, rig, volume, delta, z_max)
     if swaps:
-        warnings += check_swaps(frame, rig)
+        warnings += check_swaps(frame, rig, absolute=agreement)
     return warnings

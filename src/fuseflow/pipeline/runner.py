@@ -197,7 +197,7 @@ def _check_inputs(rec: Recording, rig: Rig, positions: list[int], config: Pipeli
     would be empty."""
     if not positions:
         return []
-    return validate_inputs(rec[positions[0]], rig, config.fuse_config(), volume)
+    return validate_inputs(rec[positions[0]], rig, config.fuse_config(), volume, agreement=False)  # summarise
 
 
 def _finished(rec: Recording, out: Path, positions: list[int], writer: FrameWriter) -> bool:
