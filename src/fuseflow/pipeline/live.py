@@ -222,7 +222,8 @@ class LiveSummary:
     fuse_ms_median: float | None
     points_mean: float
     stopped_by: str
-    """"end of source", "frames", "duration", "stop" (``LiveLoop.stop``) or "interrupted" (Ctrl-C)."""
+    """"end of source", "frames", "duration", "stop" or another reason given to ``LiveLoop.stop``
+    ("interrupted" for Ctrl-C, "terminated" for SIGTERM in ``fuseflow live``)."""
     dropped_views: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
@@ -272,13 +273,16 @@ class LiveLoop:
         self._cfg = None
         self._slot = LatestFrame()
         self._stop = threading.Event()
+        self._stop_reason = "stop"
         self._error: BaseException | None = None
         self._ended = False
         self._fuse_ms: list[float] = []
         self._points: list[int] = []
 
-    def stop(self) -> None:
-        """Ask the loop to finish (from any thread); ``run`` returns its summary."""
+    def stop(self, reason: str = "stop") -> None:
+        """Ask the loop to finish (from any thread); ``run`` returns its summary, whose
+        ``stopped_by`` is ``reason`` (e.g. "terminated" for SIGTERM)."""
+        self._stop_reason = reason
         self._stop.set()
         self._slot.close()
 
@@ -347,7 +351,7 @@ class LiveLoop:
         duration = self.settings.duration
         while True:
             if self._stop.is_set():
-                return "stop"
+                return self._stop_reason
             if duration is not None and time.perf_counter() - t0 >= duration:
                 return "duration"
             item = self._slot.take(timeout=0.05)
