@@ -456,13 +456,21 @@ class LiveServer:
         if origin is not None and path in ("/ws", "/stats"):
             own = {f"http://{headers.get('Host', '')}".lower(), f"https://{headers.get('Host', '')}".lower()}
             if origin.lower() not in own and origin.rstrip("/") not in self.access.allow_origins:
-                return 403, "origin", f"Origin {origin!r} may not watch this stream (fuseflow live --allow-origin ORIGIN)"
+                return (
+                    403,
+                    "origin",
+                    f"Origin {origin!r} may not watch this stream (fuseflow live --allow-origin ORIGIN)",
+                )
         if self.token and path in (*_PAGES, "/ws", "/stats"):
             given = parse_qs(urlsplit(request.path).query).get("token", [""])[-1]
             if not hmac.compare_digest(given.encode(), self.token.encode()):
                 return 403, "token", "this stream needs its token: open the address fuseflow live printed (…/?token=…)"
         if path == "/ws" and len(self._clients) >= self.access.max_viewers:
-            return 503, "viewers", f"{self.access.max_viewers} viewers are watching already (fuseflow live --max-viewers N)"
+            return (
+                503,
+                "viewers",
+                f"{self.access.max_viewers} viewers are watching already (fuseflow live --max-viewers N)",
+            )
         return None
 
     def _http(self, connection: Any, request: Any) -> Any:
