@@ -41,7 +41,8 @@ def _print_summary(result, source: str) -> None:
         rows.append((f"viewer {k + 1}", f"{c['codec']}: {c['frames_sent']} frames sent, {c['dropped']} dropped, "
                      f"{c['mbit_per_s']:.1f} Mbit/s{age}"))  # fmt: skip
     if result.held_s:
-        rows.append(("held", f"last frame served {result.held_s:.1f} s after the source ended"))
+        rows.append(("held", f"last frame served {result.held_s:.1f} s after the source ended, "
+                     f"until {result.hold_ended_by}"))  # fmt: skip
     if result.encode_ms_median is not None:
         rows.append(("encoding", f"{result.encode_ms_median:.1f} ms median per frame (encoder thread), "
                      f"{result.encoder_skipped} frames not encoded"))  # fmt: skip

@@ -65,6 +65,8 @@ class LiveResult:
     warnings: list[str] = field(default_factory=list)
     held_s: float = 0.0
     """Seconds the last frame was served after the source ended (``LiveOutputs.hold``)."""
+    hold_ended_by: str | None = None
+    """What ended the hold: the ``StopRequest`` reason ("interrupted", "terminated", ...)."""
     encode_ms_median: float | None = None
     """Median time the web sink's encoder thread took per frame (all codecs asked for)."""
     encode_cpu_ms_median: float | None = None
@@ -150,7 +152,7 @@ def run_live(
         loop = LiveLoop(source, rig, settings, fuse_fn=fuse_fn, calibration=calibration)
         if outputs.serve is not None:
             outputs.compact.check()
-            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig),
+            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig, source.rig.ids),
                                 codec=outputs.codec, access=outputs.access).start()  # fmt: skip
             warnings += _server_warnings(server)
             sinks.append(WebSink(server, outputs.compact, loop.stats.extra))
@@ -193,6 +195,8 @@ def _finish(summary: LiveSummary, server: LiveServer | None, sinks: list[Any], w
         server.close()
     clients = server.client_stats() if server is not None else []
     result = LiveResult(summary, server.url if server else None, clients, warnings, round(held, 2))
+    if held:
+        result.hold_ended_by = stop.reason if stop.event.is_set() else "interrupted"
     if web is not None and web.encode_ms:
         result.encode_ms_median = round(float(np.median(web.encode_ms)), 2)
         result.encode_cpu_ms_median = round(float(np.median(web.encode_cpu_ms)), 2)

@@ -26,7 +26,9 @@ server, so a page can tell a restarted server), then one binary message per fuse
 codec (``fuseflow.live.wire``). With ``ack=1`` each binary frame is preceded by a text message
 ``{"type": "frame", "number", "captured", "sent", "age_ms", "rtt_ms", "dropped"}`` (capture and
 send times in the server's clock, the frame's age when sent, the last measured round trip, the
-frames dropped for this client so far). ``{"type": "end", "reason": ...}`` says the stream
+frames dropped for this client so far, whether an attributes message follows). A raw client
+that also asks ``attrs=1`` gets, after each frame, a binary message with each point's camera and
+weight (``fuseflow.live.wire.encode_attributes``). ``{"type": "end", "reason": ...}`` says the stream
 ended (a replay's last frame), ``{"type": "error", "message": ...}`` that it failed.
 ``codecs()`` tells the publisher which codecs the connected clients want, so that a frame is
 encoded only in those.
@@ -142,7 +144,8 @@ class _Client:
     event: asyncio.Event
     codec: str = "compact"
     ack: bool = False
-    pending: tuple[bytes, dict] | None = None
+    attrs: bool = False
+    pending: tuple[bytes, dict, bytes | None] | None = None
     sent: int = 0
     dropped: int = 0
     bytes_sent: int = 0
@@ -255,8 +258,10 @@ class LiveServer:
             self._loop.call_soon_threadsafe(self._set_end, msg)
 
     def codecs(self) -> set[str]:
-        """The codecs the connected clients want (empty: nobody to encode for)."""
-        return {c.codec for c in list(self._clients)}
+        """The codecs the connected clients want (empty: nobody to encode for); "raw.attrs" when a
+        raw client also wants each point's camera and weight (``wire.encode_attributes``)."""
+        clients = list(self._clients)
+        return {c.codec for c in clients} | {"raw.attrs" for c in clients if c.attrs and c.codec == "raw"}
 
     def client_stats(self) -> list[dict[str, Any]]:
         """Per client (connected ones, then those gone): frames sent and dropped, bytes, seconds,
@@ -309,9 +314,10 @@ class LiveServer:
         mine = data.get(c.codec) if isinstance(data, dict) else data
         if mine is None:
             return
+        extra = data.get(c.codec + ".attrs") if c.attrs and isinstance(data, dict) else None
         if c.pending is not None:
             c.dropped += 1
-        c.pending = (mine, meta)
+        c.pending = (mine, meta, extra)
         c.event.set()
 
     def _set_end(self, msg: dict) -> None:
@@ -333,7 +339,8 @@ class LiveServer:
     async def _handler(self, ws: Any) -> None:
         query = parse_qs(urlsplit(ws.request.path).query)
         client = _Client(ws, asyncio.Event(), self._client_codec(ws.request.path),
-                         ack=query.get("ack", ["0"])[-1] == "1", connected=time.perf_counter())  # fmt: skip
+                         ack=query.get("ack", ["0"])[-1] == "1", attrs=query.get("attrs", ["0"])[-1] == "1",
+                         connected=time.perf_counter())  # fmt: skip
         self._clients.add(client)
         if self._last is not None:
             self._give(client, *self._last)
@@ -399,20 +406,22 @@ class LiveServer:
             pass
 
     async def _send_one(self, client: _Client) -> None:
-        (data, meta), client.pending = client.pending, None
+        (data, meta, extra), client.pending = client.pending, None
         if client.ack:
             now = time.time()
             captured = meta.get("captured")
             head = {"type": "frame", "number": meta.get("number"), "captured": captured, "sent": now,
                     "age_ms": None if captured is None else round((now - captured) * 1000.0, 1),
                     "rtt_ms": None if client.rtt_ms is None else round(client.rtt_ms, 1),
-                    "dropped": client.dropped}  # fmt: skip
+                    "dropped": client.dropped, "attrs": extra is not None}  # fmt: skip
             await client.ws.send(json.dumps(head))
             client.waiting_ack = True
             client.sent_at = time.perf_counter()
         await client.ws.send(data)
+        if extra is not None:
+            await client.ws.send(extra)
         client.sent += 1
-        client.bytes_sent += len(data)
+        client.bytes_sent += len(data) + (len(extra) if extra is not None else 0)
         if not client.ack:
             await self._drained(client)
         client.event.set()  # a frame (or the end) that came meanwhile goes next
@@ -496,6 +505,7 @@ class LiveServer:
             return None  # the WebSocket handshake
         if path == "/stats":
             doc = {**self._stats(), "clients": len(self._clients), "client_stats": self.client_stats(),
+                   "refused": dict(self.refused),
                    "ended": None if self._end is None else self._end.get("reason", self._end.get("message"))}  # fmt: skip
             body, kind = json.dumps(doc).encode(), "application/json"
         elif path in ASSETS:

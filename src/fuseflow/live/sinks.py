@@ -17,7 +17,7 @@ from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
 from fuseflow.live.codec import CompactParams
 from fuseflow.live.server import LiveServer
-from fuseflow.live.wire import CODECS, encode_frame
+from fuseflow.live.wire import CODECS, encode_attributes, encode_frame
 from fuseflow.pipeline.live import LiveFrame
 from fuseflow.pipeline.outputs import cloud_path
 from fuseflow.types import Calibration, FusedCloud, Rig
@@ -25,8 +25,9 @@ from fuseflow.types import Calibration, FusedCloud, Rig
 __all__ = ["WebSink", "RerunSink", "RecordSink", "rig_message"]
 
 
-def rig_message(rig: Rig) -> str:
-    """The text message a viewer gets on connect: the cameras with extrinsics (world-from-camera)."""
+def rig_message(rig: Rig, source_ids: tuple[str, ...] | None = None) -> str:
+    """The text message a viewer gets on connect: the cameras with extrinsics (world-from-camera)
+    and ``source_ids``, the source's cameras in the order a point's camera index counts them."""
     cams = [
         {
             "id": c.id,
@@ -38,7 +39,7 @@ def rig_message(rig: Rig) -> str:
         for c in rig.cameras
         if c.T_cam_world is not None
     ]
-    return json.dumps({"type": "rig", "cameras": cams})
+    return json.dumps({"type": "rig", "cameras": cams, "source_ids": list(source_ids or rig.ids)})
 
 
 class WebSink:
@@ -113,7 +114,10 @@ class WebSink:
             return
         t0, c0 = time.perf_counter(), time.thread_time()
         latency = (t0 - info.captured) * 1000.0
-        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in sorted(codecs)}
+        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params)
+                  for c in sorted(codecs) if c in CODECS}  # fmt: skip
+        if "raw.attrs" in codecs:
+            frames["raw.attrs"] = encode_attributes(cloud, info.number)
         self.encode_ms.append((time.perf_counter() - t0) * 1000.0)
         self.encode_cpu_ms.append((time.thread_time() - c0) * 1000.0)
         del self.encode_ms[:-1000], self.encode_cpu_ms[:-1000]
