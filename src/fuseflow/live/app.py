@@ -155,7 +155,9 @@ def run_live(
             server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig, source.rig.ids),
                                 codec=outputs.codec, access=outputs.access).start()  # fmt: skip
             warnings += _server_warnings(server)
-            sinks.append(WebSink(server, outputs.compact, loop.stats.extra))
+            web = WebSink(server, outputs.compact, loop.stats.extra)
+            web.owns_server = False  # closed below, after the viewers are told how the stream ended
+            sinks.append(web)
         if outputs.rerun is not None:
             sinks.append(RerunSink(outputs.rerun, rig))
         if outputs.record is not None:

@@ -47,7 +47,7 @@ class WebSink:
 
     ``send`` puts the cloud in a one-frame slot and returns; an encoder thread takes the newest
     cloud, encodes it once per codec the connected clients use (none when nobody watches) and
-    hands the bytes to the server (which the caller closes: ``close`` stops only the encoder). A cloud replaced before the encoder took it is counted in
+    hands the bytes to the server. A cloud replaced before the encoder took it is counted in
     ``skipped`` (the encoder fell behind the fusion); ``encode_ms`` holds the last encoding
     times and ``encode_cpu_ms`` the encoder thread's CPU time for them (all codecs of a frame
     together). Both codecs are run once on a small cloud when the sink is made, so that compiling
@@ -56,6 +56,9 @@ class WebSink:
 
     def __init__(self, server: LiveServer, params: CompactParams = CompactParams(), stats: dict | None = None):
         self.server = server
+        self.owns_server = True
+        """``close`` also closes the server (``run_live`` clears it: it tells the viewers how the
+        stream ended, or holds the last frame, before it closes the server itself)."""
         self.params = params
         self.stats = stats if stats is not None else {}
         """Updated after every frame with ``encoded``, ``encoder_skipped`` and ``encode_ms`` (the
@@ -141,6 +144,8 @@ class WebSink:
             self._closed = True
             self._cond.notify()
         self._thread.join(timeout=10.0)
+        if self.owns_server:
+            self.server.close()
 
 
 class RerunSink:
