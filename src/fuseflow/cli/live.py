@@ -97,7 +97,7 @@ def command(
     --serve 8080. Ctrl-C (or the end of a replay) stops it with a summary.
     """
     from fuseflow.io import read_calibration
-    from fuseflow.live import LiveOutputs, ReplayOptions, open_source, parse_address, run_live
+    from fuseflow.live import ReplayOptions, open_source, run_live
     from fuseflow.live.app import StopRequest
     from fuseflow.pipeline.live import LiveSettings
 
@@ -108,24 +108,8 @@ def command(
         parse_crop(crop)  # a bad box fails in one line before the source opens
     check_fuse_options(preset, points)
     frames = frame_count(num_frames, old_frames)
-    for name, value in (("--num-frames", frames), ("--duration", duration)):
-        if value is not None and not math.isfinite(value):
-            fail(f"{name} must be a finite number, got {value}")
-        if value is not None and value <= 0:
-            fail(f"{name} must be positive, got {value}")
-    if serve is not None and not serve.strip():
-        fail("--serve expects [HOST:]PORT (e.g. 8080 or 0.0.0.0:8080), got an empty value")
-    from fuseflow.live.codec import CompactParams
-    from fuseflow.live.wire import CODECS
-
-    if codec not in CODECS:
-        fail(f"--codec must be one of {', '.join(CODECS)}, got {codec!r}")
-    compact = CompactParams(step_mm=grid_mm).check()
-    access = _access(allow_origin, token, max_viewers)
-    if hold and not serve:
-        fail("--hold keeps the viewer serving the last frame: give --serve [HOST:]PORT too")
-    outputs = LiveOutputs(parse_address(serve) if serve is not None else None, rerun, record, codec, compact,
-                          access, hold)  # fmt: skip
+    _check_limits(frames, duration)
+    outputs = _outputs(serve, rerun, record, codec, grid_mm, _access(allow_origin, token, max_viewers), hold)
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
     opened = open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))
@@ -139,6 +123,30 @@ def command(
     with _signals(stop):
         result = run_live(opened, calibration, settings, outputs, on_start=started, stop=stop)
     _print_summary(result, opened.description)
+
+
+def _check_limits(frames, duration) -> None:
+    for name, value in (("--num-frames", frames), ("--duration", duration)):
+        if value is not None and not math.isfinite(value):
+            fail(f"{name} must be a finite number, got {value}")
+        if value is not None and value <= 0:
+            fail(f"{name} must be positive, got {value}")
+
+
+def _outputs(serve, rerun, record, codec: str, grid_mm: float, access, hold: bool):
+    from fuseflow.live import LiveOutputs, parse_address
+    from fuseflow.live.codec import CompactParams
+    from fuseflow.live.wire import CODECS
+
+    if serve is not None and not serve.strip():
+        fail("--serve expects [HOST:]PORT (e.g. 8080 or 0.0.0.0:8080), got an empty value")
+    if codec not in CODECS:
+        fail(f"--codec must be one of {', '.join(CODECS)}, got {codec!r}")
+    compact = CompactParams(step_mm=grid_mm).check()
+    if hold and not serve:
+        fail("--hold keeps the viewer serving the last frame: give --serve [HOST:]PORT too")
+    address = parse_address(serve) if serve is not None else None
+    return LiveOutputs(address, rerun, record, codec, compact, access, hold)
 
 
 def _access(allow_origin, token: str, max_viewers: int):
