@@ -87,6 +87,7 @@ renderer.xr.addEventListener("sessionstart", () => {
 });
 renderer.xr.addEventListener("sessionend", () => {
   renderer.setAnimationLoop(null);
+  world.position.set(0, world.position.y, 0);
   requestRender();
 });
 
@@ -219,15 +220,19 @@ function setStatus(text, kind) {
   $("status").className = kind || "";
   stats.state = text;
 }
-async function onBinary(buf) {
+function onBinary(buf) {
   if (buf.byteLength >= 4 && new TextDecoder().decode(new Uint8Array(buf, 0, 4)) === "FFLA") {
-    if (queued && !queued.attrs) queued.attrs = new Uint8Array(buf);
+    if (queued && queued.wantAttrs && !queued.attrs) {
+      queued.attrs = new Uint8Array(buf);
+      if (!decoding) setTimeout(decodeNext, 0);
+    }
     return;
   }
   if (queued && !decoding) stats.dropped += 1; // replaced before it was decoded
-  queued = { buf, meta, received: performance.now(), attrs: null };
+  const wantAttrs = !!(meta && meta.attrs); // the frame's attributes follow: decode with them
+  queued = { buf, meta, received: performance.now(), attrs: null, wantAttrs };
   meta = null;
-  if (!decoding) setTimeout(decodeNext, 0); // after a following attributes message
+  if (!decoding && !wantAttrs) setTimeout(decodeNext, 0);
 }
 async function decodeNext() {
   decoding = true;
