@@ -102,13 +102,14 @@ def test_acknowledging_client_gets_the_newest_frame_only(server):
     assert c.recv(timeout=5)[4:8] == (0).to_bytes(4, "little")
     for k in range(1, 30):  # the client has not acknowledged frame 0: these replace each other
         server.publish(_frame(k), {"number": k, "captured": time.time()})
-    time.sleep(0.3)
+    assert _wait(lambda: server.client_stats()[0]["dropped"] == 28)  # all 29 handed over
     with pytest.raises(TimeoutError):
         c.recv(timeout=0.2)  # nothing more is queued for it
     c.send(json.dumps({"type": "ack", "number": 0, "age_ms": 12.5, "decode_ms": 3.0, "dropped": 0}))
     head = json.loads(c.recv(timeout=5))
     assert head["number"] == 29 and head["dropped"] == 28  # the newest one, next
     assert c.recv(timeout=5)[4:8] == (29).to_bytes(4, "little")
+    assert _wait(lambda: server.client_stats()[0]["frames_sent"] == 2)  # counted once written
     stats = server.client_stats()[0]
     assert stats["ack"] and stats["frames_sent"] == 2 and stats["dropped"] == 28
     assert stats["age_ms"] == 12.5 and stats["age_ms_max"] == 12.5 and stats["rtt_ms"] is not None

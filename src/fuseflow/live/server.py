@@ -197,6 +197,7 @@ class LiveServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._stopped: asyncio.Event | None = None
+        self._hosts: set[str] | None = None
         self.refused: dict[str, int] = {}
         """Requests refused, by reason (origin, host, token, viewers)."""
         self._files = {name: (resources.files("fuseflow.live") / "static" / name).read_bytes()
@@ -297,6 +298,7 @@ class LiveServer:
         async with serve(self._handler, self.host, self.port, process_request=self._http, close_timeout=1.0,
                          max_size=2**16, write_limit=2**16, compression=None) as server:  # fmt: skip
             self.port = server.sockets[0].getsockname()[1]
+            self._allowed_hosts()
             self._loop = asyncio.get_running_loop()
             ready.set()
             await self._stopped.wait()
@@ -448,10 +450,13 @@ class LiveServer:
     # ------------------------------------------------------------------ HTTP (server thread)
 
     def _allowed_hosts(self) -> set[str]:
-        names = {"localhost", "127.0.0.1", "::1", self.host.lower()}
-        if _is_wildcard(self.host):
-            names |= {lan_address(), socket.gethostname().lower(), socket.getfqdn().lower()}
-        return names
+        """Host names a request may carry (computed once: the machine's names need a lookup)."""
+        if self._hosts is None:
+            names = {"localhost", "127.0.0.1", "::1", self.host.lower()}
+            if _is_wildcard(self.host):
+                names |= {lan_address(), socket.gethostname().lower(), socket.getfqdn().lower()}
+            self._hosts = names
+        return self._hosts
 
     def _refusal(self, request: Any, path: str) -> tuple[int, str, str] | None:
         """(status, kind, why) when the request may not be answered; None when it may."""
