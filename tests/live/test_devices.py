@@ -5,16 +5,16 @@ import json
 
 import numpy as np
 import pytest
-from tests.io.fake_orbbec import FakeOB
-from tests.io.test_realsense import FakeRS
+from tests.live.fake_orbbec import FakeOB
+from tests.live.test_realsense import FakeRS
 
 import fuseflow
 from fuseflow.errors import FuseFlowError, ValidationError
-from fuseflow.io.device_source import DeviceConfig
 from fuseflow.io.images import read_depth_raw
 from fuseflow.live import LiveOutputs, ReplayOptions, open_source, run_live
+from fuseflow.live.loop import LiveLoop, LiveSettings, Source
 from fuseflow.live.sources import parse_device_spec
-from fuseflow.pipeline.live import LiveLoop, LiveSettings, Source
+from fuseflow.live.sources.device import DeviceConfig
 from fuseflow.types import Calibration
 
 K = [[40.0, 0, 15.5], [0, 40.0, 11.5], [0, 0, 1]]

@@ -19,7 +19,7 @@ import fuseflow
 from fuseflow.cli import app
 from fuseflow.live import LiveOutputs, ReplayOptions, open_source, run_live
 from fuseflow.live.app import StopRequest
-from fuseflow.pipeline.live import LiveSettings
+from fuseflow.live.loop import LiveSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 K = [[40.0, 0, 15.5], [0, 40.0, 11.5], [0, 0, 1]]

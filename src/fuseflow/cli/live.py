@@ -99,7 +99,7 @@ def command(
     from fuseflow.io import read_calibration
     from fuseflow.live import ReplayOptions, open_source, run_live
     from fuseflow.live.app import StopRequest
-    from fuseflow.pipeline.live import LiveSettings
+    from fuseflow.live.loop import LiveSettings
 
     check_device(device)
     if crop is not None and crop not in ("auto", "off"):

@@ -13,10 +13,10 @@ import numpy as np
 
 from fuseflow.errors import FuseFlowError
 from fuseflow.live.codec import CompactParams
+from fuseflow.live.loop import LiveLoop, LiveSettings, LiveSummary
 from fuseflow.live.server import Access, LiveServer, is_loopback
 from fuseflow.live.sinks import RecordSink, RerunSink, WebSink, rig_message
 from fuseflow.pipeline.extrinsics import placed_rig
-from fuseflow.pipeline.live import LiveLoop, LiveSettings, LiveSummary
 from fuseflow.types import Calibration, Rig
 
 __all__ = ["LiveOutputs", "LiveResult", "StopRequest", "run_live", "rig_for_live"]

@@ -16,9 +16,9 @@ from fuseflow.io.calibration import write_calibration
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
 from fuseflow.live.codec import CompactParams
+from fuseflow.live.loop import LiveFrame
 from fuseflow.live.server import LiveServer
 from fuseflow.live.wire import CODECS, encode_attributes, encode_frame
-from fuseflow.pipeline.live import LiveFrame
 from fuseflow.pipeline.outputs import cloud_path
 from fuseflow.types import Calibration, FusedCloud, Rig
 

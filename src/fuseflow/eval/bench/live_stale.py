@@ -96,9 +96,9 @@ def _stand_in(recording, ms: float):
 
 def _run_case(case: str, rec: Path, rate: float, viewer_ms: float, duration: float, stand_in_ms: float | None) -> dict:
     from fuseflow.io import open_recording
-    from fuseflow.io.replay import ReplaySource
     from fuseflow.live import LiveOutputs, run_live
-    from fuseflow.pipeline.live import LiveSettings
+    from fuseflow.live.loop import LiveSettings
+    from fuseflow.live.sources.replay import ReplaySource
 
     recording = open_recording(rec)
     source = ReplaySource(recording, rate=rate, loop=True, preload=True)

@@ -13,7 +13,7 @@ mode (primary / secondary) with Orbbec's tools; device timestamps are kept in
 Intrinsics come from the colour stream (``get_camera_param().rgb_intrinsic``); the depth unit from
 each depth frame (``get_depth_scale()``: millimetres per unit). Extrinsics are unknown: calibrate
 with GMAC. The module never imports the SDK at import time; tests inject a fake module that
-replays a recording (tests/io/test_orbbec.py).
+replays a recording (tests/live/test_orbbec.py).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.io.device_source import DeviceConfig, DeviceSource
+from fuseflow.live.sources.device import DeviceConfig, DeviceSource
 from fuseflow.types import Camera, Rig
 
 __all__ = ["OrbbecConfig", "OrbbecSource"]

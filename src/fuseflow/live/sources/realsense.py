@@ -12,7 +12,7 @@ Intrinsics come from the colour stream profile (depth is aligned to colour); the
 from the device's depth sensor (metres per unit). Extrinsics are unknown: calibrate with GMAC.
 
 The module never imports pyrealsense2 at import time; tests inject a fake module that replays
-a recording (tests/io/test_realsense.py).
+a recording (tests/live/test_realsense.py).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.io.device_source import DeviceConfig, DeviceSource
+from fuseflow.live.sources.device import DeviceConfig, DeviceSource
 from fuseflow.types import Camera, Rig
 
 __all__ = ["RealSenseConfig", "RealSenseSource"]
