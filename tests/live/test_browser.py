@@ -183,7 +183,7 @@ def test_access_end_idle_and_xr(dynamic_rec, tmp_path):
     import threading
 
     port, other = _free_port(), _free_port()
-    proc, url = _start_live([dynamic_rec, "--rate", "2", "--preload", "--hold"], port)
+    proc, url = _start_live([dynamic_rec, "--rate", "2", "--preload", "--hold", "--codec", "raw"], port)
     assert "0.0.0.0" not in url and "?token=" in url
     token = url.split("?token=")[1]
     page = (b"<script>window.got = []; const ws = new WebSocket('ws://127.0.0.1:%d/ws');"
@@ -226,6 +226,12 @@ def test_access_end_idle_and_xr(dynamic_rec, tmp_path):
         busy = (_cpu_seconds(driver.service.process.pid) - cpu0) / (time.time() - t0)
         assert driver.execute_script("return window.fuseflowStats.renders") == renders
         assert busy < 0.02, f"the idle page used {busy:.1%} of a core"
+        # colour by camera (raw codec: each point's camera comes with the frame): the frustum colours
+        rgb = len(driver.execute_script("return window.fuseflowColours()"))
+        driver.execute_script("const s = document.getElementById('colour'); s.value = 'camera';"
+                              "s.dispatchEvent(new Event('change'))")  # fmt: skip
+        by_camera = driver.execute_script("return window.fuseflowColours()")
+        assert 2 <= len(by_camera) <= 4 < rgb, (len(by_camera), rgb)  # 4 cameras, one colour each
         # WebXR offered by the (stubbed) browser: "Enter VR", and drawing in the XR loop
         driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": XR_STUB})
         driver.get(f"http://127.0.0.1:{port}/?token={token}")
@@ -241,6 +247,10 @@ def test_access_end_idle_and_xr(dynamic_rec, tmp_path):
         driver.quit()
         evil.shutdown()
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=30)
+        try:
+            out, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise
     assert proc.returncode == 0, out
     assert "terminated" in out and "held" in out

@@ -137,6 +137,7 @@ class WebSink:
         cloud, info = self._last
         latency = (time.perf_counter() - info.captured) * 1000.0
         frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in CODECS}
+        frames["raw.attrs"] = encode_attributes(cloud, info.number)
         self.server.publish(frames, {"number": info.number, "captured": time.time() - latency / 1000.0})
 
     def close(self) -> None:

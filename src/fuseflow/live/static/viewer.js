@@ -187,6 +187,11 @@ function applyColours() {
   }
   geometry.setAttribute("color", new THREE.BufferAttribute(rgb, 3, true));
 }
+window.fuseflowColours = () => { // the distinct colours drawn now, "r,g,b" (for tests and checks)
+  const c = geometry.getAttribute("color"), seen = new Set();
+  if (c) for (let i = 0; i < geometry.drawRange.count * 3 && i < c.array.length; i += 3) seen.add(c.array[i] + "," + c.array[i + 1] + "," + c.array[i + 2]);
+  return [...seen];
+};
 colourSelect.addEventListener("change", () => { colourMode = colourSelect.value; applyColours(); requestRender(); });
 $("size").addEventListener("input", (e) => {
   pointMaterial.uniforms.size.value = e.target.value / 1000; $("sizeText").textContent = e.target.value; requestRender();
