@@ -303,8 +303,15 @@ function connect() {
     else if (msg.type === "end") { ended = true; stats.endedAt = performance.now(); setStatus(msg.reason === "end of source" ? "replay ended" : "ended: " + msg.reason, "ended"); }
     else if (msg.type === "error") { ended = true; setStatus("error: " + msg.message, "error"); }
   };
+  let opened = false;
+  ws.addEventListener("open", () => { opened = true; });
   ws.onclose = (e) => {
     if (!ended) setStatus(e.code === 1006 ? "disconnected, retrying" : `closed (${e.code}${e.reason ? ": " + e.reason : ""}), retrying`, "error");
+    if (!opened && !ended) { // refused (token, origin, too many viewers)? the server says why on /stats
+      fetch("/stats" + (token ? "?token=" + encodeURIComponent(token) : "")).then(async (r) => {
+        if (!r.ok) setStatus(`${r.status}: ${(await r.text()).trim()}`, "error");
+      }).catch(() => {});
+    }
     setTimeout(connect, ended ? 5000 : 1000); // a new run on this address is picked up (and framed anew)
   };
 }
