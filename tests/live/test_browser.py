@@ -1,7 +1,10 @@
 """The viewer in a real browser: `fuseflow live` on a small replay, headless Chromium (Debian's
 chromium + chromium-driver, driven by selenium) opens the page; frames in the default (compact)
 codec must decode, the frame counter advance and the canvas show points. Ctrl-C then stops the
-command with its summary."""
+command with its summary. A server bound to all addresses: the page without its token, a page
+of another origin and a page reached under another host name get nothing; the end of the replay
+shows "ended"; the page then idles; with WebXR stubbed to offer immersive-vr, the page offers
+"Enter VR" and draws in the XR loop."""
 
 import json
 import os
@@ -38,11 +41,11 @@ def _stats(port):
     return json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/stats", timeout=2).read())
 
 
-def _browser():
+def _browser(*extra):
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
     for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=640,480",
-              "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-gpu-sandbox"):  # fmt: skip
+              "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-gpu-sandbox", *extra):  # fmt: skip
         opts.add_argument(a)
     return webdriver.Chrome(options=opts, service=webdriver.ChromeService(executable_path=DRIVER))
 
@@ -106,3 +109,148 @@ def test_page_draws_live_frames(dynamic_rec, tmp_path):
         out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
     assert "interrupted" in out and "fused" in out
+
+
+def _start_live(args, port):
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    cmd = [sys.executable, "-m", "fuseflow", "live", *map(str, args), "--serve", f"0.0.0.0:{port}"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    url, deadline = None, time.time() + 60
+    while url is None:  # the command prints the address (with its token) once it serves
+        line = proc.stdout.readline()
+        assert line and time.time() < deadline, "no address printed"
+        if "viewer at" in line or "?token=" in line:
+            url = line[line.index("http://") :].split()[0] if "http://" in line else None
+        if url is None and "viewer at" in line:  # the console wrapped the address onto the next line
+            url = proc.stdout.readline().split()[0]
+    return proc, url
+
+
+def _cpu_seconds(root_pid):
+    """User + system CPU seconds of ``root_pid`` and every process below it (Linux /proc)."""
+    children, total = {}, 0.0
+    for d in Path("/proc").iterdir():
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            children.setdefault(int(fields[1]), []).append((int(d.name), int(fields[11]) + int(fields[12])))
+        except (OSError, ValueError, IndexError):
+            continue
+    todo = [root_pid]
+    while todo:
+        for pid, ticks in children.get(todo.pop(), []):
+            total += ticks / os.sysconf("SC_CLK_TCK")
+            todo.append(pid)
+    return total
+
+
+XR_STUB = """
+(() => {
+  window.__xr = { sessions: 0 };
+  delete window.XRWebGLBinding;  // the stub session has no projection layers: an XRWebGLLayer it is
+  for (const C of [window.WebGLRenderingContext, window.WebGL2RenderingContext])
+    if (C) C.prototype.makeXRCompatible = () => Promise.resolve();
+  window.XRWebGLLayer = class { constructor() { this.framebuffer = null; this.framebufferWidth = 640;
+    this.framebufferHeight = 480; this.ignoreDepthValues = true; this.antialias = false; }
+    getViewport() { return { x: 0, y: 0, width: 640, height: 480 }; } };
+  const f = 1 / Math.tan(0.5), proj = new Float32Array([f / 1.33, 0, 0, 0, 0, f, 0, 0, 0, 0, -1.0002, -1, 0, 0, -0.02, 0]);
+  const eye = new Float32Array([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 1.6, 0, 1]);
+  const pose = { transform: { matrix: eye, position: { x: 0, y: 1.6, z: 0 }, orientation: { x: 0, y: 0, z: 0, w: 1 } },
+    views: [{ eye: "none", projectionMatrix: proj, transform: { matrix: eye, position: { x: 0, y: 1.6, z: 0 },
+      orientation: { x: 0, y: 0, z: 0, w: 1 } } }] };
+  class Session extends EventTarget {
+    constructor() { super(); this.inputSources = []; this.renderState = {}; this.enabledFeatures = []; this.visibilityState = "visible"; }
+    updateRenderState(s) { Object.assign(this.renderState, s); }
+    requestReferenceSpace() { return Promise.resolve({ getOffsetReferenceSpace() { return this; } }); }
+    requestAnimationFrame(cb) { return window.requestAnimationFrame((t) => cb(t, { session: this, getViewerPose: () => pose, getPose: () => null })); }
+    cancelAnimationFrame(id) { window.cancelAnimationFrame(id); }
+    end() { this.dispatchEvent(new Event("end")); return Promise.resolve(); }
+  }
+  const xr = new EventTarget();
+  xr.isSessionSupported = (mode) => Promise.resolve(mode === "immersive-vr");
+  xr.requestSession = () => { window.__xr.sessions += 1; return Promise.resolve(new Session()); };
+  Object.defineProperty(navigator, "xr", { value: xr, configurable: true });
+})();
+"""
+
+
+def _text(driver):
+    return driver.find_element("tag name", "body").text
+
+
+def test_access_end_idle_and_xr(dynamic_rec, tmp_path):
+    """One server on 0.0.0.0 replaying 5 frames at 2 fps, then holding the last one."""
+    import http.server
+    import threading
+
+    port, other = _free_port(), _free_port()
+    proc, url = _start_live([dynamic_rec, "--rate", "2", "--preload", "--hold", "--codec", "raw"], port)
+    assert "0.0.0.0" not in url and "?token=" in url
+    token = url.split("?token=")[1]
+    page = (b"<script>window.got = []; const ws = new WebSocket('ws://127.0.0.1:%d/ws');"
+            b"ws.onmessage = (e) => window.got.push(String(e.data).slice(0, 40));"
+            b"ws.onclose = () => window.wsClosed = true;</script>" % port)  # fmt: skip
+
+    class Evil(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - the http.server name
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.end_headers()
+            self.wfile.write(page)
+
+        def log_message(self, *a):
+            pass
+
+    evil = http.server.HTTPServer(("127.0.0.1", other), Evil)
+    threading.Thread(target=evil.serve_forever, daemon=True).start()
+    driver = _browser("--host-resolver-rules=MAP attacker.example 127.0.0.1, MAP evil.example 127.0.0.1")
+    try:
+        driver.get(f"http://127.0.0.1:{port}/")  # no token
+        assert "needs its token" in _text(driver)
+        driver.get(f"http://attacker.example:{port}/?token={token}")  # a rebound name: wrong Host
+        assert "is not this server's address" in _text(driver)
+        driver.get(f"http://evil.example:{other}/")  # another origin's page opens our socket
+        assert _wait_for(lambda: driver.execute_script("return window.wsClosed === true"), 10)
+        assert driver.execute_script("return window.got") == []
+        refused = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/stats?token={token}").read())["refused"]
+        assert set(refused) == {"token", "host", "origin"} and refused["origin"] == 1, refused  # (+ favicon.ico)
+        driver.get(f"http://127.0.0.1:{port}/?token={token}")
+        assert _wait_for(lambda: "replay ended" in driver.find_element("id", "status").text, 120), _text(driver)
+        stats = driver.execute_script("return window.fuseflowStats")
+        assert stats["frames"] >= 1 and _frames(driver) >= 1
+        if stats.get("lastFrameAt") and stats["frames"] > 1:  # it watched the replay's end live
+            assert stats["endedAt"] - stats["lastFrameAt"] < 1000
+        # idle: nothing changes, so nothing is drawn (< 2 % of a core for the whole browser)
+        time.sleep(3.0)  # the page load settles
+        renders, cpu0, t0 = stats["renders"], _cpu_seconds(driver.service.process.pid), time.time()
+        time.sleep(5.0)
+        busy = (_cpu_seconds(driver.service.process.pid) - cpu0) / (time.time() - t0)
+        assert driver.execute_script("return window.fuseflowStats.renders") == renders
+        assert busy < 0.02, f"the idle page used {busy:.1%} of a core"
+        # colour by camera (raw codec: each point's camera comes with the frame): the frustum colours
+        rgb = len(driver.execute_script("return window.fuseflowColours()"))
+        driver.execute_script("const s = document.getElementById('colour'); s.value = 'camera';"
+                              "s.dispatchEvent(new Event('change'))")  # fmt: skip
+        by_camera = driver.execute_script("return window.fuseflowColours()")
+        assert 2 <= len(by_camera) <= 4 < rgb, (len(by_camera), rgb)  # 4 cameras, one colour each
+        # WebXR offered by the (stubbed) browser: "Enter VR", and drawing in the XR loop
+        driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": XR_STUB})
+        driver.get(f"http://127.0.0.1:{port}/?token={token}")
+        assert _wait_for(lambda: "ENTER VR" in _text(driver).upper(), 30), _text(driver)
+        assert _wait_for(lambda: _frames(driver) >= 1, 30)
+        button = next(b for b in driver.find_elements("tag name", "button") if "ENTER VR" in b.text.upper())
+        before = driver.execute_script("return window.fuseflowStats.renders")
+        button.click()
+        assert _wait_for(lambda: driver.execute_script("return window.fuseflowStats.xrFrames") >= 10, 30)
+        assert driver.execute_script("return window.__xr.sessions") == 1
+        assert driver.execute_script("return window.fuseflowStats.renders") >= before + 10
+    finally:
+        driver.quit()
+        evil.shutdown()
+        proc.send_signal(signal.SIGTERM)
+        try:
+            out, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise
+    assert proc.returncode == 0, out
+    assert "terminated" in out and "held" in out

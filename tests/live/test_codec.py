@@ -166,9 +166,9 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
     ws_client = pytest.importorskip("websockets.sync.client")
     from websockets.exceptions import InvalidStatus
 
+    from fuseflow.live.loop import LiveFrame
     from fuseflow.live.server import LiveServer
     from fuseflow.live.sinks import WebSink
-    from fuseflow.pipeline.live import LiveFrame
 
     server = LiveServer("127.0.0.1", 0, codec="compact").start()
     extra: dict = {}

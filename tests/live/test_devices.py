@@ -5,15 +5,16 @@ import json
 
 import numpy as np
 import pytest
-from tests.io.fake_orbbec import FakeOB
-from tests.io.test_realsense import FakeRS
+from tests.live.fake_orbbec import FakeOB
+from tests.live.test_realsense import FakeRS
 
 import fuseflow
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.io.images import read_depth_raw
 from fuseflow.live import LiveOutputs, ReplayOptions, open_source, run_live
+from fuseflow.live.loop import LiveLoop, LiveSettings, Source
 from fuseflow.live.sources import parse_device_spec
-from fuseflow.pipeline.live import LiveSettings
+from fuseflow.live.sources.device import DeviceConfig
 from fuseflow.types import Calibration
 
 K = [[40.0, 0, 15.5], [0, 40.0, 11.5], [0, 0, 1]]
@@ -79,6 +80,10 @@ def test_device_specs_and_errors(tmp_path):
     fake = FakeRS(_per_device(rec, stop=("x", 0)), K)
     opened = open_source(["realsense:902,900"], modules={"realsense": fake})
     assert opened.rig.ids == ("902", "900")
+    assert isinstance(opened, Source) and isinstance(opened.source, Source)  # the typed protocol
+    assert isinstance(opened.source.config, DeviceConfig) and opened.source.config.depth_range == (0.2, 6.0)
+    with pytest.raises(ValidationError, match="reads a Source"):
+        LiveLoop(object(), rec.rig)
     opened.close()
     with pytest.raises(FuseFlowError, match="--calib"):  # devices have no extrinsics of their own
         run_live(open_source(["realsense"], modules={"realsense": fake}), None)

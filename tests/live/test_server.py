@@ -139,6 +139,9 @@ def test_stalled_client_does_not_stall_the_other(server):
         server.publish(frame[:8] + k.to_bytes(4, "little") + frame[12:])
         assert decode_frame(good.recv(timeout=5)).number == k
     assert time.perf_counter() - t0 < 10
+    deadline = time.time() + 5  # the server counts a frame once its write returned
+    while max(s["frames_sent"] for s in server.client_stats()) < 12 and time.time() < deadline:
+        time.sleep(0.01)
     stats = sorted(server.client_stats(), key=lambda s: s["frames_sent"])
     assert stats[0]["frames_sent"] < 12 and stats[0]["dropped"] > 0  # the stalled one lost frames, alone
     assert stats[1]["frames_sent"] == 12 and stats[1]["dropped"] == 0

@@ -20,8 +20,13 @@ def command(
         False, "--check", help="Also decode every colour and depth file; exit 1 naming each corrupt one."
     ),
 ) -> None:
-    """Show cameras, frames, resolution, calibration state and missing views of a recording."""
+    """Show cameras, frames, resolution, calibration state and missing views of a recording
+    (or what a `fuseflow live --record` folder holds)."""
     from fuseflow.io.summary import check_recording_files, recording_summary
+
+    if (rec / "live.json").is_file() and not (rec / "rig.json").exists():
+        _live_record(rec, as_json)
+        return
 
     s = recording_summary(rec)
     problems = check_recording_files(rec) if check else None
@@ -37,6 +42,55 @@ def command(
         fail(f"{len(problems)} unreadable file{'s' if len(problems) > 1 else ''} in {rec}", code=1)
     elif problems is not None and not as_json:
         say("every colour and depth file decodes at the size rig.json gives")
+
+
+def live_record_summary(path: Path) -> dict:
+    """What a ``fuseflow live --record`` folder holds: source, cameras, frames logged, clouds on
+    disk, points and FUSE time per frame, views missing per camera."""
+    import numpy as np
+
+    try:
+        doc = json.loads((path / "live.json").read_text())
+        lines = [json.loads(x) for x in (path / "frames.jsonl").read_text().splitlines() if x.strip()]
+    except (OSError, ValueError) as exc:
+        fail(f"{path}: not a readable live recording ({exc})")
+    points = np.array([x.get("points", 0) for x in lines], dtype=np.float64)
+    fuse = np.array([x.get("fuse_ms", 0.0) for x in lines], dtype=np.float64)
+    missing: dict[str, int] = {}
+    for x in lines:
+        for c in x.get("missing", []):
+            missing[c] = missing.get(c, 0) + 1
+    clouds = sorted(p.name for p in (path / "clouds").glob("*.ply")) if (path / "clouds").is_dir() else []
+    logged = {f"{x['number']:06d}.ply" for x in lines if "number" in x}
+    return {
+        "path": str(path), "layout": "fuseflow live recording", "source": doc.get("source", ""),
+        "cameras": doc.get("cameras", []), "frames": len(lines), "clouds": len(clouds),
+        "clouds_not_logged": sorted(set(clouds) - logged), "logged_without_cloud": sorted(logged - set(clouds)),
+        "points": None if not len(points) else {"mean": round(float(points.mean()), 1), "min": int(points.min()),
+                                                 "max": int(points.max())},
+        "fuse_ms_median": round(float(np.median(fuse)), 1) if len(fuse) else None,
+        "missing_views": missing, "calibration": (path / "calib.json").is_file(),
+    }  # fmt: skip
+
+
+def _live_record(path: Path, as_json: bool) -> None:
+    s = live_record_summary(path)
+    if as_json:
+        typer.echo(json.dumps(s, indent=2))
+        return
+    say(f"{s['path']} (fuseflow live recording of {escape(s['source'] or 'an unnamed source')}): "
+        f"{_count(s['frames'], 'frame')}, {_count(len(s['cameras']), 'camera')} ({escape(', '.join(s['cameras']))}), "
+        f"{_count(s['clouds'], 'cloud')} on disk" + (", calib.json" if s["calibration"] else ""))  # fmt: skip
+    if s["points"]:
+        p = s["points"]
+        say(f"points per frame: mean {p['mean']:.0f} (min {p['min']}, max {p['max']}); "
+            f"FUSE {s['fuse_ms_median']:.0f} ms median")  # fmt: skip
+    for c, n in s["missing_views"].items():
+        say(f"camera {escape(c)}: missing in {n} of {s['frames']} frames")
+    for name in s["clouds_not_logged"]:
+        error(f"clouds/{name} is not in frames.jsonl")
+    for name in s["logged_without_cloud"]:
+        error(f"frames.jsonl names clouds/{name}, which is not on disk")
 
 
 def _count(n: int, noun: str) -> str:
@@ -88,4 +142,5 @@ EXAMPLES = """\b
 Examples:
   fuseflow info /tmp/studio
   fuseflow info /data/rig --check     # also decode every file
+  fuseflow info /tmp/live-clouds      # a fuseflow live --record folder
 """

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import signal
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -34,8 +37,12 @@ def _print_summary(result, source: str) -> None:
     if s.dropped_views:
         rows.append(("dropped views", ", ".join(f"{c}: {n} frames" for c, n in s.dropped_views.items())))
     for k, c in enumerate(result.clients):
+        age = f", shown {c['age_ms_max']:.0f} ms old at most" if c.get("age_ms_max") else ""
         rows.append((f"viewer {k + 1}", f"{c['codec']}: {c['frames_sent']} frames sent, {c['dropped']} dropped, "
-                     f"{c['mbit_per_s']:.1f} Mbit/s"))  # fmt: skip
+                     f"{c['mbit_per_s']:.1f} Mbit/s{age}"))  # fmt: skip
+    if result.held_s:
+        rows.append(("held", f"last frame served {result.held_s:.1f} s after the source ended, "
+                     f"until {result.hold_ended_by}"))  # fmt: skip
     if result.encode_ms_median is not None:
         rows.append(("encoding", f"{result.encode_ms_median:.1f} ms median per frame (encoder thread), "
                      f"{result.encoder_skipped} frames not encoded"))  # fmt: skip
@@ -88,6 +95,16 @@ def command(
     grid_mm: float = typer.Option(
         3.0, "--grid-mm", help="compact: position grid step in mm (positions at most half a step off per axis)."
     ),
+    hold: bool = typer.Option(
+        False, "--hold", help="After a replay ends, keep serving its last frame until Ctrl-C or SIGTERM."
+    ),
+    allow_origin: list[str] = typer.Option(
+        None, "--allow-origin", help="Another page (scheme://host[:port]) that may use /ws and /stats; repeatable."
+    ),
+    token: str = typer.Option(
+        "auto", "--token", help="Viewer token: auto (random when the host is not loopback), none, or your own."
+    ),
+    max_viewers: int = typer.Option(16, "--max-viewers", help="WebSocket viewers at once (more get 503)."),
 ) -> None:
     """Fuse cameras (or a recording replayed as cameras) live; serve, log or record the clouds.
 
@@ -96,8 +113,9 @@ def command(
     --serve 8080. Ctrl-C (or the end of a replay) stops it with a summary.
     """
     from fuseflow.io import read_calibration
-    from fuseflow.live import LiveOutputs, ReplayOptions, open_source, parse_address, run_live
-    from fuseflow.pipeline.live import LiveSettings
+    from fuseflow.live import ReplayOptions, open_source, run_live
+    from fuseflow.live.app import StopRequest
+    from fuseflow.live.loop import LiveSettings
 
     check_device(device)
     if crop is not None and crop not in ("auto", "off"):
@@ -106,16 +124,8 @@ def command(
         parse_crop(crop)  # a bad box fails in one line before the source opens
     check_fuse_options(preset, points)
     frames = frame_count(num_frames, old_frames)
-    for name, value in (("--num-frames", frames), ("--duration", duration)):
-        if value is not None and value <= 0:
-            fail(f"{name} must be positive, got {value}")
-    from fuseflow.live.codec import CompactParams
-    from fuseflow.live.wire import CODECS
-
-    if codec not in CODECS:
-        fail(f"--codec must be one of {', '.join(CODECS)}, got {codec!r}")
-    compact = CompactParams(step_mm=grid_mm).check()
-    outputs = LiveOutputs(parse_address(serve) if serve else None, rerun, record, codec, compact)
+    _check_limits(frames, duration)
+    outputs = _outputs(serve, rerun, record, codec, grid_mm, _access(allow_origin, token, max_viewers), hold)
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
     opened = open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))
@@ -130,8 +140,67 @@ def command(
             warn(w)
         say(f"live: {opened.description}" + (f"; viewer at {url}" if url else "") + " (Ctrl-C stops)")
 
-    result = run_live(opened, calibration, settings, outputs, on_start=started)
+    stop = StopRequest()
+    with _signals(stop):
+        result = run_live(opened, calibration, settings, outputs, on_start=started, stop=stop)
     _print_summary(result, opened.description)
+
+
+def _check_limits(frames, duration) -> None:
+    for name, value in (("--num-frames", frames), ("--duration", duration)):
+        if value is not None and not math.isfinite(value):
+            fail(f"{name} must be a finite number, got {value}")
+        if value is not None and value <= 0:
+            fail(f"{name} must be positive, got {value}")
+
+
+def _outputs(serve, rerun, record, codec: str, grid_mm: float, access, hold: bool):
+    from fuseflow.live import LiveOutputs, parse_address
+    from fuseflow.live.codec import CompactParams
+    from fuseflow.live.wire import CODECS
+
+    if serve is not None and not serve.strip():
+        fail("--serve expects [HOST:]PORT (e.g. 8080 or 0.0.0.0:8080), got an empty value")
+    if codec not in CODECS:
+        fail(f"--codec must be one of {', '.join(CODECS)}, got {codec!r}")
+    compact = CompactParams(step_mm=grid_mm).check()
+    if hold and not serve:
+        fail("--hold keeps the viewer serving the last frame: give --serve [HOST:]PORT too")
+    address = parse_address(serve) if serve is not None else None
+    return LiveOutputs(address, rerun, record, codec, compact, access, hold)
+
+
+def _access(allow_origin, token: str, max_viewers: int):
+    from fuseflow.live.server import Access
+
+    tok = None if token == "none" else token
+    if tok is not None and tok != "auto" and (len(tok) < 8 or not tok.isascii() or not tok.isprintable()):
+        fail("--token: give auto, none, or at least 8 printable ASCII characters")
+    return Access(tuple(o.rstrip("/") for o in allow_origin or ()), tok, max_viewers).check()
+
+
+@contextmanager
+def _signals(stop):
+    """SIGTERM and a first Ctrl-C end the loop cleanly (summary printed, files complete); a
+    second Ctrl-C interrupts at once."""
+
+    def on_term(signum, frame) -> None:
+        stop.set("terminated")
+
+    def on_int(signum, frame) -> None:
+        if stop.event.is_set():
+            raise KeyboardInterrupt
+        stop.set("interrupted")
+
+    try:
+        old = {s: signal.signal(s, h) for s, h in ((signal.SIGTERM, on_term), (signal.SIGINT, on_int))}
+    except ValueError:  # not the main thread (an embedding caller): leave signals alone
+        old = {}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 #: ``--help`` examples (click keeps a paragraph after "\\b" as written).
@@ -140,4 +209,5 @@ Examples:
   fuseflow live /tmp/studio --serve 8080 --loop                 # replay a recording; open http://127.0.0.1:8080/
   fuseflow live realsense --calib calib.json --serve 8080 --crop auto
   fuseflow live /tmp/studio --record /tmp/live-clouds --num-frames 30 --preset default
+  fuseflow live /tmp/studio --serve 0.0.0.0:8080 --hold     # LAN viewers: open the printed address (token)
 """

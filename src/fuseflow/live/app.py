@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,13 +13,13 @@ import numpy as np
 
 from fuseflow.errors import FuseFlowError
 from fuseflow.live.codec import CompactParams
-from fuseflow.live.server import LiveServer, is_loopback
+from fuseflow.live.loop import LiveLoop, LiveSettings, LiveSummary
+from fuseflow.live.server import Access, LiveServer, is_loopback
 from fuseflow.live.sinks import RecordSink, RerunSink, WebSink, rig_message
 from fuseflow.pipeline.extrinsics import placed_rig
-from fuseflow.pipeline.live import LiveLoop, LiveSettings, LiveSummary
 from fuseflow.types import Calibration, Rig
 
-__all__ = ["LiveOutputs", "LiveResult", "run_live", "rig_for_live"]
+__all__ = ["LiveOutputs", "LiveResult", "StopRequest", "run_live", "rig_for_live"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,23 @@ class LiveOutputs:
     """Frame codec of a viewer that does not ask for one (``/ws?codec=``): compact or raw."""
     compact: CompactParams = CompactParams()
     """Grid step and colour quantisation of the compact codec."""
+    access: Access = Access()
+    """Origins, token and viewer cap of the server (``live.server.Access``)."""
+    hold: bool = False
+    """After the source ends, keep serving its last frame until ``StopRequest`` (or Ctrl-C)."""
+
+
+class StopRequest:
+    """Ends ``run_live`` from any thread (a signal handler): the loop stops after the frame it is
+    fusing, the sinks close cleanly (no half-written file) and the summary has ``reason``."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.reason = "stop"
+
+    def set(self, reason: str = "stop") -> None:
+        self.reason = reason
+        self.event.set()
 
 
 @dataclass
@@ -44,6 +63,10 @@ class LiveResult:
     clients: list[dict[str, Any]] = field(default_factory=list)
     """Per viewer client: frames sent and dropped, bytes, Mbit/s (``LiveServer.client_stats``)."""
     warnings: list[str] = field(default_factory=list)
+    held_s: float = 0.0
+    """Seconds the last frame was served after the source ended (``LiveOutputs.hold``)."""
+    hold_ended_by: str | None = None
+    """What ended the hold: the ``StopRequest`` reason ("interrupted", "terminated", ...)."""
     encode_ms_median: float | None = None
     """Median time the web sink's encoder thread took per frame (all codecs asked for)."""
     encode_cpu_ms_median: float | None = None
@@ -63,10 +86,41 @@ def rig_for_live(source_rig: Rig, calibration: Calibration | None) -> Rig:
     return source_rig.subset(placed)
 
 
-def _server_warnings(host: str) -> list[str]:
-    if is_loopback(host):
+def _server_warnings(server: LiveServer) -> list[str]:
+    if is_loopback(server.host):
         return []
-    return [f"serving on {host}: anyone who can reach this machine can watch the stream (no authentication)"]
+    if server.token:
+        return [f"serving on {server.host}: whoever has the address with its token can watch"]
+    return [f"serving on {server.host} without a token: anyone who can reach this machine can watch the stream"]
+
+
+def _one_frame_hint(source: Any, outputs: LiveOutputs) -> list[str]:
+    inner = getattr(source, "source", source)
+    rec = getattr(inner, "rec", None)
+    if outputs.serve is None or outputs.hold or rec is None or getattr(inner, "loop", False) or len(rec) != 1:
+        return []
+    return ["the recording has one frame: the replay ends before a browser can connect; "
+            "add --hold to keep serving it (or --loop to repeat it)"]  # fmt: skip
+
+
+def _watch(stop: StopRequest, loop: LiveLoop, done: threading.Event) -> None:
+    while not done.is_set():
+        if stop.event.wait(0.05):
+            loop.stop(stop.reason)
+            return
+
+
+def _hold(server: LiveServer, web: WebSink, stop: StopRequest) -> float:
+    """Serve the last frame until ``stop`` (or Ctrl-C); the seconds it was held."""
+    t0 = time.perf_counter()
+    web.hold()
+    server.end("replay ended; the last frame is held")
+    try:
+        while not stop.event.wait(0.1):
+            pass
+    except KeyboardInterrupt:
+        pass
+    return time.perf_counter() - t0
 
 
 def run_live(
@@ -76,16 +130,20 @@ def run_live(
     outputs: LiveOutputs = LiveOutputs(),
     on_start: Callable[[str | None, list[str]], None] | None = None,
     fuse_fn: Callable | None = None,
+    stop: StopRequest | None = None,
 ) -> LiveResult:
-    """Fuse ``source`` live into the sinks of ``outputs`` until it ends, a limit, or Ctrl-C.
+    """Fuse ``source`` live into the sinks of ``outputs`` until it ends, a limit, ``stop`` or Ctrl-C.
 
     The source is closed, the server stopped and every file closed before this returns, also on
-    errors. ``on_start(url, warnings)`` is called once the sinks are up and before the first frame
-    (the CLI prints the address there).
+    errors; viewers are told the stream ended (``{"type": "end"}``) or failed (``"error"``).
+    ``on_start(url, warnings)`` is called once the sinks are up and before the first frame (the
+    CLI prints the address there).
     """
     sinks: list[Any] = []
     server = None
     warnings: list[str] = []
+    stop = stop or StopRequest()
+    done = threading.Event()
     try:
         rig = rig_for_live(source.rig, calibration)
         left_out = [c for c in source.rig.ids if c not in rig.ids]
@@ -94,30 +152,53 @@ def run_live(
         loop = LiveLoop(source, rig, settings, fuse_fn=fuse_fn, calibration=calibration)
         if outputs.serve is not None:
             outputs.compact.check()
-            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig),
-                                codec=outputs.codec).start()  # fmt: skip
-            warnings += _server_warnings(server.host)
-            sinks.append(WebSink(server, outputs.compact, loop.stats.extra))
+            server = LiveServer(*outputs.serve, stats=loop.stats.snapshot, rig_message=rig_message(rig, source.rig.ids),
+                                codec=outputs.codec, access=outputs.access).start()  # fmt: skip
+            warnings += _server_warnings(server)
+            web = WebSink(server, outputs.compact, loop.stats.extra)
+            web.owns_server = False  # closed below, after the viewers are told how the stream ended
+            sinks.append(web)
         if outputs.rerun is not None:
             sinks.append(RerunSink(outputs.rerun, rig))
         if outputs.record is not None:
-            sinks.append(RecordSink(outputs.record, rig, source.rig))
+            sinks.append(RecordSink(outputs.record, rig, source.rig, getattr(source, "description", "")))
+        warnings += _one_frame_hint(source, outputs)
         loop.sinks = sinks
         if on_start is not None:
             on_start(server.url if server else None, warnings)
-        summary = loop.run()  # closes the source and the sinks
-    except BaseException:
+        threading.Thread(target=_watch, args=(stop, loop, done), name="fuseflow-stop", daemon=True).start()
+        summary = loop.run()  # closes the source and the sinks (the server stays up)
+    except BaseException as exc:
+        done.set()
         for s in sinks:
             s.close()
         if server is not None:
+            server.end(str(exc) or type(exc).__name__, error=not isinstance(exc, KeyboardInterrupt))
+            time.sleep(0.3)  # the viewers get the message before the connection closes
             server.close()
         close = getattr(source, "close", None)
         if close is not None:
             close()
         raise
-    clients = server.client_stats() if server is not None else []
-    result = LiveResult(summary, server.url if server else None, clients, warnings)
+    done.set()
+    return _finish(summary, server, sinks, warnings, outputs, stop)
+
+
+def _finish(summary: LiveSummary, server: LiveServer | None, sinks: list[Any], warnings: list[str],
+            outputs: LiveOutputs, stop: StopRequest) -> LiveResult:  # fmt: skip
     web = next((s for s in sinks if isinstance(s, WebSink)), None)
+    held = 0.0
+    if server is not None:
+        if outputs.hold and web is not None and summary.stopped_by == "end of source":
+            held = _hold(server, web, stop)
+        else:
+            server.end(summary.stopped_by)
+            time.sleep(0.3)  # the viewers get the message before the connection closes
+        server.close()
+    clients = server.client_stats() if server is not None else []
+    result = LiveResult(summary, server.url if server else None, clients, warnings, round(held, 2))
+    if held:
+        result.hold_ended_by = stop.reason if stop.event.is_set() else "interrupted"
     if web is not None and web.encode_ms:
         result.encode_ms_median = round(float(np.median(web.encode_ms)), 2)
         result.encode_cpu_ms_median = round(float(np.median(web.encode_cpu_ms)), 2)

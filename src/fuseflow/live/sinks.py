@@ -16,17 +16,18 @@ from fuseflow.io.calibration import write_calibration
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
 from fuseflow.live.codec import CompactParams
+from fuseflow.live.loop import LiveFrame
 from fuseflow.live.server import LiveServer
-from fuseflow.live.wire import CODECS, encode_frame
-from fuseflow.pipeline.live import LiveFrame
+from fuseflow.live.wire import CODECS, encode_attributes, encode_frame
 from fuseflow.pipeline.outputs import cloud_path
 from fuseflow.types import Calibration, FusedCloud, Rig
 
 __all__ = ["WebSink", "RerunSink", "RecordSink", "rig_message"]
 
 
-def rig_message(rig: Rig) -> str:
-    """The text message a viewer gets on connect: the cameras with extrinsics (world-from-camera)."""
+def rig_message(rig: Rig, source_ids: tuple[str, ...] | None = None) -> str:
+    """The text message a viewer gets on connect: the cameras with extrinsics (world-from-camera)
+    and ``source_ids``, the source's cameras in the order a point's camera index counts them."""
     cams = [
         {
             "id": c.id,
@@ -38,7 +39,7 @@ def rig_message(rig: Rig) -> str:
         for c in rig.cameras
         if c.T_cam_world is not None
     ]
-    return json.dumps({"type": "rig", "cameras": cams})
+    return json.dumps({"type": "rig", "cameras": cams, "source_ids": list(source_ids or rig.ids)})
 
 
 class WebSink:
@@ -55,6 +56,9 @@ class WebSink:
 
     def __init__(self, server: LiveServer, params: CompactParams = CompactParams(), stats: dict | None = None):
         self.server = server
+        self.owns_server = True
+        """``close`` also closes the server (``run_live`` clears it: it tells the viewers how the
+        stream ended, or holds the last frame, before it closes the server itself)."""
         self.params = params
         self.stats = stats if stats is not None else {}
         """Updated after every frame with ``encoded``, ``encoder_skipped`` and ``encode_ms`` (the
@@ -69,6 +73,7 @@ class WebSink:
         self._item: tuple[FusedCloud, LiveFrame] | None = None
         self._closed = False
         self._error: BaseException | None = None
+        self._last: tuple[FusedCloud, LiveFrame] | None = None
         self._thread = threading.Thread(target=self._run, name="fuseflow-encoder", daemon=True)
         self._thread.start()
 
@@ -106,25 +111,42 @@ class WebSink:
                 return
 
     def _encode(self, cloud: FusedCloud, info: LiveFrame) -> None:
+        self._last = (cloud, info)
         codecs = self.server.codecs()
         if not codecs:
             return
         t0, c0 = time.perf_counter(), time.thread_time()
         latency = (t0 - info.captured) * 1000.0
-        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in sorted(codecs)}
+        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params)
+                  for c in sorted(codecs) if c in CODECS}  # fmt: skip
+        if "raw.attrs" in codecs:
+            frames["raw.attrs"] = encode_attributes(cloud, info.number)
         self.encode_ms.append((time.perf_counter() - t0) * 1000.0)
         self.encode_cpu_ms.append((time.thread_time() - c0) * 1000.0)
         del self.encode_ms[:-1000], self.encode_cpu_ms[:-1000]
         self.encoded += 1
         self.stats.update(encoded=self.encoded, encoder_skipped=self.skipped, encode_ms=round(self.encode_ms[-1], 1))
-        self.server.publish(frames)
+        self.server.publish(frames, {"number": info.number, "captured": time.time() - (t0 - info.captured)})
+
+    def hold(self) -> None:
+        """Publish the last cloud once more, encoded in every codec, so that viewers who connect
+        later (any codec) are shown it (``fuseflow live --hold``); after ``close``."""
+        self.close()
+        if self._last is None:
+            return
+        cloud, info = self._last
+        latency = (time.perf_counter() - info.captured) * 1000.0
+        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in CODECS}
+        frames["raw.attrs"] = encode_attributes(cloud, info.number)
+        self.server.publish(frames, {"number": info.number, "captured": time.time() - latency / 1000.0})
 
     def close(self) -> None:
         with self._cond:
             self._closed = True
             self._cond.notify()
         self._thread.join(timeout=10.0)
-        self.server.close()
+        if self.owns_server:
+            self.server.close()
 
 
 class RerunSink:
@@ -156,18 +178,42 @@ class RerunSink:
 
 class RecordSink:
     """Write clouds as ``run`` does: ``OUT/clouds/<number:06d>.ply`` (the source sequence number),
-    ``OUT/calib.json`` (the extrinsics fused with) and ``OUT/frames.jsonl`` (one line per frame:
-    number, frame index, points, fuse_ms, missing views)."""
+    ``OUT/calib.json`` (the extrinsics fused with), ``OUT/frames.jsonl`` (one line per frame:
+    number, frame index, points, fuse_ms, missing views) and ``OUT/live.json`` (what was
+    recorded: source, cameras; ``fuseflow info OUT`` reads it).
 
-    def __init__(self, out: str | Path, rig: Rig, source_rig: Rig | None = None):
+    A folder that already holds any of these is refused (OutputError naming them): a recording is
+    never mixed with or written over another one. A cloud whose writing was cut short leaves no
+    ``.tmp`` file behind (``close`` removes them)."""
+
+    def __init__(self, out: str | Path, rig: Rig, source_rig: Rig | None = None, source: str = ""):
+        out = Path(out)
+        self._refuse_existing(out)
         self.out = prepare_output_dir(out)
         write_calibration(
             self.out / "calib.json",
             Calibration({c.id: c.T_cam_world for c in rig}, {"source": "live"}),
             rig=source_rig or rig,
         )
-        self._log: Any = open(self.out / "frames.jsonl", "w")
+        doc = {"kind": "fuseflow live recording", "source": source, "cameras": list(rig.ids),
+               "clouds": "clouds/<number:06d>.ply", "log": "frames.jsonl"}  # fmt: skip
+        (self.out / "live.json").write_text(json.dumps(doc, indent=2) + "\n")
+        self._log: Any = open(self.out / "frames.jsonl", "x")
         self.written = 0
+
+    @staticmethod
+    def _refuse_existing(out: Path) -> None:
+        from fuseflow.errors import OutputError
+
+        if not out.is_dir():
+            return
+        found = [n for n in ("frames.jsonl", "calib.json", "live.json") if (out / n).exists()]
+        clouds = sorted((out / "clouds").glob("*.ply")) if (out / "clouds").is_dir() else []
+        if clouds:
+            found.append(f"clouds/ ({len(clouds)} .ply)")
+        if found:
+            raise OutputError(f"--record {out}: already holds {', '.join(found)}; record into a new folder "
+                              "(nothing there is replaced or mixed with a new recording)")  # fmt: skip
 
     def send(self, cloud: FusedCloud, info: LiveFrame) -> None:
         write_ply(cloud_path(self.out, info.number), cloud)
@@ -179,3 +225,5 @@ class RecordSink:
 
     def close(self) -> None:
         self._log.close()
+        for tmp in (self.out / "clouds").glob("*.ply.tmp"):
+            tmp.unlink(missing_ok=True)

@@ -34,7 +34,8 @@ from fuseflow.errors import FormatError, ValidationError
 from fuseflow.live.codec import COMPACT_VERSION, CompactParams, decode_compact, encode_compact
 from fuseflow.types import FusedCloud
 
-__all__ = ["MAGIC", "VERSION", "HEADER", "CODECS", "encode_frame", "decode_frame", "DecodedFrame"]
+__all__ = ["MAGIC", "VERSION", "HEADER", "CODECS", "encode_frame", "decode_frame", "DecodedFrame",
+           "encode_attributes", "decode_attributes"]  # fmt: skip
 
 MAGIC = b"FFLV"
 VERSION = 1
@@ -126,3 +127,31 @@ def decode_frame(data: bytes) -> DecodedFrame:
     return DecodedFrame(
         number, xyz.astype(np.float32), rgb.copy(), (lo, hi), float(rest[6]), float(rest[7]), VERSION, m
     )
+
+
+ATTR_MAGIC = b"FFLA"
+_ATTR_HEAD = struct.Struct("<4sII")
+
+
+def encode_attributes(cloud: FusedCloud, number: int) -> bytes:
+    """Each point's camera and weight, in the order of its ``raw`` frame: magic "FFLA", uint32
+    frame number, uint32 M, then M uint8 camera indices (the source's camera order; 255: none or
+    over 254) and M uint8 weights (the point's weight over the frame's largest, times 255)."""
+    cam = cloud.camera.detach().cpu().numpy().astype(np.int64)
+    cam = np.where((cam >= 0) & (cam < 255), cam, 255).astype(np.uint8)
+    w = cloud.weight.detach().cpu().numpy().astype(np.float32)
+    top = float(w.max()) if len(w) else 0.0
+    wq = np.rint(np.clip(w / top, 0.0, 1.0) * 255.0).astype(np.uint8) if top > 0 else np.zeros(len(w), np.uint8)
+    return b"".join((_ATTR_HEAD.pack(ATTR_MAGIC, number & 0xFFFFFFFF, len(cam)), cam.tobytes(), wq.tobytes()))
+
+
+def decode_attributes(data: bytes) -> tuple[int, np.ndarray, np.ndarray]:
+    """(frame number, camera indices, weights 0-255) of an ``encode_attributes`` message."""
+    data = bytes(data)
+    if len(data) < _ATTR_HEAD.size:
+        raise FormatError(f"attributes message: {len(data)} bytes, too short for a header")
+    magic, number, m = _ATTR_HEAD.unpack_from(data)
+    if magic != ATTR_MAGIC or len(data) != _ATTR_HEAD.size + 2 * m:
+        raise FormatError(f"attributes message: magic {magic!r}, {len(data)} bytes for {m} points")
+    body = np.frombuffer(data, np.uint8, 2 * m, _ATTR_HEAD.size)
+    return number, body[:m].copy(), body[m:].copy()

@@ -8,8 +8,6 @@ around them, all explicit and per run, one module each:
   (``frames.jsonl``) and a summary (``summary.json``); running again resumes where it stopped.
 - :mod:`frames`: the per-frame work (``process_frame``) and ``stream(source, calibration)``, an
   iterator of FusedCloud from a recording or a live source.
-- :mod:`live`: ``LiveLoop``: capture in a thread, fuse the newest frame, hand clouds to sinks
-  (``fuseflow live``, composed by ``fuseflow.live``).
 - :mod:`fuse_only`: ``fuse_recording``, FUSE only with known extrinsics (``fuseflow fuse``).
 - :mod:`health`: ``HealthMonitor`` flags a camera whose neighbour pairs all lost depth agreement
   (bumped); with ``recalibrate="auto"`` GMAC re-runs and its new pose joins the old world frame.

@@ -139,9 +139,9 @@ def _run_case(
     case: LiveCase, rec: Path, duration: float, stand_in_ms: float | None = None, codec: str = "compact"
 ) -> dict[str, Any]:
     from fuseflow.io import open_recording
-    from fuseflow.io.replay import ReplaySource
     from fuseflow.live import LiveOutputs, run_live
-    from fuseflow.pipeline.live import LiveSettings
+    from fuseflow.live.loop import LiveSettings
+    from fuseflow.live.sources.replay import ReplaySource
 
     recording = open_recording(rec)
     source = ReplaySource(recording, rate=case.rate, loop=True, preload=True)

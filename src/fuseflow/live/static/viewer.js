@@ -1,223 +1,325 @@
-// FuseFlow live viewer: WebGL points + camera frustums, orbit controls, frames from /ws
-// (binary format in fuseflow/live/wire.py and docs/live.md). No dependencies.
-"use strict";
-(function () {
-  const canvas = document.getElementById("view");
-  const gl = canvas.getContext("webgl", { antialias: false, preserveDrawingBuffer: true });
-  const $ = (id) => document.getElementById(id);
-  if (!gl) { $("status").textContent = "WebGL is not available"; return; }
+// FuseFlow live viewer on three.js (shipped in ./three, MIT): points sized in metres, camera
+// frusta with ids and toggles, grid and axes, colour by rgb / weight / camera, WebXR ("Enter VR"
+// / "Start AR" where navigator.xr offers them), snapshot. Frames come from /ws?ack=1: one frame
+// at a time, acknowledged once shown, so the server always sends the newest one next (protocol
+// in fuseflow/live/server.py and docs/live.md; frame formats in decode.js). The page draws only
+// when something changed (a frame, the view, a setting), or every frame while in XR.
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { VRButton } from "three/addons/webxr/VRButton.js";
+import { ARButton } from "three/addons/webxr/ARButton.js";
 
-  function shader(type, src) {
-    const s = gl.createShader(type);
-    gl.shaderSource(s, src);
-    gl.compileShader(s);
-    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
-    return s;
-  }
-  function program(vs, fs) {
-    const p = gl.createProgram();
-    gl.attachShader(p, shader(gl.VERTEX_SHADER, vs));
-    gl.attachShader(p, shader(gl.FRAGMENT_SHADER, fs));
-    gl.linkProgram(p);
-    return p;
-  }
-  // Points: float32 positions (decoded from either frame codec below); uint8 colours.
-  const pointProg = program(
-    "attribute vec3 q; attribute vec3 c; uniform mat4 mvp; uniform float size;" +
-    "varying vec3 vc; void main() {" +
-    "gl_Position = mvp * vec4(q, 1.0); gl_PointSize = size / max(gl_Position.w, 0.1); vc = c / 255.0; }",
-    "precision mediump float; varying vec3 vc; void main() { gl_FragColor = vec4(vc, 1.0); }");
-  const lineProg = program(
-    "attribute vec3 p; uniform mat4 mvp; void main() { gl_Position = mvp * vec4(p, 1.0); }",
-    "precision mediump float; uniform vec3 col; void main() { gl_FragColor = vec4(col, 1.0); }");
-  const posBuf = gl.createBuffer(), colBuf = gl.createBuffer(), lineBuf = gl.createBuffer();
-  let count = 0, lineCount = 0, haveView = false;
+const $ = (id) => document.getElementById(id);
+const params = new URLSearchParams(location.search);
+const token = params.get("token");
+const stats = { frames: 0, bytes: 0, version: 0, decodeMs: [], ages: [], renders: 0, xrFrames: 0, dropped: 0, state: "connecting" };
+window.fuseflowStats = stats;
 
-  // ---- camera: orbit around a target. "Up" is the cameras' mean up direction (minus their
-  // y axes: image up), so z-up and y-down worlds both look upright; the first view looks the way
-  // the first camera does, from a little above.
-  const view = { target: [0, 0, 0], dist: 4, yaw: 0, pitch: 0.35, up: [0, -1, 0], fwd: [0, 0, 1] };
-  function resetView(box) {
-    if (box) {
-      view.target = [0, 1, 2].map((i) => box[0][i] + box[1][i] / 2);
-      view.dist = Math.max(0.9 * Math.hypot(box[1][0], box[1][1], box[1][2]), 0.5);
-    }
-    view.yaw = 0; view.pitch = 0.35;
-  }
-  function eye() {
-    const u = view.up, b = norm(sub(view.fwd, u.map((x) => x * dot(view.fwd, u)))), a = cross(u, b);
-    const cp = Math.cos(view.pitch), sp = Math.sin(view.pitch), sy = Math.sin(view.yaw), cy = Math.cos(view.yaw);
-    return [0, 1, 2].map((i) => view.target[i] - view.dist * (cp * (cy * b[i] + sy * a[i]) - sp * u[i]));
-  }
-  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-  const norm = (a) => { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
-  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-  function mvp() {
-    const e = eye(), f = norm(sub(view.target, e)), s = norm(cross(f, view.up)), u = cross(s, f);
-    const aspect = canvas.width / Math.max(canvas.height, 1), fov = 1.0, n = 0.02, far = 100;
-    const y = 1 / Math.tan(fov / 2), x = y / aspect;
-    // projection * lookAt, column-major for WebGL
-    const v = [s[0], u[0], -f[0], 0, s[1], u[1], -f[1], 0, s[2], u[2], -f[2], 0, -dot(s, e), -dot(u, e), dot(f, e), 1];
-    const p = [x, 0, 0, 0, 0, y, 0, 0, 0, 0, (far + n) / (n - far), -1, 0, 0, (2 * far * n) / (n - far), 0];
-    const m = new Float32Array(16);
-    for (let c = 0; c < 4; c++) for (let r = 0; r < 4; r++) {
-      let acc = 0;
-      for (let k = 0; k < 4; k++) acc += p[k * 4 + r] * v[c * 4 + k];
-      m[c * 4 + r] = acc;
-    }
-    return m;
-  }
-  let drag = null;
-  canvas.addEventListener("contextmenu", (e) => e.preventDefault());
-  canvas.addEventListener("mousedown", (e) => { drag = { x: e.clientX, y: e.clientY, pan: e.shiftKey || e.button === 2 }; });
-  window.addEventListener("mouseup", () => { drag = null; });
-  window.addEventListener("mousemove", (e) => {
-    if (!drag) return;
-    const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
-    drag.x = e.clientX; drag.y = e.clientY;
-    if (drag.pan) {
-      const e0 = eye(), f = norm(sub(view.target, e0)), s = norm(cross(f, view.up)), u = cross(s, f);
-      const k = view.dist * 0.0015;
-      for (let i = 0; i < 3; i++) view.target[i] += -dx * k * s[i] + dy * k * u[i];
-    } else {
-      view.yaw += dx * 0.005;
-      view.pitch = Math.max(-1.5, Math.min(1.5, view.pitch + dy * 0.005));
-    }
+// ---- renderer, scene, camera
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio || 1); // sharp on high-DPI screens
+renderer.setSize(window.innerWidth, window.innerHeight);
+renderer.setClearColor(0x14161a);
+renderer.xr.enabled = true;
+renderer.xr.setReferenceSpaceType("local-floor");
+document.body.prepend(renderer.domElement);
+const scene = new THREE.Scene();
+const world = new THREE.Group(); // the rig's world, turned so that its "up" is +y and its floor y = 0
+scene.add(world);
+const camera = new THREE.PerspectiveCamera(55, window.innerWidth / window.innerHeight, 0.02, 200);
+camera.position.set(0, 1.6, 3);
+const controls = new OrbitControls(camera, renderer.domElement);
+controls.addEventListener("change", () => requestRender());
+
+// points: gl_PointSize is the size in pixels of a disc `size` metres across at the point's depth
+const pointMaterial = new THREE.ShaderMaterial({
+  uniforms: { size: { value: 0.004 }, scale: { value: 1.0 } },
+  vertexColors: true,
+  vertexShader: `uniform float size; uniform float scale; varying vec3 vColor;
+    void main() {
+      vec4 mv = modelViewMatrix * vec4(position, 1.0);
+      gl_Position = projectionMatrix * mv;
+      gl_PointSize = max(size * scale * projectionMatrix[1][1] / max(-mv.z, 1e-3), 1.0);
+      vColor = color;
+    }`,
+  fragmentShader: `varying vec3 vColor;
+    void main() {
+      vec2 d = gl_PointCoord - 0.5;
+      if (dot(d, d) > 0.25) discard;
+      gl_FragColor = vec4(vColor, 1.0);
+    }`,
+});
+const viewport = new THREE.Vector4();
+const geometry = new THREE.BufferGeometry();
+const points = new THREE.Points(geometry, pointMaterial);
+points.frustumCulled = false;
+points.onBeforeRender = (r) => { r.getCurrentViewport(viewport); pointMaterial.uniforms.scale.value = viewport.w / 2; };
+world.add(points);
+const helpers = new THREE.Group();
+helpers.add(new THREE.GridHelper(10, 20, 0x666666, 0x333333));
+helpers.add(new THREE.AxesHelper(0.5));
+scene.add(helpers);
+const rigGroup = new THREE.Group();
+world.add(rigGroup);
+
+let pending = false;
+function requestRender() {
+  if (pending || renderer.xr.isPresenting) return;
+  pending = true;
+  requestAnimationFrame(() => { pending = false; render(); });
+}
+function render() {
+  stats.renders += 1;
+  if (renderer.xr.isPresenting) stats.xrFrames += 1;
+  renderer.render(scene, camera);
+  if (shown) acknowledge();
+}
+window.addEventListener("resize", () => {
+  camera.aspect = window.innerWidth / window.innerHeight;
+  camera.updateProjectionMatrix();
+  renderer.setSize(window.innerWidth, window.innerHeight);
+  requestRender();
+});
+renderer.xr.addEventListener("sessionstart", () => {
+  // stand in front of the scene: its centre 2 m ahead of the viewer, floor at the real floor
+  world.position.set(-box.center.x, world.position.y, -box.center.z - 2.0);
+  renderer.setAnimationLoop(render);
+});
+renderer.xr.addEventListener("sessionend", () => {
+  renderer.setAnimationLoop(null);
+  world.position.set(0, world.position.y, 0);
+  requestRender();
+});
+
+// ---- the rig: up direction, frusta with ids, toggles
+const palette = [0xe6194b, 0x3cb44b, 0xffe119, 0x4363d8, 0xf58231, 0x911eb4, 0x46f0f0, 0xf032e6, 0xbcf60c, 0xfabebe,
+  0x008080, 0xe6beff, 0x9a6324, 0xfffac8, 0x800000, 0xaaffc3];
+let rig = { cameras: [], run: null, ids: [] };
+let reframe = true;
+function label(text, color) {
+  const c = document.createElement("canvas");
+  c.width = 256; c.height = 64;
+  const g = c.getContext("2d");
+  g.font = "bold 40px sans-serif";
+  g.fillStyle = "#" + color.toString(16).padStart(6, "0");
+  g.fillText(text, 4, 46);
+  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(c), depthTest: false }));
+  sprite.scale.set(0.24, 0.06, 1);
+  return sprite;
+}
+function setRig(msg) {
+  if (msg.run !== rig.run) reframe = true; // another server (another scene): frame it anew
+  rig = { cameras: msg.cameras || [], run: msg.run, ids: msg.source_ids || (msg.cameras || []).map((c) => c.id) };
+  rigGroup.clear();
+  $("cams").textContent = "";
+  const up = new THREE.Vector3();
+  rig.cameras.forEach((c, k) => {
+    const T = new THREE.Matrix4().fromArray(c.T_world_cam).transpose(); // row-major -> three's column-major
+    up.sub(new THREE.Vector3().setFromMatrixColumn(T, 1)); // image up = minus the camera's y axis
+    const K = c.K, d = 0.15;
+    const corners = [[0, 0], [c.width, 0], [c.width, c.height], [0, c.height]].map(([u, v]) =>
+      new THREE.Vector3(((u - K[0][2]) / K[0][0]) * d, ((v - K[1][2]) / K[1][1]) * d, d));
+    const pts = [];
+    for (let i = 0; i < 4; i++) pts.push(new THREE.Vector3(), corners[i], corners[i], corners[(i + 1) % 4]);
+    const color = palette[rig.ids.indexOf(c.id) % palette.length] ?? palette[k % palette.length];
+    const g = new THREE.Group();
+    g.add(new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(pts), new THREE.LineBasicMaterial({ color })));
+    const tag = label(c.id, color);
+    tag.position.set(0, -0.05, 0);
+    g.add(tag);
+    g.applyMatrix4(T);
+    rigGroup.add(g);
+    const box = document.createElement("label");
+    box.innerHTML = `<input type="checkbox" checked> camera <span></span>`;
+    box.querySelector("span").textContent = c.id;
+    box.querySelector("span").style.color = "#" + color.toString(16).padStart(6, "0");
+    box.querySelector("input").addEventListener("change", (e) => { g.visible = e.target.checked; requestRender(); });
+    $("cams").append(box);
   });
-  canvas.addEventListener("wheel", (e) => { e.preventDefault(); view.dist *= Math.exp(e.deltaY * 0.001); }, { passive: false });
-  canvas.addEventListener("dblclick", () => resetView(lastBox));
-
-  // ---- camera frustums from the rig message
-  function frustums(cams) {
-    const lines = [];
-    for (const c of cams) {
-      const T = c.T_world_cam, K = c.K, d = 0.15;
-      const P = (x, y, z) => [0, 1, 2].map((r) => T[r * 4] * x + T[r * 4 + 1] * y + T[r * 4 + 2] * z + T[r * 4 + 3]);
-      const o = P(0, 0, 0);
-      const corners = [[0, 0], [c.width, 0], [c.width, c.height], [0, c.height]].map(
-        ([u, v]) => P(((u - K[0][2]) / K[0][0]) * d, ((v - K[1][2]) / K[1][1]) * d, d));
-      for (let i = 0; i < 4; i++) lines.push(o, corners[i], corners[i], corners[(i + 1) % 4]);
-    }
-    gl.bindBuffer(gl.ARRAY_BUFFER, lineBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(lines.flat()), gl.STATIC_DRAW);
-    lineCount = lines.length;
-    $("cameras").textContent = cams.length;
-    if (cams.length) {
-      const col = (c, k) => [c.T_world_cam[k], c.T_world_cam[4 + k], c.T_world_cam[8 + k]];
-      let up = [0, 0, 0];
-      for (const c of cams) up = sub(up, col(c, 1));
-      if (Math.hypot(up[0], up[1], up[2]) > 1e-6) view.up = norm(up);
-      const f0 = col(cams[0], 2);
-      if (Math.abs(dot(f0, view.up)) < 0.99) view.fwd = f0;
-    }
+  // turn the world so that the cameras' mean up is +y
+  world.quaternion.identity();
+  if (up.lengthSq() > 1e-9) world.quaternion.setFromUnitVectors(up.normalize(), new THREE.Vector3(0, 1, 0));
+  $("cameras").textContent = rig.cameras.length;
+  requestRender();
+}
+const box = { center: new THREE.Vector3(), size: 1 };
+function frameView() {
+  geometry.computeBoundingBox();
+  const bb = geometry.boundingBox.clone().applyMatrix4(new THREE.Matrix4().makeRotationFromQuaternion(world.quaternion));
+  world.position.set(0, -bb.min.y, 0); // the lowest point on the floor grid
+  bb.translate(world.position);
+  bb.getCenter(box.center);
+  box.size = Math.max(bb.getSize(new THREE.Vector3()).length(), 0.5);
+  controls.target.copy(box.center);
+  const dir = new THREE.Vector3(0, 0.35, 1).normalize();
+  if (rig.cameras.length) { // look the way the first camera does, from a little above
+    const T = new THREE.Matrix4().fromArray(rig.cameras[0].T_world_cam).transpose();
+    const f = new THREE.Vector3().setFromMatrixColumn(T, 2).applyQuaternion(world.quaternion);
+    f.y = 0;
+    if (f.lengthSq() > 1e-6) dir.copy(f.normalize().negate()).setY(0.35).normalize();
   }
+  camera.position.copy(box.center).addScaledVector(dir, 0.9 * box.size);
+  controls.update();
+}
+renderer.domElement.addEventListener("dblclick", () => { frameView(); requestRender(); });
 
-  // ---- frames: version 1 (raw) and version 2 (compact); docs/live.md has both byte by byte
-  let frames = 0, lastBox = null, times = [], busy = false, waiting = null, decodeMs = [];
-  window.fuseflowStats = { decodeMs, frames: 0, bytes: 0, version: 0 };
-  function boxOf(xyz, m) {
-    const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
-    for (let i = 0; i < m; i++) for (let a = 0; a < 3; a++) {
-      const v = xyz[3 * i + a]; if (v < lo[a]) lo[a] = v; if (v > hi[a]) hi[a] = v;
-    }
-    return [lo, [0, 1, 2].map((a) => Math.max(hi[a] - lo[a], 1e-6))];
-  }
-  async function onFrame(buf) {
-    // one frame decodes at a time; frames arriving meanwhile replace each other (newest wins)
-    if (busy) { waiting = buf; return; }
-    busy = true;
-    try {
-      while (buf) {
-        await show(buf);
-        buf = waiting; waiting = null;
+// ---- colours
+let colourMode = "rgb", last = null;
+const colourSelect = $("colour");
+function applyColours() {
+  if (!last) return;
+  let rgb = last.rgb;
+  const a = last.attrs, m = last.m;
+  if (colourMode !== "rgb" && a && new DataView(a.buffer).getUint32(8, true) === m) {
+    const out = new Uint8Array(3 * m); // attributes: "FFLA", number, M (uint32), M camera, M weight (uint8)
+    for (let i = 0; i < m; i++) {
+      let r, g, b;
+      if (colourMode === "weight") { // low weight blue, high red
+        const w = a[12 + m + i] / 255;
+        r = 255 * w; g = 255 * (1 - Math.abs(2 * w - 1)); b = 255 * (1 - w);
+      } else {
+        const cam = a[12 + i], p = cam === 255 ? 0x808080 : palette[cam % palette.length];
+        r = p >> 16; g = (p >> 8) & 255; b = p & 255;
       }
-    } finally { busy = false; }
-  }
-  async function show(buf) {
-    const t0 = performance.now();
-    let frame;
-    try { frame = await FuseFlowDecode.decodeFrame(buf); } catch (err) {
-      $("status").textContent = "bad frame: " + err.message; return;
+      out[3 * i] = r; out[3 * i + 1] = g; out[3 * i + 2] = b;
     }
-    const version = frame.version;
-    decodeMs.push(performance.now() - t0);
-    if (decodeMs.length > 200) decodeMs.shift();
-    const m = frame.m;
-    gl.bindBuffer(gl.ARRAY_BUFFER, posBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, frame.xyz, gl.DYNAMIC_DRAW);
-    gl.bindBuffer(gl.ARRAY_BUFFER, colBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, frame.rgb, gl.DYNAMIC_DRAW);
-    count = m;
-    if (!haveView && m > 0) { lastBox = boxOf(frame.xyz, m); resetView(lastBox); haveView = true; }
-    frames += 1;
-    Object.assign(window.fuseflowStats, { frames, bytes: window.fuseflowStats.bytes + buf.byteLength, version });
-    const now = performance.now();
-    times.push(now);
-    while (times.length && now - times[0] > 2000) times.shift();
-    $("frames").textContent = frames;
-    $("points").textContent = m.toLocaleString();
-    $("latency").textContent = frame.latency.toFixed(0);
-    $("fps").textContent = times.length > 1 ? ((times.length - 1) * 1000 / (now - times[0])).toFixed(1) : "0";
-    $("codec").textContent = version === 2 ? "compact" : "raw";
+    rgb = out;
   }
+  geometry.setAttribute("color", new THREE.BufferAttribute(rgb, 3, true));
+}
+window.fuseflowColours = () => { // the distinct colours drawn now, "r,g,b" (for tests and checks)
+  const c = geometry.getAttribute("color"), seen = new Set();
+  if (c) for (let i = 0; i < geometry.drawRange.count * 3 && i < c.array.length; i += 3) seen.add(c.array[i] + "," + c.array[i + 1] + "," + c.array[i + 2]);
+  return [...seen];
+};
+colourSelect.addEventListener("change", () => { colourMode = colourSelect.value; applyColours(); requestRender(); });
+$("size").addEventListener("input", (e) => {
+  pointMaterial.uniforms.size.value = e.target.value / 1000; $("sizeText").textContent = e.target.value; requestRender();
+});
+$("grid").addEventListener("change", (e) => { helpers.visible = e.target.checked; requestRender(); });
+$("snapshot").addEventListener("click", () => {
+  render();
+  renderer.domElement.toBlob((blob) => {
+    const a = document.createElement("a");
+    a.href = URL.createObjectURL(blob);
+    a.download = `fuseflow-live-${last ? last.number : 0}.png`;
+    a.click();
+    setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+  });
+});
 
-  function draw() {
-    const w = canvas.clientWidth, h = canvas.clientHeight;
-    if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
-    gl.viewport(0, 0, w, h);
-    gl.clearColor(0.08, 0.086, 0.1, 1);
-    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
-    gl.enable(gl.DEPTH_TEST);
-    const m = mvp();
-    if (count > 0) {
-      gl.useProgram(pointProg);
-      gl.uniformMatrix4fv(gl.getUniformLocation(pointProg, "mvp"), false, m);
-      gl.uniform1f(gl.getUniformLocation(pointProg, "size"), 6.0 * window.devicePixelRatio);
-      const qa = gl.getAttribLocation(pointProg, "q"), ca = gl.getAttribLocation(pointProg, "c");
-      gl.bindBuffer(gl.ARRAY_BUFFER, posBuf);
-      gl.enableVertexAttribArray(qa);
-      gl.vertexAttribPointer(qa, 3, gl.FLOAT, false, 0, 0);
-      gl.bindBuffer(gl.ARRAY_BUFFER, colBuf);
-      gl.enableVertexAttribArray(ca);
-      gl.vertexAttribPointer(ca, 3, gl.UNSIGNED_BYTE, false, 0, 0);
-      gl.drawArrays(gl.POINTS, 0, count);
-      gl.disableVertexAttribArray(ca);
-    }
-    if (lineCount > 0) {
-      gl.useProgram(lineProg);
-      gl.uniformMatrix4fv(gl.getUniformLocation(lineProg, "mvp"), false, m);
-      gl.uniform3fv(gl.getUniformLocation(lineProg, "col"), [1.0, 0.75, 0.2]);
-      const pa = gl.getAttribLocation(lineProg, "p");
-      gl.bindBuffer(gl.ARRAY_BUFFER, lineBuf);
-      gl.enableVertexAttribArray(pa);
-      gl.vertexAttribPointer(pa, 3, gl.FLOAT, false, 0, 0);
-      gl.drawArrays(gl.LINES, 0, lineCount);
-    }
-    requestAnimationFrame(draw);
-  }
-  requestAnimationFrame(draw);
+// ---- WebXR: offer the buttons only where the browser offers the session kind
+if (navigator.xr) {
+  navigator.xr.isSessionSupported("immersive-vr").then((ok) => { if (ok) $("xr").append(inline(VRButton.createButton(renderer))); }).catch(() => {});
+  navigator.xr.isSessionSupported("immersive-ar").then((ok) => { if (ok) $("xr").append(inline(ARButton.createButton(renderer))); }).catch(() => {});
+}
+function inline(button) { // the addons place their buttons at the bottom centre; keep them in the panel
+  Object.assign(button.style, { position: "static", display: "inline-block", padding: "4px 8px", fontSize: "12px", width: "auto" });
+  return button;
+}
 
-  function connect() {
-    // ?codec=raw in the page's address asks the server for that codec (default: the server's)
-    const codec = new URLSearchParams(location.search).get("codec");
-    const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws" +
-      (codec ? "?codec=" + encodeURIComponent(codec) : ""));
-    ws.binaryType = "arraybuffer";
-    ws.onopen = () => { $("status").textContent = "live"; };
-    ws.onmessage = (e) => {
-      if (typeof e.data === "string") {
-        const msg = JSON.parse(e.data);
-        if (msg.type === "rig") frustums(msg.cameras);
-      } else onFrame(e.data);
-    };
-    ws.onclose = () => { $("status").textContent = "disconnected, retrying"; setTimeout(connect, 1000); };
+// ---- frames: meta (text), frame (binary), attributes (binary, raw codec only); ack once shown
+let meta = null, queued = null, decoding = false, shown = null, ws = null, times = [], ended = false;
+function setStatus(text, kind) {
+  $("status").textContent = text;
+  $("status").className = kind || "";
+  stats.state = text;
+}
+function onBinary(buf) {
+  if (buf.byteLength >= 4 && new TextDecoder().decode(new Uint8Array(buf, 0, 4)) === "FFLA") {
+    if (queued && queued.wantAttrs && !queued.attrs) {
+      queued.attrs = new Uint8Array(buf);
+      if (!decoding) setTimeout(decodeNext, 0);
+    }
+    return;
   }
-  connect();
-  setInterval(() => {
-    fetch("/stats").then((r) => r.json()).then((s) => {
-      $("clients").textContent = s.clients;
-      $("dropped").textContent = s.dropped;
-    }).catch(() => {});
-  }, 1000);
-})();
+  if (queued && !decoding) stats.dropped += 1; // replaced before it was decoded
+  const wantAttrs = !!(meta && meta.attrs); // the frame's attributes follow: decode with them
+  queued = { buf, meta, received: performance.now(), attrs: null, wantAttrs };
+  meta = null;
+  if (!decoding && !wantAttrs) setTimeout(decodeNext, 0);
+}
+async function decodeNext() {
+  decoding = true;
+  try {
+    while (queued) {
+      const item = queued; queued = null;
+      const t0 = performance.now();
+      let f;
+      try { f = await FuseFlowDecode.decodeFrame(item.buf); } catch (err) { setStatus("bad frame: " + err.message, "error"); continue; }
+      const decodeMs = performance.now() - t0;
+      stats.decodeMs.push(decodeMs); if (stats.decodeMs.length > 200) stats.decodeMs.shift();
+      last = { ...f, attrs: item.attrs };
+      geometry.setAttribute("position", new THREE.BufferAttribute(f.xyz, 3));
+      applyColours();
+      geometry.setDrawRange(0, f.m);
+      if (reframe && f.m > 0) { frameView(); reframe = false; }
+      stats.frames += 1; stats.lastFrameAt = performance.now(); stats.bytes += item.buf.byteLength; stats.version = f.version;
+      shown = { number: f.number, meta: item.meta, received: item.received, decodeMs };
+      updateHud(f);
+      if (renderer.xr.isPresenting) continue; // the XR loop draws it (and acknowledges)
+      render();
+    }
+  } finally { decoding = false; }
+}
+function acknowledge() {
+  const s = shown; shown = null;
+  const now = performance.now(), m = s.meta;
+  // age = (capture -> sent, by the server's clock) + half the round trip + (received -> shown, ours)
+  const age = m && m.age_ms != null ? m.age_ms + (m.rtt_ms || 0) / 2 + (now - s.received) : null;
+  if (age != null) { stats.ages.push(age); if (stats.ages.length > 500) stats.ages.shift(); $("age").textContent = age.toFixed(0); }
+  const dropped = (m ? m.dropped : 0) + stats.dropped;
+  $("dropped").textContent = dropped;
+  if (ws && ws.readyState === 1 && m) {
+    ws.send(JSON.stringify({ type: "ack", number: s.number, age_ms: age == null ? null : +age.toFixed(1),
+      decode_ms: +s.decodeMs.toFixed(1), dropped: stats.dropped, held_ms: +(now - s.received).toFixed(1) }));
+  }
+}
+function updateHud(f) {
+  const now = performance.now();
+  times.push(now);
+  while (times.length && now - times[0] > 2000) times.shift();
+  $("frames").textContent = stats.frames;
+  $("points").textContent = f.m.toLocaleString();
+  $("fps").textContent = times.length > 1 ? ((times.length - 1) * 1000 / (now - times[0])).toFixed(1) : "0";
+  $("codec").textContent = f.version === 1 ? "raw" : "compact";
+}
+
+function connect() {
+  const q = new URLSearchParams({ ack: "1", attrs: "1" });
+  if (params.get("codec")) q.set("codec", params.get("codec"));
+  if (token) q.set("token", token);
+  ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws?" + q);
+  ws.binaryType = "arraybuffer";
+  ws.onopen = () => { ended = false; setStatus("live"); };
+  ws.onmessage = (e) => {
+    if (typeof e.data !== "string") { onBinary(e.data); return; }
+    const msg = JSON.parse(e.data);
+    if (msg.type === "rig") {
+      setRig(msg);
+      const raw = msg.codec === "raw";
+      for (const o of colourSelect.options) if (o.value !== "rgb") { o.disabled = !raw; o.title = raw ? "" : "open the page with ?codec=raw"; }
+    } else if (msg.type === "frame") meta = msg;
+    else if (msg.type === "end") { ended = true; stats.endedAt = performance.now(); setStatus(msg.reason === "end of source" ? "replay ended" : "ended: " + msg.reason, "ended"); }
+    else if (msg.type === "error") { ended = true; setStatus("error: " + msg.message, "error"); }
+  };
+  let opened = false;
+  ws.addEventListener("open", () => { opened = true; });
+  ws.onclose = (e) => {
+    if (!ended) setStatus(e.code === 1006 ? "disconnected, retrying" : `closed (${e.code}${e.reason ? ": " + e.reason : ""}), retrying`, "error");
+    if (!opened && !ended) { // refused (token, origin, too many viewers)? the server says why on /stats
+      fetch("/stats" + (token ? "?token=" + encodeURIComponent(token) : "")).then(async (r) => {
+        if (!r.ok) setStatus(`${r.status}: ${(await r.text()).trim()}`, "error");
+      }).catch(() => {});
+    }
+    setTimeout(connect, ended ? 5000 : 1000); // a new run on this address is picked up (and framed anew)
+  };
+}
+connect();
+setInterval(() => {
+  if (document.hidden) return;
+  fetch("/stats" + (token ? "?token=" + encodeURIComponent(token) : "")).then((r) => r.json()).then((s) => {
+    if ($("clients").textContent !== String(s.clients)) $("clients").textContent = s.clients;
+  }).catch(() => {});
+}, 2000);
+requestRender();

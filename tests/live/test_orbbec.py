@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 import torch
-from tests.io.fake_orbbec import FakeOB
+from tests.live.fake_orbbec import FakeOB
 
 import fuseflow
 from fuseflow import FuseFlowError, RecordingError
 from fuseflow.io.images import read_depth_raw
-from fuseflow.io.orbbec import OrbbecSource
+from fuseflow.live.sources.orbbec import OrbbecSource
 
 K = [[100.0, 0, 15.5], [0, 100.0, 11.5], [0, 0, 1]]
 

@@ -13,7 +13,7 @@ mode (primary / secondary) with Orbbec's tools; device timestamps are kept in
 Intrinsics come from the colour stream (``get_camera_param().rgb_intrinsic``); the depth unit from
 each depth frame (``get_depth_scale()``: millimetres per unit). Extrinsics are unknown: calibrate
 with GMAC. The module never imports the SDK at import time; tests inject a fake module that
-replays a recording (tests/io/test_orbbec.py).
+replays a recording (tests/live/test_orbbec.py).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.io.device_source import DeviceSource
+from fuseflow.live.sources.device import DeviceConfig, DeviceSource
 from fuseflow.types import Camera, Rig
 
 __all__ = ["OrbbecConfig", "OrbbecSource"]
@@ -36,17 +36,9 @@ def _import_ob() -> Any:
 
 
 @dataclass(frozen=True)
-class OrbbecConfig:
-    """Stream settings shared by all devices."""
+class OrbbecConfig(DeviceConfig):
+    """Stream settings shared by all devices (``DeviceConfig``), with this kind's depth range."""
 
-    width: int = 640
-    """Colour (and aligned depth) width in pixels; a mode the devices support."""
-    height: int = 480
-    """Image height in pixels."""
-    fps: int = 30
-    """Frames per second requested from every device."""
-    timeout_ms: int = 200
-    """Wait for a device's frameset this long before marking its view dropped for a frame."""
     depth_range: tuple[float, float] = (0.25, 5.5)
     """Trustworthy depth range in metres (Femto Bolt NFOV unbinned: 0.25-5.46 m, Orbbec's datasheet)."""
 

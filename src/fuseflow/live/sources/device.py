@@ -1,5 +1,5 @@
 """What the live camera sources share (``realsense.RealSenseSource``, ``orbbec.OrbbecSource``):
-one frame from every device, dropped views marked not present, iteration that stops when every
+their stream settings (``DeviceConfig``), one frame from every device, dropped views marked not present, iteration that stops when every
 device stops delivering, and stopping the pipelines. A subclass sets ``rig`` (the cameras in
 order), ``_pipes`` (objects with ``stop()``), ``_index`` and ``device_timestamps``, and
 implements ``_grab(i)``: (colour HxWx3 uint8, depth HxW float32 metres, device time s) of camera
@@ -8,6 +8,7 @@ implements ``_grab(i)``: (colour HxWx3 uint8, depth HxW float32 metres, device t
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -16,7 +17,24 @@ import torch
 from fuseflow.io.images import clean_depth
 from fuseflow.types import Frame, Rig
 
-__all__ = ["DeviceSource"]
+__all__ = ["DeviceConfig", "DeviceSource"]
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    """Stream settings shared by all devices of a source (each device kind subclasses it with its
+    own trustworthy depth range)."""
+
+    width: int = 640
+    """Colour and (aligned) depth width in pixels; a mode the devices support."""
+    height: int = 480
+    """Image height in pixels."""
+    fps: int = 30
+    """Frames per second requested from every device."""
+    timeout_ms: int = 200
+    """Wait for a device's frameset this long before marking its view dropped for a frame."""
+    depth_range: tuple[float, float] = (0.2, 6.0)
+    """Trustworthy depth range in metres."""
 
 
 class DeviceSource:

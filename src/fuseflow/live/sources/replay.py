@@ -1,7 +1,7 @@
 """A recording replayed as if it were cameras: ``ReplaySource`` delivers its frames at the
 recording's timestamps (or at a fixed rate) and never waits for whoever reads them.
 
-The live loop (``pipeline.live``) reads a ``ReplaySource`` the way it reads ``RealSenseSource``:
+The live loop (``live.loop``) reads a ``ReplaySource`` the way it reads ``RealSenseSource``:
 ``rig``, ``frames()``, ``close()``. ``frames()`` decodes the next frame, sleeps until it is due and
 yields it; a frame whose successor is already due when it is decoded (the replay fell behind,
 e.g. decoding is slower than the rate) is let go and counted in ``skipped``, as a camera

@@ -1,10 +1,10 @@
 """``open_source(spec)``: what ``fuseflow live SOURCE`` reads.
 
 - ``realsense`` / ``realsense:SERIAL,SERIAL``: every connected RealSense (or these, in this order)
-  through ``io.realsense.RealSenseSource``.
-- ``orbbec`` / ``orbbec:SERIAL,SERIAL``: Orbbec devices through ``io.orbbec.OrbbecSource``.
+  through ``live.sources.realsense.RealSenseSource``.
+- ``orbbec`` / ``orbbec:SERIAL,SERIAL``: Orbbec devices through ``live.sources.orbbec.OrbbecSource``.
 - a recording directory (FuseFlow rig.json, Open3D/ICL or TUM layout): replayed as cameras
-  (``io.replay.ReplaySource``).
+  (``live.sources.replay.ReplaySource``).
 - one or more ``.bag`` / ``.mkv`` files, or a directory of them: converted once into a temporary
   FuseFlow recording by the readers of ``fuseflow convert`` (``io.convert``), then replayed; the
   temporary directory is removed by ``close()``.
@@ -21,7 +21,7 @@ from typing import Any
 
 from fuseflow.errors import ValidationError
 from fuseflow.io.convert import CAMERA_FILE_SUFFIXES
-from fuseflow.io.replay import ReplaySource
+from fuseflow.live.sources.replay import ReplaySource
 from fuseflow.types import Frame
 
 __all__ = ["ReplayOptions", "open_source", "parse_device_spec", "OpenedSource"]
@@ -105,11 +105,11 @@ def open_source(
         kind, serials = device
         module = (modules or {}).get(kind)
         if kind == "realsense":
-            from fuseflow.io.realsense import RealSenseSource
+            from fuseflow.live.sources.realsense import RealSenseSource
 
             src = RealSenseSource(serials, rs_module=module)
         else:
-            from fuseflow.io.orbbec import OrbbecSource
+            from fuseflow.live.sources.orbbec import OrbbecSource
 
             src = OrbbecSource(serials, ob_module=module)
         return OpenedSource(src, f"{kind}: {len(src.rig)} cameras ({', '.join(src.rig.ids)})")

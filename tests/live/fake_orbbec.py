@@ -1,5 +1,5 @@
 """A stand-in for the slice of pyorbbecsdk that OrbbecSource uses, replaying per-device frames
-(imported by tests/io/test_orbbec.py and tests/live/test_devices.py)."""
+(imported by tests/live/test_orbbec.py and tests/live/test_devices.py)."""
 
 from types import SimpleNamespace
 

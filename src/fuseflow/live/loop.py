@@ -8,11 +8,11 @@ loop (the caller's thread) takes the newest frame, fuses it and calls every sink
 replaced in the mailbox before fusion took it is dropped and counted: memory stays bounded by one
 waiting frame, and the fused stream stays current when fusion is slower than the cameras.
 
-A source is any object with ``rig`` (the cameras, in frame order) and ``frames()`` (an iterator of
-``Frame``; a view a camera did not deliver is marked not present, as ``RealSenseSource`` does);
-``close()`` and a ``skipped`` count (frames the source itself let go, e.g. a replay that fell
-behind) are optional. Dropped views are fused from the other cameras, as ``run`` does, and
-counted per camera.
+A source is a ``Source`` (a typed protocol: ``rig``, ``frames()``, ``close()``; ``RealSenseSource``,
+``OrbbecSource``, ``ReplaySource`` and ``live.sources.OpenedSource`` are ones); a ``skipped`` count
+(frames the source itself let go, e.g. a replay that fell behind) and a ``released`` time (a
+replay's due time of the frame it yielded last) are read when present. Dropped views are fused
+from the other cameras, as ``run`` does, and counted per camera.
 """
 
 from __future__ import annotations
@@ -20,14 +20,14 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 
-from fuseflow.errors import FuseFlowError
+from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.geometry.volume import crop_cloud
 from fuseflow.pipeline.exports import resolve_crop
 from fuseflow.pipeline.extrinsics import reindex_cameras
@@ -42,7 +42,25 @@ __all__ = [
     "LiveStats",
     "LiveSummary",
     "Sink",
+    "Source",
 ]
+
+
+@runtime_checkable
+class Source(Protocol):
+    """What the live loop reads: cameras that deliver frames."""
+
+    rig: Rig
+    """The cameras, in the order of every frame's views."""
+
+    def frames(self) -> Iterator[Frame]:
+        """Frames as the cameras deliver them (blocking until the next one); a view a camera did
+        not deliver is marked not present; the iterator ends when the source does."""
+        ...
+
+    def close(self) -> None:
+        """Stop delivering (a blocked ``frames()`` returns) and release the devices; idempotent."""
+        ...
 
 
 @dataclass
@@ -222,7 +240,8 @@ class LiveSummary:
     fuse_ms_median: float | None
     points_mean: float
     stopped_by: str
-    """"end of source", "frames", "duration", "stop" (``LiveLoop.stop``) or "interrupted" (Ctrl-C)."""
+    """"end of source", "frames", "duration", "stop" or another reason given to ``LiveLoop.stop``
+    ("interrupted" for Ctrl-C, "terminated" for SIGTERM in ``fuseflow live``)."""
     dropped_views: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
@@ -238,7 +257,7 @@ class LiveLoop:
     """Capture in a thread, fuse the newest frame, hand each cloud to the sinks.
 
     Args:
-        source: a live source (module docstring); its ``rig`` gives the frame's camera order.
+        source: a ``Source``; its ``rig`` gives the frame's camera order.
         rig: the cameras to fuse, with extrinsics (``pipeline.placed_rig``); cameras of the
             source that ``rig`` lacks are left out.
         settings: preset, point budget, device and stop conditions.
@@ -251,13 +270,15 @@ class LiveLoop:
 
     def __init__(
         self,
-        source: Any,
+        source: Source,
         rig: Rig,
         settings: LiveSettings = LiveSettings(),
         sinks=(),
         fuse_fn=None,
         calibration: Calibration | None = None,
     ):
+        if not isinstance(source, Source):
+            raise ValidationError(f"the live loop reads a Source (rig, frames(), close()); got {type(source).__name__}")
         missing = [c for c in rig.ids if c not in source.rig.ids]
         if missing:
             raise FuseFlowError(f"the calibration places cameras {missing} that the source does not have")
@@ -272,13 +293,16 @@ class LiveLoop:
         self._cfg = None
         self._slot = LatestFrame()
         self._stop = threading.Event()
+        self._stop_reason = "stop"
         self._error: BaseException | None = None
         self._ended = False
         self._fuse_ms: list[float] = []
         self._points: list[int] = []
 
-    def stop(self) -> None:
-        """Ask the loop to finish (from any thread); ``run`` returns its summary."""
+    def stop(self, reason: str = "stop") -> None:
+        """Ask the loop to finish (from any thread); ``run`` returns its summary, whose
+        ``stopped_by`` is ``reason`` (e.g. "terminated" for SIGTERM)."""
+        self._stop_reason = reason
         self._stop.set()
         self._slot.close()
 
@@ -347,7 +371,7 @@ class LiveLoop:
         duration = self.settings.duration
         while True:
             if self._stop.is_set():
-                return "stop"
+                return self._stop_reason
             if duration is not None and time.perf_counter() - t0 >= duration:
                 return "duration"
             item = self._slot.take(timeout=0.05)

@@ -12,7 +12,7 @@ Intrinsics come from the colour stream profile (depth is aligned to colour); the
 from the device's depth sensor (metres per unit). Extrinsics are unknown: calibrate with GMAC.
 
 The module never imports pyrealsense2 at import time; tests inject a fake module that replays
-a recording (tests/io/test_realsense.py).
+a recording (tests/live/test_realsense.py).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.io.device_source import DeviceSource
+from fuseflow.live.sources.device import DeviceConfig, DeviceSource
 from fuseflow.types import Camera, Rig
 
 __all__ = ["RealSenseConfig", "RealSenseSource"]
@@ -35,17 +35,9 @@ def _import_rs() -> Any:
 
 
 @dataclass(frozen=True)
-class RealSenseConfig:
-    """Stream settings shared by all devices."""
+class RealSenseConfig(DeviceConfig):
+    """Stream settings shared by all devices (``DeviceConfig``), with this kind's depth range."""
 
-    width: int = 640
-    """Colour and (aligned) depth width in pixels; a mode the devices support."""
-    height: int = 480
-    """Image height in pixels."""
-    fps: int = 30
-    """Frames per second requested from every device."""
-    timeout_ms: int = 200
-    """Wait for a device's frameset this long before marking its view dropped for a frame."""
     depth_range: tuple[float, float] = (0.2, 6.0)
     """Trustworthy depth range in metres (D4xx-class sensors, Intel's datasheet)."""
 

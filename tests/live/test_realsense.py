@@ -8,7 +8,7 @@ import torch
 
 import fuseflow
 from fuseflow import FuseFlowError, RecordingError
-from fuseflow.io.realsense import RealSenseConfig, RealSenseSource
+from fuseflow.live.sources.realsense import RealSenseConfig, RealSenseSource
 
 
 class FakeRS:

@@ -9,8 +9,8 @@ import torch
 
 import fuseflow
 from fuseflow.errors import FuseFlowError, ValidationError
-from fuseflow.io.replay import ReplaySource
-from fuseflow.pipeline.live import LatestFrame, LiveLoop, LiveSettings
+from fuseflow.live.loop import LatestFrame, LiveLoop, LiveSettings
+from fuseflow.live.sources.replay import ReplaySource
 from fuseflow.types import FusedCloud
 
 
