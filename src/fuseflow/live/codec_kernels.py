@@ -230,10 +230,14 @@ def compact_streams(cells, levels, rgb, luma_step, chroma_step, block):  # pragm
 # first lists every (context, bit) decision, then codes them in one tight loop; the decoders (below,
 # and static/decode.js) make the same decisions in the same order.
 
-GEO_CONTEXTS = 2 * 8 * 4 * 8 * 4 * 2
-"""Occupancy bit contexts: last level or not x the 3 face neighbours next to the child x how
-many of the 3 others exist x child index x adjacent siblings already occupied (0-3) x any
-sibling occupied so far."""
+GEO_CONTEXTS = 2 * 8 * 4 * 8 * 4 * 2 + 128 + 1024
+"""Occupancy contexts: of a child bit (last level or not x the 3 face neighbours next to the
+child x how many of the 3 others exist x child index x adjacent siblings already occupied (0-3) x
+any sibling occupied so far: 4096), of the single-child flag (SINGLE + last level x neighbour
+bits: 128) and of the single child's index, 3 bits as a binary tree (TREE + (last level x
+neighbour bits) x tree node: 1024)."""
+SINGLE = 4096
+TREE = 4096 + 128
 RES = 32
 """Contexts of one residual: nonzero, sign, 13 unary magnitude bits, 9 Exp-Golomb prefix bits,
 8 suffix bit positions."""
@@ -407,18 +411,27 @@ def geo_contexts():  # pragma: no cover - compiled
     return base, extra
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _popcount(b):  # pragma: no cover - compiled
+    n = 0
+    while b:
+        b &= b - 1
+        n += 1
+    return n
+
+
 @njit(cache=True, nogil=True)
 def geometry_decisions(leaves, levels):  # pragma: no cover - compiled
     """(contexts, bits) of the octree of sorted unique Morton keys of depth ``levels``: every
-    node from the root down, depth by depth in Morton order, its 8 child bits in increasing
-    child index (k = 4 x + 2 y + z), the last one not when the first 7 are empty."""
+    node from the root down, depth by depth in Morton order: whether it has a single child; if
+    so that child's index k = 4 x + 2 y + z as 3 bits (x, y, z) of a binary tree, else its 8
+    child bits in increasing k (bit 7 not when bits 0-6 hold at most one child)."""
     keys, start = _node_levels(leaves, levels)
     base, extra = geo_contexts()
-    ctx = np.empty(8 * start[levels], np.int32)
-    bits = np.empty(8 * start[levels], np.uint8)
+    ctx = np.empty(9 * start[levels] + 8, np.int32)  # a node: at most 1 + 8 decisions
+    bits = np.empty(9 * start[levels] + 8, np.uint8)
     t = 0
-    pbyte = np.zeros(1, np.int64)  # a virtual parent of the root: child 0
-    pbyte[0] = 1
+    pbyte = np.ones(1, np.int64)  # a virtual parent of the root: child 0
     pstart = np.zeros(1, np.int64)
     pup = np.full((3, 1), -1, np.int64)
     for d in range(levels):
@@ -436,12 +449,23 @@ def geometry_decisions(leaves, levels):  # pragma: no cover - compiled
                 byte |= 1 << np.int64(keys[j] & np.uint64(7))
                 j += 1
             byte_d[i] = byte
-            row = (last * 64 + np.int64(nbs[i])) * 8
+            row = last * 64 + np.int64(nbs[i])
+            single = 1 if (byte & (byte - 1)) == 0 else 0
+            ctx[t], bits[t] = SINGLE + row, single
+            t += 1
+            if single:
+                node = 1
+                for b in range(2, -1, -1):
+                    bit = (_popcount(byte - 1) >> b) & 1  # the child's index, bit b
+                    ctx[t], bits[t] = TREE + row * 8 + node, bit
+                    t += 1
+                    node = 2 * node + bit
+                continue
             for k in range(8):
                 below = byte & ((1 << k) - 1)
-                if k == 7 and below == 0:
+                if k == 7 and _popcount(below) <= 1:
                     break
-                ctx[t] = base[row + k] + extra[k * 128 + below]
+                ctx[t] = base[row * 8 + k] + extra[k * 128 + below]
                 bits[t] = (byte >> k) & 1
                 t += 1
         pbyte, pstart, pup = byte_d, cstart, up
@@ -469,17 +493,23 @@ def decode_geometry(data, levels, points):  # pragma: no cover - compiled
         m = 0
         for i in range(n):
             cstart[i] = m
-            row = (last * 64 + np.int64(nbs[i])) * 8
+            row = last * 64 + np.int64(nbs[i])
             byte = 0
+            if _get(st, data, probs, SINGLE + row):
+                node = 1
+                for _ in range(3):
+                    node = 2 * node + _get(st, data, probs, TREE + row * 8 + node)
+                byte = 1 << (node - 8)
+            else:
+                for k in range(8):
+                    if k == 7 and _popcount(byte) <= 1:
+                        byte |= 128
+                    elif _get(st, data, probs, base[row * 8 + k] + extra[k * 128 + byte]):
+                        byte |= 1 << k
             for k in range(8):
-                if k == 7 and byte == 0:
-                    bit = 1
-                else:
-                    bit = _get(st, data, probs, base[row + k] + extra[k * 128 + byte])
-                if bit:
+                if (byte >> k) & 1:
                     if m >= points:
                         return keys[:0], st[2], 1
-                    byte |= 1 << k
                     nxt[m] = (keys[i] << np.uint64(3)) | np.uint64(k)
                     m += 1
             byte_d[i] = byte

@@ -120,7 +120,7 @@
   }
   for (let k = 0; k < 8; k++) for (let below = 0; below < (1 << k); below++)
     EXTRA[k * 128 + below] = (((below >> (k ^ 4)) & 1) + ((below >> (k ^ 2)) & 1) + ((below >> (k ^ 1)) & 1)) * 2 + (below ? 1 : 0);
-  const GEO_CONTEXTS = 2 * 8 * 4 * 8 * 4 * 2, RES = 32, COL_CONTEXTS = 21 * RES, ESCAPE = 14, MAX_PREFIX = 16;
+  const SINGLE = 4096, TREE = 4096 + 128, GEO_CONTEXTS = 4096 + 128 + 1024, RES = 32, COL_CONTEXTS = 21 * RES, ESCAPE = 14, MAX_PREFIX = 16;
   function childNeighbours(pbyte, pstart, pup, n) {
     // face neighbours of the n nodes one depth below parents (bytes pbyte, first children at
     // pstart, upper neighbours pup[a], -1 none; all in Morton order): nb bit 2a = lower neighbour
@@ -154,17 +154,20 @@
       const cbyte = new Uint8Array(n), cstart = new Int32Array(n);
       let t = 0;
       for (let i = 0; i < n; i++) {
-        const row = (last * 64 + nb[i]) * 8, x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
+        const row = last * 64 + nb[i], x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
         let byte = 0;
         cstart[i] = t;
-        for (let k = 0; k < 8; k++) {
-          if ((k === 7 && byte === 0) || bit(rc, bytes, probs, BASE[row + k] + EXTRA[k * 128 + byte])) {
-            if (t >= m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
-            byte |= 1 << k;
-            nx[t] = x + (k >> 2); ny[t] = y + ((k >> 1) & 1); nz[t] = z + (k & 1);
-            t++;
-          }
+        if (bit(rc, bytes, probs, SINGLE + row)) {  // one child: its index as a 3-bit binary tree
+          let node = 1;
+          for (let b = 0; b < 3; b++) node = 2 * node + bit(rc, bytes, probs, TREE + row * 8 + node);
+          byte = 1 << (node - 8);
+        } else {
+          for (let k = 0; k < 8; k++)
+            if ((k === 7 && POP[byte] <= 1) || bit(rc, bytes, probs, BASE[row * 8 + k] + EXTRA[k * 128 + byte])) byte |= 1 << k;
         }
+        if (t + POP[byte] > m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
+        for (let k = 0; k < 8; k++)
+          if ((byte >> k) & 1) { nx[t] = x + (k >> 2); ny[t] = y + ((k >> 1) & 1); nz[t] = z + (k & 1); t++; }
         cbyte[i] = byte;
       }
       xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t);
