@@ -145,7 +145,11 @@
     return [nb, up];
   }
   function geometry(bytes, levels, m) {
-    const rc = rangeDecoder(bytes), probs = new Uint16Array(GEO_CONTEXTS).fill(1024);
+    // the range decoder inlined (one decision site, a small state machine per node): the state in
+    // local variables, not an array, is what makes this loop fast
+    const probs = new Uint16Array(GEO_CONTEXTS).fill(1024), nbytes = bytes.length;
+    let range = 0xFFFFFFFF, code = 0, pos = 5;
+    for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
     let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1);
     let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = [new Int32Array([-1]), new Int32Array([-1]), new Int32Array([-1])];
     for (let d = 0; d < levels; d++) {
@@ -154,26 +158,41 @@
       const cbyte = new Uint8Array(n), cstart = new Int32Array(n);
       let t = 0;
       for (let i = 0; i < n; i++) {
-        const row = last * 64 + nb[i], x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
-        let byte = 0;
-        cstart[i] = t;
-        if (bit(rc, bytes, probs, SINGLE + row)) {  // one child: its index as a 3-bit binary tree
-          let node = 1;
-          for (let b = 0; b < 3; b++) node = 2 * node + bit(rc, bytes, probs, TREE + row * 8 + node);
-          byte = 1 << (node - 8);
-        } else {
-          for (let k = 0; k < 8; k++)
-            if ((k === 7 && POP[byte] <= 1) || bit(rc, bytes, probs, BASE[row * 8 + k] + EXTRA[k * 128 + byte])) byte |= 1 << k;
+        const row = last * 64 + nb[i];
+        // mode 0: the single-child flag; 1: the single child's index (node of a 3-bit tree); 2: child bit k
+        let mode = 0, c = SINGLE + row, node = 1, k = 0, byte = 0;
+        for (;;) {
+          const p = probs[c], bound = (range >>> 11) * p;
+          let b = 0;
+          if (code < bound) { range = bound; probs[c] = p + ((2048 - p) >> 5); }
+          else { code -= bound; range -= bound; probs[c] = p - (p >> 5); b = 1; }
+          while (range < 16777216) { range *= 256; code = ((code << 8) | (pos < nbytes ? bytes[pos] : 0)) >>> 0; pos++; }
+          if (mode === 0) {
+            if (b) { mode = 1; c = TREE + row * 8 + 1; }
+            else { mode = 2; c = BASE[row * 8] + EXTRA[0]; }
+          } else if (mode === 1) {
+            node = 2 * node + b;
+            if (node >= 8) { byte = 1 << (node - 8); break; }
+            c = TREE + row * 8 + node;
+          } else {
+            byte |= b << k;
+            k++;
+            if (k === 7 && POP[byte] <= 1) { byte |= 128; break; }
+            if (k === 8) break;
+            c = BASE[row * 8 + k] + EXTRA[k * 128 + byte];
+          }
         }
+        cstart[i] = t;
         if (t + POP[byte] > m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
-        for (let k = 0; k < 8; k++)
-          if ((byte >> k) & 1) { nx[t] = x + (k >> 2); ny[t] = y + ((k >> 1) & 1); nz[t] = z + (k & 1); t++; }
+        const x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
+        for (let q = 0; q < 8; q++)
+          if ((byte >> q) & 1) { nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1); t++; }
         cbyte[i] = byte;
       }
       xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t);
       pbyte = cbyte; pstart = cstart; pup = up;
     }
-    if (xs.length !== m || rc[2] > bytes.length)
+    if (xs.length !== m || pos > nbytes)
       throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
     return [xs, ys, zs];
   }
