@@ -1,7 +1,8 @@
 """Bits a point of the live stream's compact codec, version 3 (range coded) against version 2
 (deflated) and raw, measured in one run on the same fused clouds: the hocap-8rs frame and a
 simulated 8-camera 640x480 studio, each fused with ``--preset live`` at 200 k points (the live
-path's budget). Per codec setting: bits a point (of the fused cloud), points sent, position error
+path's budget). Per codec setting: bits a point (of the fused cloud; and of its geometry stream,
+bytes 52-55 of both compact headers), points sent, position error
 (largest per-axis offset of a fused point to its nearest decoded point, and that over half the
 grid step), colour error (|decoded - fused| per RGB channel, median and 95th percentile), encode
 time (CPU of the calling thread plus its geometry worker, and wall; median of ``--repeats``),
@@ -116,6 +117,8 @@ def measure(name: str, xyz: np.ndarray, rgb: np.ndarray, repeats: int) -> list[d
         half = p.step_mm / 2 if p else None
         rows.append({"cloud": name, "codec": label, "points": len(xyz), "points_sent": len(d.xyz),
                      "bytes": len(data), "bits_per_point": round(len(data) * 8 / len(xyz), 3),
+                     "geometry_bits_per_point": round(int.from_bytes(data[52:56], "little") * 8 / len(xyz), 3)
+                     if p else None,
                      "mbit_per_s_200k_10fps": round(len(data) * 8 / len(xyz) * 200_000 * 10 / 1e6, 2),
                      "pos_err_axis_max_mm": round(float(cheb.max()) * 1e3, 3),
                      "pos_err_over_half_step": round(float(cheb.max()) * 1e3 / half, 3) if half else None,
@@ -156,7 +159,7 @@ def main() -> None:
         if not a.no_node and shutil.which("node"):
             node_decode_ms(rows, a.repeats, work)
     load.append(os.getloadavg()[0])
-    cols = ["cloud", "codec", "bits_per_point", "points_sent", "pos_err_axis_max_mm", "rgb_err_median", "rgb_err_p95",
+    cols = ["cloud", "codec", "bits_per_point", "geometry_bits_per_point", "points_sent", "pos_err_axis_max_mm", "rgb_err_median", "rgb_err_p95",
             "encode_cpu_ms", "encode_wall_ms", "node_decode_ms"]  # fmt: skip
     print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:
