@@ -159,7 +159,7 @@
     $("points").textContent = m.toLocaleString();
     $("latency").textContent = frame.latency.toFixed(0);
     $("fps").textContent = times.length > 1 ? ((times.length - 1) * 1000 / (now - times[0])).toFixed(1) : "0";
-    $("codec").textContent = version === 2 ? "compact" : "raw";
+    $("codec").textContent = version === 1 ? "raw" : "compact";
   }
 
   function draw() {
