@@ -175,3 +175,19 @@ const fs = require("fs"); const {{ decodeFrame }} = require({json.dumps(str(DECO
             assert "error" in r, name
         else:
             assert r.get("m") == m, name
+
+
+def test_codec_benchmark_rows(tmp_path):
+    from fuseflow.eval.bench.live_codec_v3 import SETTINGS, measure, node_decode_ms, table
+
+    xyz, rgb = _surface(5000)
+    rows = measure("surface", xyz, rgb, repeats=1)
+    by = {r["codec"]: r for r in rows}
+    assert len(rows) == len(SETTINGS) and by["raw"]["bits_per_point"] == pytest.approx(72.0, abs=0.1)
+    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v3, 3 mm / 8, 16, 4 (default)"]
+    assert v3["bits_per_point"] < v2["bits_per_point"] and 0 < v3["geometry_bits_per_point"] < v3["bits_per_point"]
+    assert all(r["pos_err_over_half_step"] <= 1.0 + 1e-3 for r in rows if r["pos_err_over_half_step"] is not None)
+    if shutil.which("node"):
+        node_decode_ms(rows, 1, tmp_path)
+        assert all(r["node_decode_ms"] > 0 for r in rows)
+    assert len(table([{k: v for k, v in r.items() if k != "_data"} for r in rows])) == len(rows) + 2
