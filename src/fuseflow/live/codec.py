@@ -33,10 +33,11 @@ increasing ``k = 4 x_bit + 2 y_bit + z_bit``); points come out in Morton order.
 
 The range coder is LZMA's binary one: 32-bit range, 11-bit probabilities that start at one half
 and adapt after every decision (``p += (2048 - p) >> 5`` after a 0, ``p -= p >> 5`` after a 1);
-stream byte 0 is always 0. Geometry: for every node of depths 0..L-1, its child bits k = 0..7
-(bit 7 is implied when bits 0-6 are 0), each in the context of (last depth or not, which of the
-node's 3 face neighbours next to child k exist, how many of the 3 others do, k, how many of the
-3 siblings next to k are occupied, whether any child below k is; ``codec_kernels.geo_contexts``).
+stream byte 0 is always 0. Geometry: for every node of depths 0..L-1, a single-child flag, then
+either that child's index k as 3 bits of a binary tree or the 8 child bits k = 0..7 (bit 7 implied
+when bits 0-6 hold at most one child), in contexts of the node's face neighbours (found from the
+parents' without a search; ``codec_kernels.child_neighbours``), k and the siblings coded so far
+(``codec_kernels.geo_contexts``).
 
 Colour: ``Y = (R + 2G + B) / 4`` per point, ``Co = R - B`` and ``Cg = G - (R + B) / 2`` as means
 over blocks of ``chroma block`` consecutive points, each rounded to a multiple of its step and
@@ -64,6 +65,7 @@ The occupancy bytes are breadth first from the root, bit ``k`` set when child ``
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from dataclasses import dataclass
@@ -111,8 +113,8 @@ class CompactParams:
     chroma_block: int = 4
     """Consecutive points (in Morton order: neighbours) that share one chroma pair."""
     version: int = COMPACT_VERSION
-    """Format version written: 3 (range coded) or 2 (deflated; version 2 defaults were luma step
-    4, chroma step 8)."""
+    """Format version written: 3 (range coded) or 2 (deflated; its rows in docs/live.md use luma
+    step 4, chroma step 8)."""
 
     def check(self) -> CompactParams:
         if not (0.01 <= self.step_mm <= 1000.0):
@@ -134,7 +136,8 @@ def _deflate(data: bytes) -> bytes:
     return c.compress(data) + c.flush()
 
 
-_POOL: list = []
+_POOL: dict = {}
+"""The geometry worker of this process (by pid: a forked child starts its own)."""
 
 
 def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParams) -> tuple[bytes, bytes, int]:
@@ -145,9 +148,10 @@ def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParam
     from fuseflow.live.codec_kernels import colour_stream, geometry_stream, leaves_v3
 
     leaves, mean = leaves_v3(cells, levels, rgb)
-    if not _POOL:
-        _POOL.append(ThreadPoolExecutor(1, thread_name_prefix="fuseflow-codec"))
-    geo = _POOL[0].submit(geometry_stream, leaves, levels)
+    pool = _POOL.get(os.getpid())
+    if pool is None:
+        pool = _POOL[os.getpid()] = ThreadPoolExecutor(1, thread_name_prefix="fuseflow-codec")
+    geo = pool.submit(geometry_stream, leaves, levels)
     col = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block)
     return geo.result().tobytes(), col.tobytes(), len(leaves)
 
