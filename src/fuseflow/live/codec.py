@@ -1,12 +1,14 @@
-"""The compact frame format of the live stream (version 2, ``--codec compact``): positions on a
-grid coded as an octree, colour as quantised luma / chroma residuals, each stream deflated.
+"""The compact frame formats of the live stream (``--codec compact``): positions on a grid coded
+as an octree, colour as quantised luma / chroma residuals. Version 3 (written by default)
+range-codes both with adaptive context models; version 2 deflates byte streams. ``decode_compact``
+reads both. docs/live.md has them byte by byte with the decoding steps.
 
-A message, little-endian (docs/live.md has it byte by byte with the decoding steps)::
+Version 3, little-endian::
 
     offset  size  type        field
     0       4     char[4]     magic "FFLV"
-    4       2     uint16      version (2)
-    6       2     uint16      header size H in bytes (64): the streams start here
+    4       2     uint16      version (3)
+    6       2     uint16      header size H in bytes (60): the streams start here
     8       4     uint32      frame number
     12      4     uint32      M, the number of points sent (occupied grid cells)
     16      4     uint32      points before merging (the fused cloud's size)
@@ -18,27 +20,52 @@ A message, little-endian (docs/live.md has it byte by byte with the decoding ste
     45      1     uint8       luma step
     46      1     uint8       chroma step
     47      1     uint8       chroma block (points sharing one chroma pair)
+    48      4     uint32      CRC-32 (zlib's) of everything after the header
+    52      4     uint32      stream 1 size: geometry (range coded)
+    56      4     uint32      stream 2 size: colour (range coded)
+    60      ...               the two streams, one after the other
+
+Positions: every point is snapped to the cell ``i = floor((p - origin) / s)`` of a grid of
+``2^L`` cells per axis and decoded at the cell's centre ``origin + (i + 0.5) s``: at most s / 2
+off per axis. Points that fall in one cell are merged into one (their mean colour). The occupied
+cells form an octree, coded depth by depth from the root, nodes in Morton order (children in
+increasing ``k = 4 x_bit + 2 y_bit + z_bit``); points come out in Morton order.
+
+The range coder is LZMA's binary one: 32-bit range, 11-bit probabilities that start at one half
+and adapt after every decision (``p += (2048 - p) >> 5`` after a 0, ``p -= p >> 5`` after a 1);
+stream byte 0 is always 0. Geometry: for every node of depths 0..L-1, a single-child flag, then
+either that child's index k as 3 bits of a binary tree or the 8 child bits k = 0..7 (bit 7 implied
+when bits 0-6 hold at most one child), in contexts of the node's face neighbours (found from the
+parents' without a search; ``codec_kernels.child_neighbours``), k and the siblings coded so far
+(``codec_kernels.geo_contexts``).
+
+Colour: ``Y = (R + 2G + B) / 4`` per point, ``Co = R - B`` and ``Cg = G - (R + B) / 2`` as means
+over blocks of ``chroma block`` consecutive points, each rounded to a multiple of its step and
+sent as the difference to the previous point's (block's) value: a nonzero flag, the sign, the
+magnitude in unary up to 14, then an Exp-Golomb code of ``magnitude - 14``, all in contexts of
+the size (0, 1, more) of the previous residual of the channel (and of this point's luma or Co
+residual for Co and Cg). Decoding: ``R = Y + Co/2 - Cg/2``, ``G = Y + Cg/2``,
+``B = Y - Co/2 - Cg/2``, rounded half to even and clamped to 0-255.
+
+Version 2 (deflated byte streams; read, and written with ``CompactParams(version=2)``)::
+
+    offset  size  type        field
+    0-47                      as version 3 (version 2, header size 64)
     48      4     uint32      occupancy bytes (decompressed size of stream 1)
     52      4     uint32      stream 1 size (zlib): octree occupancy, one byte per node
     56      4     uint32      stream 2 size (zlib): luma residuals, M bytes
     60      4     uint32      stream 3 size (zlib): chroma residuals, 2 ceil(M / block) bytes
     64      ...               the three zlib streams, one after the other
 
-Positions: every point is snapped to the cell ``i = floor((p - origin) / s)`` of a grid of
-``2^L`` cells per axis and decoded at the cell's centre ``origin + (i + 0.5) s``: at most s / 2
-off per axis. Points that fall in one cell are merged into one (their mean colour). The occupied
-cells are coded as an octree, breadth first from the root: one byte per node, bit ``k`` set when
-child ``k`` is occupied, with ``k = 4 x_bit + 2 y_bit + z_bit``; children in increasing ``k``.
-Points come out in that order (Morton order), which the colour streams follow.
-
-Colour: ``Y = (77 R + 150 G + 29 B + 128) >> 8``, ``Cb = B - Y``, ``Cr = R - Y``; the luma
+The occupancy bytes are breadth first from the root, bit ``k`` set when child ``k`` is occupied;
+``Y = (77 R + 150 G + 29 B + 128) >> 8``, ``Cb = B - Y``, ``Cr = R - Y``; the luma
 ``round(Y / luma_step)`` per point and the chroma ``round(mean(Cb) / chroma_step)``,
-``round(mean(Cr) / chroma_step)`` per block of ``chroma_block`` consecutive points, each sent as
-the difference to the previous value (mod 256).
+``round(mean(Cr) / chroma_step)`` per block, each the difference to the previous value (mod 256).
 """
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from dataclasses import dataclass
@@ -47,12 +74,27 @@ import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
 
-__all__ = ["CompactParams", "COMPACT_VERSION", "COMPACT_HEADER", "encode_compact", "decode_compact", "MAX_LEVELS"]
+__all__ = [
+    "CompactParams",
+    "COMPACT_VERSION",
+    "COMPACT_VERSIONS",
+    "COMPACT_HEADER",
+    "encode_compact",
+    "decode_compact",
+    "MAX_LEVELS",
+    "MAX_POINTS",
+]
 
-COMPACT_VERSION = 2
-_HEAD = struct.Struct("<4sHHIII3ffffBBBBIIII")
-COMPACT_HEADER = _HEAD.size
-"""Header size in bytes (64)."""
+COMPACT_VERSION = 3
+"""The compact version written by default."""
+COMPACT_VERSIONS = (2, 3)
+"""The compact versions ``decode_compact`` reads."""
+_HEAD = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 2
+_HEAD3 = struct.Struct("<4sHHIII3ffffBBBBIII")
+COMPACT_HEADER = _HEAD3.size
+"""Header size in bytes of version 3 (60; version 2: 64)."""
+MAX_POINTS = 1 << 26
+"""Most points a compact frame may hold (a decoder refuses more before allocating for them)."""
 MAX_LEVELS = 21
 """Octree depth limit: 2^21 cells per axis (4 km at 2 mm)."""
 
@@ -64,12 +106,15 @@ class CompactParams:
     step_mm: float = 3.0
     """Grid step: positions are at most step / 2 off per axis. 3 mm is about the spacing of a
     200 k-point ``--preset live`` cloud of an 8-camera rig (docs/live.md, "Bandwidth")."""
-    luma_step: int = 4
+    luma_step: int = 8
     """Luma quantisation step (1 = lossless 8-bit luma); the luma error is at most step / 2."""
-    chroma_step: int = 8
+    chroma_step: int = 16
     """Chroma quantisation step (2 or more)."""
     chroma_block: int = 4
     """Consecutive points (in Morton order: neighbours) that share one chroma pair."""
+    version: int = COMPACT_VERSION
+    """Format version written: 3 (range coded) or 2 (deflated; its rows in docs/live.md use luma
+    step 4, chroma step 8)."""
 
     def check(self) -> CompactParams:
         if not (0.01 <= self.step_mm <= 1000.0):
@@ -79,6 +124,8 @@ class CompactParams:
                 f"compact colour: luma step 1-64, chroma step 2-64, chroma block 1-64; got "
                 f"{self.luma_step}, {self.chroma_step}, {self.chroma_block}"
             )
+        if self.version not in COMPACT_VERSIONS:
+            raise ValidationError(f"compact version must be one of {COMPACT_VERSIONS}, got {self.version}")
         return self
 
 
@@ -89,12 +136,34 @@ def _deflate(data: bytes) -> bytes:
     return c.compress(data) + c.flush()
 
 
+_POOL: dict = {}
+"""The geometry worker of this process (by pid: a forked child starts its own)."""
+
+
+def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParams) -> tuple[bytes, bytes, int]:
+    """(geometry stream, colour stream, points sent): the two streams are coded at once, the
+    geometry in a worker thread (the kernels release the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fuseflow.live.codec_kernels import colour_stream, geometry_stream, leaves_v3
+
+    leaves, mean = leaves_v3(cells, levels, rgb)
+    pool = _POOL.get(os.getpid())
+    if pool is None:
+        pool = _POOL[os.getpid()] = ThreadPoolExecutor(1, thread_name_prefix="fuseflow-codec")
+    geo = pool.submit(geometry_stream, leaves, levels)
+    col = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block)
+    return geo.result().tobytes(), col.tobytes(), len(leaves)
+
+
 def encode_compact(
     xyz: np.ndarray, rgb: np.ndarray, number: int, latency_ms: float, fuse_ms: float, params: CompactParams
 ) -> bytes:
-    """The version-2 message for (M, 3) float32 positions and (M, 3) uint8 colours."""
+    """The compact message (``params.version``: 3 or 2) for (M, 3) float32 positions and (M, 3)
+    uint8 colours."""
     from fuseflow.live.codec_kernels import compact_streams, finite_min, grid_cells
 
+    params.check()
     step = params.step_mm / 1000.0
     xyz = np.ascontiguousarray(xyz, np.float32)
     lo, bad = finite_min(xyz)
@@ -102,6 +171,8 @@ def encode_compact(
         keep = np.isfinite(xyz).all(1)
         xyz, rgb = np.ascontiguousarray(xyz[keep]), rgb[keep]
     n_in = len(xyz)
+    if n_in > MAX_POINTS:
+        raise ValidationError(f"compact frame: {n_in} points, over the format's {MAX_POINTS}")
     origin = lo.astype(np.float32) if n_in else np.zeros(3, np.float32)
     cells, top = grid_cells(xyz, origin.astype(np.float64), 1.0 / step)
     levels = max(1, int(top).bit_length())
@@ -110,18 +181,21 @@ def encode_compact(
             f"compact frame: the cloud spans {top * step:.1f} m, over 2^{MAX_LEVELS} cells of {params.step_mm:g} mm; "
             "use a larger --grid-mm or --crop"
         )
+    rgb = np.ascontiguousarray(rgb, np.uint8)
+    p = params
+    fixed = (b"FFLV", p.version, COMPACT_HEADER if p.version == 3 else _HEAD.size, number & 0xFFFFFFFF)
+    tail = (*origin.tolist(), step, latency_ms, fuse_ms, levels, p.luma_step, p.chroma_step, p.chroma_block)
+    if p.version == 3:
+        geo, col, m = _streams_v3(cells, levels, rgb, p) if n_in else (b"", b"", 0)
+        body = geo + col
+        return _HEAD3.pack(*fixed, int(m), n_in, *tail, zlib.crc32(body), len(geo), len(col)) + body
     if n_in:
-        occ, luma, chroma, m = compact_streams(cells, levels, np.ascontiguousarray(rgb), params.luma_step,
-                                               params.chroma_step, params.chroma_block)  # fmt: skip
+        occ, luma, chroma, m = compact_streams(cells, levels, rgb, p.luma_step, p.chroma_step, p.chroma_block)
     else:
         occ = luma = chroma = np.zeros(0, np.uint8)
         m = 0
     streams = [_deflate(occ.tobytes()), _deflate(luma.tobytes()), _deflate(chroma.tobytes())]
-    head = _HEAD.pack(
-        b"FFLV", COMPACT_VERSION, COMPACT_HEADER, number & 0xFFFFFFFF, int(m), n_in, *origin.tolist(),
-        step, latency_ms, fuse_ms, levels, params.luma_step, params.chroma_step, params.chroma_block,
-        len(occ), *(len(s) for s in streams),
-    )  # fmt: skip
+    head = _HEAD.pack(*fixed, int(m), n_in, *tail, len(occ), *(len(s) for s in streams))
     return b"".join([head, *streams])
 
 
@@ -139,7 +213,10 @@ class CompactHeader:
     chroma_step: int
     chroma_block: int
     occupancy_bytes: int
-    sizes: tuple[int, int, int]
+    """Version 2: the decompressed size of the occupancy stream; version 3: the CRC-32."""
+    sizes: tuple[int, ...]
+    """Byte sizes of the streams (version 2: occupancy, luma, chroma; version 3: geometry, colour)."""
+    version: int = COMPACT_VERSION
 
 
 def _inflate(data: bytes, expected: int, what: str) -> bytes:
@@ -156,16 +233,20 @@ def _inflate(data: bytes, expected: int, what: str) -> bytes:
 
 
 def _read_header(data: bytes) -> CompactHeader:
-    if len(data) < COMPACT_HEADER:
-        raise FormatError(f"live frame: {len(data)} bytes, shorter than the {COMPACT_HEADER}-byte header")
-    f = _HEAD.unpack_from(data)
-    h = CompactHeader(f[3], f[4], f[5], np.array(f[6:9], np.float32), *f[9:17], tuple(f[17:20]))
-    if f[2] != COMPACT_HEADER or not (1 <= h.levels <= MAX_LEVELS) or not (h.step > 0) or h.points > h.points_in:
+    version = struct.unpack_from("<H", data, 4)[0] if len(data) >= 6 else 0
+    if version not in COMPACT_VERSIONS:
+        raise FormatError(f"live frame: compact version {version}, expected one of {COMPACT_VERSIONS}")
+    head = _HEAD3 if version == 3 else _HEAD
+    if len(data) < head.size:
+        raise FormatError(f"live frame: {len(data)} bytes, shorter than the {head.size}-byte header")
+    f = head.unpack_from(data)
+    h = CompactHeader(f[3], f[4], f[5], np.array(f[6:9], np.float32), *f[9:17], tuple(f[17:]), version=version)
+    if f[2] != head.size or not (1 <= h.levels <= MAX_LEVELS) or not (h.step > 0) or h.points > h.points_in:
         raise FormatError(f"live frame: bad compact header (size {f[2]}, levels {h.levels}, step {h.step})")
-    if min(h.luma_step, h.chroma_step, h.chroma_block) < 1:
-        raise FormatError("live frame: bad compact header (zero colour step or block)")
-    if len(data) != COMPACT_HEADER + sum(h.sizes):
-        raise FormatError(f"live frame: {len(data)} bytes, expected {COMPACT_HEADER + sum(h.sizes)} from its header")
+    if min(h.luma_step, h.chroma_step, h.chroma_block) < 1 or h.points_in > MAX_POINTS:
+        raise FormatError(f"live frame: bad compact header (a zero colour step or block, or {h.points_in} points)")
+    if len(data) != head.size + sum(h.sizes):
+        raise FormatError(f"live frame: {len(data)} bytes, expected {head.size + sum(h.sizes)} from its header")
     return h
 
 
@@ -201,11 +282,35 @@ def _colours(luma: bytes, chroma: bytes, h: CompactHeader) -> np.ndarray:
     return np.clip(np.rint(np.stack([r, g, b], 1)), 0, 255).astype(np.uint8)
 
 
+def _decode_v3(data: bytes, h: CompactHeader) -> tuple[np.ndarray, np.ndarray]:
+    from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells
+
+    if zlib.crc32(memoryview(data)[COMPACT_HEADER:]) != h.occupancy_bytes:
+        raise FormatError("live frame: the checksum does not match (corrupt or altered streams)")
+    m = h.points
+    if m == 0:
+        if sum(h.sizes):
+            raise FormatError("live frame: streams given for a frame of no points")
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
+    raw = np.frombuffer(data, np.uint8, offset=COMPACT_HEADER)
+    geo, col = raw[: h.sizes[0]], raw[h.sizes[0] :]
+    keys, used, err = decode_geometry(geo, h.levels, m)
+    if err or len(keys) != m or used > len(geo):
+        raise FormatError(f"live frame: the geometry stream gives {len(keys)} points, the header says {m}")
+    rgb, used, err = decode_colour(col, m, h.luma_step, h.chroma_step, h.chroma_block)
+    if err or used > len(col):
+        raise FormatError("live frame: the colour stream is corrupt or ends early")
+    xyz = (h.origin.astype(np.float64) + (morton_cells(keys) + 0.5) * h.step).astype(np.float32)
+    return xyz, rgb
+
+
 def decode_compact(data: bytes) -> tuple[CompactHeader, np.ndarray, np.ndarray]:
-    """(header, (M, 3) float32 cell-centre positions, (M, 3) uint8 colours) of a version-2
-    message; FormatError for anything truncated, corrupt or inconsistent."""
+    """(header, (M, 3) float32 cell-centre positions, (M, 3) uint8 colours) of a version-3 or
+    version-2 message; FormatError for anything truncated, corrupt or inconsistent."""
     h = _read_header(data)
-    a = COMPACT_HEADER
+    if h.version == 3:
+        return (h, *_decode_v3(data, h))
+    a = _HEAD.size
     b, c = a + h.sizes[0], a + h.sizes[0] + h.sizes[1]
     m = h.points
     occ = _inflate(data[a:b], h.occupancy_bytes, "occupancy")

@@ -14,7 +14,18 @@ from fuseflow.io.numba_cache import use_usable_cache
 
 use_usable_cache(__file__)  # before any @njit(cache=True) below
 
-__all__ = ["bounds", "finite_min", "grid_cells", "compact_streams"]
+__all__ = [
+    "bounds",
+    "finite_min",
+    "grid_cells",
+    "compact_streams",
+    "leaves_v3",
+    "geometry_stream",
+    "colour_stream",
+    "decode_geometry",
+    "decode_colour",
+    "morton_cells",
+]
 
 
 @njit(cache=True, nogil=True)
@@ -211,3 +222,477 @@ def compact_streams(cells, levels, rgb, luma_step, chroma_step, block):  # pragm
     occ = _occupancy(leaves, levels)
     luma, chroma = _colour_residuals(mean, luma_step, chroma_step, block)
     return occ, luma, chroma, leaves.shape[0]
+
+
+# Version 3: an adaptive binary range coder (LZMA's: 11-bit probabilities, a 32-bit range, carries
+# through a one-byte cache) over the octree's occupancy bits, in contexts of the node's face
+# neighbours, and over colour residuals, in contexts of the previous residuals' sizes. The encoder
+# first lists every (context, bit) decision, then codes them in one tight loop; the decoders (below,
+# and static/decode.js) make the same decisions in the same order.
+
+GEO_CONTEXTS = 2 * 8 * 4 * 8 * 4 * 2 + 128 + 1024
+"""Occupancy contexts: of a child bit (last level or not x the 3 face neighbours next to the
+child x how many of the 3 others exist x child index x adjacent siblings already occupied (0-3) x
+any sibling occupied so far: 4096), of the single-child flag (SINGLE + last level x neighbour
+bits: 128) and of the single child's index, 3 bits as a binary tree (TREE + (last level x
+neighbour bits) x tree node: 1024)."""
+SINGLE = 4096
+TREE = 4096 + 128
+RES = 32
+"""Contexts of one residual: nonzero, sign, 13 unary magnitude bits, 9 Exp-Golomb prefix bits,
+8 suffix bit positions."""
+COL_CONTEXTS = 21 * RES
+"""Colour residual context groups: luma (3: previous luma residual's size), Co (9: previous Co
+size x this point's luma size), Cg (9: previous Cg size x this block's Co size)."""
+ESCAPE = 14
+"""Residual magnitudes from this on continue as an Exp-Golomb code of ``magnitude - ESCAPE``."""
+MAX_PREFIX = 16
+"""Longest Exp-Golomb prefix a decoder accepts (a valid stream stays under 10)."""
+
+
+@njit(cache=True, nogil=True)
+def range_code(ctx, bits, n_contexts):  # pragma: no cover - compiled
+    """The range-coded bytes of decisions ``bits[i]`` (0/1) each with the adaptive probability
+    of its context ``ctx[i]`` (all starting at one half; p += (2048 - p) >> 5 after a 0, p -= p >> 5
+    after a 1)."""
+    n = bits.shape[0]
+    buf = np.empty(n + n // 2 + 64, np.uint8)  # a decision costs at most 6.1 bits
+    probs = np.full(n_contexts, 1024, np.int64)
+    low = np.int64(0)
+    rng = np.int64(0xFFFFFFFF)
+    cache = np.int64(0)
+    csize = np.int64(1)
+    pos = 0
+    for i in range(n + 5):
+        if i < n:
+            c = ctx[i]
+            p = probs[c]
+            bound = (rng >> 11) * p
+            if bits[i] == 0:
+                rng = bound
+                probs[c] = p + ((2048 - p) >> 5)
+            else:
+                low += bound
+                rng -= bound
+                probs[c] = p - (p >> 5)
+            if rng >= (1 << 24):
+                continue
+        while True:  # shift a byte out (at the end: five times, the flush)
+            if low < 0xFF000000 or low >= (1 << 32):
+                carry = low >> 32
+                temp = cache
+                while True:
+                    buf[pos] = (temp + carry) & 0xFF
+                    pos += 1
+                    temp = 0xFF
+                    csize -= 1
+                    if csize == 0:
+                        break
+                cache = (low >> 24) & 0xFF
+            csize += 1
+            low = (low & 0x00FFFFFF) << 8
+            if i >= n:
+                break
+            rng <<= 8
+            if rng >= (1 << 24):
+                break
+    return buf[:pos].copy()
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _get(st, data, probs, c):  # pragma: no cover - compiled
+    """Decode one decision with ``probs[c]``; st = (range, code, bytes read)."""
+    p = probs[c]
+    bound = (st[0] >> 11) * p
+    if st[1] < bound:
+        st[0] = bound
+        probs[c] = p + ((2048 - p) >> 5)
+        bit = 0
+    else:
+        st[1] -= bound
+        st[0] -= bound
+        probs[c] = p - (p >> 5)
+        bit = 1
+    while st[0] < (1 << 24):
+        st[0] <<= 8
+        b = data[st[2]] if st[2] < data.shape[0] else 0
+        st[2] += 1
+        st[1] = ((st[1] << 8) | b) & 0xFFFFFFFF
+    return bit
+
+
+@njit(cache=True, nogil=True)
+def _reader(data):  # pragma: no cover - compiled
+    st = np.zeros(3, np.int64)
+    st[0] = 0xFFFFFFFF
+    for i in range(1, 5):  # byte 0 is the encoder's empty cache
+        st[1] = (st[1] << 8) | (data[i] if i < data.shape[0] else 0)
+    st[2] = 5
+    return st
+
+
+@njit(cache=True, nogil=True)
+def _node_levels(leaves, levels):  # pragma: no cover - compiled
+    """Sorted unique Morton keys of every depth 0..levels, concatenated root first, and where
+    each depth starts (``start[levels + 1]`` is the total)."""
+    parts = [leaves]
+    for _ in range(levels):
+        cur = parts[-1]
+        nxt = np.empty(cur.shape[0], np.uint64)
+        m = 0
+        for i in range(cur.shape[0]):
+            p = cur[i] >> np.uint64(3)
+            if m == 0 or nxt[m - 1] != p:
+                nxt[m] = p
+                m += 1
+        parts.append(nxt[:m])
+    start = np.zeros(levels + 2, np.int64)
+    for d in range(levels + 1):
+        start[d + 1] = start[d] + parts[levels - d].shape[0]
+    keys = np.empty(start[levels + 1], np.uint64)
+    for d in range(levels + 1):
+        keys[start[d] : start[d + 1]] = parts[levels - d]
+    return keys, start
+
+
+@njit(cache=True, nogil=True)
+def child_neighbours(pbyte, pstart, pup, n):  # pragma: no cover - compiled
+    """Face neighbours of the n nodes one depth below parents with occupancy bytes ``pbyte``,
+    first children at ``pstart`` and upper neighbours ``pup`` (3, parents; -1: none), all in
+    Morton order: (nb, up) with nb bit 2a set when a node's lower neighbour along axis a
+    (x, y, z) exists and bit 2a + 1 for its upper one, and up (3, n) the upper neighbours' indices.
+    A child's upper neighbour along a is its sibling when its own bit a is 0, else a child of the
+    parent's upper neighbour: no search."""
+    nb = np.zeros(n, np.uint8)
+    up = np.full((3, n), -1, np.int64)
+    q = 0
+    for p in range(pbyte.shape[0]):
+        byte = pbyte[p]
+        for k in range(8):
+            if not (byte >> k) & 1:
+                continue
+            for a in range(3):
+                bp = 2 - a
+                if (k >> bp) & 1:
+                    kk, par = k & ~(1 << bp), pup[a, p]
+                else:
+                    kk, par = k | (1 << bp), p
+                if par >= 0 and (pbyte[par] >> kk) & 1:
+                    below = pbyte[par] & ((1 << kk) - 1)
+                    j = pstart[par]
+                    while below:
+                        j += 1
+                        below &= below - 1
+                    up[a, q] = j
+                    nb[q] |= 1 << (2 * a + 1)
+                    nb[j] |= 1 << (2 * a)
+            q += 1
+    return nb, up
+
+
+@njit(cache=True, nogil=True)
+def geo_contexts():  # pragma: no cover - compiled
+    """(base, extra) tables of the occupancy contexts: child bit k of a node with neighbour
+    bits nb at the last depth (last = 1) or above has context ``base[(last * 64 + nb) * 8 + k]
+    + extra[k * 128 + below]``, ``below`` being its bits under k."""
+    base = np.empty(2 * 64 * 8, np.int32)
+    for last in range(2):
+        for nb in range(64):
+            for k in range(8):
+                bx, by, bz = k >> 2, (k >> 1) & 1, k & 1
+                adj = (((nb >> bx) & 1) << 2) | (((nb >> (2 + by)) & 1) << 1) | ((nb >> (4 + bz)) & 1)
+                far = ((nb >> (1 - bx)) & 1) + ((nb >> (3 - by)) & 1) + ((nb >> (5 - bz)) & 1)
+                base[(last * 64 + nb) * 8 + k] = (((last * 8 + adj) * 4 + far) * 8 + k) * 8
+    extra = np.zeros(8 * 128, np.int32)
+    for k in range(8):
+        for below in range(1 << k):
+            sib = ((below >> (k ^ 4)) & 1) + ((below >> (k ^ 2)) & 1) + ((below >> (k ^ 1)) & 1)
+            extra[k * 128 + below] = sib * 2 + (1 if below else 0)
+    return base, extra
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _popcount(b):  # pragma: no cover - compiled
+    n = 0
+    while b:
+        b &= b - 1
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def geometry_decisions(leaves, levels):  # pragma: no cover - compiled
+    """(contexts, bits) of the octree of sorted unique Morton keys of depth ``levels``: every
+    node from the root down, depth by depth in Morton order: whether it has a single child; if
+    so that child's index k = 4 x + 2 y + z as 3 bits (x, y, z) of a binary tree, else its 8
+    child bits in increasing k (bit 7 not when bits 0-6 hold at most one child)."""
+    keys, start = _node_levels(leaves, levels)
+    base, extra = geo_contexts()
+    ctx = np.empty(9 * start[levels] + 8, np.int32)  # a node: at most 1 + 8 decisions
+    bits = np.empty(9 * start[levels] + 8, np.uint8)
+    t = 0
+    pbyte = np.ones(1, np.int64)  # a virtual parent of the root: child 0
+    pstart = np.zeros(1, np.int64)
+    pup = np.full((3, 1), -1, np.int64)
+    for d in range(levels):
+        lo, hi = start[d], start[d + 1]
+        nbs, up = child_neighbours(pbyte, pstart, pup, hi - lo)
+        last = 1 if d == levels - 1 else 0
+        byte_d = np.zeros(hi - lo, np.int64)
+        cstart = np.zeros(hi - lo, np.int64)
+        j = hi  # the first child of this depth's first node
+        for i in range(hi - lo):
+            parent = keys[lo + i]
+            cstart[i] = j - hi
+            byte = 0
+            while j < start[d + 2] and (keys[j] >> np.uint64(3)) == parent:
+                byte |= 1 << np.int64(keys[j] & np.uint64(7))
+                j += 1
+            byte_d[i] = byte
+            row = last * 64 + np.int64(nbs[i])
+            single = 1 if (byte & (byte - 1)) == 0 else 0
+            ctx[t], bits[t] = SINGLE + row, single
+            t += 1
+            if single:
+                node = 1
+                for b in range(2, -1, -1):
+                    bit = (_popcount(byte - 1) >> b) & 1  # the child's index, bit b
+                    ctx[t], bits[t] = TREE + row * 8 + node, bit
+                    t += 1
+                    node = 2 * node + bit
+                continue
+            for k in range(8):
+                below = byte & ((1 << k) - 1)
+                if k == 7 and _popcount(below) <= 1:
+                    break
+                ctx[t] = base[row * 8 + k] + extra[k * 128 + below]
+                bits[t] = (byte >> k) & 1
+                t += 1
+        pbyte, pstart, pup = byte_d, cstart, up
+    return ctx[:t], bits[:t]
+
+
+@njit(cache=True, nogil=True)
+def decode_geometry(data, levels, points):  # pragma: no cover - compiled
+    """(sorted Morton keys of the leaves, bytes read, error): error 1 when a depth would hold
+    more nodes than ``points`` (not a valid stream)."""
+    st = _reader(data)
+    probs = np.full(GEO_CONTEXTS, 1024, np.int64)
+    base, extra = geo_contexts()
+    keys = np.zeros(1, np.uint64)
+    pbyte = np.ones(1, np.int64)
+    pstart = np.zeros(1, np.int64)
+    pup = np.full((3, 1), -1, np.int64)
+    for d in range(levels):
+        n = keys.shape[0]
+        nbs, up = child_neighbours(pbyte, pstart, pup, n)
+        last = 1 if d == levels - 1 else 0
+        nxt = np.empty(min(8 * n, points + 8), np.uint64)
+        byte_d = np.zeros(n, np.int64)
+        cstart = np.zeros(n, np.int64)
+        m = 0
+        for i in range(n):
+            cstart[i] = m
+            row = last * 64 + np.int64(nbs[i])
+            byte = 0
+            if _get(st, data, probs, SINGLE + row):
+                node = 1
+                for _ in range(3):
+                    node = 2 * node + _get(st, data, probs, TREE + row * 8 + node)
+                byte = 1 << (node - 8)
+            else:
+                for k in range(8):
+                    if k == 7 and _popcount(byte) <= 1:
+                        byte |= 128
+                    elif _get(st, data, probs, base[row * 8 + k] + extra[k * 128 + byte]):
+                        byte |= 1 << k
+            for k in range(8):
+                if (byte >> k) & 1:
+                    if m >= points:
+                        return keys[:0], st[2], 1
+                    nxt[m] = (keys[i] << np.uint64(3)) | np.uint64(k)
+                    m += 1
+            byte_d[i] = byte
+        keys = nxt[:m]
+        pbyte, pstart, pup = byte_d, cstart, up
+    return keys, st[2], 0
+
+
+@njit(cache=True, nogil=True)
+def colour_values(mean, luma_step, chroma_step, block):  # pragma: no cover - compiled
+    """Quantised colour of (M, 3) float RGB in point order: (M,) Y = (R + 2G + B) / 4 and
+    (ceil(M / block), 2) Co = R - B, Cg = G - (R + B) / 2 (means over each block of ``block``
+    points), each rounded to a multiple of its step."""
+    m = mean.shape[0]
+    nb = (m + block - 1) // block
+    qy = np.empty(m, np.int64)
+    qc = np.empty((nb, 2), np.int64)
+    for b in range(nb):
+        co = cg = 0.0
+        n = 0
+        for i in range(b * block, min(m, (b + 1) * block)):
+            r, g, bl = mean[i, 0], mean[i, 1], mean[i, 2]
+            qy[i] = np.int64(np.rint((r + 2.0 * g + bl) / 4.0 / luma_step))
+            co += r - bl
+            cg += g - 0.5 * (r + bl)
+            n += 1
+        qc[b, 0] = np.int64(np.rint(co / n / chroma_step))
+        qc[b, 1] = np.int64(np.rint(cg / n / chroma_step))
+    return qy, qc
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _size(r):  # pragma: no cover - compiled
+    a = abs(r)
+    return 0 if a == 0 else (1 if a == 1 else 2)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _residual(ctx, bits, t, base, r):  # pragma: no cover - compiled
+    """List the decisions of residual r from context ``base`` on: nonzero, sign, magnitude in
+    unary up to ESCAPE, then an Exp-Golomb code of magnitude - ESCAPE (prefix, suffix)."""
+    a = abs(r)
+    ctx[t], bits[t] = base, 1 if a else 0
+    t += 1
+    if a == 0:
+        return t
+    ctx[t], bits[t] = base + 1, 1 if r < 0 else 0
+    t += 1
+    for j in range(1, ESCAPE):
+        ctx[t], bits[t] = base + 1 + j, 1 if a > j else 0
+        t += 1
+        if a <= j:
+            return t
+    e = a - ESCAPE + 1
+    n = 0
+    while (e >> (n + 1)) != 0:
+        n += 1
+    for i in range(n + 1):
+        ctx[t], bits[t] = base + 15 + min(i, 8), 1 if i < n else 0
+        t += 1
+    for i in range(n - 1, -1, -1):
+        ctx[t], bits[t] = base + 24 + min(i, 7), (e >> i) & 1
+        t += 1
+    return t
+
+
+@njit(cache=True, nogil=True)
+def colour_decisions(qy, qc, block):  # pragma: no cover - compiled
+    """(contexts, bits) of the colour: per point its luma residual to the previous point's, and
+    at the first point of each block the block's Co and Cg residuals to the previous block's."""
+    m = qy.shape[0]
+    ctx = np.empty(8 * m + 256, np.int32)
+    bits = np.empty(8 * m + 256, np.uint8)
+    t = 0
+    py = pco = pcg = 0
+    sy = sco = scg = 0
+    for i in range(m):
+        if t + 120 > ctx.shape[0]:  # three residuals take at most 3 x 37 decisions
+            ctx2 = np.empty(2 * ctx.shape[0], np.int32)
+            bits2 = np.empty(2 * ctx.shape[0], np.uint8)
+            ctx2[:t], bits2[:t] = ctx[:t], bits[:t]
+            ctx, bits = ctx2, bits2
+        r = qy[i] - py
+        t = _residual(ctx, bits, t, sy * RES, r)
+        sy = _size(r)
+        py = qy[i]
+        if i % block == 0:
+            b = i // block
+            r1, r2 = qc[b, 0] - pco, qc[b, 1] - pcg
+            t = _residual(ctx, bits, t, (3 + sco * 3 + sy) * RES, r1)
+            s1 = _size(r1)
+            t = _residual(ctx, bits, t, (12 + scg * 3 + s1) * RES, r2)
+            sco, scg = s1, _size(r2)
+            pco, pcg = qc[b, 0], qc[b, 1]
+    return ctx[:t], bits[:t]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _get_residual(st, data, probs, base):  # pragma: no cover - compiled
+    """(residual, error) read as ``_residual`` lists it; error 1 for an over-long prefix."""
+    if _get(st, data, probs, base) == 0:
+        return 0, 0
+    neg = _get(st, data, probs, base + 1)
+    a = 1
+    while a < ESCAPE and _get(st, data, probs, base + 1 + a) == 1:
+        a += 1
+    if a == ESCAPE:
+        n = 0
+        while _get(st, data, probs, base + 15 + min(n, 8)) == 1:
+            n += 1
+            if n > MAX_PREFIX:
+                return 0, 1
+        e = 1
+        for i in range(n - 1, -1, -1):
+            e = (e << 1) | _get(st, data, probs, base + 24 + min(i, 7))
+        a = e + ESCAPE - 1
+    return (-a if neg else a), 0
+
+
+@njit(cache=True, nogil=True)
+def decode_colour(data, m, luma_step, chroma_step, block):  # pragma: no cover - compiled
+    """((M, 3) uint8 RGB, bytes read, error) of a colour stream (``colour_decisions``)."""
+    st = _reader(data)
+    probs = np.full(COL_CONTEXTS, 1024, np.int64)
+    rgb = np.empty((m, 3), np.uint8)
+    py = pco = pcg = 0
+    sy = sco = scg = 0
+    for i in range(m):
+        r, err = _get_residual(st, data, probs, sy * RES)
+        sy = _size(r)
+        py += r
+        if i % block == 0:
+            r1, e1 = _get_residual(st, data, probs, (3 + sco * 3 + sy) * RES)
+            s1 = _size(r1)
+            r2, e2 = _get_residual(st, data, probs, (12 + scg * 3 + s1) * RES)
+            sco, scg = s1, _size(r2)
+            pco += r1
+            pcg += r2
+            err |= e1 | e2
+        if err:
+            return rgb[:0], st[2], 1
+        y, co, cg = float(py * luma_step), float(pco * chroma_step), float(pcg * chroma_step)
+        for c, v in enumerate(((y + co * 0.5) - cg * 0.5, y + cg * 0.5, (y - co * 0.5) - cg * 0.5)):
+            rgb[i, c] = np.uint8(min(max(np.rint(v), 0.0), 255.0))
+    return rgb, st[2], 0
+
+
+@njit(cache=True, nogil=True)
+def leaves_v3(cells, levels, rgb):  # pragma: no cover - compiled
+    """Sorted unique Morton keys of the occupied cells and each one's mean colour (float64)."""
+    key, order = _sorted_keys(cells, 3 * levels)
+    return _leaves(key, order, rgb)
+
+
+@njit(cache=True, nogil=True)
+def geometry_stream(leaves, levels):  # pragma: no cover - compiled
+    """The range-coded geometry stream of sorted unique leaf keys."""
+    ctx, bits = geometry_decisions(leaves, levels)
+    return range_code(ctx, bits, GEO_CONTEXTS)
+
+
+@njit(cache=True, nogil=True)
+def colour_stream(mean, luma_step, chroma_step, block):  # pragma: no cover - compiled
+    """The range-coded colour stream of (M, 3) mean colours in Morton order."""
+    qy, qc = colour_values(mean, luma_step, chroma_step, block)
+    ctx, bits = colour_decisions(qy, qc, block)
+    return range_code(ctx, bits, COL_CONTEXTS)
+
+
+@njit(cache=True, nogil=True)
+def morton_cells(keys):  # pragma: no cover - compiled
+    """(M, 3) int64 cells of Morton keys (x high, z low within each 3-bit group)."""
+    n = keys.shape[0]
+    out = np.zeros((n, 3), np.int64)
+    for i in range(n):
+        k = keys[i]
+        x = y = z = np.int64(0)
+        b = 0
+        while k != 0:
+            z |= np.int64(k & np.uint64(1)) << b
+            y |= np.int64((k >> np.uint64(1)) & np.uint64(1)) << b
+            x |= np.int64((k >> np.uint64(2)) & np.uint64(1)) << b
+            k >>= np.uint64(3)
+            b += 1
+        out[i, 0], out[i, 1], out[i, 2] = x, y, z
+    return out

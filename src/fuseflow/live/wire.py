@@ -1,7 +1,8 @@
 """The binary frame formats of the live stream (``/ws``), one WebSocket binary message per fused
 frame, little-endian (docs/live.md has them byte by byte). Two codecs (``CODECS``): ``compact``
-(version 2, ``fuseflow.live.codec``: about 1-2 bytes a point) and ``raw`` (version 1, below: 9
-bytes a point, no decompression). ``encode_frame`` writes either; ``decode_frame`` reads both.
+(version 3, or 2 when asked for, ``fuseflow.live.codec``: about 1 byte a point) and ``raw``
+(version 1, below: 9 bytes a point, no decompression). ``encode_frame`` writes either;
+``decode_frame`` reads all three versions.
 
 Version 1 (``raw``)::
 
@@ -31,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
-from fuseflow.live.codec import COMPACT_VERSION, CompactParams, decode_compact, encode_compact
+from fuseflow.live.codec import COMPACT_VERSIONS, CompactParams, decode_compact, encode_compact
 from fuseflow.types import FusedCloud
 
 __all__ = ["MAGIC", "VERSION", "HEADER", "CODECS", "encode_frame", "decode_frame", "DecodedFrame",
@@ -107,13 +108,14 @@ def decode_frame(data: bytes) -> DecodedFrame:
     if len(data) < 8:
         raise FormatError(f"live frame: {len(data)} bytes, too short for a header")
     magic, version = struct.unpack_from("<4sH", data)
-    if magic == MAGIC and version == COMPACT_VERSION:
+    if magic == MAGIC and version in COMPACT_VERSIONS:
         h, xyz, rgb = decode_compact(data)
         box = (xyz.min(0), xyz.max(0)) if len(xyz) else (np.zeros(3, np.float32), np.zeros(3, np.float32))
-        return DecodedFrame(h.number, xyz, rgb, box, h.latency_ms, h.fuse_ms, COMPACT_VERSION, h.points_in, h.step)
+        return DecodedFrame(h.number, xyz, rgb, box, h.latency_ms, h.fuse_ms, version, h.points_in, h.step)
     if magic != MAGIC or version != VERSION:
         raise FormatError(
-            f"live frame: magic {magic!r} version {version}, expected {MAGIC!r} version {VERSION} or {COMPACT_VERSION}"
+            f"live frame: magic {magic!r} version {version}, expected {MAGIC!r} version {VERSION} "
+            f"or {' or '.join(map(str, COMPACT_VERSIONS))}"
         )
     if len(data) < HEADER:
         raise FormatError(f"live frame: {len(data)} bytes, shorter than the {HEADER}-byte header")

@@ -1,8 +1,10 @@
-// FuseFlow live frame decoder: both binary frame formats of /ws (version 1 "raw", version 2
-// "compact"; docs/live.md has them byte by byte). No dependencies: the compact streams are zlib,
-// inflated by the browser's DecompressionStream("deflate") (Chromium, Firefox, Safari 16.4+,
-// Node 18+). decodeFrame(arrayBuffer) -> Promise of {version, number, m, pointsIn, xyz
-// (Float32Array, 3 m, metres), rgb (Uint8ClampedArray, 3 m), latency, fuseMs}.
+// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3 and 2
+// "compact"; docs/live.md has them byte by byte). No dependencies: version 3 is range coded (the
+// decoder below mirrors fuseflow/live/codec_kernels.py decision for decision); version 2's zlib
+// streams are inflated by the browser's DecompressionStream("deflate") (Chromium, Firefox,
+// Safari 16.4+, Node 18+). decodeFrame(arrayBuffer) -> Promise of {version, number, m, pointsIn,
+// xyz (Float32Array, 3 m, metres), rgb (Uint8ClampedArray, 3 m), latency, fuseMs}; it rejects
+// (an Error) a truncated, corrupt or inconsistent frame.
 "use strict";
 (function (root) {
   const f32 = (dv, o) => dv.getFloat32(o, true);
@@ -70,6 +72,189 @@
     }
     return { m, pointsIn: dv.getUint32(16, true), xyz, rgb, latency: f32(dv, 36), fuseMs: f32(dv, 40) };
   }
+  // ---- version 3: LZMA's adaptive binary range decoder over context-modelled decisions ----
+  const CRC = new Int32Array(256).map((_, n) => {
+    let c = n;
+    for (let k = 0; k < 8; k++) c = c & 1 ? 0xEDB88320 ^ (c >>> 1) : c >>> 1;
+    return c;
+  });
+  function crc32(bytes) {
+    let c = -1;
+    for (let i = 0; i < bytes.length; i++) c = CRC[(c ^ bytes[i]) & 255] ^ (c >>> 8);
+    return (c ^ -1) >>> 0;
+  }
+  // range decoder state: Float64Array [range, code, bytes read] (a typed array: no boxed numbers)
+  function rangeDecoder(bytes) {
+    const s = new Float64Array(3);
+    s[0] = 0xFFFFFFFF;
+    for (let i = 1; i < 5; i++) s[1] = s[1] * 256 + (i < bytes.length ? bytes[i] : 0);  // byte 0: always 0
+    s[2] = 5;
+    return s;
+  }
+  function bit(s, bytes, probs, c) {
+    // one decision with the adaptive probability probs[c] (11 bits, adapted by 1/32)
+    const p = probs[c];
+    let range = s[0], code = s[1], b = 0;
+    const bound = (range >>> 11) * p;
+    if (code < bound) { range = bound; probs[c] = p + ((2048 - p) >> 5); }
+    else { code -= bound; range -= bound; probs[c] = p - (p >> 5); b = 1; }
+    if (range < 16777216) {
+      let pos = s[2];
+      do {
+        range *= 256;
+        code = ((code << 8) | (pos < bytes.length ? bytes[pos] : 0)) >>> 0;
+        pos++;
+      } while (range < 16777216);
+      s[2] = pos;
+    }
+    s[0] = range; s[1] = code;
+    return b;
+  }
+  // occupancy contexts (codec_kernels.geo_contexts): BASE[(last * 64 + nb) * 8 + k] + EXTRA[k * 128 + below]
+  const BASE = new Int32Array(1024), EXTRA = new Int32Array(1024);
+  for (let last = 0; last < 2; last++) for (let nb = 0; nb < 64; nb++) for (let k = 0; k < 8; k++) {
+    const bx = k >> 2, by = (k >> 1) & 1, bz = k & 1;
+    const adj = (((nb >> bx) & 1) << 2) | (((nb >> (2 + by)) & 1) << 1) | ((nb >> (4 + bz)) & 1);
+    const far = ((nb >> (1 - bx)) & 1) + ((nb >> (3 - by)) & 1) + ((nb >> (5 - bz)) & 1);
+    BASE[(last * 64 + nb) * 8 + k] = (((last * 8 + adj) * 4 + far) * 8 + k) * 8;
+  }
+  for (let k = 0; k < 8; k++) for (let below = 0; below < (1 << k); below++)
+    EXTRA[k * 128 + below] = (((below >> (k ^ 4)) & 1) + ((below >> (k ^ 2)) & 1) + ((below >> (k ^ 1)) & 1)) * 2 + (below ? 1 : 0);
+  const SINGLE = 4096, TREE = 4096 + 128, GEO_CONTEXTS = 4096 + 128 + 1024, RES = 32, COL_CONTEXTS = 21 * RES, ESCAPE = 14, MAX_PREFIX = 16;
+  function childNeighbours(pbyte, pstart, pup, n) {
+    // face neighbours of the n nodes one depth below parents (bytes pbyte, first children at
+    // pstart, upper neighbours pup[a], -1 none; all in Morton order): nb bit 2a = lower neighbour
+    // along axis a (x, y, z) exists, bit 2a + 1 = upper; up[a] = the upper neighbours. A child's
+    // upper neighbour is its sibling when its own bit a is 0, else a child of the parent's.
+    const nb = new Uint8Array(n), up = [new Int32Array(n).fill(-1), new Int32Array(n).fill(-1), new Int32Array(n).fill(-1)];
+    let q = 0;
+    for (let p = 0; p < pbyte.length; p++) {
+      const byte = pbyte[p];
+      for (let k = 0; k < 8; k++) {
+        if (!((byte >> k) & 1)) continue;
+        for (let a = 0; a < 3; a++) {
+          const bp = 2 - a, high = (k >> bp) & 1, kk = high ? k & ~(1 << bp) : k | (1 << bp), par = high ? pup[a][p] : p;
+          if (par >= 0 && (pbyte[par] >> kk) & 1) {
+            const j = pstart[par] + POP[pbyte[par] & ((1 << kk) - 1)];
+            up[a][q] = j; nb[q] |= 1 << (2 * a + 1); nb[j] |= 1 << (2 * a);
+          }
+        }
+        q++;
+      }
+    }
+    return [nb, up];
+  }
+  function geometry(bytes, levels, m) {
+    // the range decoder inlined (one decision site, a small state machine per node): the state in
+    // local variables, not an array, is what makes this loop fast
+    const probs = new Uint16Array(GEO_CONTEXTS).fill(1024), nbytes = bytes.length;
+    let range = 0xFFFFFFFF, code = 0, pos = 5;
+    for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
+    let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1);
+    let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = [new Int32Array([-1]), new Int32Array([-1]), new Int32Array([-1])];
+    for (let d = 0; d < levels; d++) {
+      const n = xs.length, [nb, up] = childNeighbours(pbyte, pstart, pup, n), last = d === levels - 1 ? 1 : 0;
+      const cap = Math.min(8 * n, m + 8), nx = new Uint32Array(cap), ny = new Uint32Array(cap), nz = new Uint32Array(cap);
+      const cbyte = new Uint8Array(n), cstart = new Int32Array(n);
+      let t = 0;
+      for (let i = 0; i < n; i++) {
+        const row = last * 64 + nb[i];
+        // mode 0: the single-child flag; 1: the single child's index (node of a 3-bit tree); 2: child bit k
+        let mode = 0, c = SINGLE + row, node = 1, k = 0, byte = 0;
+        for (;;) {
+          const p = probs[c], bound = (range >>> 11) * p;
+          let b = 0;
+          if (code < bound) { range = bound; probs[c] = p + ((2048 - p) >> 5); }
+          else { code -= bound; range -= bound; probs[c] = p - (p >> 5); b = 1; }
+          while (range < 16777216) { range *= 256; code = ((code << 8) | (pos < nbytes ? bytes[pos] : 0)) >>> 0; pos++; }
+          if (mode === 0) {
+            if (b) { mode = 1; c = TREE + row * 8 + 1; }
+            else { mode = 2; c = BASE[row * 8] + EXTRA[0]; }
+          } else if (mode === 1) {
+            node = 2 * node + b;
+            if (node >= 8) { byte = 1 << (node - 8); break; }
+            c = TREE + row * 8 + node;
+          } else {
+            byte |= b << k;
+            k++;
+            if (k === 7 && POP[byte] <= 1) { byte |= 128; break; }
+            if (k === 8) break;
+            c = BASE[row * 8 + k] + EXTRA[k * 128 + byte];
+          }
+        }
+        cstart[i] = t;
+        if (t + POP[byte] > m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
+        const x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
+        for (let q = 0; q < 8; q++)
+          if ((byte >> q) & 1) { nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1); t++; }
+        cbyte[i] = byte;
+      }
+      xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t);
+      pbyte = cbyte; pstart = cstart; pup = up;
+    }
+    if (xs.length !== m || pos > nbytes)
+      throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
+    return [xs, ys, zs];
+  }
+  function residual(rc, bytes, P, base) {
+    // a signed residual: nonzero, sign, unary magnitude up to ESCAPE, Exp-Golomb of the rest
+    if (bit(rc, bytes, P, base) === 0) return 0;
+    const neg = bit(rc, bytes, P, base + 1);
+    let a = 1;
+    while (a < ESCAPE && bit(rc, bytes, P, base + 1 + a) === 1) a++;
+    if (a === ESCAPE) {
+      let n = 0;
+      while (bit(rc, bytes, P, base + 15 + Math.min(n, 8)) === 1)
+        if (++n > MAX_PREFIX) throw new Error("live frame: the colour stream is corrupt");
+      let e = 1;
+      for (let i = n - 1; i >= 0; i--) e = (e << 1) | bit(rc, bytes, P, base + 24 + Math.min(i, 7));
+      a = e + ESCAPE - 1;
+    }
+    return neg ? -a : a;
+  }
+  const size = (r) => (r === 0 ? 0 : r === 1 || r === -1 ? 1 : 2);
+  function colours(bytes, m, ls, cs, blk) {
+    const rc = rangeDecoder(bytes), P = new Uint16Array(COL_CONTEXTS).fill(1024);
+    const rgb = new Uint8ClampedArray(3 * m);  // clamps, and rounds half to even as numpy's rint
+    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0;
+    for (let i = 0; i < m; i++) {
+      const r = residual(rc, bytes, P, sy * RES);
+      sy = size(r); py += r;
+      if (i % blk === 0) {
+        const r1 = residual(rc, bytes, P, (3 + sco * 3 + sy) * RES), s1 = size(r1);
+        const r2 = residual(rc, bytes, P, (12 + scg * 3 + s1) * RES);
+        sco = s1; scg = size(r2); pco += r1; pcg += r2;
+      }
+      const Y = py * ls, Co = pco * cs, Cg = pcg * cs;
+      rgb[3 * i] = (Y + Co * 0.5) - Cg * 0.5; rgb[3 * i + 1] = Y + Cg * 0.5; rgb[3 * i + 2] = (Y - Co * 0.5) - Cg * 0.5;
+    }
+    if (rc[2] > bytes.length) throw new Error("live frame: the colour stream ends early");
+    return rgb;
+  }
+  function decodeV3(buf, dv) {
+    const H = 60;
+    if (buf.byteLength < H || dv.getUint16(6, true) !== H) throw new Error("live frame: bad version-3 header");
+    const m = dv.getUint32(12, true), pointsIn = dv.getUint32(16, true);
+    const origin = [f32(dv, 20), f32(dv, 24), f32(dv, 28)], step = f32(dv, 32);
+    const levels = dv.getUint8(44), ls = dv.getUint8(45), cs = dv.getUint8(46), blk = dv.getUint8(47);
+    const s1 = dv.getUint32(52, true), s2 = dv.getUint32(56, true);
+    if (buf.byteLength !== H + s1 + s2) throw new Error("live frame: " + buf.byteLength + " bytes, the header says " + (H + s1 + s2));
+    if (levels < 1 || levels > 21 || !(step > 0) || m > pointsIn || pointsIn > (1 << 26) || !ls || !cs || !blk)
+      throw new Error("live frame: bad version-3 header");
+    if (crc32(new Uint8Array(buf, H)) !== dv.getUint32(48, true)) throw new Error("live frame: the checksum does not match");
+    const xyz = new Float32Array(3 * m);
+    let rgb = new Uint8ClampedArray(0);
+    if (m > 0) {
+      const [xs, ys, zs] = geometry(new Uint8Array(buf, H, s1), levels, m);
+      for (let i = 0; i < m; i++) {
+        xyz[3 * i] = origin[0] + (xs[i] + 0.5) * step;
+        xyz[3 * i + 1] = origin[1] + (ys[i] + 0.5) * step;
+        xyz[3 * i + 2] = origin[2] + (zs[i] + 0.5) * step;
+      }
+      rgb = colours(new Uint8Array(buf, H + s1, s2), m, ls, cs, blk);
+    } else if (s1 + s2) throw new Error("live frame: streams given for a frame of no points");
+    return { m, pointsIn, xyz, rgb, latency: f32(dv, 36), fuseMs: f32(dv, 40) };
+  }
   async function decodeFrame(buf) {
     if (buf.byteLength < 8) throw new Error("frame shorter than a header");
     const dv = new DataView(buf);
@@ -77,6 +262,7 @@
     const version = magic === "FFLV" ? dv.getUint16(4, true) : 0;
     let frame;
     if (version === 1) frame = decodeRaw(buf, dv);
+    else if (version === 3) frame = decodeV3(buf, dv);
     else if (version === 2) frame = await decodeCompact(buf, dv);
     else throw new Error("unknown frame format");
     return Object.assign(frame, { version, number: dv.getUint32(8, true) });

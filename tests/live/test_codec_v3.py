@@ -1,0 +1,193 @@
+"""Version 3 of the compact frame codec (range-coded octree and colour): exact geometry and
+bounded colour error, fewer bytes than version 2 at the same quantisation, the browser's decoder
+(decode.js in node) giving bit-identical points on the same bytes, and every malformed message
+(truncated, flipped, garbage behind a valid checksum, absurd header) rejected with one clear error
+in both decoders, never a hang."""
+
+import json
+import shutil
+import struct
+import subprocess
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from fuseflow.errors import FormatError
+from fuseflow.live.codec import COMPACT_HEADER, MAX_POINTS, CompactParams, decode_compact, encode_compact
+from fuseflow.live.wire import decode_frame
+
+DECODE_JS = Path(__file__).resolve().parents[2] / "src" / "fuseflow" / "live" / "static" / "decode.js"
+needs_node = pytest.mark.skipif(shutil.which("node") is None, reason="needs node to run the viewer's decoder")
+
+
+def _surface(m=20000, seed=0, noisy=False):
+    """Points on a sphere and a floor, colours smooth (or random: large residuals, escape codes)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(m // 2, 3))
+    sphere = 0.6 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.2, -0.1, 1.5]
+    floor = np.c_[rng.uniform(-1.5, 1.5, m - m // 2), np.full(m - m // 2, 0.9), rng.uniform(0.3, 3.0, m - m // 2)]
+    xyz = np.vstack([sphere, floor]).astype(np.float32)
+    rgb = 128 + 100 * np.sin(xyz * [2.0, 3.0, 1.5] + [0.0, 1.0, 2.0])
+    if noisy:
+        rgb = rng.integers(0, 256, (m, 3))
+    return xyz, rgb.astype(np.uint8)
+
+
+def _with_crc(data: bytes) -> bytes:
+    """The message with its header's checksum made to match its (altered) streams."""
+    return data[:48] + struct.pack("<I", zlib.crc32(data[COMPACT_HEADER:])) + data[52:]
+
+
+def _garbage_frames(data: bytes, count: int, seed: int = 0) -> list[bytes]:
+    """Messages with the header of ``data`` and random streams of the same sizes, valid checksums."""
+    rng = np.random.default_rng(seed)
+    return [_with_crc(data[:COMPACT_HEADER] + rng.bytes(len(data) - COMPACT_HEADER)) for _ in range(count)]
+
+
+def test_positions_exact_to_the_cell_and_colour_within_the_bound():
+    xyz, rgb = _surface()
+    p = CompactParams(step_mm=2.0)
+    d = decode_frame(encode_compact(xyz, rgb, 7, 1.0, 2.0, p))
+    origin = xyz.min(0).astype(np.float64)
+    cells = np.unique(np.floor((xyz - origin) / 0.002).astype(np.int64), axis=0)
+    got = np.floor((d.xyz.astype(np.float64) - origin) / 0.002).astype(np.int64)
+    assert d.version == 3 and len(got) == len(cells) and np.array_equal(np.unique(got, axis=0), cells)
+    cheb, idx = cKDTree(d.xyz).query(xyz, p=np.inf)
+    assert cheb.max() <= 0.001 + 1e-5  # half the 2 mm step per axis
+    err = np.abs(d.rgb[idx].astype(int) - rgb.astype(int))
+    assert np.percentile(err, 95) <= 12, np.percentile(err, 95)
+
+
+def test_geometry_round_trips_at_extreme_shapes():
+    rng = np.random.default_rng(3)
+    shapes = {
+        "one point": np.array([[0.5, 0.5, 0.5]]),
+        "a full 8x8x8 block": np.stack(np.meshgrid(*[np.arange(8) * 0.003] * 3), -1).reshape(-1, 3),
+        "sparse over 2 km (20 levels)": np.r_[[[0.0, 0.0, 0.0], [2000.0, 3.0, 1.0]], rng.uniform(0, 2000, (500, 3))],
+    }
+    for name, pts in shapes.items():
+        xyz = pts.astype(np.float32) + 0.0001
+        d = decode_frame(encode_compact(xyz, np.full((len(xyz), 3), 80, np.uint8), 0, 0.0, 0.0, CompactParams()))
+        cheb, _ = cKDTree(d.xyz).query(xyz, p=np.inf)
+        assert cheb.max() <= 0.0015 + 2.4e-7 * np.abs(xyz).max(), name  # half a 3 mm step (+ float32 rounding)
+        assert np.all(d.rgb == 80), name  # grey on the luma step
+
+
+def test_fewer_bytes_than_version_2_at_the_same_quantisation():
+    xyz, rgb = _surface(60000)
+    for luma, chroma, block in ((4, 8, 4), (8, 16, 4), (8, 16, 1)):
+        v3, v2 = (len(encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams(3.0, luma, chroma, block, v)))
+                  for v in (3, 2))  # fmt: skip
+        assert v3 < 0.95 * v2, (luma, chroma, block, v3, v2)
+
+
+def test_large_residuals_take_the_escape_code_and_round_trip():
+    xyz = (np.stack(np.meshgrid(*[np.arange(16)] * 3), -1).reshape(-1, 3) * 0.01 + 0.001).astype(np.float32)
+    rgb = np.random.default_rng(2).integers(0, 256, (len(xyz), 3)).astype(np.uint8)  # one point a cell
+    h, dx, dc = decode_compact(encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams(3.0, 1, 2, 1)))
+    _, idx = cKDTree(dx).query(xyz)
+    assert h.points == len(xyz) and np.abs(dc[idx].astype(int) - rgb.astype(int)).max() <= 2  # chroma step 2
+
+
+def test_malformed_messages_are_format_errors():
+    xyz, rgb = _surface(3000)
+    data = encode_compact(xyz, rgb, 3, 0.0, 0.0, CompactParams())
+    for n in (0, 5, 40, COMPACT_HEADER, COMPACT_HEADER + 1, len(data) // 2, len(data) - 1):
+        with pytest.raises(FormatError):
+            decode_frame(data[:n])
+    bad = bytearray(data)
+    bad[COMPACT_HEADER + 10] ^= 0x10
+    with pytest.raises(FormatError, match="checksum"):
+        decode_frame(bytes(bad))
+    m = int.from_bytes(data[12:16], "little")
+    for frame in _garbage_frames(data, 30):  # valid checksum, nonsense streams: an error or M points
+        try:
+            got = len(decode_frame(frame).xyz)
+        except FormatError:
+            continue
+        assert got == m
+    huge = bytearray(data)
+    huge[12:20] = struct.pack("<II", MAX_POINTS + 1, MAX_POINTS + 1)
+    with pytest.raises(FormatError, match="points"):
+        decode_frame(bytes(huge))
+    fewer = bytearray(data)
+    fewer[12:16] = struct.pack("<I", int.from_bytes(data[12:16], "little") - 1)
+    with pytest.raises(FormatError, match="geometry"):
+        decode_frame(bytes(fewer))
+
+
+@needs_node
+def test_browser_decoder_is_bit_identical_and_rejects_malformed_messages(tmp_path):
+    xyz, rgb = _surface(30000)
+    nx, nrgb = _surface(3000, seed=1, noisy=True)
+    good = {
+        "default.bin": encode_compact(xyz, rgb, 1, 2.0, 3.0, CompactParams()),
+        "fine.bin": encode_compact(xyz, rgb, 2, 2.0, 3.0, CompactParams(1.0, 2, 4, 1)),
+        "escape.bin": encode_compact(nx, nrgb, 3, 2.0, 3.0, CompactParams(0.5, 1, 2, 1)),
+        "empty.bin": encode_compact(
+            np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), 4, 0.0, 0.0, CompactParams()
+        ),  # fmt: skip
+    }
+    data = good["default.bin"]
+    flipped = bytearray(data)
+    flipped[len(data) // 2] ^= 0x01
+    huge = bytearray(data)
+    huge[12:20] = struct.pack("<II", MAX_POINTS + 1, MAX_POINTS + 1)
+    bad = {"truncated.bin": data[:-3], "header-only.bin": data[:COMPACT_HEADER], "flipped.bin": bytes(flipped),
+           "huge.bin": bytes(huge), **{f"garbage{i}.bin": g for i, g in enumerate(_garbage_frames(data, 12))}}  # fmt: skip
+    for name, frame in {**good, **bad}.items():
+        (tmp_path / name).write_bytes(frame)
+    script = f"""
+const fs = require("fs"); const {{ decodeFrame }} = require({json.dumps(str(DECODE_JS))});
+(async () => {{
+  for (const name of process.argv.slice(2)) {{
+    const b = fs.readFileSync(name);
+    try {{
+      const f = await decodeFrame(b.buffer.slice(b.byteOffset, b.byteOffset + b.length));
+      fs.writeFileSync(name + ".out", Buffer.concat([Buffer.from(f.xyz.buffer), Buffer.from(f.rgb.buffer, f.rgb.byteOffset, f.rgb.length)]));
+      console.log(JSON.stringify({{ name, m: f.m, number: f.number, version: f.version, latency: f.latency, pointsIn: f.pointsIn }}));
+    }} catch (e) {{ console.log(JSON.stringify({{ name, error: String(e.message) }})); }}
+  }}
+}})();
+"""
+    (tmp_path / "run.js").write_text(script)
+    names = [str(tmp_path / n) for n in {**good, **bad}]
+    out = subprocess.run(["node", str(tmp_path / "run.js"), *names], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    results = {Path(r["name"]).name: r for r in map(json.loads, out.stdout.split("\n")[:-1])}
+    for name, frame in good.items():
+        r, py = results[name], decode_frame(frame)
+        m = len(py.xyz)
+        assert (r["m"], r["number"], r["version"], r["pointsIn"]) == (m, py.number, 3, py.points_in), name
+        js = (tmp_path / (name + ".out")).read_bytes()
+        assert np.array_equal(np.frombuffer(js[: 12 * m], np.float32).reshape(m, 3), py.xyz), name
+        assert np.array_equal(np.frombuffer(js[12 * m :], np.uint8).reshape(m, 3), py.rgb), name
+    for name in ("truncated.bin", "header-only.bin", "flipped.bin", "huge.bin"):
+        assert "live frame" in results[name].get("error", ""), (name, results[name])
+    for name, frame in bad.items():  # garbage behind a valid checksum: rejected, or M points as Python says
+        r = results[name]
+        try:
+            m = len(decode_frame(frame).xyz)
+        except FormatError:
+            assert "error" in r, name
+        else:
+            assert r.get("m") == m, name
+
+
+def test_codec_benchmark_rows(tmp_path):
+    from fuseflow.eval.bench.live_codec_v3 import SETTINGS, measure, node_decode_ms, table
+
+    xyz, rgb = _surface(5000)
+    rows = measure("surface", xyz, rgb, repeats=1)
+    by = {r["codec"]: r for r in rows}
+    assert len(rows) == len(SETTINGS) and by["raw"]["bits_per_point"] == pytest.approx(72.0, abs=0.1)
+    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v3, 3 mm / 8, 16, 4 (default)"]
+    assert v3["bits_per_point"] < v2["bits_per_point"] and 0 < v3["geometry_bits_per_point"] < v3["bits_per_point"]
+    assert all(r["pos_err_over_half_step"] <= 1.0 + 1e-3 for r in rows if r["pos_err_over_half_step"] is not None)
+    if shutil.which("node"):
+        node_decode_ms(rows, 1, tmp_path)
+        assert all(r["node_decode_ms"] > 0 for r in rows)
+    assert len(table([{k: v for k, v in r.items() if k != "_data"} for r in rows])) == len(rows) + 2
