@@ -4,7 +4,7 @@
 incomplete (a neighbour without depth after range gating: c = 0 by docs/design.md, "a neighbour
 with no depth makes the pixel an edge pixel") and the share with a complete window but c <= r_c.
 
-    python benchmarks/investigations/fuse_mcm_floor.py > benchmarks/results/fuse_mcm_floor.txt
+    python benchmarks/investigations/fuse_mcm_floor.py > benchmarks/results/0.1.0/fuse_mcm_floor.txt
 """
 
 import numpy as np

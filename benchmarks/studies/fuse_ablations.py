@@ -2,7 +2,7 @@
 switches, VoxelBlockGrid TSDF and naive fusion; plus FUSE's density / quality / time trade-off.
 
     fuseflow bench fuse-ablations --json docs/data/fuse_quality.json
-    python benchmarks/fuse_quality.py --json docs/data/fuse_quality.json       # the same
+    python -m benchmarks.fuse_quality --json docs/data/fuse_quality.json       # the same
 
 Data: two simulated rings of ``cameras`` cameras (8 by default) at 640x480 (fuseflow.synth,
 scene "studio", Kinect-class noise with flying pixels, lateral noise, quantisation and dropout;
@@ -22,11 +22,12 @@ outliers by the exact distance to the true surface), then the mean over frames:
 
 Rows (:func:`ablation_methods`): FUSE (default), the paper preset (eq. 20-21 and 27 as
 written), each ablation of fuseflow.fuse.ABLATIONS, the default with visibility_aware /
-min_weight / range_priority / ... changed, VoxelBlockGrid TSDF 1 cm, naive (every valid pixel)
-and naive + voxel 1 cm. The density rows (:func:`density_methods`) run FUSE with other s0
+min_weight / range_priority / ... changed, VoxelBlockGrid TSDF 1 cm (extracted at fuseflow's
+weight threshold 1, at Open3D's 3 and at the best of 0-3 on the frame: the row's
+``weight_threshold``), naive (every valid pixel) and naive + voxel 1 cm. The density rows (:func:`density_methods`) run FUSE with other s0
 (eq. 24; it sets the points per fine cell) and k_max on the static rig.
 
-(:mod:`fuseflow.eval.bench.fuse_quality` is the grid of presets against VoxelBlockGrid over
+(:mod:`benchmarks.studies.fuse_quality` is the grid of presets against VoxelBlockGrid over
 many rigs: ``fuseflow bench fuse-quality``.)
 """
 
@@ -50,7 +51,14 @@ def _quiet(line: str) -> None:
 
 def ablation_methods() -> dict[str, Callable[[Any, Any], Any]]:
     """Row name -> ``(frame, rig) -> FusedCloud``: every row of the table (module docstring)."""
-    from fuseflow.eval.baselines import naive_fusion, tsdf_fusion, voxel_downsampled_fusion
+    from benchmarks.studies.fuse_quality import BestVBG
+    from fuseflow.eval.baselines import (
+        OPEN3D_WEIGHT_THRESHOLD,
+        naive_fusion,
+        tsdf_fusion,
+        tsdf_fusion_at_thresholds,
+        voxel_downsampled_fusion,
+    )
     from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, fuse, parse_settings
 
     def f(cfg):
@@ -88,6 +96,10 @@ def ablation_methods() -> dict[str, Callable[[Any, Any], Any]]:
     for s_max in (0.01, 0.02):  # the fine cell's upper clip (eq. 24), 5 cm by default
         rows[f"FUSE s_max={s_max:g}"] = f(FuseConfig().replace(ash={"s_max": s_max}))
     rows["VBG TSDF 1 cm"] = lambda frame, rig: tsdf_fusion(frame, rig, voxel=0.01)
+    rows["VBG TSDF 1 cm Open3D threshold"] = lambda frame, rig: tsdf_fusion_at_thresholds(
+        frame, rig, [OPEN3D_WEIGHT_THRESHOLD], 0.01
+    )[OPEN3D_WEIGHT_THRESHOLD]
+    rows["VBG TSDF 1 cm best threshold"] = BestVBG()
     rows["naive"] = naive_fusion
     rows["naive + voxel 1 cm"] = lambda frame, rig: voxel_downsampled_fusion(frame, rig, voxel=0.01)
     return rows
@@ -134,6 +146,7 @@ def run_rig(
 ) -> list[dict]:
     """One simulated ring (``cameras`` cameras, static or ``dynamic``): per method the mean
     scores over ``frames`` frames and the median ms; a line per frame and per row to ``log``."""
+    from benchmarks.studies.fuse_quality import run_method
     from fuseflow.synth import SimConfig, Simulator
 
     sim = Simulator(SimConfig(cameras=cameras, frames=frames, resolution=res, dynamic=dynamic, seed=seed, rig="ring"))
@@ -147,10 +160,9 @@ def run_rig(
             if m not in warm:  # compile / start-up outside the timing
                 fn(sf.frame, sim.rig)
                 warm.add(m)
-            t0 = time.perf_counter()
-            cloud = fn(sf.frame, sim.rig)
-            ms[m].append((time.perf_counter() - t0) * 1000.0)
-            per[m].append(score(cloud, gt))
+            cloud, dt, thr = run_method(fn, sf.frame, sim.rig, gt)
+            ms[m].append(dt)
+            per[m].append(score(cloud, gt) | ({"weight_threshold": thr} if thr is not None else {}))
         log(f"  {name} frame {t} done")
     rows = []
     for m in methods:

@@ -1,4 +1,4 @@
-"""Calibration in the scenes that break it: ``fuseflow bench calib --data symstudio,far3``.
+"""Calibration in the scenes that break it: ``python -m benchmarks.calib_accuracy --data symstudio,far3``.
 
 ``symstudio``: the simulator's symmetric studio (``synth.studios``): a regular 8-12-sided room
 that repeats exactly, a small figure at the centre, 5-10 cameras (5 + seed % 6) on one ring (even

@@ -8,10 +8,10 @@ truth; ICL: the Open3D trajectory estimate; hocap-8rs: the target-based referenc
 after; ``kept`` is the refinement's own verdict (the depth-fit check), ``gain`` the change of the
 mean share of depth samples within 1 cm of the neighbours' surfaces.
 
-    python benchmarks/calib_wide.py sim --seeds 1 2 3 --frames 5 ...   # makes the recordings
-    python benchmarks/calib_joint_refine.py --out benchmarks/results/calib_joint_refine.jsonl \\
+    python -m benchmarks.calib_wide sim --seeds 1 2 3 --num-frames 5 ...   # makes the recordings
+    python -m benchmarks.calib_joint_refine --out benchmarks/results/calib_joint_refine.jsonl \\
         hocap /tmp/fuseflow-calib-wide/icl8_every26 /tmp/fuseflow-calib-wide/room3_s1_f5_640x480 ...
-    python benchmarks/calib_joint_refine.py --summary --out benchmarks/results/calib_joint_refine.jsonl
+    python -m benchmarks.calib_joint_refine --summary --out benchmarks/results/calib_joint_refine.jsonl
 
 Also ``load_hocap``: one frame of hocap-8rs with its reference extrinsics, for the calibration
 benchmarks.

@@ -1,6 +1,6 @@
 """Camera-sync check accuracy over a grid of simulated recordings.
 
-    fuseflow bench sync-check /tmp/sync-grid --seeds 5 --fps 30 --num-frames 90 --configs c4_160_late2,c4_160_sync
+    python -m benchmarks.sync_check /tmp/sync-grid --seeds 5 --fps 30 --num-frames 90 --configs c4_160_late2,c4_160_sync
 
 For each config (:data:`CONFIGS`) and seed: simulate a dynamic (or static) studio, desynchronise
 the listed cameras with ``synth.desync.apply_desync``, run ``pipeline.sync.check_sync`` with the

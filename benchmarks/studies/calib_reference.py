@@ -1,7 +1,7 @@
 """Which extrinsics fit the images better: the calibration's or the data set's reference?
 
-    fuseflow bench calib-reference /tmp/fuseflow-calib-wide/icl8_every26 hocap
-    fuseflow bench calib-reference hocap --per-camera
+    python -m benchmarks.calib_reference_check /tmp/fuseflow-calib-wide/icl8_every26 hocap
+    python -m benchmarks.calib_reference_check hocap --per-camera
 
 On real data the "error" of a calibration is its distance to a reference that has errors of its
 own (ICL-NUIM: Open3D's trajectory estimate; hocap-8rs: a target-based calibration, ~1 cm). This
@@ -41,7 +41,7 @@ Log = Callable[[str], None]
 
 def _load(name: str, shared: Path):
     if name == "hocap":
-        from fuseflow.eval.bench.calib_refine import load_hocap
+        from benchmarks.studies.calib_refine import load_hocap
 
         frame, rig, T_ref = load_hocap(shared / "hocap-8rs")
         return frame, rig, dict(zip(rig.ids, T_ref))

@@ -8,7 +8,7 @@ reported matches. Each inlier is also checked against the ground truth (keypoint
 back-projected with the noise-free depth and projected into camera j lands within 3 px of its
 match): 'correct' is that share.
 
-    .venv/bin/python benchmarks/sim_matches.py --scenes studio room   (prints the report)
+    python -m benchmarks.sim_matches --scenes studio room   (prints the report)
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""GMAC accuracy and timing benchmark (docs/design.md section 4 metrics): ``fuseflow bench calib``.
+"""GMAC accuracy and timing benchmark (docs/design.md section 4 metrics).
 
 Rows per data set: the backbone's poses scaled by the naive median depth ratio; GMAC with each
 closed form (z-only = paper eq. 12 corrected, full-3D, point-to-plane = default); GMAC +
@@ -17,12 +17,11 @@ seed, an edge with wrong matches is injected (its points shifted 0.3 m along the
 we count how often CC prunes it.
 
 :func:`run_calib_accuracy` runs it and hands each report line to a ``log`` callback (Markdown
-tables per data set); benchmarks/calib_accuracy.py and ``fuseflow bench calib`` print them.
+tables per data set); ``python -m benchmarks.calib_accuracy`` prints them.
 """
 
 from __future__ import annotations
 
-import json
 import platform
 import tempfile
 import time
@@ -415,7 +414,7 @@ def run_calib_accuracy(
     noise: tuple[float, float] = (0.3, 0.01),
     peer: bool = True,
     icl: Path | None = None,
-    json_path: Path | None = None,
+    save: Callable[[dict[str, Any]], Any] | None = None,
     log: Callable[[str], None] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
@@ -428,7 +427,7 @@ def run_calib_accuracy(
             rotation deg, centre metres per camera; isolates GMAC from the backbone).
         peer: also run the Open3D multiway registration peer.
         icl: the ICL-NUIM living room 1 folder (needed by icl8).
-        json_path: write the result here after every data set (a long run leaves its finished parts).
+        save: called with the result so far after every data set (a long run leaves its finished parts).
         log: called with each report line (header, then per data set a Markdown table).
         progress: called with "<data> seed <k> done" after each seed.
     """
@@ -451,6 +450,6 @@ def run_calib_accuracy(
             for line in dataset_report(d, label, frame, rows, robust, _backbone_name(backbone, noise)):
                 log(line)
             everything[d] = {"label": label, "rows": rows, "robustness": robust}
-            if json_path:  # after every data set, so a long run leaves its finished parts
-                Path(json_path).write_text(json.dumps(everything, indent=1, default=float))
+            if save is not None:  # after every data set, so a long run leaves its finished parts
+                save(everything)
     return everything

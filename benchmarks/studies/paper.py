@@ -1,4 +1,4 @@
-"""The analogues of the paper's tables (section IV), regenerated on this machine: ``fuseflow bench paper``.
+"""The analogues of the paper's tables (section IV), regenerated on this machine: ``python -m benchmarks.paper``.
 
 Tables (keys of :data:`TABLES`):
 
@@ -42,7 +42,7 @@ __all__ = ["PaperConfig", "QUICK", "FULL", "TABLES", "plan", "run", "render_mark
 
 ICL_DIR = "icl-livingroom1"
 """Folder of the ICL-NUIM living room kt1 sequence inside the data folder (the shared data, never
-copied into the repository; ``fuseflow bench paper --data-dir`` names the data folder)."""
+copied into the repository; ``python -m benchmarks.paper --data-dir`` names the data folder)."""
 
 
 def icl_path(data_dir: str | Path) -> Path:

@@ -1,8 +1,8 @@
 """The metric RGB-D backbone on sparse wide-baseline rigs, against ground truth.
 
-    fuseflow bench calib-wide sim --cameras 3,4 --scenes room --seeds 1,2,3
-    fuseflow bench calib-wide hocap
-    fuseflow bench calib-wide summary --out benchmarks/results/calib_wide_v2.jsonl
+    python -m benchmarks.calib_wide sim --cameras 3,4 --scenes room --seeds 1,2,3
+    python -m benchmarks.calib_wide hocap
+    python -m benchmarks.calib_wide summary --out /tmp/fuseflow-calib_wide.jsonl
 
 Data (``what``):
 
@@ -10,7 +10,7 @@ Data (``what``):
   640x480), reference = the recording's true extrinsics (rig.json). Each recording has F frames;
   the backbone runs on frame 0 alone and on all F frames.
 * ``hocap``: ``hocap-8rs`` (8 RealSense, one frame; reference = target-based camera->master
-  extrinsics, about 1 cm good), read by :func:`fuseflow.eval.bench.calib_refine.load_hocap`.
+  extrinsics, about 1 cm good), read by :func:`benchmarks.studies.calib_refine.load_hocap`.
 * ``icl``: ``fuseflow convert icl-livingroom1 OUT --cameras 8 --every 26`` (virtual rig of 8
   frames of a static scene; reference = the data set's trajectory, about 1 cm good).
 * ``pairs``: cameras 0 and 1 of each simulated ring and ICL rig, with their measured overlap.
@@ -44,8 +44,8 @@ import numpy as np
 import torch
 
 import fuseflow
+from benchmarks.studies.calib_refine import load_hocap
 from fuseflow.calib.backbones.rgbd import MATCHERS, RGBDConfig, relative_error, rgbd_backbone
-from fuseflow.eval.bench.calib_refine import load_hocap
 from fuseflow.eval.metrics import pose_errors
 from fuseflow.types import Frame, Rig, invert_rigid
 

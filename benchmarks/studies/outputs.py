@@ -1,8 +1,8 @@
 """The output options measured: ``--crop auto``, ``--format ply|drc|glb`` and ``--mesh``.
 
-    fuseflow bench outputs crop /tmp/ring8rs640 /tmp/ring8rs
-    fuseflow bench outputs formats /tmp/ring8rs640 /tmp/hocap --error-mm 1
-    fuseflow bench outputs mesh /tmp/ring8rs640 --repeats 2 --threads 2
+    python -m benchmarks.outputs_crop /tmp/ring8rs640 /tmp/ring8rs
+    python -m benchmarks.outputs_formats /tmp/ring8rs640 /tmp/hocap --error-mm 1
+    python -m benchmarks.outputs_mesh /tmp/ring8rs640 --repeats 2 --threads 2
 
 * :func:`crop_quality` (simulated recordings, ``fuseflow simulate``): fuse frame 0 with the true
   rig, label every fused point by the nearest scene part of the simulator's ground truth (Open3D

@@ -1,6 +1,6 @@
 """The per-camera verdicts and expected accuracy of ``calibrate`` against the truth.
 
-    fuseflow bench calib-verdicts --cameras 4,6 --seeds 1,2 --json /tmp/verdicts.json
+    python -m benchmarks.calib_verdicts --cameras 4,6 --seeds 1,2 --json /tmp/verdicts.json
 
 Simulated room rings (``fuseflow.synth``, 320x240, one frame, default config: auto backbone and
 joint refinement); per camera the verdict, the expected accuracy the report gives

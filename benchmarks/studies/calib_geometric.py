@@ -11,7 +11,7 @@ place cameras that no image or floor match places?
 
 Rows: JSON lines appended to ``--out``; a markdown table is printed per data set.
 
-    python benchmarks/calib_geometric.py primitives sim hocap --out benchmarks/results/calib_geometric.jsonl
+    python -m benchmarks.calib_geometric primitives sim hocap --out benchmarks/results/calib_geometric.jsonl
 
 Rows go to an ``emit`` callback, report lines to ``log`` (nothing here prints).
 """
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.studies.calib_refine import load_hocap
 from fuseflow.calib.backbones.rgbd import RGBDConfig, relative_error, rgbd_backbone
-from fuseflow.eval.bench.calib_refine import load_hocap
 from fuseflow.eval.metrics import pose_errors
 from fuseflow.synth.primitives import primitive_views
 from fuseflow.types import Frame, Rig, invert_rigid
