@@ -327,3 +327,23 @@ def test_rgbd_backbone_is_imported_through_its_package():
             ]
     assert not offenders, "\n".join(offenders)
 
+
+SOLVERS = {"lstsq", "least_squares", "minimize", "solve", "curve_fit", "leastsq"}
+
+
+def test_io_holds_formats_and_calls_no_solver():
+    """io reads and writes formats (timestamps included); estimating anything from them (the
+    sync offsets) lives above it, in fuseflow.pipeline.sync."""
+    offenders = []
+    for path, tree in _modules():
+        if not _module_name(path).startswith("fuseflow.io"):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+                if name in SOLVERS:
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {name}")
+    assert not offenders, "solvers in io (move them to pipeline.sync or another layer above io):\n" + "\n".join(
+        offenders
+    )

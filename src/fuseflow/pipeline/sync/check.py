@@ -2,17 +2,17 @@
 
 Two checks, ``check_sync`` picks one ("auto": by recording length):
 
-- **co-visible** (``check_sync_covisible``, module ``sync_covisible``): per camera pair, the
+- **co-visible** (``check_sync_covisible``, module ``covisible``): per camera pair, the
   moving surface both cameras see, scored with one camera shifted; a sub-frame lag per pair
   from both directions, the per-camera offsets solved jointly over the pairs
-  (``io.timesync.pair_lags``, ``solve_frame_offsets``). Works at 30 fps on recordings of
+  (``offsets.pair_lags``, ``solve_frame_offsets``). Works at 30 fps on recordings of
   60-90 frames (docs/formats.md "Camera-sync check").
 - **agreement** (``sync_scores``): for a camera c and a shift s, the score of frame t is the
   depth agreement of c's view at t with its neighbours' views at t + s
   (``geometry.pair_agreement`` restricted to c's pairs, tau 2 %: the 5 % of the fusion vote
   hides the few-centimetre motion between frames). A camera k frames late shows at t what its
   neighbours showed at t - k, so it agrees best at s = -k; in a static scene every shift agrees
-  alike and nothing is reported. ``io.timesync.estimate_frame_offset`` turns the scores into an
+  alike and nothing is reported. ``offsets.estimate_frame_offset`` turns the scores into an
   offset only when one shift is consistently better. Used on short recordings (a dozen frames
   at 5 fps); biased by a frame at 30 fps.
 """
@@ -27,16 +27,15 @@ import torch
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import pair_agreement
 from fuseflow.io.recording import Recording
-from fuseflow.io.timesync import (
+from fuseflow.io.timesync import read_timestamps, shift_views
+from fuseflow.pipeline.sync.covisible import covisible_curves
+from fuseflow.pipeline.sync.offsets import (
     OffsetEstimate,
     PairLag,
     estimate_frame_offset,
     pair_lags,
-    read_timestamps,
-    shift_views,
     solve_frame_offsets,
 )
-from fuseflow.pipeline.sync_covisible import covisible_curves
 from fuseflow.types import Frame, Rig
 
 __all__ = ["SyncReport", "check_sync", "check_sync_covisible", "sync_scores", "covisible_curves"]
@@ -148,11 +147,11 @@ def _window(m: int, reach: int, count: int) -> list[int]:
 def check_sync_covisible(
     rec: Recording, rig: Rig, sel: list[int], max_shift: int = 3, sample_frames: int = 48, tau: float = 0.03
 ) -> SyncReport:
-    """The motion-based check (``sync_covisible``): directed co-visible scores per camera pair on
+    """The motion-based check (``covisible``): directed co-visible scores per camera pair on
     ``sample_frames`` positions (every other frame of a window in the middle of a long
     recording: 2 x 48 frames, 3.2 s at 30 fps), a sub-frame lag per pair kept only when both
-    directions agree (``io.timesync.pair_lags``), and the offsets solved jointly
-    (``io.timesync.solve_frame_offsets``). Cost: N (N - 1) x sample_frames x (2 max_shift + 5)
+    directions agree (``offsets.pair_lags``), and the offsets solved jointly
+    (``offsets.solve_frame_offsets``). Cost: N (N - 1) x sample_frames x (2 max_shift + 5)
     projections of the moving pixels, plus loading ~2 x sample_frames frames."""
     # searched 2 frames past max_shift: a peak on the edge of the range cannot be refined, and
     # +-3 cut the -2 peak of a late camera's backward curve (measured, 30 fps seed 3); a short

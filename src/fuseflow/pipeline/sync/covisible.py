@@ -11,7 +11,7 @@ skipping them biases the peak towards shifts where the body moves towards j.
 Why co-visible only: the cameras of a ring see different sides of a moving body, and a shift of
 a frame or two moves one side's points onto the other's (the walker covers ~3 cm a frame at
 30 fps, less than a body's thickness), which biased the all-pixel scorer by a frame. What bias
-is left differs with the direction (i against j, or j against i); ``io.timesync.pair_lags``
+is left differs with the direction (i against j, or j against i); ``offsets.pair_lags``
 keeps a pair only when both directions agree.
 """
 
