@@ -124,7 +124,7 @@ def _stand_in(recording: Any, points: int | None, ms: float) -> Callable:
     """A fusion that takes ``ms`` of wall time without using the CPU (a sleep) and returns the
     real FUSE cloud of the recording's first frame: it measures everything but FUSE itself."""
     from fuseflow.fuse import fuse
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
 
     cloud = fuse(recording[0], recording.rig, preset_config("live", points))
 

@@ -27,7 +27,7 @@ def clouds(data_dir: Path, work: Path) -> dict[str, Any]:
     """name -> FusedCloud: hocap8 (every point), hocap8-200k, sim8-200k (a simulated studio) and
     sim8-200k-crop (the same cropped to the rig's capture volume, ``--crop auto``)."""
     from fuseflow.fuse import fuse
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
     from fuseflow.io import open_recording
     from fuseflow.io.hocap import convert_hocap
     from fuseflow.synth import SimConfig, simulate_recording
