@@ -5,7 +5,7 @@ Each tree (a folder holding ``src/fuseflow``, e.g. ``git worktree add /tmp/base 
 the same commands in a fresh process (``python -m fuseflow``, ``PYTHONPATH=<tree>/src``) on three
 rigs:
 
-* ``sim``: ``fuseflow simulate`` (4-camera dynamic studio ring, 160x120, 2 frames, seed 3);
+* ``sim``: ``fuseflow simulate`` (4-camera static room ring, 320x240, 2 frames, seed 1);
 * ``icl``: ``fuseflow convert <data>/icl-livingroom1 --cameras 8 --every 26`` (reference poses);
 * ``hocap``: ``fuseflow convert <data>/hocap-8rs --with-extrinsics`` (8 RealSense cameras).
 
@@ -37,8 +37,8 @@ def steps(case: str, out: Path, data_dir: Path) -> list[list[str]] | None:
     """The fuseflow commands of one case (None when its data is missing)."""
     rec = str(out / "rec")
     if case == "sim":
-        make = ["simulate", rec, "--cameras", "4", "--num-frames", "2", "--resolution", "160x120", "--dynamic",
-                "--seed", "3", "--scene", "studio"]  # fmt: skip
+        make = ["simulate", rec, "--cameras", "4", "--num-frames", "2", "--resolution", "320x240", "--seed", "1",
+                "--scene", "room", "--rig", "ring"]  # fmt: skip
     elif case == "icl":
         if not (data_dir / "icl-livingroom1").is_dir():
             return None
