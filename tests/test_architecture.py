@@ -281,10 +281,10 @@ def test_benchmarks_hold_no_absolute_path():
 
 def test_investigations_are_cited_and_imported_by_nothing():
     """benchmarks/investigations/ holds one-off studies: they may reach into any module and have
-    no size cap, but each is named by a doc (docs/, README.md or benchmarks/, so the number it
+    no size cap, but each is named by a doc (docs/, README.md or benchmarks/notes/, so the number it
     measured can be re-run) and nothing in src/, tests/ or benchmarks/*.py imports one."""
     docs = "\n".join(
-        p.read_text() for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks").glob("*.md")]
+        p.read_text() for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks" / "notes").glob("*.md")]
     )
     code = [*(SRC.rglob("*.py")), *(ROOT / "tests").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
     studies = sorted((ROOT / "benchmarks" / "investigations").glob("*.py"))

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Where is the surface FUSE misses (issue 17, completeness)? One static 8-camera studio frame
+"""Where is the surface FUSE misses (completeness)? One static 8-camera studio frame
 (640x480, seed 11, the seen surface of fuseflow.eval.reference): the GT samples farther than 2 cm from the
 cloud, split by distance to the nearest camera centre and by height (floor / above), for FUSE
 and four variants; "share of completeness sum" says which band the mean distance comes from.

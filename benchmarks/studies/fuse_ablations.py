@@ -1,8 +1,7 @@
 """FUSE quality against the simulator's ground-truth surface: FUSE, its Table VII ablations and
 switches, VoxelBlockGrid TSDF and naive fusion; plus FUSE's density / quality / time trade-off.
 
-    fuseflow bench fuse-ablations --json docs/data/fuse_quality.json
-    python -m benchmarks.fuse_quality --json docs/data/fuse_quality.json       # the same
+    python -m benchmarks.fuse_ablations --save
 
 Data: two simulated rings of ``cameras`` cameras (8 by default) at 640x480 (fuseflow.synth,
 scene "studio", Kinect-class noise with flying pixels, lateral noise, quantisation and dropout;

@@ -1,7 +1,7 @@
 """FUSE per-frame time and peak memory vs Open3D VoxelBlockGrid TSDF and naive + voxel_down_sample.
 
     fuseflow bench fuse --cameras 1,2,4,8,16 --json OUT
-    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_speed.py --json docs/data/fuse_speed.json
+    python -m benchmarks.fuse_speed --save
 
 What it does:
 
