@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
                                  not args.no_density, only, command, log=common.log)  # fmt: skip
     except ValidationError as exc:
         ap.error(str(exc))
-    meta = {k: v for k, v in out.items() if k not in ("rows",)}
+    meta = {**out["meta"], "density": out["density"]}
     common.save(args, "fuse_ablations", command, out["rows"], meta)
     return 0
 
