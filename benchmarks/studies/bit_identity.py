@@ -12,8 +12,8 @@ rigs:
 then ``fuseflow fuse REC --out OUT/fuse --frames 0:2`` (clouds/*.ply with the rig's extrinsics)
 and ``fuseflow calibrate REC -o OUT/calib.json`` (GMAC's defaults on the first frame). The
 compared files are every cloud (PLY bytes) and calib.json: its JSON with the wall-clock fields
-(keys ending in ``_s`` whose value is a number, or a dict of numbers, under ``report``: times
-change from run to run) removed, the rest compared exactly, extrinsics included. A data set
+(keys ending in ``_s`` or named ``seconds`` whose value is a number, or a dict of numbers,
+under ``report``: times change from run to run) removed, the rest compared exactly, extrinsics included. A data set
 missing under the data folder is reported as skipped, never as identical.
 """
 
@@ -74,7 +74,7 @@ def strip_times(doc: Any, path: str = "", dropped: list[str] | None = None) -> A
         out = {}
         for k, v in doc.items():
             p = f"{path}.{k}" if path else k
-            timing = k.endswith("_s") and (
+            timing = (k.endswith("_s") or k == "seconds") and (
                 isinstance(v, (int, float))
                 or (isinstance(v, dict) and all(isinstance(x, (int, float)) for x in v.values()))
             )
