@@ -284,7 +284,8 @@ def test_investigations_are_cited_and_imported_by_nothing():
     no size cap, but each is named by a doc (docs/, README.md or benchmarks/notes/, so the number it
     measured can be re-run) and nothing in src/, tests/ or benchmarks/*.py imports one."""
     docs = "\n".join(
-        p.read_text() for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks" / "notes").glob("*.md")]
+        p.read_text()
+        for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks" / "notes").glob("*.md")]
     )
     code = [*(SRC.rglob("*.py")), *(ROOT / "tests").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
     studies = sorted((ROOT / "benchmarks" / "investigations").glob("*.py"))
