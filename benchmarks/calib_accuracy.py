@@ -1,5 +1,4 @@
-#!/usr/bin/env python
-"""GMAC accuracy and timing benchmark (issue 6; docs/design.md section 4 metrics).
+"""GMAC accuracy and timing (docs/design.md section 4 metrics).
 
 Rows per data set: the backbone's poses scaled by the naive median depth ratio; GMAC with each
 closed form (z-only = paper eq. 12 corrected, full-3D, point-to-plane = default); GMAC +
@@ -10,57 +9,58 @@ Rotation error (deg) and translation error (mm, no scale alignment) are means ov
 (fuseflow.eval.metrics.pose_errors), then mean +- std over seeds. Time per calibration includes
 the backbone (run once per seed and shared by the GMAC rows; its time is added to every row).
 
-Data: ``sim4`` / ``sim8``: fuseflow.synth rigs with Kinect noise when the simulator is
-installed, else an analytic textured room with Kinect-model depth noise built here (the output
-says which). ``icl8``: ICL-NUIM living room virtual rig (8 frames, 26 apart, start = 3 x seed;
-reference = Open3D trajectory, ~1 cm). Robustness: per seed, an edge with wrong matches is
-injected (its points shifted 0.3 m along the baseline) and we count how often CC prunes it.
+Data: ``sim4`` / ``sim8``: fuseflow.synth rigs with Kinect noise. ``icl8``: ICL-NUIM living
+room virtual rig (8 frames, 26 apart, start = 3 x seed; reference = Open3D trajectory, ~1 cm).
+``symstudio`` / ``far3``: the studio study (benchmarks.studies.calib_studio: per camera placed /
+flagged / error). Robustness: per seed, an edge with wrong matches is injected (its points
+shifted 0.3 m along the baseline) and we count how often CC prunes it.
 
-The benchmark itself is fuseflow.eval.bench.calib_accuracy (also ``fuseflow bench calib``); this
-program parses the command line and prints its report.
-
-    python benchmarks/calib_accuracy.py --seeds 10            # full table (long)
-    python benchmarks/calib_accuracy.py --quick               # 2 seeds, sim8 + icl8
+    python -m benchmarks.calib_accuracy --seeds 10            # full table (long)
+    python -m benchmarks.calib_accuracy --quick               # 2 seeds, sim8 + icl8
+    python -m benchmarks.calib_accuracy --data symstudio,far3 --seeds 10 --save
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
+from benchmarks import common
+from benchmarks.studies.calib_accuracy import run_calib_accuracy
+from benchmarks.studies.calib_studio import STUDIO_DATA, run_studio_bench
 from fuseflow.errors import FuseFlowError
-from fuseflow.eval.bench.calib_accuracy import run_calib_accuracy
-
-ICL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "icl-livingroom1"
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = common.parser(__doc__, data=True)
     ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--data", default="sim4,sim8,icl8")
+    ap.add_argument("--seed-start", type=int, default=0, help="first seed of symstudio / far3 (held-out seeds)")
+    ap.add_argument("--data", default="sim4,sim8,icl8", help="comma list of sim4, sim8, icl8, symstudio, far3")
     ap.add_argument("--quick", action="store_true", help="2 seeds on sim8 and icl8")
-    ap.add_argument("--json", type=Path, help="also write all per-seed rows here")
-    ap.add_argument(
-        "--backbone",
-        default="colmap",
-        choices=["colmap", "perturbed"],
-        help="colmap (the product's default) or perturbed ground truth (isolates GMAC from the backbone)",
-    )
+    ap.add_argument("--backbone", default="colmap", choices=["colmap", "perturbed"],
+                    help="colmap or perturbed ground truth (isolates GMAC from the backbone)")  # fmt: skip
     ap.add_argument("--rot-noise-deg", type=float, default=0.3, help="perturbed backbone: rotation error per camera")
     ap.add_argument("--center-noise-m", type=float, default=0.01, help="perturbed backbone: centre error per camera")
     ap.add_argument("--no-peer", action="store_true", help="skip the Open3D multiway peer")
-    ap.add_argument("--icl", type=Path, default=ICL, help="ICL-NUIM living room 1 folder (icl8)")
     a = ap.parse_args(argv)
     if a.quick:
         a.seeds, a.data = 2, "sim8,icl8"
+    names = common.names(a.data)
+    cmd = common.command("calib_accuracy", argv)
+    studio = [d for d in names if d in STUDIO_DATA]
+    names = [d for d in names if d not in STUDIO_DATA]
     try:
-        run_calib_accuracy(
-            a.seeds, a.data.split(","), a.backbone, (a.rot_noise_deg, a.center_noise_m), not a.no_peer, a.icl, a.json,
-            log=print, progress=lambda line: print(line, file=sys.stderr, flush=True),
-        )  # fmt: skip
+        if studio:
+            rows = run_studio_bench(studio, a.seeds, log=common.log, seed_start=a.seed_start)
+            common.save(a, "calib_studio", cmd, rows)
+        if names:
+            icl = common.data_dir(a.data_dir) / "icl-livingroom1"
+            run_calib_accuracy(
+                a.seeds, names, a.backbone, (a.rot_noise_deg, a.center_noise_m), not a.no_peer, icl,
+                save=lambda res: common.save(a, "calib_accuracy", cmd, [{"data": k, **v} for k, v in res.items()]),
+                log=common.log, progress=lambda line: print(line, file=sys.stderr, flush=True),
+            )  # fmt: skip
     except FuseFlowError as exc:
-        sys.exit(str(exc))
+        sys.exit(f"error: {exc}")
     return 0
 
 

@@ -2,34 +2,31 @@
 """Where ``calibrate``'s seconds go: per stage, and optionally the cProfile functions.
 
 One default ``calibrate`` (auto backbone + joint refinement) of ``hocap`` (shared/data/hocap-8rs,
-one frame) or of a recording directory (``fuseflow simulate`` output; ``--frames`` of it). Prints
+one frame) or of a recording directory (``fuseflow simulate`` output; ````--num-frames`` of it). Prints
 one JSON line: wall time, GMAC's ``report.timings_s`` (rgbd_backbone, rgbd_scale = the metric scale
 check, joint_refine, total) and the rgbd backbone's own split (``info["time_s"]``: prepare =
 per-camera floor / SIFT / samples, pairs = candidates and verification, geometric = route (c)).
 ``--cprofile N`` adds the N functions with the most own time (cProfile slows Python-heavy code
 by 10-30 %: use the plain stage times for numbers, the profile for where to look).
 
-    flock /tmp/fuseflow-cpu.lock python benchmarks/calib_profile.py hocap
-    flock /tmp/fuseflow-cpu.lock python benchmarks/calib_profile.py /tmp/fuseflow-calib-wide/room8_s1_f5_640x480 --frames 1
-    python benchmarks/calib_profile.py hocap --cprofile 30
+    python -m benchmarks.calib_profile hocap
+    python -m benchmarks.calib_profile /tmp/fuseflow-calib-wide/room8_s1_f5_640x480 --num-frames 1
+    python -m benchmarks.calib_profile hocap --cprofile 30
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchmarks import common
 
 
-def _load(what: str, frames: int):
+def _load(what: str, frames: int, data_dir):
     if what == "hocap":
-        from calib_wide import SHARED, load_hocap
+        from benchmarks.studies.calib_refine import load_hocap
 
-        frame, rig, _ = load_hocap(SHARED / "hocap-8rs")
+        frame, rig, _ = load_hocap(common.data_dir(data_dir) / "hocap-8rs")
         return [frame], rig
     from fuseflow.io import open_recording
     from fuseflow.types import Rig
@@ -39,15 +36,14 @@ def _load(what: str, frames: int):
     return [rec[t] for t in range(min(frames, len(rec)))], rig
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> None:
+    ap = common.parser(__doc__, num_frames=1, data=True, json=False)
     ap.add_argument("what", help="'hocap' or a recording directory")
-    ap.add_argument("--frames", type=int, default=1, help="first N frames of a recording")
     ap.add_argument("--cprofile", type=int, default=0, help="also print the N functions with the most own time")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     from fuseflow.calib import CalibConfig, calibrate
 
-    frames, rig = _load(a.what, a.frames)
+    frames, rig = _load(a.what, a.num_frames, a.data_dir)
     prof = None
     if a.cprofile:
         import cProfile

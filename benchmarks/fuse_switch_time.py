@@ -1,6 +1,6 @@
 """Time cost of FuseConfig settings on the ICL-NUIM 8-view frame: settings interleaved.
 
-    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_switch_time.py \
+    python -m benchmarks.fuse_switch_time \
         --settings "cvgc.multiview_mean=0;cvgc.k_neighbours=7;cvgc.k_neighbours=7,cvgc.multiview_mean=0" --runs 7
 
 The rig is fuse_speed's ``--data icl`` frame 0 (ICL living room frames 0, 25, ..., 175 as 8
@@ -12,11 +12,12 @@ warm-up call each (compilation); the report is the median per setting and the po
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import tempfile
 import time
 from pathlib import Path
+
+from benchmarks import common
 
 
 def _config(text: str):
@@ -26,15 +27,14 @@ def _config(text: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = common.parser(__doc__.split("\n\n")[0], data=True, json=False)
     ap.add_argument("--settings", default="cvgc.multiview_mean=0", help="';'-separated settings besides the default")
     ap.add_argument("--runs", type=int, default=7)
-    ap.add_argument("--data-dir", type=Path, default=Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
     args = ap.parse_args(argv)
     from fuseflow.fuse import fuse
     from fuseflow.io import make_virtual_rig, open_recording
 
-    seq = open_recording(args.data_dir / "icl-livingroom1")
+    seq = open_recording(common.data_dir(args.data_dir) / "icl-livingroom1")
     with tempfile.TemporaryDirectory(prefix="fuse_switch_time_") as tmp:
         rig = make_virtual_rig(seq, [25 * k for k in range(8)], Path(tmp) / "rig")
         frame = open_recording(Path(tmp) / "rig")[0]

@@ -1,6 +1,6 @@
 """Contact sheet of one simulated frame: the 8 colour views above the 8 depth views.
 
-.venv/bin/python benchmarks/sim_contact_sheet.py --scene studio --out docs/img/sim_contact_sheet.png
+python -m benchmarks.sim_contact_sheet --scene studio --out docs/img/sim_contact_sheet.png
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 from fuseflow.synth import SimConfig, Simulator
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--scene", default="studio")
     ap.add_argument("--dynamic", action="store_true")
@@ -23,7 +23,7 @@ def main() -> None:
     ap.add_argument("--noise", default="kinect")
     ap.add_argument("--thumb", type=int, default=240, help="thumbnail width in pixels")
     ap.add_argument("--out", default="docs/img/sim_contact_sheet.png")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     cfg = SimConfig(cameras=a.cameras, frames=a.frame + 1, scene=a.scene, dynamic=a.dynamic, seed=a.seed, noise=a.noise)
     sf = Simulator(cfg).render(a.frame)
     color = sf.frame.color.numpy()

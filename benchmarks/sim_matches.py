@@ -1,27 +1,26 @@
 """SIFT matches between the cameras of simulated rigs: a thin wrapper around
-``fuseflow.eval.bench.sim_matches`` (its docstring, shown by ``--help``, says what it measures);
+``benchmarks.studies.sim_matches`` (its docstring, shown by ``--help``, says what it measures);
 prints its report.
 
-    .venv/bin/python benchmarks/sim_matches.py --scenes studio room
+    python -m benchmarks.sim_matches --scenes studio room
 """
 
 from __future__ import annotations
 
-import argparse
+from benchmarks import common
+from benchmarks.studies import sim_matches
 
-from fuseflow.eval.bench import sim_matches
 
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=sim_matches.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", nargs="+", default=["studio", "room"])
+def main(argv: list[str] | None = None) -> None:
+    ap = common.parser(sim_matches.__doc__, json=False)
+    ap.add_argument("--scenes", default="studio,room", help="comma list of scenes")
     ap.add_argument("--cameras", type=int, default=8)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--noise", default="kinect")
     ap.add_argument("--dynamic", action="store_true")
     ap.add_argument("--ratio", type=float, default=0.75)
-    a = ap.parse_args()
-    for scene in a.scenes:
+    a = ap.parse_args(argv)
+    for scene in common.names(a.scenes):
         r = sim_matches.run_scene(scene, a.cameras, a.seed, a.ratio, a.noise, a.dynamic)
         for line in sim_matches.scene_report(scene, r, a.cameras, a.seed, a.noise):
             print(line)

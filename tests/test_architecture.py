@@ -1,12 +1,14 @@
 """The architecture of docs/architecture.md, checked: import layering (import-linter contracts in
 pyproject.toml), no private name imported across modules, no function over 80 lines outside
-the compiled kernels, commands registered in one list; benchmarks/*.py thin wrappers (120 lines,
-public API or fuseflow.eval.bench), benchmarks/investigations/ named by a doc and imported by
-nothing."""
+the compiled kernels, commands registered in one list; the benchmark home outside the package:
+benchmarks/*.py thin programs (120 lines, the public API, fuseflow.eval or benchmarks/studies),
+never imported by the package, no absolute path, results in one folder per version;
+benchmarks/investigations/ named by a doc and imported by nothing."""
 
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -16,7 +18,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src" / "fuseflow"
 MAX_LINES = 80
-# Known offenders being split right now (issue 18); the list only shrinks.
+# Known offenders being split; the lists only shrink.
 PENDING_LONG: set[str] = set()
 PENDING_PRIVATE: set[str] = set()
 PENDING_CYCLE: set[str] = set()
@@ -148,10 +150,12 @@ MAX_BENCHMARK_LINES = 120
 def test_benchmark_scripts_are_thin_wrappers():
     long = []
     for path in sorted((ROOT / "benchmarks").glob("*.py")):
+        if path.name in ("common.py", "__init__.py"):  # the shared harness
+            continue
         n = len(path.read_text().splitlines())
         if n > MAX_BENCHMARK_LINES:
             long.append(f"benchmarks/{path.name}: {n} lines (at most {MAX_BENCHMARK_LINES})")
-    assert not long, "benchmark scripts over their size (move the logic into fuseflow.eval.bench):\n" + "\n".join(long)
+    assert not long, "benchmark programs over their size (move the logic into benchmarks/studies):\n" + "\n".join(long)
 
 
 def test_compiled_kernels_do_not_load_torch():
@@ -163,7 +167,8 @@ def test_compiled_kernels_do_not_load_torch():
 
 
 # benchmarks/*.py import the public API only: `fuseflow`, the names a subpackage's __init__ or a
-# top-level module (errors, types) exports (its __all__), or fuseflow.eval.bench (where a
+# top-level module (errors, types) exports (its __all__), fuseflow.eval (the metrics, baselines
+# and the benchmarks the wheel ships) or benchmarks.* (the harness and the studies, where a
 # benchmark's logic lives). One-off studies live in benchmarks/investigations/ under their own
 # rule (test_investigations_are_cited_and_imported_by_nothing).
 
@@ -192,7 +197,7 @@ def _internal_imports(tree: ast.AST) -> list[str]:
         else:
             continue
         for mod, names in mods:
-            if not mod.startswith("fuseflow") or mod == "fuseflow" or mod.startswith("fuseflow.eval.bench"):
+            if not mod.startswith("fuseflow") or mod == "fuseflow" or mod.startswith("fuseflow.eval"):
                 continue
             public = _public_names(mod) if mod.count(".") == 1 else None
             if public is None or (names is not None and not set(names) <= public):
@@ -206,17 +211,81 @@ def test_benchmarks_import_only_the_public_api():
         bad = _internal_imports(ast.parse(path.read_text()))
         if bad:
             offenders.append(f"benchmarks/{path.name}: {', '.join(bad)}")
-    assert not offenders, "benchmarks reach into modules (use the public API or fuseflow.eval.bench):\n" + "\n".join(
+    assert not offenders, "benchmarks reach into modules (use the public API or benchmarks/studies):\n" + "\n".join(
         offenders
     )
 
 
+def _imported_modules(tree: ast.AST) -> list[tuple[int, str]]:
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            out.append((node.lineno, node.module or ""))
+    return out
+
+
+def test_the_package_never_imports_the_benchmarks():
+    """benchmarks/ is outside the wheel: nothing in src/fuseflow imports it."""
+    offenders = [
+        f"{path.relative_to(ROOT)}:{line} imports {mod}"
+        for path, tree in _modules()
+        for line, mod in _imported_modules(tree)
+        if mod.split(".")[0] == "benchmarks"
+    ]
+    assert not offenders, "\n".join(offenders)
+
+
+def test_every_eval_module_is_used_by_the_package():
+    """src/fuseflow holds no module that only benchmarks import: each module of fuseflow.eval is
+    imported by another part of the package (the CLI, another eval module) or is the package's
+    own __init__."""
+    importers: dict[str, set[str]] = {}
+    for path, tree in _modules():
+        here = _module_name(path)
+        for _, mod in _imported_modules(tree):
+            importers.setdefault(mod, set()).add(here)
+    lonely = []
+    for path in sorted((SRC / "eval").rglob("*.py")):
+        mod = _module_name(path)
+        if path.name == "__init__.py":
+            continue
+        users = {u for m, us in importers.items() if m == mod or m.startswith(mod + ".") for u in us} - {mod}
+        parent = mod.rsplit(".", 1)[0]
+        users |= {u for u in importers.get(parent, set()) if u != mod}  # `from fuseflow.eval import metrics`
+        if not users:
+            lonely.append(mod)
+    assert not lonely, f"modules no part of the package imports (move them to benchmarks/): {lonely}"
+
+
+ROUND_NAME = re.compile(r"(^|_)(s\d+|v\d+|round\d*|issue\d*|before|after)(_|\.|$)")
+
+
+def test_benchmark_results_live_in_one_folder_per_version_without_round_names():
+    results = ROOT / "benchmarks" / "results"
+    bad = [p.name for p in results.iterdir() if not (p.is_dir() and re.fullmatch(r"\d+\.\d+\.\d+", p.name))]
+    bad += [str(p.relative_to(results)) for p in results.rglob("*") if p.is_file() and ROUND_NAME.search(p.name)]
+    assert not bad, f"benchmarks/results/ holds <version>/<benchmark>.<ext> only: {bad}"
+
+
+def test_benchmarks_hold_no_absolute_path():
+    """Data is found relative to the checkout (benchmarks/common.py: data_dir), never at a path of
+    one machine."""
+    pattern = re.compile(r"[\"'](/work|/home|/Users|/mnt)/")
+    bad = [
+        str(p.relative_to(ROOT)) for p in sorted((ROOT / "benchmarks").rglob("*.py")) if pattern.search(p.read_text())
+    ]
+    assert not bad, f"absolute paths in {bad}"
+
+
 def test_investigations_are_cited_and_imported_by_nothing():
     """benchmarks/investigations/ holds one-off studies: they may reach into any module and have
-    no size cap, but each is named by a doc (docs/, README.md or benchmarks/, so the number it
+    no size cap, but each is named by a doc (docs/, README.md or benchmarks/notes/, so the number it
     measured can be re-run) and nothing in src/, tests/ or benchmarks/*.py imports one."""
     docs = "\n".join(
-        p.read_text() for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks").glob("*.md")]
+        p.read_text()
+        for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "benchmarks" / "notes").glob("*.md")]
     )
     code = [*(SRC.rglob("*.py")), *(ROOT / "tests").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
     studies = sorted((ROOT / "benchmarks" / "investigations").glob("*.py"))
@@ -258,3 +327,24 @@ def test_rgbd_backbone_is_imported_through_its_package():
                 f"{path.relative_to(ROOT)}:{node.lineno} imports {m}" for m in mods if m.startswith(inside + ".")
             ]
     assert not offenders, "\n".join(offenders)
+
+
+SOLVERS = {"lstsq", "least_squares", "minimize", "solve", "curve_fit", "leastsq"}
+
+
+def test_io_holds_formats_and_calls_no_solver():
+    """io reads and writes formats (timestamps included); estimating anything from them (the
+    sync offsets) lives above it, in fuseflow.pipeline.sync."""
+    offenders = []
+    for path, tree in _modules():
+        if not _module_name(path).startswith("fuseflow.io"):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+                if name in SOLVERS:
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {name}")
+    assert not offenders, "solvers in io (move them to pipeline.sync or another layer above io):\n" + "\n".join(
+        offenders
+    )

@@ -11,15 +11,13 @@ right candidate (candidate generation is the gap).
 
 from __future__ import annotations
 
-from pathlib import Path
+from benchmarks import common
+from benchmarks.studies.calib_refine import load_hocap
 
 from fuseflow.calib.backbones.rgbd import RGBDConfig, prepare_camera, rgbd_backbone, verify_pose
-from fuseflow.eval.bench.calib_refine import load_hocap
 from fuseflow.types import invert_rigid
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data"
-if not SHARED.exists():
-    SHARED = Path("/work/shared/data")
+SHARED = common.data_dir()
 
 
 def main() -> None:

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import argparse
 
+from benchmarks.studies.calib_accuracy import sim_frame
+
 from fuseflow.calib import calibrate, get_backbone
 from fuseflow.calib import correspondences as corr
 from fuseflow.calib.config import PRESETS
-from fuseflow.eval.bench.calib_accuracy import sim_frame
 from fuseflow.eval.metrics import pose_errors
 
 FRAMES = {

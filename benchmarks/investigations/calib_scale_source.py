@@ -13,9 +13,10 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from benchmarks.studies.calib_accuracy import oracle_scale, scaled, sim_frame
+
 from fuseflow.calib import calibrate, get_backbone
 from fuseflow.calib.config import PRESETS
-from fuseflow.eval.bench.calib_accuracy import oracle_scale, scaled, sim_frame
 from fuseflow.eval.metrics import pose_errors
 
 FRAMES = [

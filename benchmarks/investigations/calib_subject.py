@@ -24,7 +24,8 @@ from fuseflow.calib.subject import SubjectRoute
 
 def _sim(kind: str, seed: int):
     if kind == "far3":
-        from fuseflow.eval.bench.calib_studio import studio_config
+        from benchmarks.studies.calib_studio import studio_config
+
         from fuseflow.synth import Simulator
 
         sim = Simulator(studio_config("far3", seed))

@@ -1,10 +1,10 @@
 #!/usr/bin/env python
-"""Where is the surface FUSE misses (issue 17, completeness)? One static 8-camera studio frame
+"""Where is the surface FUSE misses (completeness)? One static 8-camera studio frame
 (640x480, seed 11, the seen surface of fuseflow.eval.reference): the GT samples farther than 2 cm from the
 cloud, split by distance to the nearest camera centre and by height (floor / above), for FUSE
 and four variants; "share of completeness sum" says which band the mean distance comes from.
 
-    python benchmarks/investigations/fuse_completeness_bands.py > benchmarks/results/fuse_completeness_bands.txt
+    python benchmarks/investigations/fuse_completeness_bands.py > benchmarks/results/0.1.0/fuse_completeness_bands.txt
 """
 
 import warnings
@@ -12,10 +12,10 @@ import warnings
 warnings.simplefilter("ignore", RuntimeWarning)
 
 import numpy as np  # noqa: E402
+from benchmarks.studies.fuse_ablations import seen_reference  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from fuseflow.eval.baselines import naive_fusion  # noqa: E402
-from fuseflow.eval.bench.fuse_ablations import seen_reference  # noqa: E402
 from fuseflow.fuse import ABLATIONS, FuseConfig, fuse  # noqa: E402
 from fuseflow.synth import SimConfig, Simulator  # noqa: E402
 

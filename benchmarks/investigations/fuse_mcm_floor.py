@@ -1,10 +1,10 @@
 #!/usr/bin/env python
-"""Why MCM drops the far floor (issue 17, completeness): on one static 8-camera studio frame
+"""Why MCM drops the far floor (completeness): on one static 8-camera studio frame
 (640x480, seed 11), the floor pixels of every camera by range, the share whose 3x3 window is
 incomplete (a neighbour without depth after range gating: c = 0 by docs/design.md, "a neighbour
 with no depth makes the pixel an edge pixel") and the share with a complete window but c <= r_c.
 
-    python benchmarks/investigations/fuse_mcm_floor.py > benchmarks/results/fuse_mcm_floor.txt
+    python benchmarks/investigations/fuse_mcm_floor.py > benchmarks/results/0.1.0/fuse_mcm_floor.txt
 """
 
 import numpy as np

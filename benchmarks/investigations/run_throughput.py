@@ -6,12 +6,12 @@
 
 REC: any recording with extrinsics in rig.json (e.g. `fuseflow simulate R --cameras 4
 --frames 150 --resolution 320x240 --dynamic`, or an ICL virtual rig from `fuseflow convert`).
-``--icl``: the ICL 8-camera rig of issue 17 (ICL frames 0, 25, ..., 175 as 8 cameras with the
+``--icl``: the ICL 8-camera rig (ICL frames 0, 25, ..., 175 as 8 cameras with the
 reference trajectory as extrinsics, every pixel valid) written as a static recording of
 ``--icl-frames`` identical frames (a static rig filming a static scene) in a temporary folder.
 
 Prints frames/s of each (median over repeats, after a warm-up frame that compiles the kernels),
-the ratio run / fuse-only (issue 17 asks >= 0.8), and the health monitor's ms per frame.
+the ratio run / fuse-only (target >= 0.8), and the health monitor's ms per frame.
 """
 
 from __future__ import annotations

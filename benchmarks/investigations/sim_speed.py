@@ -1,4 +1,4 @@
-"""Speed of the simulator: `fuseflow simulate` of 8 cameras x 30 frames at 640x480 (issue 4).
+"""Speed of the simulator: `fuseflow simulate` of 8 cameras x 30 frames at 640x480.
 
 Runs the CLI in a fresh process (imports, texture synthesis, numba's cached kernels and PNG/PLY
 writing included) into a temporary directory, ``--repeat`` times, and reports the wall time of

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from fuseflow.cli import app
 from fuseflow.errors import OutputError, ValidationError
 from fuseflow.fuse import PRESETS
-from fuseflow.fuse.config import preset_config
+from fuseflow.fuse.presets import preset_config
 from fuseflow.io.convert import parse_frame_range
 from fuseflow.pipeline import PipelineConfig
 

@@ -164,3 +164,40 @@ def test_backprojection_matches_open3d_create_from_depth_image():
         )
         mine = ours.xyz[ours.camera == i].double().numpy()
         np.testing.assert_allclose(mine, np.asarray(ref.points), atol=1e-5)  # same row-major pixel order
+
+
+def test_tsdf_at_thresholds_matches_tsdf_fusion_and_thins_with_the_threshold():
+    frame, rig = make_scene(3)
+    clouds = B.tsdf_fusion_at_thresholds(frame, rig, B.WEIGHT_THRESHOLDS, voxel=0.02)
+    assert sorted(clouds) == [0.0, 1.0, 2.0, 3.0]
+    plain = B.tsdf_fusion(frame, rig, voxel=0.02)  # fuseflow's threshold 1.0
+    assert np.array_equal(_sorted_rows(clouds[1.0]), _sorted_rows(plain))  # the same points (VBG's order varies)
+    sizes = [len(clouds[t]) for t in sorted(clouds)]
+    assert sizes == sorted(sizes, reverse=True) and sizes[-1] < sizes[0]  # a higher threshold keeps fewer
+    for t in (0.0, 3.0):
+        if len(clouds[t]):
+            check_cloud(clouds[t], 0.02 / 2 if t else 0.02)
+
+
+def test_best_threshold_is_the_argmax_of_the_score_lowest_on_a_tie():
+    frame, rig = make_scene(3)
+    sizes = {t: len(c) for t, c in B.tsdf_fusion_at_thresholds(frame, rig, voxel=0.02).items()}
+    target = sizes[2.0]
+    best = B.best_tsdf_threshold(frame, rig, lambda c: -abs(len(c) - target), voxel=0.02)
+    assert best.threshold == min(t for t in sizes if sizes[t] == target)
+    assert len(best.cloud) == target and best.scores[best.threshold] == 0
+    flat = B.best_tsdf_threshold(frame, rig, lambda c: 1.0, voxel=0.02)
+    assert flat.threshold == 0.0
+
+
+def test_bad_thresholds_are_validation_errors():
+    frame, rig = make_scene(2)
+    with pytest.raises(ValidationError, match="at least one"):
+        B.tsdf_fusion_at_thresholds(frame, rig, [])
+    with pytest.raises(ValidationError, match=">= 0"):
+        B.tsdf_fusion_at_thresholds(frame, rig, [-1.0])
+
+
+def _sorted_rows(cloud: FusedCloud) -> np.ndarray:
+    rows = np.concatenate([cloud.xyz.numpy(), cloud.rgb.numpy().astype(np.float32)], axis=1)
+    return rows[np.lexsort(rows.T[::-1])]

@@ -1,5 +1,5 @@
-"""The benchmark programs moved out of benchmarks/ into fuseflow.eval.bench (calib_wide,
-fuse_ablations, calib_reference, ...) and their `fuseflow bench ...` entries, on tiny inputs."""
+"""The benchmark studies (benchmarks/studies: calib_wide, fuse_ablations, calib_reference, ...)
+and their programs (``python -m benchmarks.NAME``), on tiny inputs."""
 
 from __future__ import annotations
 
@@ -7,15 +7,14 @@ import json
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
+from benchmarks import calib_wide, fuse_ablations, sync_check
+from benchmarks.studies.calib_reference import into_reference
+from benchmarks.studies.calib_verdicts import verdict_summary
+from benchmarks.studies.calib_wide import summary_lines
+from benchmarks.studies.fuse_ablations import run_fuse_ablations
+from benchmarks.studies.sync_check import run_sync_check
 
-from fuseflow.cli import app
 from fuseflow.errors import ValidationError
-from fuseflow.eval.bench.calib_reference import into_reference
-from fuseflow.eval.bench.calib_verdicts import verdict_summary
-from fuseflow.eval.bench.calib_wide import summary_lines
-from fuseflow.eval.bench.fuse_ablations import run_fuse_ablations
-from fuseflow.eval.bench.sync_check import run_sync_check
 
 
 def _wide_rows(path):
@@ -42,14 +41,14 @@ def test_calib_wide_summary_groups_runs(tmp_path):
     assert any(x.startswith("| sim [auto] | room") and "| 0/1 |" in x for x in lines)
 
 
-def test_calib_wide_cli_summary_and_bad_run(tmp_path):
+def test_calib_wide_program_summary_and_bad_run(tmp_path, capsys):
     out = tmp_path / "wide.jsonl"
     _wide_rows(out)
-    res = CliRunner().invoke(app, ["bench", "calib-wide", "summary", "--out", str(out)])
-    assert res.exit_code == 0, res.output
-    assert res.output.splitlines() == summary_lines(out)
-    res = CliRunner().invoke(app, ["bench", "calib-wide", "sideways", "--out", str(out)])
-    assert res.exit_code == 2 and "sim, hocap, icl, pairs, summary" in res.output
+    calib_wide.main(["summary", "--out", str(out)])
+    assert capsys.readouterr().out.splitlines() == summary_lines(out)
+    with pytest.raises(SystemExit) as exc:
+        calib_wide.main(["sideways", "--out", str(out)])
+    assert exc.value.code == 2 and "'sim', 'hocap', 'icl', 'pairs', 'summary'" in capsys.readouterr().err
 
 
 def test_fuse_ablations_rows_on_a_tiny_ring():
@@ -69,8 +68,12 @@ def test_fuse_ablations_rows_on_a_tiny_ring():
 def test_fuse_ablations_unknown_row_is_a_clear_error():
     with pytest.raises(ValidationError, match="unknown methods"):
         run_fuse_ablations(only=["FUSE", "nope"])
-    res = CliRunner().invoke(app, ["bench", "fuse-ablations", "--only", "nope"])
-    assert res.exit_code == 2 and "unknown methods ['nope']" in res.output
+
+
+def test_fuse_ablations_program_unknown_row_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        fuse_ablations.main(["--only", "nope"])
+    assert exc.value.code == 2 and "unknown methods ['nope']" in capsys.readouterr().err
 
 
 def test_into_reference_undoes_a_change_of_world():
@@ -102,10 +105,35 @@ def test_verdict_summary_counts_cameras_within_twice_the_expected():
     assert verdict_summary(rows[2:]) is None
 
 
-def test_bad_names_are_clear_errors(tmp_path):
+def test_bad_names_are_clear_errors(tmp_path, capsys):
     with pytest.raises(ValidationError, match="unknown configs"):
         run_sync_check(tmp_path, configs=["c4_160_late2", "nope"])
-    res = CliRunner().invoke(app, ["bench", "sync-check", str(tmp_path), "--method", "psychic"])
-    assert res.exit_code == 2 and "method 'psychic'" in res.output
-    res = CliRunner().invoke(app, ["bench", "outputs", "sizes", str(tmp_path)])
-    assert res.exit_code == 2 and "crop, formats or mesh" in res.output
+    with pytest.raises(SystemExit) as exc:
+        sync_check.main([str(tmp_path), "--method", "psychic"])
+    assert exc.value.code == 2 and "'psychic'" in capsys.readouterr().err
+
+
+def test_bit_identity_compares_clouds_by_bytes_and_calib_without_its_times(tmp_path):
+    from benchmarks.studies.bit_identity import compare
+
+    calib = {"format": "fuseflow-calib/1", "cameras": {"c0": {"T_cam_world": [[1.0, 0, 0, 0]]}},
+             "report": {"timings_s": {"total": 1.5}, "backbone_info": {"time_s": 0.2, "name": "rgbd",
+                                                                       "colmap": {"seconds": {"match": 7.5}}}}}  # fmt: skip
+    for name, t, x in (("a", 1.5, b"ply 1"), ("b", 9.0, b"ply 1")):
+        (tmp_path / name / "fuse" / "clouds").mkdir(parents=True)
+        (tmp_path / name / "fuse" / "clouds" / "000000.ply").write_bytes(x)
+        calib["report"]["timings_s"]["total"] = t
+        (tmp_path / name / "calib.json").write_text(json.dumps(calib))
+    row = compare(tmp_path / "a", tmp_path / "b")
+    assert row["identical"] and row["clouds"] == 1
+    assert row["calib_fields_ignored"] == [
+        "report.backbone_info.colmap.seconds",
+        "report.backbone_info.time_s",
+        "report.timings_s",
+    ]
+    (tmp_path / "b" / "fuse" / "clouds" / "000000.ply").write_bytes(b"ply 2")
+    calib["cameras"]["c0"]["T_cam_world"][0][3] = 1e-12
+    (tmp_path / "b" / "calib.json").write_text(json.dumps(calib))
+    row = compare(tmp_path / "a", tmp_path / "b")
+    assert not row["identical"] and row["different_clouds"] == ["fuse/clouds/000000.ply"]
+    assert not row["calib_identical"]

@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from benchmarks.studies.calib_studio import camera_errors
 
-from fuseflow.eval.bench.calib_studio import camera_errors
 from fuseflow.synth.rigs import look_at
 
 
@@ -33,7 +33,7 @@ def test_camera_errors_ignore_the_world_frame_and_find_the_wrong_camera():
 def test_a_camera_whose_verdict_is_check_it_counts_as_flagged():
     from types import SimpleNamespace
 
-    from fuseflow.eval.bench.calib_studio import flagged_cameras
+    from benchmarks.studies.calib_studio import flagged_cameras
 
     report = SimpleNamespace(
         suspect_cameras=["cam0"],

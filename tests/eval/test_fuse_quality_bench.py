@@ -1,15 +1,15 @@
-"""fuseflow bench fuse-quality (fuseflow.eval.bench.fuse_quality) on a tiny grid."""
+"""The FUSE-vs-VoxelBlockGrid quality grid (benchmarks.studies.fuse_quality and
+``python -m benchmarks.fuse_quality``) on a tiny grid."""
 
 from __future__ import annotations
 
 import json
 
 import pytest
-from typer.testing import CliRunner
+from benchmarks import fuse_quality as program
+from benchmarks.studies.fuse_quality import fusion_methods, run_fuse_quality, summarize_quality
 
-from fuseflow.cli import app
 from fuseflow.errors import ValidationError
-from fuseflow.eval.bench.fuse_quality import fusion_methods, run_fuse_quality, summarize_quality
 
 
 def test_grid_rows_and_summary():
@@ -26,17 +26,18 @@ def test_grid_rows_and_summary():
     assert s["cells"] == 1 and s["wins"] == int(rows[0]["f_1cm"] >= rows[1]["f_1cm"])
 
 
-def test_unknown_method_and_bad_options_are_clear_errors(tmp_path):
+def test_unknown_method_and_bad_options_are_clear_errors(tmp_path, capsys):
     with pytest.raises(ValidationError, match="unknown method"):
         fusion_methods(["nope"])
-    res = CliRunner().invoke(app, ["bench", "fuse-quality", "--kinds", "sideways"])
-    assert res.exit_code == 2 and "--kinds" in res.output
+    with pytest.raises(SystemExit) as exc:
+        program.main(["--kinds", "sideways"])
+    assert exc.value.code == 2 and "--kinds" in capsys.readouterr().err
     out = tmp_path / "q.json"
-    args = ["bench", "fuse-quality", "--cameras", "3", "--resolutions", "80x60", "--seeds", "1", "--kinds", "static"]
-    res = CliRunner().invoke(app, [*args, "--methods", "default,naive", "--json", str(out)])
-    assert res.exit_code == 0, res.output
+    args = ["--cameras", "3", "--resolutions", "80x60", "--seeds", "1", "--kinds", "static"]
+    assert program.main([*args, "--methods", "default,naive", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert len(doc["rows"]) == 2 and doc["summary"][0]["cameras"] == 3
+    assert doc["schema"] == 1 and doc["benchmark"] == "fuse_quality" and doc["command"].startswith("python -m")
+    assert len(doc["rows"]) == 2 and doc["meta"]["summary"][0]["cameras"] == 3
 
 
 def test_a_method_can_change_settings_of_its_preset():
@@ -49,3 +50,15 @@ def test_a_method_can_change_settings_of_its_preset():
     assert len(a) != len(b) or not (a.xyz.numpy() == b.xyz.numpy()).all()
     with pytest.raises(ValidationError, match="--set"):
         fusion_methods(["dense+mcm.nope=1"])
+
+
+def test_vbg_at_its_best_threshold_is_at_least_as_good_as_at_fuseflows_and_open3ds():
+    rows = run_fuse_quality(
+        cameras=(3,), resolutions=((80, 60),), seeds=(1,), dynamics=(False,), methods=("vbg", "vbg_o3d", "vbg_best")
+    )
+    f = {r["method"]: r["f_1cm"] for r in rows}
+    best = next(r for r in rows if r["method"] == "vbg_best")
+    assert best["weight_threshold"] in (0.0, 1.0, 2.0, 3.0)
+    assert f["vbg_best"] >= f["vbg"] and f["vbg_best"] >= f["vbg_o3d"]
+    (s,) = summarize_quality([{**best, "method": "auto"}, *rows])
+    assert s["cells_best"] == 1 and s["wins_best"] == 1  # the same cloud ties with itself

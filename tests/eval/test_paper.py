@@ -1,7 +1,7 @@
-"""`fuseflow bench paper --quick` end to end (the CI run the issue asks for), resume, helpers.
+"""`python -m benchmarks.paper --quick` end to end (the CI run), resume, helpers.
 
 The quick run takes about 2-2.5 minutes on 2 cores (every table, simulated + ICL data); it is
-run once per session (module fixture) and every check below reads its output.
+run once per module (fixture) and every check below reads its output.
 """
 
 from __future__ import annotations
@@ -12,22 +12,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from typer.testing import CliRunner
+from benchmarks import paper as program
+from benchmarks.studies import paper
 
 from fuseflow import Camera, Frame, Rig
-from fuseflow.cli import app
 from fuseflow.errors import ValidationError
-from fuseflow.eval import paper
 
-runner = CliRunner()
 SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"  # ../shared/data of the project
 
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("paper") / "quick"
-    res = runner.invoke(app, ["bench", "paper", "--out", str(out), "--quick", "--data-dir", str(SHARED_DATA)])
-    assert res.exit_code == 0, res.output
+    assert program.main(["--out", str(out), "--quick", "--data-dir", str(SHARED_DATA)]) == 0
     return out
 
 
@@ -35,7 +32,7 @@ def test_quick_writes_every_table_and_the_png(quick_run: Path) -> None:
     md = (quick_run / "paper_tables.md").read_text()
     for title in ("Table I / III", "Table IV / VI", "Table V", "Table VII", "Table VIII", "Fig. 5"):
         assert title in md
-    assert "fuseflow bench paper" in md and "--quick" in md  # the exact command
+    assert "python -m benchmarks.paper" in md and "--quick" in md  # the exact command
     assert "torch " in md and "open3d " in md  # library versions
     assert "ICL-NUIM" in md
     import cv2
@@ -82,12 +79,12 @@ def test_other_configuration_in_same_folder_is_an_error(quick_run: Path) -> None
         paper.run(quick_run, paper.FULL, tables=("fps",))
 
 
-def test_bad_tables_are_clear_errors(tmp_path: Path) -> None:
+def test_bad_tables_are_clear_errors(tmp_path: Path, capsys) -> None:
     with pytest.raises(ValidationError, match="unknown tables"):
         paper.plan(paper.QUICK, ["static", "table9"])
-    res = runner.invoke(app, ["bench", "paper", "--out", str(tmp_path), "--quick", "--tables", "nope"])
-    assert res.exit_code != 0
-    assert "unknown" in res.output
+    with pytest.raises(SystemExit) as exc:
+        program.main(["--out", str(tmp_path), "--quick", "--tables", "nope"])
+    assert exc.value.code == 2 and "unknown" in capsys.readouterr().err
 
 
 def test_mean_std_formatting() -> None:

@@ -1,4 +1,4 @@
-"""Calibrating one frame twice gives the same calib.json (issue 16): seeded RANSAC in COLMAP's
+"""Calibrating one frame twice gives the same calib.json: seeded RANSAC in COLMAP's
 two-view verification and mapper, and the world anchored at the first placed camera."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Broken input recordings (issue 16): each fault kind is built from the simulator in a temporary
+"""Broken input recordings: each fault kind is built from the simulator in a temporary
 directory, run through the CLI (or the Python API where a file cannot carry the fault), and
 checked for the exit code, no traceback, and the words that name the file or camera at fault.
 docs/reliability.md lists each case with what the tool does."""

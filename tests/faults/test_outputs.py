@@ -1,4 +1,4 @@
-"""Unusable or used output locations (issue 16): checked before any work, one line each; a used
+"""Unusable or used output locations: checked before any work, one line each; a used
 output directory resumes only the run that wrote it."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The fault-injection probe of issue 31: corrupt inputs that used to be fused silently wrong,
+"""The fault-injection probe: corrupt inputs that used to be fused silently wrong,
 wrong calibrations the run must flag, unusable outputs and environments that used to end in a
 traceback. Each test breaks one thing, runs the CLI (or the API) as a user would, and checks the
 exit code, that no traceback is printed, and the words that name the fault. docs/reliability.md

@@ -1,18 +1,18 @@
-"""PRESETS["auto"]: the pixel grid follows the rig (config.auto_config)."""
+"""PRESETS["auto"]: the pixel grid follows the rig (presets.auto_config)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from fuseflow.fuse import PRESETS, fuse_with_report
-from fuseflow.fuse.config import (
+from fuseflow.fuse.density import grid_spacing
+from fuseflow.fuse.presets import (
     AUTO_CORE_MS,
     AUTO_CORE_MS_PER_MPX,
     AUTO_MAX_EVERY_PIXEL,
     AUTO_RESOLUTION,
     auto_config,
 )
-from fuseflow.fuse.density import grid_spacing
 
 
 def _spacing(value: float):
@@ -116,15 +116,15 @@ def test_the_coarse_grid_fuses_as_its_settings_given_up_front(monkeypatch):
     """Above the budget, on a frame the coarse grid samples finely enough, auto's cloud is that of
     the coarse settings as a plain config: the neighbour graph _prepare built for 7 cameras is
     cut to auto_config's 4 (the best first). Sampled too coarsely, it fuses every pixel."""
-    from fuseflow.fuse import config
+    from fuseflow.fuse import presets
     from fuseflow.synth import SimConfig, Simulator
 
     sim = Simulator(SimConfig(cameras=6, resolution=(96, 72), frames=1, seed=3))
     frame = sim.render(0).frame
-    monkeypatch.setattr(config, "AUTO_MAX_EVERY_PIXEL", 1000)
+    monkeypatch.setattr(presets, "AUTO_MAX_EVERY_PIXEL", 1000)
     far = fuse_with_report(frame, sim.rig, PRESETS["auto"])  # 96x72: stride 2 samples every ~9 cm
     assert far.report.pixel_stride == 1 and "coarser than 10 mm" in far.report.grid
-    monkeypatch.setattr(config, "AUTO_RESOLUTION", 1.0)
+    monkeypatch.setattr(presets, "AUTO_RESOLUTION", 1.0)
     a = fuse_with_report(frame, sim.rig, PRESETS["auto"])
     assert a.report.pixel_stride == 2
     coarse = PRESETS["default"].replace(

@@ -1,4 +1,4 @@
-"""Density control (issue 17): FuseConfig.target_points / fuseflow fuse --points N."""
+"""Density control: FuseConfig.target_points / fuseflow fuse --points N."""
 
 from __future__ import annotations
 

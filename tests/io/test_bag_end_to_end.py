@@ -1,4 +1,4 @@
-"""Issue 19's "Done when": a simulated 4-camera recording written as four RealSense .bag files,
+"""End to end: a simulated 4-camera recording written as four RealSense .bag files,
 one camera 2 frames late, converts (`fuseflow convert`), calibrates (`fuseflow calibrate`) and
 runs (`fuseflow run --sync-offsets auto`) with the late camera found and corrected.
 

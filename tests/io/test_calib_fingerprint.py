@@ -1,4 +1,4 @@
-"""calib.json's optional rig fingerprint (issue 16) and duplicate frame images."""
+"""calib.json's optional rig fingerprint and duplicate frame images."""
 
 import json
 

@@ -21,7 +21,8 @@ from fuseflow.geometry import pair_agreement  # noqa: E402
 from fuseflow.io import open_recording, read_rig  # noqa: E402
 from fuseflow.io.convert import convert  # noqa: E402
 from fuseflow.io.images import read_color, read_depth_raw  # noqa: E402
-from fuseflow.io.timesync import estimate_frame_offset, read_timestamps  # noqa: E402
+from fuseflow.io.timesync import read_timestamps  # noqa: E402
+from fuseflow.pipeline.sync import estimate_frame_offset  # noqa: E402
 from fuseflow.synth import SimConfig, simulate_recording  # noqa: E402
 from fuseflow.synth.desync import apply_desync, parse_desync  # noqa: E402
 from fuseflow.types import Frame  # noqa: E402
@@ -109,7 +110,7 @@ def _shifted_scores(frames: list[Frame], rig, cam: int, others: list[int], shift
 
 
 def test_late_camera_offset_found_from_pair_agreement(converted):
-    """The sync check's core (io.timesync.estimate_frame_offset) on agreements computed with
+    """The sync check's core (pipeline.sync.estimate_frame_offset) on agreements computed with
     fuseflow.geometry.pair_agreement: cam03 is +2 frames (400 ms) late, cam00 is in sync."""
     _, out, _, true_rig = converted
     rec = open_recording(out)

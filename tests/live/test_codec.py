@@ -213,7 +213,7 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
 
 
 def test_codec_benchmark_rows():
-    from fuseflow.eval.bench.live_codec import measure
+    from benchmarks.studies.live_codec import measure
 
     xyz, rgb = _surface(3000)
     raw, compact = measure("surface", _fused(xyz, rgb), [CompactParams(step_mm=2.0)], repeats=1)

@@ -1,4 +1,4 @@
-"""Camera-sync check (issue 19, part 3): re-timing views exactly, and no false alarm where no
+"""Camera-sync check: re-timing views exactly, and no false alarm where no
 shift is consistently better."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Pinned simulator output: values recorded with the code before the noise model became one
-``AxialNoise`` definition (issue 18), so a refactor of the noise or shading kernels that changes
+``AxialNoise`` definition, so a refactor of the noise or shading kernels that changes
 a single bit of the sensor output fails here.
 
 The noise-stage pins are exact (a numpy Generator and IEEE float32/float64 arithmetic without

@@ -1,4 +1,4 @@
-"""The simulator against the properties its ground truth promises (issue 4)."""
+"""The simulator against the properties its ground truth promises."""
 
 from __future__ import annotations
 

@@ -172,7 +172,7 @@ def check_fuse_options(preset: str, points: int | None, settings: list[str] | No
     (``fuseflow.fuse.parse_settings``, checked against the preset)."""
     from fuseflow.errors import ValidationError
     from fuseflow.fuse import PRESETS
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
 
     if points is not None and points < 1:
         fail(f"--points must be a positive integer, got {points}")

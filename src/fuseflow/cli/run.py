@@ -106,7 +106,7 @@ def command(
     mesh_method: str = oo.MESH_METHOD,
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
     from fuseflow.io import open_recording, read_calibration
     from fuseflow.pipeline import PipelineConfig, RayOptions, run
 

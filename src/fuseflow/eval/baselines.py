@@ -5,6 +5,9 @@
 * :func:`sor_fusion`: (optionally voxel-downsampled) naive, then Open3D statistical outlier removal.
 * :func:`tsdf_fusion`: Open3D TSDF fusion, tensor ``VoxelBlockGrid`` (default) or the legacy
   ``ScalableTSDFVolume``, then point extraction at the zero crossing.
+* :func:`tsdf_fusion_at_thresholds` / :func:`best_tsdf_threshold`: VoxelBlockGrid extracted at
+  several weight thresholds, and the one that maximises a score (F against the reference): every
+  comparison reports VoxelBlockGrid at that threshold beside Open3D's default (3.0).
 
 Conventions (docs/design.md section 1): pixel (u, v) with depth z (metres) back-projects to
 X_cam = z K^-1 [u, v, 1]^T and X_world = T_cam_world^-1 X_cam. A depth is valid when
@@ -18,6 +21,7 @@ Open3D is imported inside the functions that use it.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -29,6 +33,11 @@ from fuseflow.types import Camera, Frame, FusedCloud, Rig
 
 __all__ = [
     "TSDFConfig",
+    "OPEN3D_WEIGHT_THRESHOLD",
+    "WEIGHT_THRESHOLDS",
+    "BestThreshold",
+    "tsdf_fusion_at_thresholds",
+    "best_tsdf_threshold",
     "backproject_views",
     "naive_fusion",
     "sor_fusion",
@@ -235,6 +244,76 @@ def tsdf_fusion(frame: Frame, rig: Rig, voxel: float | None = None, config: TSDF
             ``voxel`` and a ``config`` with another voxel is a ValidationError.
         config: full :class:`TSDFConfig` (default ``TSDFConfig()``).
     """
+    cfg = _tsdf_config(voxel, config)
+    prepared = _prepare_views(frame, rig)
+    if not prepared:
+        return FusedCloud.empty(frame.device)
+    if cfg.backend == "vbg":
+        vbg = _integrate_vbg(prepared, cfg)
+        return _extract_vbg(vbg, min(cfg.weight_threshold, len(prepared) - 0.5), frame.device)
+    return _tsdf_legacy(prepared, cfg, frame, rig)
+
+
+OPEN3D_WEIGHT_THRESHOLD = 3.0
+"""Open3D's default ``weight_threshold`` of ``VoxelBlockGrid.extract_point_cloud``."""
+
+WEIGHT_THRESHOLDS = (0.0, 1.0, 2.0, 3.0)
+"""The extraction weight thresholds a fair comparison tries (:func:`best_tsdf_threshold`)."""
+
+
+def tsdf_fusion_at_thresholds(
+    frame: Frame,
+    rig: Rig,
+    thresholds: Sequence[float] = WEIGHT_THRESHOLDS,
+    voxel: float | None = None,
+    config: TSDFConfig | None = None,
+) -> dict[float, FusedCloud]:
+    """VoxelBlockGrid TSDF fusion (:func:`tsdf_fusion`, backend "vbg") integrated once and
+    extracted at each weight threshold exactly as given (no lowering for few views):
+    threshold -> cloud. ``config.weight_threshold`` and ``config.backend`` are not used."""
+    cfg = _tsdf_config(voxel, config)
+    if not thresholds:
+        raise ValidationError("thresholds: give at least one weight threshold")
+    if any(not np.isfinite(t) or t < 0 for t in thresholds):
+        raise ValidationError(f"weight thresholds must be finite and >= 0, got {list(thresholds)}")
+    prepared = _prepare_views(frame, rig)
+    if not prepared:
+        return {float(t): FusedCloud.empty(frame.device) for t in thresholds}
+    vbg = _integrate_vbg(prepared, cfg)
+    return {float(t): _extract_vbg(vbg, float(t), frame.device) for t in thresholds}
+
+
+@dataclass(frozen=True)
+class BestThreshold:
+    """The VoxelBlockGrid extraction threshold with the highest score on one frame and rig."""
+
+    threshold: float
+    """The weight threshold of the best score (the lowest one on a tie)."""
+    cloud: FusedCloud
+    """The cloud extracted at ``threshold``."""
+    scores: dict[float, float]
+    """Score of every threshold tried."""
+
+
+def best_tsdf_threshold(
+    frame: Frame,
+    rig: Rig,
+    score: Callable[[FusedCloud], float],
+    thresholds: Sequence[float] = WEIGHT_THRESHOLDS,
+    voxel: float | None = None,
+    config: TSDFConfig | None = None,
+) -> BestThreshold:
+    """VoxelBlockGrid at the weight threshold that maximises ``score`` (an F-score against the
+    rig's reference surface, say) over ``thresholds``: the baseline at its best on this rig, to
+    report beside Open3D's default (:data:`OPEN3D_WEIGHT_THRESHOLD`)."""
+    clouds = tsdf_fusion_at_thresholds(frame, rig, thresholds, voxel, config)
+    scores = {t: float(score(c)) for t, c in clouds.items()}
+    best = max(sorted(scores), key=lambda t: (scores[t], -t))
+    return BestThreshold(best, clouds[best], scores)
+
+
+def _tsdf_config(voxel: float | None, config: TSDFConfig | None) -> TSDFConfig:
+    """The checked :class:`TSDFConfig` of ``voxel`` and ``config`` (:func:`tsdf_fusion`)."""
     if config is not None and not isinstance(config, TSDFConfig):
         raise ValidationError(f"config must be a TSDFConfig, got {type(config).__name__}")
     cfg = config if config is not None else TSDFConfig()
@@ -250,9 +329,15 @@ def tsdf_fusion(frame: Frame, rig: Rig, voxel: float | None = None, config: TSDF
         raise ValidationError(
             f"block_count and block_resolution must be >= 1, got {cfg.block_count}, {cfg.block_resolution}"
         )
+    return cfg
+
+
+def _prepare_views(frame: Frame, rig: Rig) -> list:
+    """(depth float32 with out-of-range depth cleared, colour, camera) of each present view that
+    has depth; views that touch no block are left out (Open3D aborts their integration)."""
     views = _check_inputs(frame, rig)
     if not views:
-        return FusedCloud.empty(frame.device)
+        return []
     depth = frame.depth.detach().cpu().numpy()
     color = frame.color.detach().cpu().numpy()
     prepared = []
@@ -263,14 +348,11 @@ def tsdf_fusion(frame: Frame, rig: Rig, voxel: float | None = None, config: TSDF
         if not (d > 0).any():
             continue  # Open3D aborts integration of a view that touches no block
         prepared.append((np.ascontiguousarray(d, dtype=np.float32), np.ascontiguousarray(color[i]), cam))
-    if not prepared:
-        return FusedCloud.empty(frame.device)
-    if cfg.backend == "vbg":
-        return _tsdf_vbg(prepared, cfg, frame.device)
-    return _tsdf_legacy(prepared, cfg, frame, rig)
+    return prepared
 
 
-def _tsdf_vbg(prepared, cfg: TSDFConfig, device: torch.device) -> FusedCloud:
+def _integrate_vbg(prepared, cfg: TSDFConfig):
+    """A tensor VoxelBlockGrid with every prepared view integrated."""
     import open3d as o3d
     import open3d.core as o3c
 
@@ -306,7 +388,11 @@ def _tsdf_vbg(prepared, cfg: TSDFConfig, device: torch.device) -> FusedCloud:
     for depth_img, c, K, T, depth_max, blocks in views:
         color_img = o3d.t.geometry.Image(o3c.Tensor(c.astype(np.float32) / 255.0)).to(dev)
         vbg.integrate(blocks, depth_img, color_img, K, K, T, 1.0, depth_max, cfg.trunc_voxels)
-    pcd = vbg.extract_point_cloud(min(cfg.weight_threshold, len(views) - 0.5))
+    return vbg
+
+
+def _extract_vbg(vbg, weight_threshold: float, device: torch.device) -> FusedCloud:
+    pcd = vbg.extract_point_cloud(weight_threshold)
     if "positions" not in pcd.point or pcd.point.positions.shape[0] == 0:
         return FusedCloud.empty(device)
     return _from_o3d(pcd.to_legacy(), device)

@@ -361,8 +361,8 @@ def fuse_with_report(frame: Frame, rig: Rig, config: FuseConfig | None = None) -
     cfg, sensor_note = _sensor_noise(cfg, rig, p.ids)
     grid = ""
     if cfg.auto_grid and cfg.target_points is None:
-        from fuseflow.fuse.config import AUTO_COARSE_STRIDE, AUTO_SPACING_QUANTILE, auto_config
         from fuseflow.fuse.density import grid_spacing
+        from fuseflow.fuse.presets import AUTO_COARSE_STRIDE, AUTO_SPACING_QUANTILE, auto_config
 
         views = sum(1 for ok in p.present.tolist() if ok)
 

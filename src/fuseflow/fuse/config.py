@@ -1,124 +1,28 @@
-"""FuseConfig: every constant of FUSE (paper III-C), its source, and the named presets.
+"""FuseConfig: every constant of FUSE (paper III-C) and its source, one frozen config per stage.
 
 The paper fixes only tau = 0.05 (eq. 21). Every other value below is a project default with
-its derivation written next to it (docs/design.md section 2). Measured numbers of each preset and
-switch: docs/fuse.md. Presets:
-
-* ``FuseConfig()`` / ``PRESETS["default"]``: the project's defaults (visibility-aware CVGC,
-  a minimum joint weight for RPS candidates).
-* ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
-  depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
-* ``PRESETS["quality"]``: the same as the default (an older name, kept).
-* ``PRESETS["fast"]``: ``cvgc.k_neighbours = 4``, ``ash.s0 = 6.3``: less time, fewer points.
-* ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``ash.s0 = 1`` and no depth smoothing: candidates on every
-  2nd pixel of every 2nd row, nearly all of them kept; for full frames from ~8-camera rigs.
-* ``PRESETS["dense"]``: the default with ``ash.s0 = 1``, 5x5 depth smoothing and ``mcm.max_missing = 6``:
-  every pixel, nearly every candidate kept; the most complete cloud, about twice the default's points.
-* Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
-  ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
+its derivation written next to it (docs/design.md section 2; MCM's alpha and beta: fuse/mcm.py).
+The named presets, the ablations and ``auto_config`` (the ``auto`` preset's per-frame choice)
+are in ``fuseflow.fuse.presets``; measured numbers of each preset and switch: docs/fuse.md.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any, Literal
 
 from fuseflow.errors import ValidationError
-from fuseflow.geometry.noise import DEFAULT_SENSOR, SENSOR_NOISE, sensor_noise
+from fuseflow.fuse import validation as check
+from fuseflow.geometry.noise import DEFAULT_SENSOR, SENSOR_NOISE
 
-__all__ = [
-    "FuseConfig",
-    "SmoothingConfig",
-    "MCMConfig",
-    "CVGCConfig",
-    "ASHConfig",
-    "RPSConfig",
-    "STAGES",
-    "PRESETS",
-    "ABLATIONS",
-    "NOISE_SIGMA",
-    "preset",
-    "auto_config",
-    "parse_settings",
-]
+__all__ = ["FuseConfig", "SmoothingConfig", "MCMConfig", "CVGCConfig", "ASHConfig", "RPSConfig", "STAGES"]
 
 Backend = Literal["auto", "torch", "numba"]
 
-# --- MCM defaults (eq. 16-18), derived from the sensor noise model --------------------------
-# Kinect-class structured-light noise: sigma(z) = 1.2 mm + 1.9 mm * (z - 0.4)^2 (z in metres),
-# i.e. a relative noise sigma/z of about 0.3 % at 1.5-2.5 m, focal length f ~ 525 px at 640x480.
-#
-# Smooth surface at 45 degrees, depth z: neighbouring pixels differ by ~ z / f (ray spacing
-# z / f, slope tan 45 = 1), so the central-difference gradient gives g ~ 1 / f = 0.0019, plus
-# noise sqrt(2) * 0.003 / 2 per axis -> g ~ 0.004-0.005 in total. The 3x3 variance of a plane
-# at 45 degrees is (2/3) (z/f)^2 -> v = 2.4e-6, plus the noise (0.003)^2 = 9e-6 -> v ~ 1.2e-5.
-# Requirement "c > 0.8":  alpha * 0.005 + beta * 1.2e-5 < -ln 0.8 = 0.223.
-#
-# Depth edge with a 5 % jump: central difference across it gives g = 0.05 / 2 = 0.025; a 3x3
-# window holding 3 (or 6) pixels of the far side has variance (1/3)(2/3)(0.05 z)^2, so
-# v = 5.6e-4. Requirement "c < 0.05": alpha * 0.025 + beta * 5.6e-4 > -ln 0.05 = 3.0.
-#
-# The variance term separates the two cases 47x, the gradient term only 5x, so beta carries
-# the edge test: beta = 6000 gives 3.36 on the edge alone and 0.072 on the smooth surface;
-# alpha = 20 adds 0.5 on the edge and 0.1 on the smooth surface. Check: smooth c = exp(-0.17)
-# = 0.84 > 0.8, edge c = exp(-3.86) = 0.021 < 0.05. tests/fuse/test_components.py::test_mcm_defaults_meet_the_design_targets checks both numbers
-# on synthetic depth maps.
-#
-# Noise-aware MCM (MCMConfig.noise_aware, beyond the paper). The numbers above hold at 1.5-2.5 m
-# only: Kinect noise is 0.47 % of depth at 3 m and 0.65 % at 4 m, so a smooth surface there gets
-# v ~ (0.0065)^2 = 4.2e-5 and g ~ 0.006 from noise alone -> c = exp(-0.25 - 0.12) = 0.69 < 0.8
-# (measured: median c 0.74 at 4 m, 0.70 at 4.45 m on the 45-degree test plane). With noise_aware
-# the expected noise is removed before dividing by z (mcm.py): gx^2 + gy^2 - sigma(z)^2
-# (central differences: E = 2 (sigma^2 / 2)) and Var - sigma(z)^2 (3x3: E = (8/9) sigma^2, the
-# 1/9 extra is margin). What is left of a smooth 45-degree surface is its geometry, g = 1 / f =
-# 0.0019 and v = (2/3) / f^2 = 2.4e-6 at every range -> alpha g + beta v = 0.05, c ~ 0.95; a
-# 5 % edge loses at most sigma^2 at the far end of the Kinect range (4.5 m: sigma / z = 0.73 %):
-# v = 5.6e-4 - 5.3e-5 = 5.1e-4 and g = sqrt(0.025^2 - 0.0073^2) = 0.024 -> 3.04 + 0.48 = 3.5,
-# c = 0.03 < 0.05. So alpha and beta stay. Measured on noisy synthetic maps at 0.5-4.45 m with
-# the Kinect sigma(z): smooth median c 0.97-1.00 (10th percentile >= 0.80), 5 % edge median
-# c <= 0.03 (tests/fuse/test_components.py::test_noise_aware_mcm_meets_the_targets_at_every_range);
-# without it the smooth median falls to 0.74 at 4 m. A grid over alpha in {20, 30, 40} and beta
-# in {6000, 8000, 10000} traded the smooth 10th percentile (0.82 -> 0.73) for the edge tail,
-# so the paper-range values were kept.
+# MCM defaults (eq. 16-18), derived from the sensor noise model in fuse/mcm.py (module docstring).
 MCM_ALPHA = 20.0
 MCM_BETA = 6000.0
-
-#: Axial noise sigma(z) = a + b (z - z0)^2 (metres) by the simulator's sensor names, as plain
-#: (a, b, z0) tuples of the one table, ``fuseflow.geometry.noise.SENSOR_NOISE``.
-NOISE_SIGMA: dict[str, tuple[float, float, float]] = {
-    "kinect": tuple(sensor_noise("kinect")),
-    "realsense": tuple(sensor_noise("realsense")),
-    "kinect2": tuple(sensor_noise("kinect2")),
-}
-
-
-def _fail(path: str, value: object, want: str) -> None:
-    raise ValidationError(f"FuseConfig.{path}: expected {want}, got {value!r}")
-
-
-def _check_numbers(cfg: object, stage: str, names: tuple[str, ...], positive: bool) -> None:
-    """Each field of ``names`` is a finite number > 0 (``positive``) or >= 0."""
-    for name in names:
-        v = getattr(cfg, name)
-        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) < 3.4e38  # float32 kernels
-        if not ok or v < 0 or (positive and v == 0):
-            _fail(f"{stage}{name}", v, "a finite float32 > 0" if positive else "a finite float32 >= 0")
-
-
-def _check_ints(cfg: object, stage: str, bounds: tuple[tuple[str, int, int, str], ...]) -> None:
-    """Each (name, lo, hi, note) field is an integer in lo..hi (a bool is not one)."""
-    for name, lo, hi, note in bounds:
-        v = getattr(cfg, name)
-        if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
-            _fail(f"{stage}{name}", v, f"an integer in {lo}..{hi}{note}")
-
-
-def _check_bools(cfg: object, stage: str, names: tuple[str, ...]) -> None:
-    for name in names:
-        if not isinstance(getattr(cfg, name), bool):
-            _fail(f"{stage}{name}", getattr(cfg, name), "a bool")
 
 
 @dataclass(frozen=True)
@@ -132,8 +36,8 @@ class SmoothingConfig:
     """Agreement gate in units of the sensor's sigma(z) at the pixel's depth. Default 2.5; > 0."""
 
     def __post_init__(self) -> None:
-        _check_ints(self, "smoothing.", (("radius", 0, 3, " (0 = off)"),))
-        _check_numbers(self, "smoothing.", ("gate",), positive=True)
+        check.ints(self, "smoothing.", (("radius", 0, 3, " (0 = off)"),))
+        check.numbers(self, "smoothing.", ("gate",), positive=True)
 
 
 @dataclass(frozen=True)
@@ -161,18 +65,17 @@ class MCMConfig:
     derivation above MCM_ALPHA). Default False (eq. 16-17 as written)."""
 
     def __post_init__(self) -> None:
-        _check_numbers(self, "mcm.", ("alpha", "beta"), positive=False)
-        _check_numbers(self, "mcm.", ("delta", "z_max"), positive=True)
+        check.numbers(self, "mcm.", ("alpha", "beta"), positive=False)
+        check.numbers(self, "mcm.", ("delta", "z_max"), positive=True)
         if self.z_max <= self.delta:
-            _fail("mcm.z_max", self.z_max, f"> delta ({self.delta})")
+            check.fail("mcm.z_max", self.z_max, f"> delta ({self.delta})")
         if not isinstance(self.window, int) or self.window % 2 == 0 or not 3 <= self.window <= 7:
-            _fail("mcm.window", self.window, "an odd integer in 3..7")
-        _check_ints(self, "mcm.", (("max_missing", 0, 8, ""),))
+            check.fail("mcm.window", self.window, "an odd integer in 3..7")
+        check.ints(self, "mcm.", (("max_missing", 0, 8, ""),))
         if self.max_missing > 0 and self.window != 3:
-            _fail(
-                "mcm.max_missing", self.max_missing, f"0 with window = {self.window} (the gap-tolerant window is 3x3)"
-            )
-        _check_bools(self, "mcm.", ("enabled", "noise_aware"))
+            want = f"0 with window = {self.window} (the gap-tolerant window is 3x3)"
+            check.fail("mcm.max_missing", self.max_missing, want)
+        check.bools(self, "mcm.", ("enabled", "noise_aware"))
 
 
 @dataclass(frozen=True)
@@ -200,11 +103,11 @@ class CVGCConfig:
     """Agreement gate of ``multiview_mean`` in units of sqrt(sigma(z_ij)^2 + sigma(D_j)^2). Default 3; > 0."""
 
     def __post_init__(self) -> None:
-        _check_ints(self, "cvgc.", (("k_neighbours", 1, 16, ""),))
+        check.ints(self, "cvgc.", (("k_neighbours", 1, 16, ""),))
         if not (isinstance(self.min_overlap, (int, float)) and 0 <= self.min_overlap <= 1):
-            _fail("cvgc.min_overlap", self.min_overlap, "a number in [0, 1]")
-        _check_numbers(self, "cvgc.", ("tau", "multiview_gate"), positive=True)
-        _check_bools(self, "cvgc.", ("visibility_aware", "enabled", "multiview_mean"))
+            check.fail("cvgc.min_overlap", self.min_overlap, "a number in [0, 1]")
+        check.numbers(self, "cvgc.", ("tau", "multiview_gate"), positive=True)
+        check.bools(self, "cvgc.", ("visibility_aware", "enabled", "multiview_mean"))
 
 
 @dataclass(frozen=True)
@@ -226,16 +129,13 @@ class ASHConfig:
     """Cell size of the fixed grid when ``enabled`` is False, metres (the TSDF baseline's voxel). Default 0.01; > 0."""
 
     def __post_init__(self) -> None:
-        _check_numbers(self, "ash.", ("coarse_size", "s0", "s_min", "s_max", "fixed_size"), positive=True)
-        _check_bools(self, "ash.", ("enabled",))
+        check.numbers(self, "ash.", ("coarse_size", "s0", "s_min", "s_max", "fixed_size"), positive=True)
+        check.bools(self, "ash.", ("enabled",))
         if self.s_min > self.s_max or self.s_max > self.coarse_size:
-            _fail("ash.s_max", self.s_max, f"s_min ({self.s_min}) <= s_max <= coarse_size ({self.coarse_size})")
+            check.fail("ash.s_max", self.s_max, f"s_min ({self.s_min}) <= s_max <= coarse_size ({self.coarse_size})")
         if self.coarse_size / self.s_min > 127 or self.coarse_size / self.fixed_size > 1e6:
-            _fail(
-                "ash.s_min",
-                self.s_min,
-                f">= coarse_size / 127 ({self.coarse_size / 127:.4g}) so a fine index fits 7 bits",
-            )
+            want = f">= coarse_size / 127 ({self.coarse_size / 127:.4g}) so a fine index fits 7 bits"
+            check.fail("ash.s_min", self.s_min, want)
 
 
 @dataclass(frozen=True)
@@ -275,13 +175,13 @@ class RPSConfig:
     """Agreement gate of ``consensus`` in units of sigma(z) at the representative's depth. Default 3; > 0."""
 
     def __post_init__(self) -> None:
-        _check_numbers(self, "rps.", ("r_c", "min_weight", "lone_cell_mean"), positive=False)
+        check.numbers(self, "rps.", ("r_c", "min_weight", "lone_cell_mean"), positive=False)
         if self.r_c >= 1 or self.min_weight >= 1:
-            _fail("rps.r_c" if self.r_c >= 1 else "rps.min_weight", max(self.r_c, self.min_weight), "a number < 1")
-        _check_numbers(self, "rps.", ("k0", "ratio", "consensus_gate"), positive=True)
-        _check_ints(self, "rps.", (("k_max", 1, 16, ""), ("lone_cell_keep", 0, 16, " (0 = drop every lone point)")))
-        _check_ints(self, "rps.", (("k_fixed", 1, self.k_max, " (1..k_max)"),))
-        _check_bools(self, "rps.", ("enabled", "range_priority", "consensus"))
+            check.fail("rps.r_c" if self.r_c >= 1 else "rps.min_weight", max(self.r_c, self.min_weight), "a number < 1")
+        check.numbers(self, "rps.", ("k0", "ratio", "consensus_gate"), positive=True)
+        check.ints(self, "rps.", (("k_max", 1, 16, ""), ("lone_cell_keep", 0, 16, " (0 = drop every lone point)")))
+        check.ints(self, "rps.", (("k_fixed", 1, self.k_max, " (1..k_max)"),))
+        check.bools(self, "rps.", ("enabled", "range_priority", "consensus"))
 
 
 #: ``FuseConfig.as_dict``'s flat name of each setting whose field name alone is not unique or not
@@ -347,28 +247,18 @@ class FuseConfig:
     def __post_init__(self) -> None:
         for name, kind in STAGES.items():
             if not isinstance(getattr(self, name), kind):
-                _fail(
+                check.fail(
                     name,
                     getattr(self, name),
                     f"type {kind.__name__} (change one setting with cfg.replace({name}={{...}}))",
                 )
-        _check_numbers(self, "", ("eps",), positive=True)
-        _check_ints(self, "", (("pixel_stride", 1, 8, ""),))
-        tp = self.target_points
-        if tp is not None and (not isinstance(tp, int) or isinstance(tp, bool) or tp < 1):
-            _fail("target_points", tp, "None or an integer >= 1")
-        ns = self.noise_sigma
-        if (
-            not isinstance(ns, tuple)
-            or len(ns) != 3
-            or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in ns)
-            or not ns[0] > 0
-            or ns[1] < 0
-        ):
-            _fail("noise_sigma", ns, "a tuple (a, b, z0) of finite numbers with a > 0, b >= 0")
-        _check_bools(self, "", ("budget_stride", "auto_grid"))
+        check.numbers(self, "", ("eps",), positive=True)
+        check.ints(self, "", (("pixel_stride", 1, 8, ""),))
+        check.target_points(self.target_points)
+        check.noise_sigma(self.noise_sigma)
+        check.bools(self, "", ("budget_stride", "auto_grid"))
         if self.backend not in ("auto", "torch", "numba"):
-            _fail("backend", self.backend, "'auto', 'torch' or 'numba'")
+            check.fail("backend", self.backend, "'auto', 'torch' or 'numba'")
 
     def replace(self, **changes: Any) -> FuseConfig:
         """A copy with ``changes``: a cross-stage setting by name (``pixel_stride=2``), a stage by
@@ -407,166 +297,3 @@ class FuseConfig:
             else:
                 out[f.name] = value
         return out
-
-
-def parse_settings(assignments: Iterable[str]) -> dict[str, Any]:
-    """``cfg.replace`` keyword arguments from ``NAME=VALUE`` strings (the CLI's ``--set``): NAME is
-    a setting of ``FuseConfig().describe()`` (``rps.k_max``, ``pixel_stride``); VALUE is read as the
-    setting's type (bool: true/false/1/0/on/off; noise_sigma: a,b,z0; target_points: none or an int)."""
-    known = FuseConfig().describe()
-    out: dict[str, Any] = {}
-    for text in assignments:
-        name, sep, raw = text.partition("=")
-        name, raw = name.strip(), raw.strip()
-        if not sep or name not in known:
-            raise ValidationError(f"--set {text!r}: expected NAME=VALUE with NAME one of {', '.join(known)}")
-        value = _parse_value(name, raw, known[name])
-        stage, dot, field_name = name.partition(".")
-        if dot:
-            out.setdefault(stage, {})[field_name] = value
-        else:
-            out[name] = value
-    return out
-
-
-def _parse_value(name: str, raw: str, default: Any) -> Any:
-    """``raw`` as the type of ``default`` (the setting's default value)."""
-    low = raw.lower()
-    try:
-        if isinstance(default, bool):
-            if low not in ("true", "false", "1", "0", "on", "off", "yes", "no"):
-                raise ValueError(raw)
-            return low in ("true", "1", "on", "yes")
-        if name == "target_points":
-            return None if low == "none" else int(raw)
-        if isinstance(default, tuple):
-            return tuple(float(v) for v in raw.split(","))
-        if isinstance(default, int):
-            return int(raw)
-        if isinstance(default, float):
-            return float(raw)
-        return raw
-    except ValueError:
-        raise ValidationError(f"--set {name}={raw}: expected a value like {default!r}") from None
-
-
-_DEFAULT = FuseConfig()
-
-#: Table VII ablations, each the default with one component removed.
-ABLATIONS: dict[str, FuseConfig] = {
-    "w/o CVGC": _DEFAULT.replace(cvgc={"enabled": False}),
-    "w/o MCM": _DEFAULT.replace(mcm={"enabled": False}),
-    "w/o ASH": _DEFAULT.replace(ash={"enabled": False}),
-    "w/o RPS": _DEFAULT.replace(rps={"enabled": False}),
-}
-
-PRESETS: dict[str, FuseConfig] = {
-    "default": _DEFAULT,
-    "paper": _DEFAULT.replace(
-        smoothing={"radius": 0},
-        mcm={"max_missing": 0, "noise_aware": False},
-        cvgc={"k_neighbours": 4, "visibility_aware": False, "multiview_mean": False},  # the paper fixes neither
-        ash={"s0": 6.3},  # k_neighbours nor s0
-        rps={"min_weight": 0.0, "range_priority": False, "lone_cell_mean": 0.0, "consensus": False},
-    ),
-    "quality": _DEFAULT,
-    "fast": _DEFAULT.replace(cvgc={"k_neighbours": 4}, ash={"s0": 6.3}),
-    # candidates on every 2nd pixel of every 2nd row (4x fewer); every stage costs per candidate,
-    # so s0 is low enough that selection keeps nearly all of them
-    # no depth smoothing: it costs `live` 14-25 % of its time (ICL, HO-Cap), which is its point
-    "live": _DEFAULT.replace(pixel_stride=2, ash={"s0": 1.0}, mcm={"max_missing": 4}, smoothing={"radius": 0}),
-    # completeness first: every pixel, nearly every candidate kept, 5x5 smoothing
-    # an MCM window missing up to 6 of its 8 neighbours is measured on the ones it has: pixels
-    # beside depth holes count (docs/fuse.md, Quality)
-    "dense": _DEFAULT.replace(ash={"s0": 1.0}, smoothing={"radius": 2}, mcm={"max_missing": 6}),
-    # the CLI's default: every pixel ("dense") while the frame's valid pixels fit a time budget or a
-    # coarser grid would sample the surface more coarsely than 1 cm, the coarser grid otherwise (auto_config)
-    "auto": _DEFAULT.replace(auto_grid=True),
-    **ABLATIONS,
-}
-
-#: auto_config's time budget for fusing every pixel of a frame, in CPU milliseconds: 10 frames/s
-#: (docs/live.md's rate for 8 x 640x480) on the 2 cores the speed tables are measured on.
-AUTO_CORE_MS = 200.0
-#: CPU milliseconds per million valid depth pixels of every-pixel fusion (``dense``'s settings)
-#: on one core: the most measured on the real and simulated rigs, 249 on the simulated 8-ring
-#: 320x240 (``fuseflow bench fuse-ratio REC --preset dense``; docs/fuse.md "Speed").
-AUTO_CORE_MS_PER_MPX = 250.0
-#: auto_config fuses every pixel of a frame with at most this many valid depth pixels (the
-#: budget over the cost: 0.8 M; the simulated 4-ring 640x480 has 0.62 M, the 8-ring 1.23 M).
-AUTO_MAX_EVERY_PIXEL = int(AUTO_CORE_MS / AUTO_CORE_MS_PER_MPX * 1e6)
-#: The output resolution, metres: the coarse grid is taken only where it samples the surface at
-#: least this finely. 1 cm: the scale the default s0 is set to (about a 1 cm TSDF's point count),
-#: VoxelBlockGrid's voxel in the comparisons and the distance recall counts at.
-AUTO_RESOLUTION = 0.01
-#: The share of a frame's valid depth pixels the coarse grid must sample within AUTO_RESOLUTION
-#: (``fuse.density.grid_spacing`` at this quantile): "nearly all of the seen surface".
-AUTO_SPACING_QUANTILE = 0.9
-#: The coarse grid's stride: ``live``'s grid, whose s0 and MCM window the coarse grid also takes.
-AUTO_COARSE_STRIDE = PRESETS["live"].pixel_stride
-
-
-def auto_config(
-    cfg: FuseConfig, views: int, valid_pixels: int, coarse_spacing: Callable[[], float]
-) -> tuple[FuseConfig, str]:
-    """FuseConfig.auto_grid: the settings for a frame of ``views`` present views with
-    ``valid_pixels`` valid depth pixels, on which the coarse grid (every AUTO_COARSE_STRIDE-th
-    pixel of every AUTO_COARSE_STRIDE-th row) would place candidates ``coarse_spacing()`` metres
-    apart on a facing surface at AUTO_SPACING_QUANTILE of the pixels (fuse.density.grid_spacing;
-    called only above the time budget), and a one-line account of the choice.
-
-    * ``valid_pixels`` <= AUTO_MAX_EVERY_PIXEL (every pixel fits the time budget): ``dense``'s
-      settings on ``cfg``'s grid: every pixel, nearly every candidate kept.
-    * above it, ``coarse_spacing()`` > AUTO_RESOLUTION (far surfaces: the coarse grid would sample
-      them more coarsely than the output's 1 cm and lose surface): every pixel with ``dense``'s
-      settings and the coarse grid's cheaper cross-view check (4 neighbour cameras, no multi-view
-      mean), whatever the time.
-    * else (8 x 640x480 at arm's or room range: 1.2-2.4 M) the coarse grid with s0 = 1
-      (``live``'s), 5x5 smoothing, 4 neighbour cameras and no multi-view mean.
-    Measured per rig in docs/fuse.md (Presets, Quality, Speed)."""
-    what = f"{views} views, {valid_pixels / 1e6:.2f} M valid depth pixels"
-    dense = PRESETS["dense"]
-    every = cfg.replace(
-        ash={"s0": dense.ash.s0},
-        smoothing={"radius": dense.smoothing.radius},
-        mcm={"max_missing": dense.mcm.max_missing},
-    )
-    if valid_pixels <= AUTO_MAX_EVERY_PIXEL:
-        return every, f"auto: stride {every.pixel_stride}, s0 {every.ash.s0:g} ({what}: every pixel counts)"
-    budget = f"more than {AUTO_MAX_EVERY_PIXEL / 1e6:.2f} M: every pixel would not fit 10 frames/s"
-    gap = coarse_spacing()
-    spacing = (
-        f"stride {AUTO_COARSE_STRIDE} samples {AUTO_SPACING_QUANTILE:.0%} of the surface within {gap * 1000:.1f} mm"
-    )
-    cheap = {"k_neighbours": 4, "multiview_mean": False}
-    if gap > AUTO_RESOLUTION:
-        out = every.replace(cvgc=cheap)
-        why = f"{spacing}, coarser than {AUTO_RESOLUTION * 1000:g} mm: every pixel, though {budget}"
-        return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {why})"
-    out = cfg.replace(
-        pixel_stride=AUTO_COARSE_STRIDE,
-        ash={"s0": PRESETS["live"].ash.s0},
-        mcm={"max_missing": PRESETS["live"].mcm.max_missing},
-        smoothing={"radius": 2},
-        cvgc=cheap,
-    )
-    return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {budget}; {spacing})"
-
-
-def preset_config(name: str, target_points: int | None = None, settings: Iterable[str] = ()) -> FuseConfig:
-    """``PRESETS[name]``, with ``target_points`` when given and then the ``NAME=VALUE`` settings
-    (``parse_settings``): the `fuse` / `run` commands' --preset, --points and --set.
-    ValidationError naming the presets for an unknown name, or the settings for a bad one."""
-    if name not in PRESETS:
-        raise ValidationError(f"no FUSE preset {name!r}; presets are {sorted(PRESETS)}")
-    cfg = PRESETS[name] if target_points is None else PRESETS[name].replace(target_points=target_points)
-    changes = parse_settings(settings)
-    return cfg.replace(**changes) if changes else cfg
-
-
-def preset(name: str) -> FuseConfig:
-    """The named preset (``PRESETS`` keys); ValidationError listing the names otherwise."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise ValidationError(f"no FUSE preset {name!r}; presets are {sorted(PRESETS)}") from None

@@ -5,14 +5,13 @@ from fuseflow.io.convert import convert as convert_recordings
 from fuseflow.io.datasets import SequenceRecording, make_virtual_rig, open_recording, read_rgbd_pair
 from fuseflow.io.ply import read_ply, write_ply
 from fuseflow.io.recording import FuseFlowRecording, Recording, read_rig, write_frame, write_rig
-from fuseflow.io.timesync import estimate_frame_offset, pair_by_timestamp, read_timestamps
+from fuseflow.io.timesync import pair_by_timestamp, read_timestamps
 
 __all__ = [
     "FuseFlowRecording",
     "Recording",
     "SequenceRecording",
     "convert_recordings",
-    "estimate_frame_offset",
     "make_virtual_rig",
     "open_recording",
     "pair_by_timestamp",

@@ -308,7 +308,7 @@ class LiveLoop:
 
     def _fuse_frame(self, frame: Frame, rig: Rig) -> tuple[FusedCloud, float]:
         from fuseflow.fuse import fuse_with_report
-        from fuseflow.fuse.config import preset_config
+        from fuseflow.fuse.presets import preset_config
 
         if self._cfg is None:
             self._cfg = preset_config(self.settings.preset, self.settings.points)

@@ -237,7 +237,7 @@ def fuse_recording(
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
     """
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
 
     cfg = preset_config(preset, points, settings)
     rec = rec if isinstance(rec, Recording) else open_recording(rec)

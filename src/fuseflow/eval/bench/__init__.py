@@ -1,10 +1,10 @@
-"""Benchmark programs as library code: each ``fuseflow bench ...`` command calls one module here
-(``fuse`` :mod:`fuseflow.eval.bench.fuse_speed`, ``calib`` :mod:`fuseflow.eval.bench.calib_accuracy`,
-``calib-wide`` :mod:`fuseflow.eval.bench.calib_wide`, ...); the programs in the source tree's
-``benchmarks/`` folder are thin wrappers around the same functions.
+"""The benchmarks the wheel ships, one module per ``fuseflow bench`` command: ``fuse``
+(:mod:`fuseflow.eval.bench.fuse_speed`, FUSE and the baselines timed on this machine) and
+``fuse-ratio`` (:mod:`fuseflow.eval.bench.fuse_ratio`, FUSE against VoxelBlockGrid on the user's
+own recordings). The other studies are programs of the source tree's ``benchmarks/``.
 
-Nothing here prints: report lines go to a ``log`` callback the caller chooses (the CLI and the
-wrappers print them). This ``__init__`` imports nothing heavy.
+Nothing here prints: report lines go to a ``log`` callback the caller chooses. This ``__init__``
+imports nothing heavy.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ start-up), then ``rounds`` times FUSE (``PRESETS[preset]``) and
 ratio VBG time / FUSE time of two calls made seconds apart, so load that changes slowly cancels;
 the report is the median ratio with its range and the median times. Then FUSE's CPU time on one
 compiled-kernel thread (the least of ``rounds`` calls, ``time.process_time``): per million valid
-depth pixels it is the cost config.auto_config's pixel budget is derived from (docs/fuse.md).
+depth pixels it is the cost presets.auto_config's pixel budget is derived from (docs/fuse.md).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def run_fuse_ratio(
     CPU time on one thread) and core_ms_per_mpx (per million valid depth pixels)."""
     from fuseflow.eval.baselines import tsdf_fusion
     from fuseflow.fuse import fuse_with_report
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
     from fuseflow.io import open_recording
 
     cfg = preset_config(preset)

@@ -1,7 +1,7 @@
 """FUSE per-frame time and peak memory vs Open3D VoxelBlockGrid TSDF and naive + voxel_down_sample.
 
     fuseflow bench fuse --cameras 1,2,4,8,16 --json OUT
-    flock /tmp/fuseflow-cpu.lock .venv/bin/python benchmarks/fuse_speed.py --json docs/data/fuse_speed.json
+    python -m benchmarks.fuse_speed --save
 
 What it does:
 
@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import re
 import statistics
 import subprocess
@@ -59,6 +58,7 @@ from typing import Any
 
 from fuseflow.errors import ValidationError
 from fuseflow.eval.bench import BenchmarkFailed
+from fuseflow.eval.results import write_result
 
 __all__ = [
     "DATA",
@@ -312,14 +312,11 @@ def _derived(rows: list[dict[str, Any]]) -> dict[str, float]:
     return derived
 
 
-def _meta(command: str, methods: Sequence[str], resolution: tuple[int, int], n_total: int, frames: int,
+def _meta(methods: Sequence[str], resolution: tuple[int, int], n_total: int, frames: int,
           warmup: int, seed: int, derived: dict[str, float]) -> dict[str, Any]:  # fmt: skip
-    import numba
-    import open3d
     import torch
 
     return {
-        "command": command,
         "methods": {m: METHODS[m] for m in methods},
         "resolution": list(resolution),
         "ring_cameras": n_total,
@@ -331,15 +328,7 @@ def _meta(command: str, methods: Sequence[str], resolution: tuple[int, int], n_t
         "load_average": os.getloadavg(),
         "memory": "peak_mb = VmHWM of a fresh process per row over the timed frames (reset with "
         "/proc/self/clear_refs after warm-up); base_mb = VmRSS before the timed frames",
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-            "torch": torch.__version__,
-            "torch_threads": torch.get_num_threads(),
-            "numba": numba.__version__,
-            "open3d": open3d.__version__,
-        },
+        "torch_threads": torch.get_num_threads(),
         "derived": derived,
         "date": time.strftime("%Y-%m-%d %H:%M"),
     }
@@ -451,11 +440,8 @@ def run_fuse_speed(
         for k, v in result.derived.items():
             log(f"{k}: {v:.2f}")
         if json_path is not None:
-            meta = _meta(command, methods, resolution, n_total, frames, warmup, seed, result.derived)
-            json_path = Path(json_path)
-            json_path.parent.mkdir(parents=True, exist_ok=True)
-            json_path.write_text(json.dumps({"meta": meta, "rows": result.rows}, indent=1) + "\n")
-            result.json_path = json_path
+            meta = _meta(methods, resolution, n_total, frames, warmup, seed, result.derived)
+            result.json_path = write_result(json_path, "fuse_speed", command, result.rows, meta)
             log(f"wrote {json_path}")
         return result
     finally:
