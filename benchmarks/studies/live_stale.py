@@ -1,4 +1,4 @@
-"""The age of the frame a slow viewer shows (``benchmarks/live_stale.py``): a recording replayed
+"""The age of the frame a slow viewer shows (``python -m benchmarks.live_stale``): a recording replayed
 as cameras through the live loop and its server; one viewer, in a process of its own, that needs
 ``viewer_ms`` to decode and show a frame and acknowledges each frame once shown (``/ws?ack=1``, as
 the page does). Per frame shown: its age, from the capture stamp (the source's release time, in
@@ -13,7 +13,6 @@ CPU, compact codec; ``stand_in_ms`` replaces FUSE by a sleep.
 from __future__ import annotations
 
 import json
-import platform
 import subprocess
 import sys
 import tempfile
@@ -140,9 +139,9 @@ def _run_case(case: str, rec: Path, rate: float, viewer_ms: float, duration: flo
 
 
 def run_stale_bench(cases: list[str], rate: float = 10.0, viewer_ms: float = 500.0, duration: float = 20.0,
-                    data_dir: Path = Path("../shared/data"), json_path: Path | None = None, command: str = "",
-                    stand_in_ms: float | None = None, log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
-    """One row per case (handed to ``log`` as JSON lines, and written to ``json_path`` with the command)."""
+                    data_dir: Path = Path("../shared/data"), stand_in_ms: float | None = None,
+                    log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
+    """One row per case (each also handed to ``log`` as a JSON line)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="fuseflow-stale-") as tmp:
         for case in cases:
@@ -150,7 +149,4 @@ def run_stale_bench(cases: list[str], rate: float = 10.0, viewer_ms: float = 500
             row = _run_case(case, rec, rate, viewer_ms, duration, stand_in_ms)
             log(json.dumps(row))
             rows.append(row)
-    if json_path is not None:
-        doc = {"command": command, "machine": platform.node(), "rows": rows}
-        Path(json_path).write_text(json.dumps(doc, indent=2) + "\n")
     return rows
