@@ -178,7 +178,7 @@ const fs = require("fs"); const {{ decodeFrame }} = require({json.dumps(str(DECO
 
 
 def test_codec_benchmark_rows(tmp_path):
-    from benchmarks.studies.live_codec_v3 import SETTINGS, measure, node_decode_ms, table
+    from benchmarks.studies.live_codec_versions import SETTINGS, measure, node_decode_ms, table
 
     xyz, rgb = _surface(5000)
     rows = measure("surface", xyz, rgb, repeats=1)

@@ -1,16 +1,16 @@
 """Bits a point of the live stream's compact codec, version 3 against version 2 and raw, in one run
 on the hocap-8rs frame and a simulated 8-camera studio fused at 200 k points: bits (and geometry
 bits) a point, points sent, position and colour error, encode time, Python and decode.js (node)
-decode time (benchmarks.studies.live_codec_v3; docs/live.md, "Bandwidth: the frame codecs").
+decode time (benchmarks.studies.live_codec_versions; docs/live.md, "Bandwidth: the frame codecs").
 
-    python -m benchmarks.live_codec_v3 [--data-dir ../shared/data] [--json PATH | --save]
+    python -m benchmarks.live_codec_versions [--data-dir ../shared/data] [--json PATH | --save]
         [--repeats 7] [--no-node]
 """
 
 from __future__ import annotations
 
 from benchmarks import common
-from benchmarks.studies.live_codec_v3 import run_codec_v3_bench
+from benchmarks.studies.live_codec_versions import run_codec_v3_bench
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -19,7 +19,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-node", action="store_true")
     a = ap.parse_args(argv)
     out = run_codec_v3_bench(common.data_dir(a.data_dir), a.repeats, node=not a.no_node, log=common.log)
-    common.save(a, "live_codec_v3", common.command("live_codec_v3", argv), out["rows"], out["meta"])
+    common.save(a, "live_codec_versions", common.command("live_codec_versions", argv), out["rows"], out["meta"])
 
 
 if __name__ == "__main__":

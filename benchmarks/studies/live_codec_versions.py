@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+import fuseflow.live
 from fuseflow.live.codec import CompactParams, encode_compact
 from fuseflow.live.wire import decode_frame
 
 __all__ = ["SETTINGS", "fused_clouds", "measure", "node_decode_ms", "run_codec_v3_bench", "table"]
 
-DECODE_JS = Path(__file__).resolve().parents[2] / "live" / "static" / "decode.js"
+DECODE_JS = Path(fuseflow.live.__file__).resolve().parent / "static" / "decode.js"
 SETTINGS: list[tuple[str, CompactParams | None]] = [
     ("raw", None),
     ("v2, 3 mm / 4, 8, 4 (version 2 default)", CompactParams(3.0, 4, 8, 4, version=2)),
