@@ -102,9 +102,9 @@ def calibrate_frames(
     pooled_frames = [frames[0]] + [rec[t] for t in spread[1:]]  # spread starts at positions[0]
     try:
         pooled = calibrate(pooled_frames, rig, config, progress=progress)
-    except CalibrationError:
-        if single is None:
-            raise
+    except CalibrationError as exc:
+        if single is None:  # both attempts named: the user sees that pooling ran
+            raise CalibrationError(f"{why}; {len(spread)} pooled frames also failed: {exc}") from None
         kept = "the pooled frames placed too few cameras: kept one frame's"
         return Calibrated(single, positions, frames, [*notes, kept])
     if single is not None and _rank(pooled) <= _rank(single):
