@@ -13,8 +13,9 @@ over the frames of a moving object the centres form a track. No detector, no col
    its own blob.
 2. Per blob of at least ``MIN_BLOB_PX`` pixels (``fit_sphere``): RANSAC on 4 points (radius in
    ``RADIUS_M``, centre behind the surface seen), inliers within ``FIT_TOL_M``, a least-squares
-   refit; kept when the inliers are at least ``MIN_SHARE`` of the blob (a torso or an arm fits
-   a sphere with 10-30 % of its points, a ball with 70-100 %: kinect3-room, every frame).
+   refit; kept when the inliers are at least ``MIN_SHARE`` of the blob (kinect3-room, all 25
+   frames: the 0.21-m ball 68-100 % in every view; a torso 9-28 %; a head or a hand, 0.06-0.16 m,
+   up to 94 %, which the radius test and the RANSAC of step 3 leave out).
 3. Per camera pair (``sphere_pose``): the sphere pairs of the same frame whose radii differ by at
    most ``RADIUS_MATCH_M`` are correspondences; 3-point RANSAC + Kabsch over them (inliers
    within ``INLIER_M``, one per frame), a refit on the inliers; needs ``MIN_FRAMES`` inlier
