@@ -30,11 +30,10 @@ from fuseflow.calib.placement import (
     place_with_backbone,
     refine_jointly,
 )
-from fuseflow.calib.pooling import first_complete, pooled_calibration, warn_verdicts
+from fuseflow.calib.pooling import RecordingLike, first_complete, pooled_calibration, warn_verdicts
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
 from fuseflow.calib.verdicts import camera_verdicts, pair_agreements
 from fuseflow.errors import ValidationError
-from fuseflow.io.recording import Recording
 from fuseflow.types import Calibration, Frame, Rig
 
 # ScaleResult and metric_scale live in scale_stage; re-exported here, where they used to be.
@@ -94,7 +93,7 @@ def check_inputs(frame: Frame, rig: Rig) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def calibrate(
-    frame: Frame | Sequence[Frame] | Recording,
+    frame: Frame | Sequence[Frame] | RecordingLike,
     rig: Rig | None = None,
     config: CalibConfig | None = None,
     backbone_result: BackboneResult | None = None,
@@ -136,7 +135,7 @@ def calibrate(
     Warns:
         CalibrationWarning: one per camera left unplaced or not "good", with its verdict's reason.
     """
-    if isinstance(frame, Recording):
+    if not isinstance(frame, (Frame, Sequence)) and isinstance(frame, RecordingLike):
         if backbone_result is not None:
             raise ValidationError("calibrate: backbone_result applies to given frames, not to a recording")
         if rig is not None and rig.ids != frame.rig.ids:

@@ -15,14 +15,15 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from fuseflow.calib.errors import CalibrationError, CalibrationWarning
-from fuseflow.io.recording import Recording
 from fuseflow.types import Calibration, Frame, Rig
 
 __all__ = [
+    "RecordingLike",
     "POOLED_FRAMES",
     "Calibrated",
     "pooled_calibration",
@@ -38,6 +39,22 @@ __all__ = [
 POOLED_FRAMES = 10
 
 
+@runtime_checkable
+class RecordingLike(Protocol):
+    """What pooling reads of a recording (``fuseflow.io.Recording`` has it; calib does not import
+    io's readers): ``len(rec)``, ``rec[t]`` (a Frame), ``rec.rig``, ``rec.frame_numbers`` and
+    ``rec.missing_views()``."""
+
+    rig: Rig
+    frame_numbers: Any
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, t: int) -> Frame: ...
+
+    def missing_views(self) -> dict[str, list[int]]: ...
+
+
 @dataclass
 class Calibrated:
     """GMAC's result, the frame positions it used, those frames, and what the pooling did (lines
@@ -49,7 +66,7 @@ class Calibrated:
     notes: list[str] = field(default_factory=list)
 
 
-def missing_positions(rec: Recording) -> dict[int, set[str]]:
+def missing_positions(rec: RecordingLike) -> dict[int, set[str]]:
     """Frame position -> ids of the cameras with no view there, from the file listings (empty when
     the reader cannot tell without decoding)."""
     try:
@@ -65,13 +82,13 @@ def missing_positions(rec: Recording) -> dict[int, set[str]]:
     return out
 
 
-def first_complete(rec: Recording) -> int:
+def first_complete(rec: RecordingLike) -> int:
     """The first frame position with every camera present (0 when none is)."""
     missing = missing_positions(rec)
     return next((t for t in range(len(rec)) if t not in missing), 0)
 
 
-def spread_positions(rec: Recording, first: int) -> list[int]:
+def spread_positions(rec: RecordingLike, first: int) -> list[int]:
     """Up to POOLED_FRAMES frame positions spread evenly over the recording, ``first`` first,
     frames with every camera present preferred (the first one carries the scale stage)."""
     missing = missing_positions(rec)
@@ -100,7 +117,7 @@ def _quiet(attempt: Callable, frames: list[Frame], rig: Rig, config, progress) -
 
 
 def pooled_calibration(
-    rec: Recording,
+    rec: RecordingLike,
     positions: list[int],
     config,
     pool: bool,
