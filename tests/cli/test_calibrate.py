@@ -176,3 +176,23 @@ def test_default_pools_frames_when_one_frame_places_too_few(ring_rec, tmp_path, 
     calls.clear()
     res = CliRunner().invoke(cli_app, [*args, "--frame", "1"])
     assert res.exit_code == 2 and "fewer than two cameras" in res.output and calls == [[1]], res.output
+
+
+def test_default_pooling_that_also_fails_names_both_attempts(ring_rec, tmp_path, monkeypatch):
+    """No --frame/--frames: when the one frame raises and the pooled frames raise too, the one
+    error line says that pooling ran and why each attempt failed (exit 2, no traceback)."""
+    import fuseflow.calib as calib_mod
+    from fuseflow.calib import CalibrationError
+
+    calls = []
+
+    def always_fails(views, rig, config, progress=None):
+        calls.append(len(views))
+        raise CalibrationError(f"nothing placed from {len(views)} frame(s)")
+
+    monkeypatch.setattr(calib_mod, "calibrate", always_fails)
+    res = CliRunner().invoke(cli_app, ["calibrate", str(ring_rec), "--out", str(tmp_path / "c.json")])
+    text = " ".join(res.output.split())
+    assert res.exit_code == 2 and calls == [1, 3], (calls, res.output)
+    assert "nothing placed from 1 frame(s)" in text and "3 pooled frames also failed: nothing placed from 3" in text
+    assert "Traceback" not in res.output

@@ -71,3 +71,29 @@ def test_run_points_sets_the_density_and_the_run_settings(static_rec, tmp_path):
     assert res.exit_code == 2 and "settings" in res.output
     res = _invoke("run", static_rec, "--out", tmp_path / "p", "--use-rig", "--points", "0")
     assert res.exit_code == 2 and "--points" in res.output
+
+
+def test_run_use_rig_without_extrinsics_refuses(static_rec, tmp_path):
+    """As `fuse` does: --use-rig on a rig.json without extrinsics is one error line (exit 2),
+    not GMAC run in its place."""
+    import shutil
+
+    rec = tmp_path / "bare"
+    shutil.copytree(static_rec, rec)
+    doc = json.loads((rec / "rig.json").read_text())
+    for cam in doc["cameras"]:
+        cam.pop("T_cam_world", None)
+    (rec / "rig.json").write_text(json.dumps(doc))
+    res = _invoke("run", rec, "--out", tmp_path / "o", "--use-rig", "--frames", "0:1")
+    assert res.exit_code == 2 and "rig.json has no extrinsics" in " ".join(res.output.split()), res.output
+    assert not (tmp_path / "o" / "calib.json").exists()
+
+
+def test_run_prints_the_verdict_table_and_writes_the_report_picture(static_rec, tmp_path):
+    """GMAC ran: the per-camera verdict table and OUT/calib.png, as `calibrate` prints and writes."""
+    out = tmp_path / "out"
+    res = _invoke("run", static_rec, "--out", out, "--frames", "0:1", "--calib-frame", "0")
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.split())
+    assert "verdict" in text and "verdicts:" in text and "good" in text, res.output
+    assert (out / "calib.png").stat().st_size > 1000

@@ -30,6 +30,7 @@ from fuseflow.calib.placement import (
     place_with_backbone,
     refine_jointly,
 )
+from fuseflow.calib.pooling import RecordingLike, first_complete, pooled_calibration, warn_verdicts
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
 from fuseflow.calib.verdicts import camera_verdicts, pair_agreements
 from fuseflow.errors import ValidationError
@@ -92,8 +93,8 @@ def check_inputs(frame: Frame, rig: Rig) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def calibrate(
-    frame: Frame | Sequence[Frame],
-    rig: Rig,
+    frame: Frame | Sequence[Frame] | RecordingLike,
+    rig: Rig | None = None,
     config: CalibConfig | None = None,
     backbone_result: BackboneResult | None = None,
     progress: progress_events.ProgressCallback | None = None,
@@ -104,8 +105,12 @@ def calibrate(
         frame: the N views of one instant (depth (N, H, W) float32 metres, colour uint8), or a
             sequence of such frames of a static rig (same cameras, same order). Multi-frame
             backbones (``MULTI_FRAME_BACKBONES``: rgbd) pool all of them; the others, the scale
-            stage and the depth-agreement check use the first.
-        rig: the cameras (intrinsics, depth ranges; extrinsics ignored).
+            stage and the depth-agreement check use the first. Or a whole ``Recording``: GMAC
+            then does what ``fuseflow calibrate REC`` does (:mod:`fuseflow.calib.pooling`): the
+            first frame with every camera, and up to 10 frames spread over the recording pooled
+            when that frame fails or leaves a camera not "good".
+        rig: the cameras (intrinsics, depth ranges; extrinsics ignored); with a Recording,
+            None takes the recording's rig.
         config: :class:`CalibConfig` (default preset: auto backbone, point-to-plane, CC, no refinement).
         backbone_result: skip the backbone and use these poses (e.g. to rerun GMAC variants on
             one backbone run).
@@ -126,7 +131,31 @@ def calibrate(
             frames of different rigs.
         CalibrationError: fewer than two present views, a camera without depth, textureless
             images, no overlapping pair.
+
+    Warns:
+        CalibrationWarning: one per camera left unplaced or not "good", with its verdict's reason.
     """
+    if not isinstance(frame, (Frame, Sequence)) and isinstance(frame, RecordingLike):
+        if backbone_result is not None:
+            raise ValidationError("calibrate: backbone_result applies to given frames, not to a recording")
+        if rig is not None and rig.ids != frame.rig.ids:
+            raise ValidationError(
+                f"calibrate: rig cameras {list(rig.ids)} differ from the recording's {list(frame.rig.ids)}"
+            )
+        done = pooled_calibration(frame, [first_complete(frame)], config, True, _calibrate_reporting, progress)
+        cal, ids = done.calibration, frame.rig.ids
+    else:
+        if rig is None:
+            raise ValidationError("calibrate: a rig is needed with frames (only a Recording carries its own)")
+        cal, ids = _calibrate_reporting(frame, rig, config, progress, backbone_result), rig.ids
+    warn_verdicts(cal, ids)
+    return cal
+
+
+def _calibrate_reporting(
+    frame, rig: Rig, config: CalibConfig | None, progress=None, backbone_result=None
+) -> Calibration:
+    """``calibrate`` on frames, its progress callback set, no warnings."""
     with progress_events.reporting(progress):
         return _calibrate(frame, rig, config or CalibConfig(), backbone_result)
 

@@ -82,7 +82,7 @@ def command(
 
         r.reference = compare_to_reference(calib.T_cam_world, ref.T_cam_world, rig.ids, str(reference))
     fuseflow.write_calibration(out, calib, rig=recording.rig)  # its fingerprint guards reuse on another rig
-    picture = _write_picture(out, views[0], rig, calib)
+    picture = write_picture(out, views[0], rig, calib)
     say(
         f"GMAC {rec} {_frames_text(indices)}: backbone {r.backbone}, {len(calib.T_cam_world)}/{len(rig)} cameras "
         f"placed, {r.timings_s['total']:.1f} s"
@@ -219,7 +219,7 @@ def _units_hint(ref_T, est_T) -> str | None:
     return None
 
 
-def _write_picture(out: Path, frame, rig, calib) -> Path | None:
+def write_picture(out: Path, frame, rig, calib) -> Path | None:
     """``<stem>.png`` beside calib.json; a failure to draw it is a warning, not a lost calibration."""
     from fuseflow.errors import FuseFlowError
     from fuseflow.viz.calib_picture import calibration_picture

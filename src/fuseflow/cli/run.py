@@ -116,6 +116,10 @@ def command(
     if calib is not None and use_rig:
         fail("--calib and --use-rig both choose the extrinsics; pass one")
     recording = open_recording(rec)
+    if use_rig and not recording.rig.is_calibrated:  # as `fuseflow fuse` refuses, not GMAC in its place
+        fail(
+            f"--use-rig: {rec}/rig.json has no extrinsics: run fuseflow calibrate first, pass --calib, or drop --use-rig"
+        )
     calibration = read_calibration(calib) if calib is not None else None
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None
     if sync_offsets == "auto" and ray_opts is not None:
@@ -141,6 +145,31 @@ def command(
             on_frame=lambda r, done, total: bar.update(task, completed=done, description=fusing),
         )  # fmt: skip
     _print_summary(summary)
+    if gmac:
+        _print_calibration(recording, out, summary.calibration_frame)
+
+
+def _print_calibration(recording, out: Path, number: int | None) -> None:
+    """GMAC ran: its per-camera verdict table and the report picture (OUT/calib.png), as
+    `fuseflow calibrate` prints and writes them."""
+    from types import SimpleNamespace
+
+    from fuseflow.cli.calibrate import print_verdicts, write_picture
+    from fuseflow.io import read_calibration
+    from fuseflow.types import Rig
+
+    cal = read_calibration(out / "calib.json")
+    verdicts = cal.report.get("camera_verdicts")
+    if not verdicts:
+        return
+    print_verdicts(verdicts)
+    numbers = list(recording.frame_numbers)
+    frame = recording[numbers.index(number) if number in numbers else 0]
+    rig = Rig(tuple(c.with_extrinsics(None) for c in recording.rig))
+    drawn = SimpleNamespace(T_cam_world=cal.T_cam_world, report=SimpleNamespace(**cal.report))  # the fields it reads
+    picture = write_picture(out / "calib.json", frame, rig, drawn)
+    if picture:
+        say(f"wrote {picture}")
 
 
 #: ``--help`` examples (click keeps a paragraph after "\\b" as written).

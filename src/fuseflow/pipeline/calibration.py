@@ -1,70 +1,16 @@
 """GMAC on a recording's frames, pooling frames when one is not enough: shared by
-``fuseflow calibrate`` and ``fuseflow run``."""
+``fuseflow calibrate`` and ``fuseflow run`` (the policy: :mod:`fuseflow.calib.pooling`, which
+``fuseflow.calibrate(recording)`` uses too)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
-import numpy as np
-
+from fuseflow.calib.pooling import POOLED_FRAMES, Calibrated, missing_positions, pooled_calibration, spread_positions
 from fuseflow.io.recording import Recording
-from fuseflow.types import Calibration, Frame, Rig
+from fuseflow.types import Frame
 
 __all__ = ["POOLED_FRAMES", "Calibrated", "calibrate_frames", "missing_positions", "spread_positions"]
-
-#: Frames pooled when one frame leaves a camera not "good" (10 cameras x 10 frames of a symmetric
-#: studio calibrate in about a minute on 2 cores: docs/gmac.md).
-POOLED_FRAMES = 10
-
-
-@dataclass
-class Calibrated:
-    """GMAC's result, the frame positions it used, those frames, and what the pooling did (lines
-    for a user)."""
-
-    calibration: Calibration
-    positions: list[int]
-    frames: list[Frame]
-    notes: list[str] = field(default_factory=list)
-
-
-def missing_positions(rec: Recording) -> dict[int, set[str]]:
-    """Frame position -> ids of the cameras with no view there, from the file listings (empty when
-    the reader cannot tell without decoding)."""
-    try:
-        by_camera = rec.missing_views()
-    except NotImplementedError:
-        return {}
-    position = {number: t for t, number in enumerate(rec.frame_numbers)}
-    out: dict[int, set[str]] = {}
-    for cam, numbers in by_camera.items():
-        for number in numbers:
-            if number in position:
-                out.setdefault(position[number], set()).add(cam)
-    return out
-
-
-def spread_positions(rec: Recording, first: int) -> list[int]:
-    """Up to POOLED_FRAMES frame positions spread evenly over the recording, ``first`` first,
-    frames with every camera present preferred (the first one carries the scale stage)."""
-    missing = missing_positions(rec)
-    pick_from = [t for t in range(len(rec)) if t not in missing]
-    if len(pick_from) < 3:
-        pick_from = list(range(len(rec)))
-    k = min(POOLED_FRAMES, len(pick_from))
-    chosen = [pick_from[int(i)] for i in np.linspace(0, len(pick_from) - 1, k).round()]
-    return [first] + sorted(set(chosen) - {first})
-
-
-def good_count(calibration: Calibration) -> int:
-    """Cameras whose verdict is "good"."""
-    verdicts = getattr(calibration.report, "camera_verdicts", None) or {}  # a dict report has none
-    return sum(v.get("verdict") == "good" for v in verdicts.values())
-
-
-def _rank(calibration: Calibration) -> tuple[int, int]:
-    return good_count(calibration), len(calibration.T_cam_world)
 
 
 def calibrate_frames(
@@ -75,39 +21,10 @@ def calibrate_frames(
     progress: Callable | None = None,
     frames: list[Frame] | None = None,
 ) -> Calibrated:
-    """GMAC (``fuseflow.calib.calibrate``) on the frames at ``positions``. With ``pool`` (the user
-    chose no frame) and 3 or more frames in the recording: when the one frame places fewer than
-    two cameras or leaves a camera not "good", GMAC runs again on up to POOLED_FRAMES frames spread
-    over the recording (a person moving through a static rig is then a target: the moving-subject
-    route), and the result with more "good" cameras (then more placed) is kept; a tie keeps the
-    one frame's. ``frames``: the frames at ``positions`` when the caller has read them already.
-    Raises CalibrationError when no attempt places two cameras."""
-    from fuseflow.calib import CalibrationError, calibrate
+    """``calib.pooling.pooled_calibration`` with ``fuseflow.calib.calibrate`` as the attempt:
+    GMAC on the frames at ``positions``; with ``pool`` (the user chose no frame) and 3 or more
+    frames, frames spread over the recording are pooled when the one frame raises or leaves a
+    camera not "good". Raises CalibrationError when no attempt places two cameras."""
+    import fuseflow.calib as calib
 
-    rig = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
-    spread = spread_positions(rec, positions[0]) if pool and len(positions) == 1 else []
-    frames = frames if frames is not None else [rec[t] for t in positions]
-    try:
-        single = calibrate(frames, rig, config, progress=progress)
-    except CalibrationError as exc:
-        if len(spread) < 3:
-            raise
-        single, why = None, f"one frame placed too few cameras ({exc})"
-    else:
-        good = good_count(single)
-        if len(spread) < 3 or good == len(rig):
-            return Calibrated(single, positions, frames)
-        why = f"frame {positions[0]} left {len(rig) - good} camera(s) not 'good'"
-    notes = [f"{why}: pooling {len(spread)} frames spread over the recording ({spread[0]}..{max(spread)})"]
-    pooled_frames = [frames[0]] + [rec[t] for t in spread[1:]]  # spread starts at positions[0]
-    try:
-        pooled = calibrate(pooled_frames, rig, config, progress=progress)
-    except CalibrationError:
-        if single is None:
-            raise
-        kept = "the pooled frames placed too few cameras: kept one frame's"
-        return Calibrated(single, positions, frames, [*notes, kept])
-    if single is not None and _rank(pooled) <= _rank(single):
-        kept = f"the pooled frames were no better ({good_count(pooled)} 'good'): kept one frame's result"
-        return Calibrated(single, positions, frames, [*notes, kept])
-    return Calibrated(pooled, spread, pooled_frames, notes)
+    return pooled_calibration(rec, positions, config, pool, calib.calibrate, progress=progress, frames=frames)

@@ -14,7 +14,7 @@ from fuseflow.calib.backbones.rgbd.choice import joint_choice
 from fuseflow.calib.backbones.rgbd.config import RGBDConfig
 from fuseflow.calib.backbones.rgbd.evidence import prepare_camera
 from fuseflow.calib.backbones.rgbd.geometric_route import geometric_edges
-from fuseflow.calib.backbones.rgbd.pairs import pair_edges, person_route, subject_route
+from fuseflow.calib.backbones.rgbd.pairs import pair_edges, person_route, sphere_route, subject_route
 from fuseflow.calib.backbones.rgbd.poses import camera_info, global_poses
 from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.posegraph import prune_cycles
@@ -61,9 +61,10 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
     t_prep = time.perf_counter() - t0
     people, people_skip = person_route(frames, rig, order, cfg)
     subject = subject_route(frames, rig, order, cams, cfg)
+    spheres = sphere_route(frames, rig, order, cams, cfg)
     ids = [rig.cameras[k].id for k in order]
     with one_torch_thread():  # small verification tensors: threads only cost (geometry docs)
-        edges, pairs_info, hyps, room = pair_edges(cams, cfg, people, subject)
+        edges, pairs_info, hyps, room = pair_edges(cams, cfg, people, subject, spheres)
         joint, ambiguous = {}, set()
         if cfg.pair_hypotheses > 1 and edges:
             edges, joint, ambiguous = joint_choice(cams, edges, hyps, pairs_info, ids, cfg)
@@ -101,6 +102,7 @@ def _rgbd_backbone(frames: list[Frame], rig: Rig, cfg: RGBDConfig) -> BackboneRe
         "refine": refine_info,
         "people": people_skip or people.info(),
         "subject": subject.info() if subject is not None else "skipped: fewer than 3 frames or off",
+        "spheres": spheres.info() if spheres is not None else "skipped: fewer than 5 frames or off",
         "time_s": {"prepare": t_prep, "pairs": t_pairs, "geometric": t_geo, "total": time.perf_counter() - t0},
     }
     tracks = tuple(

@@ -61,7 +61,9 @@ def joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str]
     the chosen hypotheses (other pairs lose theirs), and the ambiguous cameras (``_ambiguous``),
     which lose their edges. Returns (edges, info, ambiguous camera indices)."""
     flat = [h for hs in hyps.values() for h in hs]
-    sols = select_consistent(flat, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.min_separation)
+    sols = select_consistent(flat, JOINT_ROT_DEG, JOINT_TRANS_M, joint_separation(flat, cfg))
+    if not sols:  # no hypothesis to grow from: the pairs' best edges stand, nothing is chosen
+        return edges, {"solutions": 0}, set()
     top = [sol for sol in sols if len(sol.chosen) >= len(sols[0].chosen) - 1][:JOINT_SOLUTIONS]
     views = [_views_agreement(cams, sol.poses, cfg) for sol in top] if len(top) > 1 else [float("nan")]
     best = top[int(np.nanargmax(views))] if len(top) > 1 else top[0]
@@ -91,6 +93,17 @@ def joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str]
     sel = {"solutions": len(sols), "compared": [round(v, 4) for v in views], "consistent_pairs": len(chosen),
            "refuted_pairs": len(refuted), "ambiguous": {ids[k]: r for k, r in ambiguous.items()}}  # fmt: skip
     return out, sel, set(ambiguous) | (set(range(len(cams))) - block if len(refuted) >= ALIASED_PAIRS else set())
+
+
+def joint_separation(flat: list[Hypothesis], cfg: RGBDConfig) -> float:
+    """The camera separation (metres) below which the joint choice neither starts from a
+    hypothesis nor places a camera: ``min_separation``, or half the shortest baseline of a
+    verified hypothesis when one is shorter. Every hypothesis passed ``evidence.plausible``, so a
+    shorter one had two nearly identical views: the cameras really sit that close (a hand-held
+    camera's frames taken as a rig: icl-noisy5 is 23 mm per frame), and a veto at
+    ``min_separation`` would leave no solution at all."""
+    shortest = min((float(np.linalg.norm(h.T_ji[:3, 3])) for h in flat), default=cfg.min_separation)
+    return min(cfg.min_separation, 0.5 * shortest)
 
 
 def _subject_held(cams, out: dict, chosen: dict, hyps: dict, block: set[int], cfg: RGBDConfig) -> set[int]:

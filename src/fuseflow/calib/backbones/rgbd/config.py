@@ -150,6 +150,11 @@ class RGBDConfig:
     each pair a candidate and judges every candidate of the pair (a pose that moves one head
     track away from the other is refuted). Steps aside without frames or a moving person."""
 
+    spheres: bool = True
+    """Route (f), moving spheres (:mod:`fuseflow.calib.backbones.rgbd.spheres`): with 5 or more
+    frames, a ball (or any round moving object) tracked by sphere fits in every camera gives each
+    pair candidates. Steps aside without frames or a moving sphere."""
+
     min_separation: float = 0.2
     """Physical plausibility: a relative pose that puts the two camera centres closer than this
     (metres) is rejected, not scored, unless the two views are nearly the same (agreement >=

@@ -60,7 +60,16 @@ def subject_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[Ca
     return SubjectRoute.build(frames, rig, order, [c.plane for c in cams])
 
 
-def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None):
+def sphere_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[CameraEvidence], cfg: RGBDConfig):
+    """``spheres.SphereRoute`` over the frames (route (f)), or None (off, or too few frames)."""
+    from fuseflow.calib.backbones.rgbd.spheres import MIN_FRAMES, SphereRoute
+
+    if not cfg.spheres or len(frames) < MIN_FRAMES:
+        return None
+    return SphereRoute.build(frames, rig, order, [c.plane for c in cams], cfg.seed)
+
+
+def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None, spheres=None):
     """Candidates, verification and the accepted edge of every camera pair (canonical order);
     ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. In a room that
     repeats (``symmetry.room_orbits`` on the verified floor and image poses), a pair with no
@@ -78,6 +87,7 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             cands = floor_candidates(a, b, cfg, (Xa, Xb)) + sift3d_candidates(Xa, Xb, cfg)
             cands += people.pair(i, j) if people is not None else []
             cands += subject.pair(i, j) if subject is not None else []
+            cands += spheres.pair(i, j) if spheres is not None else []
             judge = subject_judge(a, b, cands, cfg, subject, i, j)
             rows, passing, verified = [], [], []
             for c in cands:
@@ -110,7 +120,7 @@ def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[d
     ``judge``, physical plausibility, the subject check). Returns (its info row, its Hypothesis
     when it passes all, else None, whether it passed the static depth checks alone)."""
     chk = verify_pose(a, b, c["T_ba"], cfg.tau)
-    ok = chk.passes(cfg) or (c["route"] == "subject" and judge is not None)
+    ok = chk.passes(cfg) or (c["route"] == "subject" and judge is not None) or sphere_passes(c, chk, cfg)
     row = {"route": c["route"], "inliers": c["inliers"], "ok": ok, **check_row(chk),
            "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
     if judge is not None and (verdict := judge(c["T_ba"])) is not None:
@@ -134,6 +144,19 @@ def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[d
     fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
     row["agree_fine"] = fine
     return row, Hypothesis(pair[0], pair[1], c["T_ba"], float(fine), (c, chk, cands)), chk.passes(cfg)
+
+
+def sphere_passes(c: dict, chk: PairCheck, cfg: RGBDConfig) -> bool:
+    """A moving-sphere candidate's depth test (``spheres`` module docstring): the static depth
+    agrees as for every candidate, the free space within ``spheres.MAX_FREE_SPACE``."""
+    from fuseflow.calib.backbones.rgbd.spheres import MAX_FREE_SPACE
+
+    return (
+        c["route"].startswith("sphere")
+        and chk.agreement >= cfg.min_agreement
+        and chk.free_space <= MAX_FREE_SPACE
+        and chk.agree >= cfg.min_agree_points
+    )
 
 
 #: Routes whose verified poses of a pair are turns of one another in a repeating room (the

@@ -1,0 +1,70 @@
+"""``fuseflow.calibrate`` on a recording pools frames as ``fuseflow calibrate`` does (one policy,
+``calib.pooling``), and the API warns once per camera left unplaced or not "good"."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+import fuseflow
+from fuseflow.calib.errors import CalibrationError, CalibrationWarning
+from fuseflow.cli import app as cli_app
+from fuseflow.errors import FuseFlowError, ValidationError
+
+
+@pytest.fixture(scope="module")
+def ring4_rec(tmp_path_factory):
+    """The simulated 4-camera 320x240 dynamic room ring of six frames."""
+    from fuseflow.synth import SimConfig, simulate_recording
+
+    out = tmp_path_factory.mktemp("ring4") / "rec"
+    cfg = SimConfig(cameras=4, frames=6, scene="room", dynamic=True, resolution=(320, 240), seed=1)
+    simulate_recording(out, cfg)
+    return out
+
+
+def test_api_on_a_recording_gives_the_cli_result_and_warns_per_camera(ring4_rec, tmp_path):
+    rec = fuseflow.open_recording(ring4_rec)
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        cal = fuseflow.calibrate(rec)
+    out = tmp_path / "c.json"
+    res = CliRunner().invoke(cli_app, ["calibrate", str(ring4_rec), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    cli = fuseflow.read_calibration(out)
+    assert set(cal.T_cam_world) == set(cli.T_cam_world)
+    for c in cal.T_cam_world:
+        np.testing.assert_allclose(cal.T_cam_world[c], cli.T_cam_world[c], atol=1e-6)
+    unsure = [c for c in rec.rig.ids if cal.report.camera_verdicts[c]["verdict"] != "good"]
+    ours = [str(w.message) for w in got if issubclass(w.category, CalibrationWarning)]
+    assert len(ours) == len(unsure) and all(f"camera {c} " in m for c, m in zip(unsure, ours, strict=True))
+
+
+def test_api_warns_for_an_unplaced_camera(ring4_rec):
+    """A camera whose view shows nothing of the scene (noise on a flat wall) is unplaced: one
+    CalibrationWarning names it."""
+    rec = fuseflow.open_recording(ring4_rec)
+    f = rec[0]
+    color, depth = f.color.clone(), f.depth.clone()
+    rng = np.random.default_rng(0)
+    color[3] = torch.from_numpy(rng.integers(0, 255, color[3].shape, dtype=np.uint8))
+    depth[3] = 3.0
+    frame = type(f)(f.index, f.camera_ids, color, depth, f.present)
+    bare = fuseflow.Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
+    with pytest.warns(CalibrationWarning, match=r"camera cam03 unplaced"):
+        cal = fuseflow.calibrate(frame, bare)
+    assert "cam03" not in cal.T_cam_world
+
+
+def test_api_on_a_recording_rejects_another_rig(ring4_rec):
+    rec = fuseflow.open_recording(ring4_rec)
+    other = fuseflow.Rig(rec.rig.cameras[:3])
+    with pytest.raises(ValidationError, match="differ from the recording"):
+        fuseflow.calibrate(rec, other)
+    with pytest.raises(ValidationError, match="a rig is needed"):
+        fuseflow.calibrate(rec[0])
+    assert issubclass(CalibrationError, FuseFlowError)
