@@ -60,7 +60,7 @@ const fs = require("fs"); const { decodeFrame } = require(process.argv[2]); cons
 def fused_clouds(data_dir: Path, work: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """name -> (xyz float32, rgb uint8): hocap8-200k and sim8-200k."""
     from fuseflow.fuse import fuse
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
     from fuseflow.io import open_recording
     from fuseflow.io.hocap import convert_hocap
     from fuseflow.synth import SimConfig, simulate_recording

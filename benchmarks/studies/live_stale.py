@@ -82,7 +82,7 @@ def _stand_in(recording, ms: float):
     import time
 
     from fuseflow.fuse import fuse
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
 
     cloud = fuse(recording[0], recording.rig, preset_config("live", None))
 

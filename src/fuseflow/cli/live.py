@@ -57,7 +57,7 @@ def _check_replay(source, calibration, settings) -> list[str]:
     rec = getattr(source, "rec", None)
     if rec is None or not len(rec):
         return []
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
     from fuseflow.live.app import rig_for_live
     from fuseflow.pipeline.checks import validate_inputs
     from fuseflow.pipeline.exports import resolve_crop

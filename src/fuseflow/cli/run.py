@@ -107,20 +107,14 @@ def command(
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
     from fuseflow.fuse.presets import preset_config
-    from fuseflow.io import open_recording, read_calibration
+    from fuseflow.io import open_recording
     from fuseflow.pipeline import PipelineConfig, RayOptions, run
 
     check_device(device)
     check_fuse_options(preset, points, settings)
     outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
-    if calib is not None and use_rig:
-        fail("--calib and --use-rig both choose the extrinsics; pass one")
     recording = open_recording(rec)
-    if use_rig and not recording.rig.is_calibrated:  # as `fuseflow fuse` refuses, not GMAC in its place
-        fail(
-            f"--use-rig: {rec}/rig.json has no extrinsics: run fuseflow calibrate first, pass --calib, or drop --use-rig"
-        )
-    calibration = read_calibration(calib) if calib is not None else None
+    calibration = _given_extrinsics(rec, recording, calib, use_rig)
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None
     if sync_offsets == "auto" and ray_opts is not None:
         fail("--sync-offsets auto re-times views in this process; use check or off with --ray")
@@ -147,6 +141,20 @@ def command(
     _print_summary(summary)
     if gmac:
         _print_calibration(recording, out, summary.calibration_frame)
+
+
+def _given_extrinsics(rec: Path, recording, calib: Path | None, use_rig: bool):
+    """The calibration ``--calib`` names (None for rig.json's or GMAC's); refuses ``--calib`` with
+    ``--use-rig``, and ``--use-rig`` on a rig without extrinsics (as ``fuseflow fuse`` does)."""
+    from fuseflow.io import read_calibration
+
+    if calib is not None and use_rig:
+        fail("--calib and --use-rig both choose the extrinsics; pass one")
+    if use_rig and not recording.rig.is_calibrated:
+        fail(
+            f"--use-rig: {rec}/rig.json has no extrinsics: run fuseflow calibrate first, pass --calib, or drop --use-rig"
+        )
+    return read_calibration(calib) if calib is not None else None
 
 
 def _print_calibration(recording, out: Path, number: int | None) -> None:

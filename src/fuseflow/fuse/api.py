@@ -423,7 +423,7 @@ def fuse_frame(frame: Frame, rig: Rig, config: FuseConfig | None = None) -> Fuse
 
     ``fuseflow.fuse.fuse`` / ``fuse_with_report`` are the engine underneath: FuseConfig() by
     default, the cloud where the frame's tensors are, warnings in the report and the log."""
-    from fuseflow.fuse.config import PRESETS
+    from fuseflow.fuse.presets import PRESETS
 
     if not isinstance(frame, Frame):
         raise ValidationError(f"frame must be a fuseflow.Frame, got {type(frame).__name__}")
