@@ -29,7 +29,18 @@ import numpy as np
 from fuseflow.errors import ValidationError
 from fuseflow.types import FusedCloud, Rig, as_tensor, to_numpy
 
-__all__ = ["CaptureVolume", "capture_volume", "aim_point", "parse_crop", "crop_cloud", "RING_SHARE"]
+__all__ = [
+    "CaptureVolume",
+    "capture_volume",
+    "covisible_points",
+    "seen_count",
+    "seen_volume",
+    "aim_point",
+    "parse_crop",
+    "crop_cloud",
+    "RING_SHARE",
+    "HEADROOM_M",
+]
 
 RING_SHARE = 0.7
 """Half-width of a ring's box as a share of the cameras' median distance from the ring axis
@@ -46,7 +57,13 @@ class CaptureVolume:
     hi: np.ndarray
     T_box_world: np.ndarray = field(default_factory=lambda: np.eye(4))
     kind: str = "explicit"
-    """"explicit" (given), "ring" (cameras around an aim point) or "frusta" (overlap of frusta)."""
+    """"explicit" (given), "seen" / "seen-ring" (what the cameras see together, ``seen_volume``),
+    "ring" (cameras around an aim point) or "frusta" (overlap of frusta)."""
+    radius: float | None = None
+    """When set, the box is also cut to the vertical cylinder (along the box frame's z) of this
+    radius around ``axis`` (metres)."""
+    axis: tuple[float, float] | None = None
+    """(x, y) of the cylinder's axis in the box frame (with ``radius``)."""
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.lo, np.float64).reshape(-1), np.asarray(self.hi, np.float64).reshape(-1)
@@ -67,15 +84,22 @@ class CaptureVolume:
             or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-5)
         ):
             raise ValidationError("capture volume: T_box_world must be a 4x4 rigid transform")
+        if self.radius is not None and not (math.isfinite(self.radius) and self.radius > 0 and self.axis is not None):
+            raise ValidationError(f"capture volume: radius must be a positive number with an axis, got {self.radius!r}")
         object.__setattr__(self, "lo", lo)
         object.__setattr__(self, "hi", hi)
         object.__setattr__(self, "T_box_world", T)
+        if self.axis is not None:
+            object.__setattr__(self, "axis", (float(self.axis[0]), float(self.axis[1])))
 
     def contains(self, xyz: np.ndarray) -> np.ndarray:
         """(M,) bool: which world points (M, 3) lie inside the box."""
         xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
         p = xyz @ self.T_box_world[:3, :3].T + self.T_box_world[:3, 3]
-        return np.all((p >= self.lo) & (p <= self.hi), axis=1)
+        inside = np.all((p >= self.lo) & (p <= self.hi), axis=1)
+        if self.radius is not None:
+            inside &= np.hypot(p[:, 0] - self.axis[0], p[:, 1] - self.axis[1]) <= self.radius
+        return inside
 
     def corners(self) -> np.ndarray:
         """(8, 3) world coordinates of the box's corners."""
@@ -90,13 +114,17 @@ class CaptureVolume:
 
     def to_json(self) -> dict[str, Any]:
         """calib.json's ``capture_volume`` entry (io.calibration writes it)."""
-        return {
+        doc = {
             "min": [round(float(v), 6) for v in self.lo],
             "max": [round(float(v), 6) for v in self.hi],
             "T_box_world": np.round(self.T_box_world, 9).tolist(),
             "kind": self.kind,
             "units": "m",
         }
+        if self.radius is not None:
+            doc["radius"] = round(float(self.radius), 6)
+            doc["axis"] = [round(v, 6) for v in self.axis]
+        return doc
 
     @classmethod
     def from_json(cls, doc: Any, where: str = "capture_volume") -> CaptureVolume:
@@ -111,7 +139,12 @@ class CaptureVolume:
         except (TypeError, ValueError) as exc:
             raise ValidationError(f"{where}: min, max and T_box_world must be numbers ({exc})") from None
         try:
-            return cls(lo, hi, T, str(doc.get("kind", "explicit")))
+            radius = None if doc.get("radius") is None else float(doc["radius"])
+            axis = None if doc.get("axis") is None else tuple(float(v) for v in doc["axis"])[:2]
+        except (TypeError, ValueError) as exc:
+            raise ValidationError(f"{where}: radius and axis must be numbers ({exc})") from None
+        try:
+            return cls(lo, hi, T, str(doc.get("kind", "explicit")), radius, axis)
         except ValidationError as exc:
             raise ValidationError(f"{where}: {exc}") from None
 
@@ -231,3 +264,129 @@ def capture_volume(rig: Rig) -> CaptureVolume:
     axes = np.array([T[:3, 2] / np.linalg.norm(T[:3, 2]) for T in poses])
     ring = _ring_volume(centres, axes)
     return ring if ring is not None else _frusta_volume(rig)
+
+
+HEADROOM_M = 2.2
+"""The seen volume reaches at most this far above the floor, or 0.3 m above the highest
+camera when that is higher (metres): a standing person's head is kept, a ceiling is not."""
+COVISIBLE_TOL_M = 0.02
+"""Another camera agrees with a point when its depth at the point's pixel is within this ..."""
+COVISIBLE_TOL_REL = 0.03
+"""... plus this share of the depth."""
+SEEN_MARGIN_M = 0.05
+"""Margin added around the seen points on every side (metres)."""
+
+
+def _backproject(depth: np.ndarray, cam, stride: int) -> np.ndarray:
+    """(M, 3) world points of every ``stride``-th pixel of ``depth`` within the depth range."""
+    d = np.asarray(depth, np.float64)[::stride, ::stride]
+    v, u = np.nonzero((d >= cam.depth_range[0]) & (d <= cam.depth_range[1]))
+    z = d[v, u]
+    K = cam.K
+    Xc = np.stack([(u * stride - K[0, 2]) / K[0, 0] * z, (v * stride - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    R, t = cam.T_cam_world[:3, :3], cam.T_cam_world[:3, 3]
+    return (Xc - t) @ R
+
+
+def _agrees(X: np.ndarray, depth: np.ndarray, cam) -> np.ndarray:
+    """(M,) bool: ``cam`` sees the world points X where its depth says a surface is."""
+    Xc = X @ cam.T_cam_world[:3, :3].T + cam.T_cam_world[:3, 3]
+    z = Xc[:, 2]
+    ok = (z >= cam.depth_range[0]) & (z <= cam.depth_range[1])
+    zs = np.where(ok, z, 1.0)
+    u = np.rint(cam.K[0, 0] * Xc[:, 0] / zs + cam.K[0, 1] * Xc[:, 1] / zs + cam.K[0, 2]).astype(np.int64)
+    v = np.rint(cam.K[1, 1] * Xc[:, 1] / zs + cam.K[1, 2]).astype(np.int64)
+    h, w = depth.shape
+    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    d = np.where(ok, depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)], 0.0)
+    return ok & (d > 0) & (np.abs(d - z) < COVISIBLE_TOL_M + COVISIBLE_TOL_REL * z)
+
+
+def seen_count(xyz: np.ndarray, depths, rig: Rig) -> np.ndarray:
+    """(M,) how many cameras of ``rig`` see the world points ``xyz`` (M, 3): the point lies in
+    the camera's frustum within its depth range and the camera's depth at its pixel agrees
+    (within ``COVISIBLE_TOL_M`` + ``COVISIBLE_TOL_REL`` of the depth). ``depths``: one (H, W)
+    depth image (metres, 0 = none) per camera, or None for a camera without a view."""
+    X = np.asarray(xyz, np.float64).reshape(-1, 3)
+    n = np.zeros(len(X), np.int64)
+    for d, cam in zip(depths, rig):
+        if d is not None and cam.is_calibrated:
+            n += _agrees(X, np.asarray(d, np.float64), cam)
+    return n
+
+
+def covisible_points(depths, rig: Rig, stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Every ``stride``-th depth pixel of each camera as a world point (M, 3), and (M,) how many
+    cameras see it: 1 (its own) plus the others that see it (``seen_count``). ``depths``: one
+    (H, W) depth image (metres, 0 = none) per camera of ``rig``, or None for a camera without a
+    view."""
+    pts, counts = [], []
+    for i, cam in enumerate(rig):
+        if depths[i] is None or not cam.is_calibrated:
+            continue
+        X = _backproject(depths[i], cam, stride)
+        others = [None if j == i else d for j, d in enumerate(depths)]
+        pts.append(X)
+        counts.append(1 + seen_count(X, others, rig))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    return np.concatenate(pts), np.concatenate(counts)
+
+
+def _surrounded(centres_xy: np.ndarray, middle: np.ndarray) -> bool:
+    """Whether cameras (xy on the floor) surround ``middle``: their largest azimuth gap is under
+    150 degrees."""
+    if len(centres_xy) < 3:
+        return False
+    d = centres_xy - middle
+    az = np.sort(np.degrees(np.arctan2(d[:, 1], d[:, 0])))
+    gaps = np.diff(np.concatenate([az, az[:1] + 360.0]))
+    return bool(gaps.max() < _MAX_GAP_DEG)
+
+
+RING_REACH = 1.45
+"""A ring's seen volume reaches this many times the farthest camera's distance from the
+cameras' centroid on the floor: a subject reaching out between the cameras is kept (HO-Cap's
+seated person, 1.36 times), a studio's walls are not (the simulated studio's backdrop stands
+at 1.54 times its ring)."""
+
+
+def seen_volume(
+    xyz: np.ndarray, count: np.ndarray, rig: Rig, T_floor_world: np.ndarray | None, min_cameras: int = 2
+) -> CaptureVolume | None:
+    """The box of what at least ``min_cameras`` cameras see together (``covisible_points``).
+
+    With a floor frame ``T_floor_world`` (floor-from-world, z up), the box is in that frame:
+    only the seen points above the floor (z > ``SEEN_MARGIN_M``) and below the head-room
+    (``HEADROOM_M``, or 0.3 m over the highest camera) count; when the cameras surround their
+    centroid on the floor (largest azimuth gap < 150 degrees), only the points within
+    ``RING_REACH`` times the farthest camera's distance from that centroid count, and the box is
+    also cut to that vertical cylinder (walls and stands stand farther out). The box is their
+    0.1-99.9 percentile extent plus ``SEEN_MARGIN_M``; it starts at the floor (z =
+    -``SEEN_MARGIN_M``). Without a floor frame: the same extent in world axes, no head-room.
+    None when fewer than 100 points are seen together."""
+    X = np.asarray(xyz, np.float64)[np.asarray(count) >= min_cameras]
+    T = np.eye(4) if T_floor_world is None else np.asarray(T_floor_world, np.float64)
+    P = X @ T[:3, :3].T + T[:3, 3]
+    kind = "seen"
+    if T_floor_world is not None:
+        tops = [float((T[:3, :3] @ c.T_world_cam[:3, 3] + T[:3, 3])[2]) for c in rig if c.is_calibrated]
+        headroom = max(HEADROOM_M, max(tops, default=0.0) + 0.3)
+        P = P[(P[:, 2] > SEEN_MARGIN_M) & (P[:, 2] < headroom)]
+        cams = np.array([T[:3, :3] @ c.T_world_cam[:3, 3] + T[:3, 3] for c in rig if c.is_calibrated])
+        radius = axis = None
+        if len(P) >= 100 and len(cams) >= 3 and _surrounded(cams[:, :2], cams[:, :2].mean(axis=0)):
+            axis = cams[:, :2].mean(axis=0)
+            radius = RING_REACH * float(np.linalg.norm(cams[:, :2] - axis, axis=1).max())
+            P = P[np.linalg.norm(P[:, :2] - axis, axis=1) <= radius]
+            kind = "seen-ring"
+    if len(P) < 100:
+        return None
+    lo = np.percentile(P, 0.1, axis=0) - SEEN_MARGIN_M
+    hi = np.percentile(P, 99.9, axis=0) + SEEN_MARGIN_M
+    if T_floor_world is None:
+        return CaptureVolume(lo, hi, T, kind)
+    lo[2] = -SEEN_MARGIN_M
+    if radius is None:
+        return CaptureVolume(lo, hi, T, kind)
+    return CaptureVolume(lo, hi, T, kind, radius, (float(axis[0]), float(axis[1])))
