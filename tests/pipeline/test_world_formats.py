@@ -188,3 +188,42 @@ def test_voxel_thins_each_cloud_to_one_point_a_cube(studio, tmp_path):
     thin = read_ply(tmp_path / "v" / "clouds" / "000000.ply")
     cells = np.floor(thin.xyz.numpy().astype(np.float64) / 0.05)
     assert len(np.unique(cells, axis=0)) == len(thin) < 0.7 * len(whole)
+
+
+def test_view_refuses_weight_colours_from_draco_clouds(studio, tmp_path):
+    out = tmp_path / "o"
+    fuse_recording(studio, out, frames=range(1), outputs=OutputOptions(cloud_format="drc"))
+    r = _invoke("view", out, "--save-png", tmp_path / "png", "--color-by", "weight")
+    assert r.exit_code != 0 and "weight" in r.output and ".drc" in r.output and not list(tmp_path.glob("png/*.png"))
+    fuse_recording(studio, out, frames=range(1), outputs=OutputOptions(cloud_format="drc,ply"))
+    r = _invoke("view", out, "--save-png", tmp_path / "png", "--color-by", "weight")
+    assert r.exit_code == 0, r.output  # the PLY of the same frame keeps the weights
+    assert [p.name for p in (tmp_path / "png").glob("*.png")] == ["000000.png"]
+
+
+def test_rerun_log_subsamples_unless_asked_for_every_point(tmp_path):
+    pytest.importorskip("rerun")
+    from fuseflow.types import FusedCloud
+    from fuseflow.viz.rerun_log import RerunLogger
+
+    n = 250_000
+    rng = np.random.default_rng(0)
+    cloud = FusedCloud.from_numpy(rng.random((n, 3)), np.zeros((n, 3)), np.ones(n), np.zeros(n))
+    small, full = RerunLogger(save_to=tmp_path / "s.rrd"), RerunLogger(save_to=tmp_path / "f.rrd")
+    assert small.log_cloud(0, cloud) == 100_000 and full.log_cloud(0, cloud, max_points=None) == n
+    small.close()
+    full.close()
+    assert (tmp_path / "s.rrd").stat().st_size < 0.6 * (tmp_path / "f.rrd").stat().st_size
+
+
+def test_splat_renderer_draws_an_opaque_splat_where_it_projects():
+    from fuseflow.viz.splat_render import render_splats
+
+    K = np.array([[100.0, 0, 49.5], [0, 100.0, 49.5], [0, 0, 1]])
+    xyz = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 3.0], [0.5, 0.5, 2.0]])
+    rgb = np.array([[255, 0, 0], [0, 0, 255], [0, 255, 0]])
+    img = render_splats(xyz, rgb, np.full(3, 0.1), np.array([0.99, 0.99, 0.5]), K, np.eye(4), 100, 100)
+    assert img[50, 50, 0] > 240 and img[50, 50, 2] < 10  # the red splat hides the blue one behind it
+    g = img[75, 75].astype(int)  # the half-transparent green splat over the white background
+    assert g[1] > 240 and 100 < g[0] < 160
+    assert tuple(img[5, 5]) == (255, 255, 255)

@@ -344,49 +344,68 @@ def _surrounded(centres_xy: np.ndarray, middle: np.ndarray) -> bool:
     return bool(gaps.max() < _MAX_GAP_DEG)
 
 
-RING_REACH = 1.45
-"""A ring's seen volume reaches this many times the farthest camera's distance from the
-cameras' centroid on the floor: a subject reaching out between the cameras is kept (HO-Cap's
-seated person, 1.36 times), a studio's walls are not (the simulated studio's backdrop stands
-at 1.54 times its ring)."""
+RING_REACH_M = 0.5
+"""A ring's seen volume reaches this far beyond its farthest camera from the middle of what the
+cameras see (metres): a subject leaning in between the cameras is kept (HO-Cap's seated
+person reaches 0.3 m beyond them), a studio's walls, a metre or more behind the cameras, are
+not. Measured with ``benchmarks/outputs_world_crop.py`` (docs/formats.md, "Crop")."""
+
+
+def _ring(P: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(middle, radius) of the cylinder a ring keeps (``seen_volume``), or None when the cameras
+    (floor-frame centres) do not surround the middle of the points P."""
+    if len(P) < 100 or len(cams) < 3:
+        return None
+    middle = np.median(P[:, :2], axis=0)
+    if not _surrounded(cams[:, :2], middle):
+        return None
+    return middle, float(np.linalg.norm(cams[:, :2] - middle, axis=1).max()) + RING_REACH_M
 
 
 def seen_volume(
-    xyz: np.ndarray, count: np.ndarray, rig: Rig, T_floor_world: np.ndarray | None, min_cameras: int = 2
+    xyz: np.ndarray, count: np.ndarray, rig: Rig, T_floor_world: np.ndarray | None, min_cameras: int | None = None
 ) -> CaptureVolume | None:
-    """The box of what at least ``min_cameras`` cameras see together (``covisible_points``).
+    """The box of what several cameras see together (``covisible_points``): at least
+    ``min_cameras`` (default: 2 in a ring, half the placed cameras, at least 2, on one side).
 
     With a floor frame ``T_floor_world`` (floor-from-world, z up), the box is in that frame:
     only the seen points above the floor (z > ``SEEN_MARGIN_M``) and below the head-room
-    (``HEADROOM_M``, or 0.3 m over the highest camera) count; when the cameras surround their
-    centroid on the floor (largest azimuth gap < 150 degrees), only the points within
-    ``RING_REACH`` times the farthest camera's distance from that centroid count, and the box is
-    also cut to that vertical cylinder (walls and stands stand farther out). The box is their
-    0.1-99.9 percentile extent plus ``SEEN_MARGIN_M``; it starts at the floor (z =
-    -``SEEN_MARGIN_M``). Without a floor frame: the same extent in world axes, no head-room.
+    (``HEADROOM_M``, or 0.3 m over the highest camera) count. When the cameras surround the
+    middle of those points on the floor (their median; largest azimuth gap of the cameras
+    around it < 150 degrees: a ring), each part of the subject is seen by the cameras on its
+    side only, so points 2 cameras see count, within ``RING_REACH_M`` beyond the farthest
+    camera's distance from that middle, and the box is also cut to that vertical cylinder
+    (walls stand farther out); across, the box is that cylinder's square, and up, the seen
+    points' extent. On one side, every camera looks at the subject: the points half of them see
+    count (the edges of what fewer see move with the cameras' spacing), and the box is their
+    extent. An extent is the 0.1-99.9 percentile range plus ``SEEN_MARGIN_M``; the box starts at
+    the floor (z = -``SEEN_MARGIN_M``). Without a floor frame: the same extent in world axes, no head-room.
     None when fewer than 100 points are seen together."""
-    X = np.asarray(xyz, np.float64)[np.asarray(count) >= min_cameras]
+    count = np.asarray(count)
     T = np.eye(4) if T_floor_world is None else np.asarray(T_floor_world, np.float64)
-    P = X @ T[:3, :3].T + T[:3, 3]
-    kind = "seen"
+    P = np.asarray(xyz, np.float64) @ T[:3, :3].T + T[:3, 3]
+    placed = [c for c in rig if c.is_calibrated]
+    cams = np.array([T[:3, :3] @ c.T_world_cam[:3, 3] + T[:3, 3] for c in placed]).reshape(-1, 3)
+    keep = np.ones(len(P), bool)
     if T_floor_world is not None:
-        tops = [float((T[:3, :3] @ c.T_world_cam[:3, 3] + T[:3, 3])[2]) for c in rig if c.is_calibrated]
-        headroom = max(HEADROOM_M, max(tops, default=0.0) + 0.3)
-        P = P[(P[:, 2] > SEEN_MARGIN_M) & (P[:, 2] < headroom)]
-        cams = np.array([T[:3, :3] @ c.T_world_cam[:3, 3] + T[:3, 3] for c in rig if c.is_calibrated])
-        radius = axis = None
-        if len(P) >= 100 and len(cams) >= 3 and _surrounded(cams[:, :2], cams[:, :2].mean(axis=0)):
-            axis = cams[:, :2].mean(axis=0)
-            radius = RING_REACH * float(np.linalg.norm(cams[:, :2] - axis, axis=1).max())
-            P = P[np.linalg.norm(P[:, :2] - axis, axis=1) <= radius]
-            kind = "seen-ring"
+        headroom = max(HEADROOM_M, float(cams[:, 2].max(initial=0.0)) + 0.3)
+        keep = (P[:, 2] > SEEN_MARGIN_M) & (P[:, 2] < headroom)
+    ring = _ring(P[keep & (count >= 2)], cams) if T_floor_world is not None else None
+    if min_cameras is None:
+        min_cameras = 2 if ring is not None else max(2, int(np.ceil(len(placed) / 2)))
+    keep &= count >= min_cameras
+    if ring is not None:
+        keep &= np.linalg.norm(P[:, :2] - ring[0], axis=1) <= ring[1]
+    P = P[keep]
     if len(P) < 100:
         return None
     lo = np.percentile(P, 0.1, axis=0) - SEEN_MARGIN_M
     hi = np.percentile(P, 99.9, axis=0) + SEEN_MARGIN_M
     if T_floor_world is None:
-        return CaptureVolume(lo, hi, T, kind)
+        return CaptureVolume(lo, hi, T, "seen")
     lo[2] = -SEEN_MARGIN_M
-    if radius is None:
-        return CaptureVolume(lo, hi, T, kind)
-    return CaptureVolume(lo, hi, T, kind, radius, (float(axis[0]), float(axis[1])))
+    if ring is None:
+        return CaptureVolume(lo, hi, T, "seen")
+    lo[:2], hi[:2] = ring[0] - ring[1], ring[0] + ring[1]  # across: the cylinder, set by the cameras
+    axis = (float(ring[0][0]), float(ring[0][1]))
+    return CaptureVolume(lo, hi, T, "seen-ring", ring[1], axis)

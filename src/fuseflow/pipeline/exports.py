@@ -244,7 +244,10 @@ def resolve_outputs(
             world = _camera_world(choice if choice != "auto" else "camera:", rig, floor)
     if seen_pts is not None:
         seen = seen_volume(*seen_pts, rig, world.T_out_world if world.name == "floor" else None)
-    return world, resolve_crop(options.crop, rig, calibration, world, seen)
+    volume = resolve_crop(options.crop, rig, calibration, world, seen)
+    # as calib.json stores them: a resumed call crops and places exactly as the first one
+    world = World.from_json(world.to_json())
+    return world, None if volume is None else CaptureVolume.from_json(volume.to_json())
 
 
 @dataclass

@@ -31,8 +31,9 @@ def _setup(rec_dir: str, calib: str | None, t: int = 0):
     from fuseflow.pipeline.exports import resolve_outputs
 
     rec = open_recording(rec_dir)
-    rig = read_calibration(calib).apply(rec.rig) if calib else rec.rig
-    world, volume = resolve_outputs(OutputOptions(crop="auto"), rig, None, rec[t])
+    cal = read_calibration(calib) if calib else None  # its floors (a GMAC report), as ``run`` reads them
+    rig = cal.apply(rec.rig) if cal is not None else rec.rig
+    world, volume = resolve_outputs(OutputOptions(crop="auto"), rig, cal, rec[t])
     return rec, rig, world, volume
 
 
