@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from fuseflow.viz.splat_render import save_splat_png
+from fuseflow.viz import save_splat_png
 
 
 def main() -> None:

@@ -227,3 +227,25 @@ def test_splat_renderer_draws_an_opaque_splat_where_it_projects():
     g = img[75, 75].astype(int)  # the half-transparent green splat over the white background
     assert g[1] > 240 and 100 < g[0] < 160
     assert tuple(img[5, 5]) == (255, 255, 255)
+
+
+def test_range_mesh_joins_each_cameras_points_and_skips_depth_edges(studio):
+    from fuseflow.fuse import fuse
+    from fuseflow.io import open_recording
+    from fuseflow.pipeline.mesh import mesh_range
+
+    rec = open_recording(studio)
+    cloud = fuse(rec[0], rec.rig).numpy()
+    mesh = mesh_range(cloud, rec.rig)
+    xyz = np.asarray(cloud.xyz)
+    assert len(mesh.faces) > len(cloud) // 4
+    # the vertices are fused points, with their colours
+    from scipy.spatial import cKDTree
+
+    d, i = cKDTree(xyz).query(mesh.vertices)
+    assert d.max() < 1e-6 and np.array_equal(mesh.colors, np.asarray(cloud.rgb)[i])
+    v = mesh.vertices[mesh.faces]
+    edge = np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2).max(axis=1)
+    assert edge.max() < 0.5  # no triangle bridges a depth edge (without the edge limit: 0.88 m)
+    n = np.linalg.norm(mesh.normals, axis=1)
+    assert np.allclose(n[n > 0], 1, atol=1e-4)

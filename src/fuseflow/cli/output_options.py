@@ -31,7 +31,12 @@ VOXEL = typer.Option(
 DRC_ERROR = typer.Option(1.0, "--drc-error-mm", help="Draco position error bound, millimetres.")
 MESH = typer.Option(False, "--mesh", help="Also write a mesh per frame: meshes/<frame>.glb.")
 MESH_PLY = typer.Option(False, "--mesh-ply", help="With --mesh, also meshes/<frame>.ply.")
-MESH_METHOD = typer.Option("poisson", "--mesh-method", help="poisson (default), tsdf or bpa (ball pivoting).")
+MESH_METHOD = typer.Option(
+    "range",
+    "--mesh-method",
+    help="range (default: each camera's fused points as a range image, merged; under 1 CPU s a frame), "
+    "poisson (screened Poisson), tsdf or bpa (ball pivoting).",
+)
 
 
 def output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method, world=None, voxel=None):

@@ -32,8 +32,9 @@ class OutputOptions:
     """Also write meshes/<frame:06d>.glb (``pipeline.mesh``)."""
     mesh_ply: bool = False
     """With ``mesh``, also meshes/<frame:06d>.ply."""
-    mesh_method: str = "poisson"
-    """``pipeline.mesh.MESH_METHODS``: tsdf, poisson or bpa."""
+    mesh_method: str = "range"
+    """``pipeline.mesh.MESH_METHODS``: range (default: each camera's points as a range image,
+    merged), tsdf, poisson or bpa."""
     world: str | None = None
     """The output frame (``geometry.world``): None = "floor" when a floor is found, else the
     first camera's; "floor"; "camera:<id>"; "calib" (the calibration's world as it is)."""
@@ -66,8 +67,8 @@ class OutputOptions:
             raise ValidationError(f"--voxel must be a positive number of millimetres, got {self.voxel_mm!r}")
         if not (isinstance(self.drc_error_mm, (int, float)) and 0 < self.drc_error_mm < 1e4):
             raise ValidationError(f"drc_error_mm must be a positive number of millimetres, got {self.drc_error_mm!r}")
-        if self.mesh_method not in ("tsdf", "poisson", "bpa"):
-            raise ValidationError(f"mesh method must be tsdf, poisson or bpa, got {self.mesh_method!r}")
+        if self.mesh_method not in ("tsdf", "poisson", "bpa", "range"):
+            raise ValidationError(f"mesh method must be tsdf, poisson, bpa or range, got {self.mesh_method!r}")
         if self.crop is not None and self.crop != "auto":
             from fuseflow.geometry.volume import parse_crop
 

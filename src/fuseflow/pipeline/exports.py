@@ -288,6 +288,19 @@ class FrameWriter:
             c = FusedCloud.from_numpy(self.world.apply(c.xyz), c.rgb, c.weight, c.camera, c.support)
         return thin_cloud(c, self.options.voxel_mm)
 
+    def _by_rig(self, cloud: FusedCloud) -> FusedCloud:
+        """For the "range" mesh: the cloud with ``camera`` as an index into ``rig`` (the written
+        clouds index the recording's cameras, ``centres``' rows; NaN rows: not fused)."""
+        if self.options.mesh_method != "range" or self.centres is None or len(self.centres) == len(self.rig):
+            return cloud
+        c = cloud.numpy()
+        present = np.nonzero(np.isfinite(self.centres).all(axis=1))[0]
+        remap = np.full(len(self.centres), -1, np.int64)
+        remap[present] = np.arange(len(present))
+        cam = np.asarray(c.camera, np.int64)
+        cam = np.where((cam >= 0) & (cam < len(remap)), remap[np.clip(cam, 0, len(remap) - 1)], -1)
+        return FusedCloud.from_numpy(c.xyz, c.rgb, c.weight, cam, c.support)
+
     def _up(self) -> np.ndarray | None:
         return None if self.world is None else self.world.gltf_from_out
 
@@ -303,7 +316,7 @@ class FrameWriter:
             from fuseflow.pipeline.mesh import mesh_frame
 
             views = frame() if (opts.mesh_method == "tsdf" and frame is not None) else None
-            mesh = mesh_frame(cloud, views, self.rig, opts.mesh_method, self.volume, self.centres)
+            mesh = mesh_frame(self._by_rig(cloud), views, self.rig, opts.mesh_method, self.volume, self.centres)
             if self.world is not None and self.world.name != "calib":
                 mesh = type(mesh)(
                     self.world.apply(mesh.vertices), mesh.faces, mesh.colors, self.world.rotate(mesh.normals)
