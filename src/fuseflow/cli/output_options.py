@@ -8,8 +8,8 @@ import typer
 CROP = typer.Option(
     None,
     "--crop",
-    help="Off unless given: every fused point is written. auto: keep the box of what at least two cameras "
-    "see together, from the floor up to head-room (stored in calib.json); or xmin,ymin,zmin,xmax,ymax,zmax "
+    help="Off unless given: every fused point is written. auto: keep the box of what several cameras "
+    "see together (a ring: any two; one side: half of them), from the floor up to head-room (stored in calib.json); or xmin,ymin,zmin,xmax,ymax,zmax "
     "in metres, in the output frame (--world).",
 )
 FORMAT = typer.Option(

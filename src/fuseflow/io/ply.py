@@ -1,7 +1,7 @@
 """Fused clouds as PLY files.
 
 ``write_ply`` writes binary little-endian PLY with one ``vertex`` element and the properties
-``x y z`` (float32, metres, world frame), ``red green blue`` (uint8), ``weight`` (float32, the
+``x y z`` (float32, metres; ``run`` and ``fuse`` write them in their output frame, ``--world``), ``red green blue`` (uint8), ``weight`` (float32, the
 fusion weight of eq. 22) and ``camera`` (int16, source camera index in rig order). Open3D,
 trimesh, CloudCompare and MeshLab read it (unknown properties are ignored by viewers).
 
@@ -49,7 +49,7 @@ def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
         arr["support"] = c.support
         extra = "property short support\n"
     header = (
-        "ply\nformat binary_little_endian 1.0\ncomment fuseflow fused cloud, metres, world frame\n"
+        "ply\nformat binary_little_endian 1.0\ncomment fuseflow fused cloud, metres, output frame (manifest.json world)\n"
         f"element vertex {len(c)}\n"
         "property float x\nproperty float y\nproperty float z\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\n"

@@ -19,9 +19,10 @@ class OutputOptions:
     """What a run or fuse writes for each frame besides its log (docs/formats.md)."""
 
     crop: str | None = None
-    """None: keep every fused point; "auto": crop to the capture volume (calib.json's
-    ``capture_volume`` when it has one, else ``geometry.volume.capture_volume`` of the rig);
-    "xmin,ymin,zmin,xmax,ymax,zmax": that world box, metres."""
+    """None: keep every fused point (cropping is off unless asked); "auto": crop to the capture
+    volume (calib.json's ``capture_volume`` when it has one, else the box of what the cameras see
+    together, ``geometry.volume.seen_volume``); "xmin,ymin,zmin,xmax,ymax,zmax": that box in the
+    output frame (``world``), metres."""
     cloud_format: str = "ply"
     """Cloud files, one or several joined by commas ("ply,drc,glb,splat"): binary PLY (all
     fields), Draco (positions within ``drc_error_mm``, colours), a GLB point cloud (positions,

@@ -1,9 +1,12 @@
-"""The per-frame files of a run or fuse besides its log: the cropped cloud in its format, the
-optional mesh, and the ``sequence`` entry of manifest.json that lets a player stream the folder.
+"""The per-frame files of a run or fuse besides its log: the cloud in each asked format (PLY,
+Draco, GLB, Gaussian splats) in the output frame, the optional mesh, and the ``sequence`` entry
+of manifest.json that lets a player stream the folder.
 
 Library entry points for any frame loop (``run``, ``fuse_recording``, a live source):
-``resolve_crop(crop, rig, calibration)`` -> a ``CaptureVolume`` or None, then
-``geometry.volume.crop_cloud(cloud, volume)`` per frame; ``FrameWriter`` writes a frame's files.
+``resolve_outputs(options, rig, calibration, frame)`` -> the output frame (``geometry.world.World``:
+the floor frame when a floor is found) and the crop (a ``CaptureVolume`` or None), then
+``geometry.volume.crop_cloud(cloud, volume)`` and ``world.apply(xyz)`` per frame;
+``resolve_crop(crop, rig, calibration)`` alone for the crop; ``FrameWriter`` writes a frame's files.
 """
 
 from __future__ import annotations
