@@ -92,14 +92,14 @@ def test_help_tells_auto_and_the_outputs():
     assert " -t" not in calibrate
 
 
-#: Tolerance of the demo numbers usage.md quotes (section 0: the mean of the 10-frame demo)
-#: against the 2-frame demo run of tests/conftest.py (same rig, seed and settings; frames 0-1 of
-#: the 10): points per frame and MB per PLY within 5 %; the PLY's bytes a point exactly.
-#: Measured: frames 0 and 1 of `fuseflow demo --cameras 8 --num-frames 2 --seed 1` 1178085 and
-#: 1174940 points, 27.10 and 27.02 MB, against the quoted 1173555 and 27 MB (+0.4 %, +0.1 %);
-#: all 10 frames with the true extrinsics (`fuseflow simulate --cameras 8 --num-frames 10
-#: --scene studio --dynamic --seed 1`, `fuseflow run --use-rig`): 1168418-1175889.
+#: Tolerance of the demo numbers usage.md quotes (section 0: the 10-frame demo) against the
+#: 2-frame demo run of tests/conftest.py (same rig, seed and settings; frames 0-1 of the 10):
+#: points per frame within 5 %: all 10 frames with the true extrinsics (`fuseflow simulate
+#: --cameras 8 --num-frames 10 --scene studio --dynamic --seed 1`, `fuseflow run --use-rig`) gave
+#: 1168418-1175889 points. A Draco frame's size depends on the points' spread as well as their
+#: count: within 10 %.
 POINTS_TOLERANCE = 0.05
+DRACO_TOLERANCE = 0.10
 
 
 def _quoted(pattern: str, text: str) -> str:
@@ -109,28 +109,27 @@ def _quoted(pattern: str, text: str) -> str:
 
 
 def test_usage_doc_demo_numbers_match_a_demo_run(demo_run):
-    """The demo's size in section 0 (points per frame, MB per PLY) and in section 4's "Sizes"
-    (points per frame, bytes a point, MB per frame) agree with each other and with a demo run."""
-    from fuseflow.io.ply import ply_point_count
+    """The demo's size in section 0 (points per frame, MB per Draco frame) and in section 4's
+    "Sizes" (points per frame, bytes a PLY point, MB per frame as PLY) agree with each other and
+    with a demo run (points within POINTS_TOLERANCE, Draco MB within DRACO_TOLERANCE)."""
+    from fuseflow.io.exchange import read_cloud
 
     out, res = demo_run
     assert res.exit_code == 0, res.output
     text = USAGE.read_text()
     demo = text[text.index("## 0. ") : text.index("\n## 1. ")]
     sizes = text[text.index("Sizes: a PLY stores") :]
-    points = int(_quoted(r"([\d]+) points per frame, FUSE", demo))
-    mb_per_ply = float(_quoted(r"([\d.]+) MB per PLY", demo))
+    points = int(_quoted(r"([\d]+) points per frame", demo))
+    mb_per_drc = float(_quoted(r"([\d.]+) MB per Draco frame", demo))
     assert float(_quoted(r"demo's ([\d.]+) M points per frame", sizes)) == round(points / 1e6, 2)
-    assert float(_quoted(r"are ([\d.]+) MB per frame", sizes)) == mb_per_ply
     per_point = int(_quoted(r"a PLY stores (\d+) bytes per point", sizes))
-    plys = sorted((out / "clouds").glob("*.ply"))
-    assert len(plys) == 2
-    for ply in plys:
-        n = ply_point_count(ply)
-        header = ply.read_bytes().index(b"end_header\n") + len(b"end_header\n")
-        assert (ply.stat().st_size - header) == per_point * n, "bytes a point"
-        assert abs(n - points) <= POINTS_TOLERANCE * points, f"{ply.name}: {n} points, usage.md says {points}"
-        assert abs(ply.stat().st_size / 1e6 - mb_per_ply) <= POINTS_TOLERANCE * mb_per_ply
+    assert float(_quoted(r"are ([\d.]+) MB per frame as PLY", sizes)) == round(per_point * points / 1e6)
+    drcs = sorted((out / "clouds").glob("*.drc"))
+    assert len(drcs) == 2
+    for drc in drcs:
+        n = len(read_cloud(drc))
+        assert abs(n - points) <= POINTS_TOLERANCE * points, f"{drc.name}: {n} points, usage.md says {points}"
+        assert abs(drc.stat().st_size / 1e6 - mb_per_drc) <= DRACO_TOLERANCE * mb_per_drc, drc.stat().st_size
 
 
 def test_readme_api_snippet_shows_progress_and_verdicts(tmp_path, monkeypatch, capsys):

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from fuseflow.cli import app
-from fuseflow.io import read_ply, read_rig, write_calibration, write_rig
+from fuseflow.io import read_calibration, read_ply, read_rig, write_calibration, write_rig
 from fuseflow.types import Calibration
 
 
@@ -47,7 +47,9 @@ def test_fuse_writes_one_ply_per_frame_and_a_summary(rec, tmp_path):
 
     recording = open_recording(rec)
     direct = fuse(recording[1], recording.rig, PRESETS["auto"])
-    assert np.allclose(np.sort(direct.xyz.numpy(), axis=0), np.sort(clouds[1].xyz.numpy(), axis=0))
+    T = np.asarray(read_calibration(out / "calib.json").report["world"]["T_out_world"])  # the floor frame
+    back = (clouds[1].xyz.numpy().astype(np.float64) - T[:3, 3]) @ T[:3, :3]
+    assert np.allclose(np.sort(direct.xyz.numpy(), axis=0), np.sort(back, axis=0), atol=1e-5)
 
 
 def test_fuse_with_calib_frames_and_preset(rec, tmp_path):
@@ -70,7 +72,7 @@ def test_fuse_set_changes_one_setting_over_the_preset(rec, tmp_path):
 
     out = tmp_path / "out"
     res = _invoke("fuse", rec, "--out", out, "--frames", "1:2", "--preset", "default", "--set", "rps.k_max=1",
-                  "--set", "ash.s0=3")  # fmt: skip
+                  "--set", "ash.s0=3", "--world", "calib")  # fmt: skip
     assert res.exit_code == 0, res.output
     cloud = read_ply(out / "clouds" / "000001.ply")
     recording = open_recording(rec)

@@ -8,7 +8,8 @@ import math
 import cv2
 import numpy as np
 
-from fuseflow.io import read_calibration, read_ply
+from fuseflow.io import read_calibration
+from fuseflow.io.exchange import read_cloud
 
 
 def test_demo_writes_its_scores_pictures_and_clouds(demo_run):
@@ -25,8 +26,11 @@ def test_demo_writes_its_scores_pictures_and_clouds(demo_run):
     calib = read_calibration(out / "calib.json")
     assert len(calib.camera_ids) == d["cameras_placed"]
     for t in range(2):
-        cloud = read_ply(out / "clouds" / f"{t:06d}.ply")
+        cloud = read_cloud(out / "clouds" / f"{t:06d}.drc")  # the demo writes Draco (its size)
         assert len(cloud) == 0 or np.isfinite(cloud.xyz.numpy()).all()
+    assert calib.report["world"]["name"] == "floor"  # the clouds stand on the simulated floor, z up
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    assert size < 150e6 * 2 / 10  # 150 MB for the default 10 frames
     assert d["points_per_frame"] > 1000
     for png in d["png"]:
         img = cv2.imread(png)

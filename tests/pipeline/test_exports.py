@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from fuseflow.cli import app
 from fuseflow.geometry.volume import CaptureVolume
+from fuseflow.geometry.world import World
 from fuseflow.io import read_calibration
 from fuseflow.io.exchange import read_cloud
 from fuseflow.pipeline import fuse_recording
@@ -41,9 +42,10 @@ def test_fuse_crop_auto_drc_and_mesh(rec, tmp_path):
     seq = json.loads((out / "manifest.json").read_text())["sequence"]
     assert [f["index"] for f in seq["frames"]] == [0, 1]
     assert seq["cloud_format"] == "drc" and seq["units"] == "m" and seq["mesh"]["format"] == "glb"
-    vol = CaptureVolume.from_json(seq["crop"])
-    stored = CaptureVolume.from_json(read_calibration(out / "calib.json").report["capture_volume"])
-    assert np.allclose(stored.corners(), vol.corners())
+    vol = CaptureVolume.from_json(seq["crop"])  # in the output frame, as the clouds
+    cal = read_calibration(out / "calib.json")
+    stored = CaptureVolume.from_json(cal.report["capture_volume"])  # in the calibration's world
+    assert np.allclose(World.from_json(cal.report["world"]).apply(stored.corners()), vol.corners(), atol=1e-5)
     for f in seq["frames"]:
         cloud = read_cloud(out / f["cloud"])
         assert len(cloud) == f["points"] > 1000
@@ -51,13 +53,17 @@ def test_fuse_crop_auto_drc_and_mesh(rec, tmp_path):
         mesh = trimesh.load(out / f["mesh"], force="mesh")
         assert len(mesh.faces) == f["faces"] > 100
         assert (out / f["mesh_ply"]).exists()
-        d = cKDTree(cloud.xyz.numpy()).query(mesh.vertices)[0]
+        up = World.from_json(cal.report["world"]).gltf_from_out[:3, :3]  # the GLB node turns z up to +y up
+        d = cKDTree(cloud.xyz.numpy() @ up.T).query(mesh.vertices)[0]
         assert np.median(d) < 0.02 and d.max() <= 0.032  # trimmed at 3 cm from the points (+ Draco moves them <= 1 mm)
-    # the same call resumes; another format is a different output
+    # the same call resumes; another format is added to the same output; another crop is not
     s2 = fuse_recording(rec, out, outputs=opts)
     assert s2.frames_resumed == 2 and s.points_per_frame == s2.points_per_frame
-    r = _invoke("fuse", rec, "--out", out, "--format", "glb")
-    assert r.exit_code == 2 and "settings" in r.output
+    r = _invoke("fuse", rec, "--out", out, "--format", "glb", "--crop", "auto", "--mesh", "--mesh-ply")
+    assert r.exit_code == 0, r.output
+    assert (out / "clouds" / "000001.glb").exists()
+    r = _invoke("fuse", rec, "--out", out, "--format", "drc", "--mesh", "--mesh-ply")
+    assert r.exit_code == 2 and "settings" in r.output and "crop" in r.output
 
 
 def test_run_crop_box_glb_and_bad_boxes(rec, tmp_path):

@@ -12,6 +12,7 @@ import fuseflow
 from fuseflow.errors import FuseFlowError
 from fuseflow.io import open_recording, read_calibration, read_ply
 from fuseflow.pipeline import HealthMonitor, PipelineConfig, cloud_path, merge_recalibration, run, stream
+from fuseflow.pipeline.config import OutputOptions
 from fuseflow.types import Calibration, invert_rigid
 
 
@@ -94,7 +95,7 @@ def test_dropped_views_keep_the_stream_running(static_rec, tmp_path):
 
 def test_stream_yields_the_clouds_run_writes(dynamic_rec, tmp_path):
     out = tmp_path / "out"
-    run(dynamic_rec, out, use_rig_extrinsics=True)
+    run(dynamic_rec, out, use_rig_extrinsics=True, config=PipelineConfig(outputs=OutputOptions(world="calib")))
     clouds = list(stream(dynamic_rec))
     assert len(clouds) == 5
     for t, c in enumerate(clouds):

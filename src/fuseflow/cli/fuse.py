@@ -54,6 +54,8 @@ def command(
     mesh: bool = oo.MESH,
     mesh_ply: bool = oo.MESH_PLY,
     mesh_method: str = oo.MESH_METHOD,
+    world: str = oo.WORLD,
+    voxel: float = oo.VOXEL,
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
     from fuseflow.io import open_recording, read_calibration
@@ -61,7 +63,7 @@ def command(
 
     check_device(device)
     check_fuse_options(preset, points, settings)
-    outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
+    outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method, world, voxel)
     recording = open_recording(rec)
     calibration = read_calibration(calib) if calib is not None else None
     positions = parse_range(frames, len(recording))
@@ -89,6 +91,7 @@ def command(
             ),
             ("wall time", f"{s.wall_s:.1f} s with reading and writing ({s.frames / s.wall_s:.2f} frames/s)"),
             ("clouds", str(Path(out) / "clouds")),
+            *oo.output_rows(out),
         ],
     )
     if s.left_out:
@@ -104,4 +107,5 @@ EXAMPLES = """\b
 Examples:
   fuseflow fuse /tmp/studio --calib /tmp/studio-calib.json --out /tmp/studio-clouds --frames 0:10
   fuseflow fuse /tmp/studio --out /tmp/clouds --preset live     # extrinsics from rig.json
+  fuseflow fuse /tmp/studio --out /tmp/clouds --crop auto --format ply,glb,splat --voxel 5
 """

@@ -60,6 +60,7 @@ def _print_summary(s) -> None:
         rows.append(("recalibrated at", ", ".join(map(str, s.recalibrations))))
     if s.sync_offsets:
         rows.append(("out of sync", ", ".join(f"{c}: {k:+d} frames" for c, k in s.sync_offsets.items())))
+    rows += oo.output_rows(s.out_dir)
     rows.append(("output", output_size(Path(s.out_dir))))
     print_table(f"FUSE-Flow run: {s.out_dir}", rows)
     for w in s.warnings:  # on stderr: a run piped into a file or another tool still shows them
@@ -104,6 +105,8 @@ def command(
     mesh: bool = oo.MESH,
     mesh_ply: bool = oo.MESH_PLY,
     mesh_method: str = oo.MESH_METHOD,
+    world: str = oo.WORLD,
+    voxel: float = oo.VOXEL,
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
     from fuseflow.fuse.presets import preset_config
@@ -112,7 +115,7 @@ def command(
 
     check_device(device)
     check_fuse_options(preset, points, settings)
-    outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method)
+    outputs = oo.output_options(crop, fmt, drc_error_mm, mesh, mesh_ply, mesh_method, world, voxel)
     recording = open_recording(rec)
     calibration = _given_extrinsics(rec, recording, calib, use_rig)
     ray_opts = RayOptions(address=ray_address, num_cpus=ray_cpus) if (ray or ray_address) else None

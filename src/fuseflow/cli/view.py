@@ -19,6 +19,9 @@ def command(
     whole: bool = typer.Option(
         False, "--whole", help="PNG: draw every point (default: the capture volume the cameras look at)."
     ),
+    rerun_full: bool = typer.Option(
+        False, "--rerun-full", help="rerun: log every point (default: at most 100 000 a frame, an even subset)."
+    ),
 ) -> None:
     """Show fused clouds per frame (rerun: cameras as frustums, clouds on a timeline, weight as colour)."""
     from fuseflow.io.paths import check_output_file, prepare_output_dir
@@ -33,6 +36,11 @@ def command(
             "there is a display) or --save-png DIR"
         )
     source = view_source(path)
+    if color_by == "weight" and not source.weights:
+        fail(
+            f"--color-by weight: the clouds in {path} are Draco (.drc) files, which do not store FUSE's weight; "
+            "write ply or glb clouds as well (--format ply,drc) or use --color-by rgb"
+        )
     n_all = len(source.items)
     source = replace(source, items=[source.items[i] for i in parse_range(frames, n_all)])
     if not source.items:
@@ -49,7 +57,7 @@ def command(
     if rrd is not None:
         check_output_file(rrd)
     try:
-        n = send_to_rerun(source, rrd)
+        n = send_to_rerun(source, rrd, full=rerun_full)
     except RuntimeError as exc:  # rerun's gRPC connection to a viewer
         fail(
             f"the rerun viewer could not be reached ({str(exc).splitlines()[0][:120]}): use --rrd FILE or --save-png DIR"

@@ -10,8 +10,13 @@
    points each way, an unbiased estimate that keeps the demo fast). GMAC's world frame is its own (a reference
    camera); the cloud is moved into the simulator's world by the rigid (rotation +
    translation, no scale) fit of GMAC's camera centres onto the true ones;
-5. render the last fused frame headless to PNG (colour, and fusion weight) and, when rerun-sdk
-   is installed, log the rig and every fused frame to an .rrd file.
+5. render the last fused frame headless to PNG (colour, and fusion weight: the frame is fused
+   again in memory, Draco files keep no weight) and, when rerun-sdk is installed, log the rig
+   and every fused frame (colour; at most ``viz.rerun_log.RERUN_POINTS`` points a frame) to an
+   .rrd file.
+
+The clouds are written as Draco (``DEMO_FORMAT``) in the floor frame (``--world``, z up), and
+scored from those files: the demo's whole output stays under 150 MB.
 """
 
 from __future__ import annotations
@@ -27,7 +32,11 @@ import numpy as np
 
 from fuseflow.types import FusedCloud, Rig, invert_rigid
 
-__all__ = ["DemoResult", "run_demo", "align_world"]
+__all__ = ["DemoResult", "run_demo", "align_world", "DEMO_FORMAT"]
+
+DEMO_FORMAT = "drc"
+"""The demo's cloud files: Draco, positions within 1 mm (``io.exchange``), 4.8 MB a frame of 1.17 M
+points against 27 MB as PLY; the scores are measured on these files."""
 
 METRIC_SAMPLE = 100_000
 """Points queried each way per evaluated frame (trees hold every point; see reference_metrics)."""
@@ -78,6 +87,12 @@ def align_world(est: Rig, ref: Rig) -> np.ndarray:
     return rigid_align(src, dst)
 
 
+def _out_to_calib(calib: Any) -> np.ndarray:
+    """Calibration-world-from-output-frame of a run's clouds (calib.json's ``world``)."""
+    doc = calib.report.get("world")
+    return invert_rigid(np.asarray(doc["T_out_world"], np.float64)) if doc else np.eye(4)
+
+
 def _transform(cloud: FusedCloud, A: np.ndarray) -> np.ndarray:
     xyz = cloud.xyz.cpu().numpy().astype(np.float64)
     return xyz @ A[:3, :3].T + A[:3, 3]
@@ -119,7 +134,7 @@ def run_demo(
         stage("calibrating with GMAC, then fusing every frame with FUSE")
         summary, run_s = _calibrate_and_fuse(rec_dir, out, on_frame)
         stage("measuring against ground truth")
-        scores = _score(out, gt)
+        scores = _score(out, gt, rec_dir)
         stage("rendering")
         pngs = _render_pngs(out, scores.last_xyz, scores.last_cloud)
         warnings = list(summary.warnings)
@@ -181,10 +196,13 @@ def _calibrate_and_fuse(
     """Step 2: fuseflow.pipeline.run from scratch (GMAC, then FUSE on every frame); returns its
     RunSummary and the seconds it took."""
     from fuseflow.pipeline import PipelineConfig, run
+    from fuseflow.pipeline.config import OutputOptions
 
     t0 = time.perf_counter()
     # a demo always starts fresh; its simulated rig is in sync, so the sync check is skipped
-    summary = run(rec_dir, out, config=PipelineConfig(sync="off"), on_frame=on_frame, force=True)
+    # Draco clouds (1 mm): a 10-frame demo writes ~50 MB of clouds instead of ~270 MB of PLY
+    config = PipelineConfig(sync="off", outputs=OutputOptions(cloud_format=DEMO_FORMAT))
+    summary = run(rec_dir, out, config=config, on_frame=on_frame, force=True)
     return summary, time.perf_counter() - t0
 
 
@@ -203,28 +221,28 @@ class _Scores:
     last_xyz: np.ndarray
 
 
-def _score(out: Path, gt: Any) -> _Scores:
+def _score(out: Path, gt: Any, rec_dir: Path) -> _Scores:
     """Steps 3-4: GMAC's extrinsics against the true ones, and the first, middle and last fused
     frames (moved into the simulator's world) against the surface the cameras can measure."""
     from fuseflow.eval.metrics import pose_errors
     from fuseflow.io.calibration import read_calibration
-    from fuseflow.io.ply import read_ply
-    from fuseflow.pipeline import cloud_path
+    from fuseflow.io.exchange import read_cloud
+    from fuseflow.pipeline.exports import frame_file
 
     calib = read_calibration(out / "calib.json")
     est = calib.apply(gt.rig.subset([gt.rig.index(c) for c in calib.camera_ids]))
     pe = pose_errors(calib, gt.rig)
-    A = align_world(est, gt.rig)
+    A = align_world(est, gt.rig) @ _out_to_calib(calib)  # the clouds are in the output frame (--world)
     from fuseflow.synth import Simulator
 
     sim = Simulator(gt.config)  # the same scene (same config and seed), for its triangles
     cds, fss, outs = [], [], []
     for t in sorted({0, gt.frames // 2, gt.frames - 1}):  # first, middle, last frame
-        m = _frame_metrics(_transform(read_ply(cloud_path(out, t)), A), gt, sim, t)
+        m = _frame_metrics(_transform(read_cloud(frame_file(out, t, DEMO_FORMAT)), A), gt, sim, t)
         cds.append(m.chamfer().chamfer_mm)
         fss.append(m.fscore(0.01).f_score)
         outs.append(m.outlier_share(0.02))
-    last_cloud = read_ply(cloud_path(out, gt.frames - 1))
+    last_cloud = _fused_again(rec_dir, calib, gt.frames - 1)  # with its weights, which Draco does not keep
     return _Scores(
         est=est,
         cameras_placed=len(calib.camera_ids),
@@ -234,8 +252,19 @@ def _score(out: Path, gt: Any) -> _Scores:
         fscore_1cm=float(np.mean(fss)),
         outlier_share_2cm=float(np.mean(outs)),
         last_cloud=last_cloud,
-        last_xyz=_transform(last_cloud, A),
+        last_xyz=_transform(last_cloud, align_world(est, gt.rig)),
     )
+
+
+def _fused_again(rec_dir: Path, calib: Any, t: int) -> FusedCloud:
+    """Frame position ``t`` fused as the run fused it (its calibration, the ``auto`` preset), in
+    the calibration's world."""
+    from fuseflow.fuse import PRESETS, fuse
+    from fuseflow.io import open_recording
+
+    rec = open_recording(rec_dir)
+    sel = [rec.rig.index(c) for c in calib.camera_ids]
+    return fuse(rec[t].subset(sel), calib.apply(rec.rig).subset(sel), PRESETS["auto"])
 
 
 def _frame_metrics(xyz: np.ndarray, gt: Any, sim: Any, t: int) -> Any:
@@ -267,18 +296,26 @@ def _render_pngs(out: Path, last_xyz: np.ndarray, last_cloud: FusedCloud) -> lis
 def _write_rrd(out: Path, est: Rig, frames: int, warnings: list[str]) -> str | None:
     """Step 5 (rerun): OUT/demo.rrd with the GMAC rig and every fused frame; None (and a warning appended
     to ``warnings``) when rerun is missing or broken."""
-    from fuseflow.io.ply import read_ply
-    from fuseflow.pipeline import cloud_path
+    from fuseflow.io.calibration import read_calibration
+    from fuseflow.io.exchange import has_weight, read_cloud
+    from fuseflow.pipeline.exports import frame_file
 
     try:
         from fuseflow.viz.rerun_log import RerunLogger
 
-        logger = RerunLogger(save_to=out / "demo.rrd", application_id="fuseflow-demo")
+        world = read_calibration(out / "calib.json").report.get("world") or {}
+        logger = RerunLogger(
+            save_to=out / "demo.rrd", application_id="fuseflow-demo", z_up=world.get("name") == "floor"
+        )
     except Exception as exc:  # rerun missing or broken: the demo still stands
         warnings.append(f"no .rrd written ({exc})")
         return None
-    logger.log_rig(est)
+    from fuseflow.types import Calibration
+
+    back = _out_to_calib(read_calibration(out / "calib.json"))  # frustums in the clouds' frame
+    logger.log_rig(Calibration({c.id: c.T_cam_world @ back for c in est if c.is_calibrated}, {}).apply(est))
     for t in range(frames):
-        logger.log_cloud(t, read_ply(cloud_path(out, t)))
+        path = frame_file(out, t, DEMO_FORMAT)
+        logger.log_cloud(t, read_cloud(path), with_weight=has_weight(path))
     logger.close()
     return str(out / "demo.rrd")

@@ -8,7 +8,8 @@ Schema::
                                # fuseflow.calib.CalibReport.to_json() here)
      "rig_fingerprint": {"<camera id>": {"width": W, "height": H, "K": [[3x3]]}, ...},  # optional
      "capture_volume": {"min": [x, y, z], "max": [x, y, z], "T_box_world": [[4x4]],   # optional
-                        "kind": "ring" | "frusta" | "explicit", "units": "m"}}
+                        "kind": "seen" | "seen-ring" | "ring" | "frusta" | "explicit", "units": "m"},
+     "world": {"name": ..., "T_out_world": [[4x4]], "up": [3], "units": "m", "floor": {...}}}  # optional
 
 rig_fingerprint (optional; files without it are read as before) records the intrinsics and
 resolution of every camera of the rig the calibration was made for. Read back, it is in
@@ -20,6 +21,12 @@ capture_volume (optional) is the box ``--crop auto`` crops fused clouds to
 T_box_world box-from-world, identity or absent for a box in world axes). ``run`` and ``fuse``
 write the one they used; edit it to move the crop. Read back, it is in
 ``Calibration.report["capture_volume"]`` (validated).
+
+world (optional) is the frame ``run`` and ``fuse`` wrote their clouds in (``--world``,
+``fuseflow.geometry.world.World``): ``{"name": "floor" | "camera:<id>" | "calib", "T_out_world":
+[[4x4]] (output-from-world), "up": [x, y, z] (in the output frame), "units": "m", "floor":
+{"normal", "offset", "cameras"} | null}``. The cameras' poses in the output frame are
+``T_cam_world @ inv(T_out_world)``. Read back, it is in ``Calibration.report["world"]``.
 
 T_cam_world is camera-from-world in metres (the same as rig.json). Cameras that a calibration
 could not place are simply absent from "cameras" (and named in the report).
@@ -34,6 +41,7 @@ import numpy as np
 
 from fuseflow.errors import FormatError, ValidationError
 from fuseflow.geometry.volume import CaptureVolume
+from fuseflow.geometry.world import World
 from fuseflow.io.files import load_json, write_json_atomic
 from fuseflow.io.recording import RIG_FORMAT, parse_matrix, rig_from_json
 from fuseflow.types import Calibration, Rig
@@ -42,6 +50,7 @@ __all__ = [
     "CALIB_FORMAT",
     "FINGERPRINT_KEY",
     "VOLUME_KEY",
+    "WORLD_KEY",
     "read_calibration",
     "write_calibration",
     "calibration_to_json",
@@ -52,6 +61,7 @@ __all__ = [
 CALIB_FORMAT = "fuseflow-calib/1"
 FINGERPRINT_KEY = "rig_fingerprint"
 VOLUME_KEY = "capture_volume"
+WORLD_KEY = "world"
 
 
 def _jsonable(obj: Any) -> Any:
@@ -88,6 +98,7 @@ def calibration_to_json(calib: Calibration, rig: Rig | None = None) -> dict[str,
     report = _jsonable(calib.report)
     fingerprint = report.pop(FINGERPRINT_KEY, None) if isinstance(report, dict) else None
     volume = report.pop(VOLUME_KEY, None) if isinstance(report, dict) else None
+    world = report.pop(WORLD_KEY, None) if isinstance(report, dict) else None
     if rig is not None:
         fingerprint = rig_fingerprint(rig)
     doc = {
@@ -99,6 +110,8 @@ def calibration_to_json(calib: Calibration, rig: Rig | None = None) -> dict[str,
         doc[FINGERPRINT_KEY] = fingerprint
     if volume is not None:
         doc[VOLUME_KEY] = volume.to_json() if isinstance(volume, CaptureVolume) else volume
+    if world is not None:
+        doc[WORLD_KEY] = world.to_json() if isinstance(world, World) else world
     return doc
 
 
@@ -151,6 +164,12 @@ def read_calibration(path: str | Path) -> Calibration:
         except ValidationError as exc:
             raise FormatError(str(exc)) from None
         report = {**report, VOLUME_KEY: volume.to_json()}
+    if WORLD_KEY in doc:
+        try:
+            world = World.from_json(doc[WORLD_KEY], f"{path}: field {WORLD_KEY!r}")
+        except ValidationError as exc:
+            raise FormatError(str(exc)) from None
+        report = {**report, WORLD_KEY: world.to_json()}
     try:
         return Calibration(T, report)
     except ValidationError as exc:

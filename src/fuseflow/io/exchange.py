@@ -1,6 +1,6 @@
 """Clouds and meshes in the formats content tools read: Draco (.drc) and glTF binary (.glb).
 
-- **Draco** (``write_drc`` / ``read_drc``, needs ``DracoPy``: ``pip install 'fuseflow[formats]'``):
+- **Draco** (``write_drc`` / ``read_drc``, with ``DracoPy``, a dependency of fuseflow):
   positions quantised on a grid whose step keeps every point within ``error_mm`` (default
   ``DRC_ERROR_MM`` = 1 mm) of where it was: ``quantization_bits`` = the smallest b with
   sqrt(3)/2 * extent / (2^b - 1) <= error_mm (extent = the cloud's largest side; the half-step
@@ -17,9 +17,10 @@
 - **GLB mesh** (``write_glb_mesh``): ``TRIANGLES`` with ``POSITION``, ``NORMAL`` (when given),
   ``COLOR_0`` and uint32 indices; an empty mesh as for an empty cloud.
 
-World frame, metres, as the PLY files. glTF's +y is "up" by convention; the writers do not
-rotate the world (the world frame of a calibration is the rig's; ``manifest.json`` says which
-axis is up).
+Positions are in the output frame, metres, as the PLY files (``--world``, docs/formats.md). glTF's
++y is "up": ``run`` and ``fuse`` put the rotation from the output frame to glTF's axes (z up to
++y up for the floor frame) on the GLB's node (``up``), so glTF viewers and trimesh show the
+capture upright while the accessor holds the same numbers as the PLY.
 """
 
 from __future__ import annotations
@@ -45,18 +46,26 @@ __all__ = [
     "write_glb_mesh",
     "write_cloud",
     "read_cloud",
+    "has_weight",
+    "draco_module",
 ]
 
-CLOUD_FORMATS = ("ply", "drc", "glb")
+CLOUD_FORMATS = ("ply", "drc", "glb", "splat")
+"""Per-frame cloud formats; "splat" is a 3D Gaussian splat PLY (``io.splat``)."""
 DRC_ERROR_MM = 1.0
 """Default bound on the Draco position error, millimetres."""
+
+
+def draco_module():
+    """The DracoPy module; FormatError with the install line when it is missing."""
+    return _need_draco()
 
 
 def _need_draco():
     try:
         import DracoPy
     except ImportError:
-        raise FormatError("Draco output needs DracoPy: pip install 'fuseflow[formats]' (or DracoPy)") from None
+        raise FormatError("Draco output needs DracoPy (a dependency of fuseflow): pip install DracoPy") from None
     return DracoPy
 
 
@@ -86,7 +95,8 @@ def write_drc(path: str | Path, cloud: FusedCloud, error_mm: float = DRC_ERROR_M
 
 
 def read_drc(path: str | Path) -> FusedCloud:
-    """A Draco point cloud as a FusedCloud (weight 1.0 and camera -1: Draco does not store them)."""
+    """A Draco point cloud as a FusedCloud (weight 1.0 and camera -1: Draco does not store them;
+    ``has_weight`` tells a reader whether a file keeps the weights)."""
     dp = _need_draco()
     path = Path(path)
     try:
@@ -103,13 +113,23 @@ def _pad(b: bytes, fill: bytes) -> bytes:
     return b + fill * (-len(b) % 4)
 
 
-def _glb(attributes: dict[str, np.ndarray], indices: np.ndarray | None, mode: int) -> bytes:
-    """A GLB of one mesh with one primitive (``mode`` 0 POINTS, 4 TRIANGLES); no mesh when the
-    position array is empty."""
+def _node(name: str, matrix: np.ndarray | None) -> dict:
+    """A glTF node with ``matrix`` (4x4, row-major here; glTF stores it column-major) unless None."""
+    node: dict = {"name": name}
+    if matrix is not None:
+        node["matrix"] = [float(v) for v in np.asarray(matrix, np.float64).T.reshape(-1)]
+    return node
+
+
+def _glb(
+    attributes: dict[str, np.ndarray], indices: np.ndarray | None, mode: int, matrix: np.ndarray | None = None
+) -> bytes:
+    """A GLB of one mesh with one primitive (``mode`` 0 POINTS, 4 TRIANGLES) on a node with
+    ``matrix`` (None: none); no mesh when the position array is empty."""
     gltf: dict = {"asset": {"version": "2.0", "generator": "fuseflow"}, "scene": 0, "scenes": [{"nodes": [0]}]}
     n = len(attributes["POSITION"])
     if n == 0:
-        gltf["nodes"] = [{"name": "empty"}]
+        gltf["nodes"] = [_node("empty", matrix)]
         return _glb_bytes(gltf, b"")
     blob, views, accessors, prim = b"", [], [], {}
     arrays = list(attributes.items()) + ([("indices", indices)] if indices is not None else [])
@@ -136,7 +156,7 @@ def _glb(attributes: dict[str, np.ndarray], indices: np.ndarray | None, mode: in
             prim.setdefault("attributes", {})[name] = len(accessors) - 1
     prim["mode"] = mode
     gltf.update(
-        nodes=[{"mesh": 0}], meshes=[{"primitives": [prim]}], accessors=accessors, bufferViews=views,
+        nodes=[{**_node("fuseflow", matrix), "mesh": 0}], meshes=[{"primitives": [prim]}], accessors=accessors, bufferViews=views,
         buffers=[{"byteLength": len(blob)}],
     )  # fmt: skip
     return _glb_bytes(gltf, blob)
@@ -156,22 +176,28 @@ def _rgba(rgb: np.ndarray) -> np.ndarray:
     return np.concatenate([rgb, np.full((len(rgb), 1), 255, np.uint8)], axis=1)
 
 
-def write_glb_points(path: str | Path, cloud: FusedCloud) -> Path:
-    """Write ``cloud`` as a glTF binary point cloud (see the module docstring)."""
+def write_glb_points(path: str | Path, cloud: FusedCloud, up: np.ndarray | None = None) -> Path:
+    """Write ``cloud`` as a glTF binary point cloud (see the module docstring); ``up``: the 4x4
+    glTF-from-cloud rotation put on the node (None: none)."""
     c = cloud.numpy()
     attrs = {
         "POSITION": c.xyz.astype(np.float32),
         "COLOR_0": _rgba(c.rgb),
         "_WEIGHT": c.weight.astype(np.float32),
     }
-    return write_bytes_atomic(Path(path), _glb(attrs, None, 0))
+    return write_bytes_atomic(Path(path), _glb(attrs, None, 0, up))
 
 
 def write_glb_mesh(
-    path: str | Path, vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray, normals: np.ndarray | None = None
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    colors: np.ndarray,
+    normals: np.ndarray | None = None,
+    up: np.ndarray | None = None,
 ) -> Path:
     """Write a triangle mesh (vertices (V, 3) metres, faces (F, 3), colours (V, 3) uint8,
-    optional unit normals (V, 3)) as GLB."""
+    optional unit normals (V, 3)) as GLB; ``up`` as for ``write_glb_points``."""
     v = np.asarray(vertices, np.float32).reshape(-1, 3)
     if len(faces) == 0:
         v = v[:0]
@@ -179,11 +205,14 @@ def write_glb_mesh(
     if normals is not None:
         attrs["NORMAL"] = np.asarray(normals, np.float32).reshape(-1, 3)[: len(v)]
     idx = np.asarray(faces, np.uint32).reshape(-1)
-    return write_bytes_atomic(Path(path), _glb(attrs, idx if len(v) else None, 4))
+    return write_bytes_atomic(Path(path), _glb(attrs, idx if len(v) else None, 4, up))
 
 
-def write_cloud(path: str | Path, cloud: FusedCloud, fmt: str = "ply", error_mm: float = DRC_ERROR_MM) -> Path:
-    """Write ``cloud`` in ``fmt`` ("ply", "drc" or "glb") to ``path`` (its suffix is the caller's)."""
+def write_cloud(
+    path: str | Path, cloud: FusedCloud, fmt: str = "ply", error_mm: float = DRC_ERROR_MM, up: np.ndarray | None = None
+) -> Path:
+    """Write ``cloud`` in ``fmt`` ("ply", "drc", "glb" or "splat") to ``path`` (its suffix is the
+    caller's); ``up``: the glTF-from-cloud rotation of a GLB's node."""
     from fuseflow.io.ply import write_ply
 
     if fmt == "ply":
@@ -191,7 +220,11 @@ def write_cloud(path: str | Path, cloud: FusedCloud, fmt: str = "ply", error_mm:
     if fmt == "drc":
         return write_drc(path, cloud, error_mm)
     if fmt == "glb":
-        return write_glb_points(path, cloud)
+        return write_glb_points(path, cloud, up)
+    if fmt == "splat":
+        from fuseflow.io.splat import write_splat
+
+        return write_splat(path, cloud)
     raise ValidationError(f"cloud format must be one of {', '.join(CLOUD_FORMATS)}, got {fmt!r}")
 
 
@@ -205,6 +238,12 @@ def read_cloud(path: str | Path) -> FusedCloud:
     if path.suffix == ".glb":
         return _read_glb_points(path)
     return read_ply(path)
+
+
+def has_weight(path: str | Path) -> bool:
+    """Whether the cloud file ``path`` stores FUSE's weight (PLY and GLB do; Draco does not, and
+    ``read_cloud`` gives its points weight 1.0)."""
+    return Path(path).suffix != ".drc"
 
 
 def _read_glb_points(path: Path) -> FusedCloud:

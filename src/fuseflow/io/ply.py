@@ -1,7 +1,7 @@
 """Fused clouds as PLY files.
 
 ``write_ply`` writes binary little-endian PLY with one ``vertex`` element and the properties
-``x y z`` (float32, metres, world frame), ``red green blue`` (uint8), ``weight`` (float32, the
+``x y z`` (float32, metres; ``run`` and ``fuse`` write them in their output frame, ``--world``), ``red green blue`` (uint8), ``weight`` (float32, the
 fusion weight of eq. 22) and ``camera`` (int16, source camera index in rig order). Open3D,
 trimesh, CloudCompare and MeshLab read it (unknown properties are ignored by viewers).
 
@@ -20,7 +20,7 @@ from fuseflow.errors import FormatError
 from fuseflow.io.files import read_bytes, write_bytes_atomic
 from fuseflow.types import FusedCloud
 
-__all__ = ["write_ply", "read_ply", "ply_point_count"]
+__all__ = ["write_ply", "read_ply", "read_ply_columns", "ply_point_count"]
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -49,7 +49,7 @@ def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
         arr["support"] = c.support
         extra = "property short support\n"
     header = (
-        "ply\nformat binary_little_endian 1.0\ncomment fuseflow fused cloud, metres, world frame\n"
+        "ply\nformat binary_little_endian 1.0\ncomment fuseflow fused cloud, metres, output frame (manifest.json world)\n"
         f"element vertex {len(c)}\n"
         "property float x\nproperty float y\nproperty float z\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\n"
@@ -103,6 +103,21 @@ def ply_point_count(path: str | Path) -> int:
 
 def read_ply(path: str | Path) -> FusedCloud:
     """Read a vertex PLY into a FusedCloud (see module docstring for defaults of missing fields)."""
+    cols = read_ply_columns(path)
+    count = len(cols["x"])
+    xyz = np.stack([cols["x"], cols["y"], cols["z"]], axis=1)
+    if all(k in cols for k in ("red", "green", "blue")):
+        rgb = np.stack([cols["red"], cols["green"], cols["blue"]], axis=1)
+    else:
+        rgb = np.zeros((count, 3))
+    weight = cols.get("weight", np.ones(count))
+    camera = cols.get("camera", np.full(count, -1))
+    return FusedCloud.from_numpy(xyz, rgb, weight, camera, cols.get("support"))
+
+
+def read_ply_columns(path: str | Path) -> dict[str, np.ndarray]:
+    """The vertex properties of a vertex PLY by name, each (M,) as stored (FormatError when it
+    has no x, y, z, is truncated or has list properties)."""
     path = Path(path)
     data = read_bytes(path)
     fmt, elements, start = _parse_header(path, data)
@@ -130,11 +145,4 @@ def read_ply(path: str | Path) -> FusedCloud:
             raise FormatError(f"{path}: truncated, {len(data) - start} of {need_bytes} bytes of vertex data")
         arr = np.frombuffer(data, dtype=dtype, count=count, offset=start)
         cols = {n: arr[n] for n in names}
-    xyz = np.stack([cols["x"], cols["y"], cols["z"]], axis=1)
-    if all(k in cols for k in ("red", "green", "blue")):
-        rgb = np.stack([cols["red"], cols["green"], cols["blue"]], axis=1)
-    else:
-        rgb = np.zeros((count, 3))
-    weight = cols.get("weight", np.ones(count))
-    camera = cols.get("camera", np.full(count, -1))
-    return FusedCloud.from_numpy(xyz, rgb, weight, camera, cols.get("support"))
+    return cols

@@ -19,30 +19,57 @@ class OutputOptions:
     """What a run or fuse writes for each frame besides its log (docs/formats.md)."""
 
     crop: str | None = None
-    """None: keep every fused point; "auto": crop to the capture volume (calib.json's
-    ``capture_volume`` when it has one, else ``geometry.volume.capture_volume`` of the rig);
-    "xmin,ymin,zmin,xmax,ymax,zmax": that world box, metres."""
-    cloud_format: Literal["ply", "drc", "glb"] = "ply"
-    """Cloud files: binary PLY (all fields), Draco (positions within ``drc_error_mm``, colours)
-    or a GLB point cloud (positions, colours, weight)."""
+    """None: keep every fused point (cropping is off unless asked); "auto": crop to the capture
+    volume (calib.json's ``capture_volume`` when it has one, else the box of what the cameras see
+    together, ``geometry.volume.seen_volume``); "xmin,ymin,zmin,xmax,ymax,zmax": that box in the
+    output frame (``world``), metres."""
+    cloud_format: str = "ply"
+    """Cloud files, one or several joined by commas ("ply,drc,glb,splat"): binary PLY (all
+    fields), Draco (positions within ``drc_error_mm``, colours), a GLB point cloud (positions,
+    colours, weight) or Gaussian splats (``io.splat``, in OUT/splats/). ``formats`` lists them."""
     drc_error_mm: float = 1.0
     """Bound on the Draco position error, millimetres (``io.exchange.draco_bits``)."""
     mesh: bool = False
     """Also write meshes/<frame:06d>.glb (``pipeline.mesh``)."""
     mesh_ply: bool = False
     """With ``mesh``, also meshes/<frame:06d>.ply."""
-    mesh_method: str = "poisson"
-    """``pipeline.mesh.MESH_METHODS``: tsdf, poisson or bpa."""
+    mesh_method: str = "range"
+    """``pipeline.mesh.MESH_METHODS``: range (default: each camera's points as a range image,
+    merged), tsdf, poisson or bpa."""
+    world: str | None = None
+    """The output frame (``geometry.world``): None = "floor" when a floor is found, else the
+    first camera's; "floor"; "camera:<id>"; "calib" (the calibration's world as it is)."""
+    voxel_mm: float | None = None
+    """Thin each written cloud to one point per cube of this edge (millimetres; the point of
+    highest weight in each); None = every fused point."""
+
+    @property
+    def formats(self) -> tuple[str, ...]:
+        """The cloud formats to write, in the order given."""
+        return tuple(dict.fromkeys(f.strip() for f in str(self.cloud_format).split(",") if f.strip()))
 
     def __post_init__(self) -> None:
         from fuseflow.io.exchange import CLOUD_FORMATS
 
-        if self.cloud_format not in CLOUD_FORMATS:
-            raise ValidationError(f"--format must be one of {', '.join(CLOUD_FORMATS)}, got {self.cloud_format!r}")
+        bad = [f for f in self.formats if f not in CLOUD_FORMATS]
+        if bad or not self.formats:
+            raise ValidationError(
+                f"--format must be one or more of {', '.join(CLOUD_FORMATS)} joined by commas, got {self.cloud_format!r}"
+            )
+        if "drc" in self.formats:
+            from fuseflow.io.exchange import draco_module
+
+            draco_module()  # FormatError now, before any frame is fused, when DracoPy is missing
+        if self.world not in (None, "auto", "floor", "calib") and not (
+            isinstance(self.world, str) and self.world.startswith("camera:") and len(self.world) > 7
+        ):
+            raise ValidationError(f"--world must be floor, camera:ID or calib, got {self.world!r}")
+        if self.voxel_mm is not None and not (isinstance(self.voxel_mm, (int, float)) and 0 < self.voxel_mm < 1e4):
+            raise ValidationError(f"--voxel must be a positive number of millimetres, got {self.voxel_mm!r}")
         if not (isinstance(self.drc_error_mm, (int, float)) and 0 < self.drc_error_mm < 1e4):
             raise ValidationError(f"drc_error_mm must be a positive number of millimetres, got {self.drc_error_mm!r}")
-        if self.mesh_method not in ("tsdf", "poisson", "bpa"):
-            raise ValidationError(f"mesh method must be tsdf, poisson or bpa, got {self.mesh_method!r}")
+        if self.mesh_method not in ("tsdf", "poisson", "bpa", "range"):
+            raise ValidationError(f"mesh method must be tsdf, poisson, bpa or range, got {self.mesh_method!r}")
         if self.crop is not None and self.crop != "auto":
             from fuseflow.geometry.volume import parse_crop
 

@@ -27,7 +27,7 @@ from fuseflow.pipeline.exports import (
     FrameWriter,
     frame_file,
     recording_centres,
-    resolve_crop,
+    resolve_outputs,
     with_volume,
     write_sequence,
 )
@@ -178,8 +178,8 @@ def _fuse_positions(rec: Recording, positions: list[int], cfg, device: str, on_f
     done = _Fused()
     for k, t in enumerate(positions, start=1):
         number = rec.frame_numbers[t]
-        path = frame_file(writer.out, number, writer.options.cloud_format)
-        if path.exists():  # written by an earlier call with the same manifest
+        path = frame_file(writer.out, number, writer.options.formats[0])
+        if writer.done(number):  # written by an earlier call with the same manifest
             n = ply_point_count(path) if path.suffix == ".ply" else len(read_cloud(path))
             done.counts.append(n)
             writer.resumed(number, None, n)
@@ -246,15 +246,18 @@ def fuse_recording(
     if not positions:
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
     outputs = outputs if outputs is not None else OutputOptions()
-    volume = resolve_crop(outputs.crop, rig, calibration)
+    sel = [rec.rig.index(c) for c in rig.ids]
+    world, volume = resolve_outputs(
+        outputs, rig, calibration, select_views(rec.frame(positions[0], numpy=True), sel, "cpu")
+    )
     checked = validate_inputs(rec[positions[0]], rig, cfg, volume)  # before anything is written
     out = prepare_output_dir(out_dir)
     open_output(out, _manifest(rec, rig, cfg, outputs), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
-    used = with_volume(Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), volume)
+    used = with_volume(Calibration({c.id: c.T_cam_world for c in rig}, {"source": source}), volume, world)
     write_calibration(out / "calib.json", used, rig=rec.rig)
     t0 = time.perf_counter()
-    writer = FrameWriter(out, outputs, rig, volume, recording_centres(rec.rig, rig))
+    writer = FrameWriter(out, outputs, rig, volume, recording_centres(rec.rig, rig), world=world)
     done = _fuse_positions(rec, positions, cfg, device, on_frame, writer)
     write_sequence(out, writer)
     summary = FuseRunSummary(

@@ -5,9 +5,12 @@
 1. normals: Open3D's PCA normals over each point's 20 nearest neighbours within 5 cm (FUSE
    keeps no normals), each turned to face the camera that measured the point (``cloud.camera``;
    the rig's mean camera centre for points without one);
-2. surface: ``"tsdf"`` (a TSDF of the frame's views, ``mesh_views``: needs the frame, not
-   only the cloud), ``"poisson"`` (default: screened Poisson, Open3D, octree depth ``POISSON_DEPTH``)
-   or ``"bpa"`` (ball pivoting, radii 1.5 and 3 times the median point spacing);
+2. surface: ``"range"`` (default, ``mesh_range``: each camera's fused points as a range image
+   on its pixel grid, neighbours joined, every camera's triangles merged; no normals step, no
+   trimming: the vertices are the fused points), ``"tsdf"`` (a TSDF of the frame's views,
+   ``mesh_views``: needs the frame, not only the cloud), ``"poisson"`` (screened Poisson, Open3D,
+   octree depth ``POISSON_DEPTH``) or ``"bpa"`` (ball pivoting, radii 1.5 and 3 times the median
+   point spacing);
 3. trimming: Poisson's vertices of the lowest ``POISSON_DENSITY_QUANTILE`` support density, every
    vertex farther than ``MAX_GAP_M`` from the nearest fused point (Poisson closes holes with
    surface nothing measured), and every vertex outside the capture volume; faces that lose a
@@ -35,12 +38,13 @@ __all__ = [
     "mesh_views",
     "mesh_frame",
     "camera_centres",
+    "mesh_range",
     "cloud_normals",
     "POISSON_DEPTH",
     "MAX_GAP_M",
 ]
 
-MESH_METHODS = ("tsdf", "poisson", "bpa")
+MESH_METHODS = ("tsdf", "poisson", "bpa", "range")
 POISSON_DEPTH = 7
 """Octree depth of screened Poisson (2^7 cells across the cloud's bounding cube: 2.8 cm for a
 3.6 m capture volume; depth 8 took 4x the time for no better accuracy, docs/formats.md)."""
@@ -123,7 +127,9 @@ def _trim(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray) -> tuple[np
     """Drop faces with a removed vertex, then unreferenced vertices; returns the kept vertex
     indices (into ``vertices``) and the re-indexed faces."""
     faces = faces[keep[faces].all(axis=1)]
-    used = np.unique(faces)
+    mask = np.zeros(len(vertices), bool)
+    mask[faces.ravel()] = True
+    used = np.nonzero(mask)[0]
     remap = np.full(len(vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
     return used, vertices[used], remap[faces]
@@ -162,26 +168,29 @@ def mesh_frame(
     cloud: FusedCloud,
     frame,
     rig: Rig,
-    method: str = "poisson",
+    method: str = "range",
     volume: CaptureVolume | None = None,
     centres: np.ndarray | None = None,
 ) -> Mesh:
     """The mesh of one frame by ``method`` (one of ``MESH_METHODS``): "tsdf" from ``frame``'s
-    views (``mesh_views``; ``rig`` in the frame's camera order), the others from ``cloud``
+    views (``mesh_views``; ``rig`` in the frame's camera order), "range" from ``cloud`` and
+    ``rig`` (``mesh_range``: ``cloud.camera`` indexes ``rig``), the others from ``cloud``
     (``mesh_cloud`` with ``centres``, default the rig's camera centres)."""
     if method not in MESH_METHODS:
         raise ValidationError(f"mesh method must be one of {', '.join(MESH_METHODS)}, got {method!r}")
     if method == "tsdf":
         return mesh_views(frame, rig, volume)
+    if method == "range":
+        return mesh_range(cloud, rig, volume)
     return mesh_cloud(cloud, camera_centres(rig) if centres is None else centres, method, volume)
 
 
 def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Area-weighted vertex normals of the triangles (unit; zero for isolated vertices)."""
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    vn = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(vn, f[:, k], fn)
+    vn = np.zeros(v.shape, np.float64)
+    for a in range(3):
+        vn[:, a] = np.bincount(f.ravel(), np.repeat(fn[:, a], 3), len(v))
     norm = np.linalg.norm(vn, axis=1, keepdims=True)
     return (vn / np.maximum(norm, 1e-12)).astype(np.float32)
 
@@ -240,3 +249,81 @@ def mesh_views(frame, rig: Rig, volume: CaptureVolume | None = None, voxel: floa
     if len(f) == 0:
         return Mesh.empty()
     return Mesh(v.astype(np.float32), f, cols[used].astype(np.uint8), _vertex_normals(v, f))
+
+
+RANGE_EDGE = 4.0
+"""``mesh_range`` joins grid neighbours whose edge is under this many pixel footprints (the
+pixel stride times depth / focal length): wider gaps are depth edges, not surface."""
+
+
+def _project(xyz: np.ndarray, cam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, z) of world points in ``cam`` (pixels; z <= 0 for points behind it)."""
+    Xc = xyz @ cam.T_cam_world[:3, :3].T + cam.T_cam_world[:3, 3]
+    z = Xc[:, 2]
+    zs = np.where(z > 1e-3, z, 1.0)
+    u = cam.K[0, 0] * Xc[:, 0] / zs + cam.K[0, 1] * Xc[:, 1] / zs + cam.K[0, 2]
+    return u, cam.K[1, 1] * Xc[:, 1] / zs + cam.K[1, 2], z
+
+
+def _camera_grid(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam, stride: int) -> np.ndarray:
+    """Grid of point indices (-1: none) on ``cam``'s pixel grid of ``stride``; the points come
+    in increasing weight, so a cell keeps its highest-weight point."""
+    h, w = cam.height // stride + 2, cam.width // stride + 2
+    ui, vi = np.rint(u / stride).astype(np.int64), np.rint(v / stride).astype(np.int64)
+    ok = (z > 1e-3) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    grid = np.full((h, w), -1, np.int64)
+    idx = np.nonzero(ok)[0]
+    grid[vi[idx], ui[idx]] = idx
+    return grid
+
+
+def _joined(grid: np.ndarray) -> float:
+    """Share of a grid's filled cells whose right neighbour is filled too."""
+    filled = grid >= 0
+    return float((filled[:, :-1] & filled[:, 1:]).sum()) / max(int(filled.sum()), 1)
+
+
+def _grid_faces(grid: np.ndarray, xyz: np.ndarray, z: np.ndarray, limit_per_m: float) -> np.ndarray:
+    """(F, 3) triangles of 2x2 grid cells whose three corners exist and whose edges are short."""
+    a, b, c, d = grid[:-1, :-1].ravel(), grid[:-1, 1:].ravel(), grid[1:, :-1].ravel(), grid[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+    faces = faces[(faces >= 0).all(axis=1)]
+    if len(faces) == 0:
+        return faces
+    p = xyz[faces]
+    e = [np.einsum("ij,ij->i", p[:, i] - p[:, (i + 1) % 3], p[:, i] - p[:, (i + 1) % 3]) for i in range(3)]
+    limit = limit_per_m * z[faces].max(axis=1)
+    return faces[np.maximum.reduce(e) < limit * limit]
+
+
+def mesh_range(cloud: FusedCloud, rig: Rig, volume: CaptureVolume | None = None) -> Mesh:
+    """Each camera's fused points (``cloud.camera`` indexes ``rig``) as a range image on that
+    camera's pixel grid, grid neighbours joined into triangles, every camera's triangles merged:
+    the vertices are the fused points themselves (their colours), the normals the faces'. The
+    grid's stride (1, 2 or 3 pixels) is the finest on which most filled cells have a filled
+    neighbour (FUSE's pixel grid); an edge longer than ``RANGE_EDGE`` pixel footprints is a depth
+    edge and is left open."""
+    c = cloud.numpy()
+    xyz, rgb = np.asarray(c.xyz, np.float64), np.asarray(c.rgb)
+    cam_idx, weight = np.asarray(c.camera, np.int64), np.asarray(c.weight)
+    all_faces = []
+    for k, cam in enumerate(rig):
+        sel = np.nonzero(cam_idx == k)[0]
+        if len(sel) < 3 or not cam.is_calibrated:
+            continue
+        sel = sel[np.argsort(weight[sel], kind="stable")]
+        pts = xyz[sel]
+        u, v, z = _project(pts, cam)
+        for stride in (1, 2, 3):  # FUSE's pixel grid: the finest whose neighbours mostly meet
+            grid = _camera_grid(u, v, z, cam, stride)
+            if _joined(grid) >= 0.5:
+                break
+        all_faces.append(sel[_grid_faces(grid, pts, z, RANGE_EDGE * stride / cam.K[0, 0])])
+    faces = np.concatenate(all_faces) if all_faces else np.zeros((0, 3), np.int64)
+    if len(faces) == 0:
+        return Mesh.empty()
+    keep = volume.contains(xyz) if volume is not None else np.ones(len(xyz), bool)
+    used, v, f = _trim(xyz, faces, keep)
+    if len(f) == 0:
+        return Mesh.empty()
+    return Mesh(v.astype(np.float32), f, rgb[used].astype(np.uint8), _vertex_normals(v, f))

@@ -68,7 +68,7 @@ def peak_rss_mb() -> float:
 MANIFEST = "manifest.json"
 """The file in OUT that says what produced it (``OutputManifest``)."""
 
-_OUTPUTS = ("clouds", "meshes", "frames.jsonl", "summary.json", "calib.json", MANIFEST)
+_OUTPUTS = ("clouds", "meshes", "splats", "frames.jsonl", "summary.json", "calib.json", MANIFEST)
 """What a run or fuse writes in OUT (``--force`` removes exactly these)."""
 
 
@@ -143,7 +143,8 @@ def setting_changes(old: dict[str, Any] | None, new: dict[str, Any] | None) -> l
     (nested names joined by dots); [] when either is unknown."""
     if old is None or new is None:
         return []
-    a, b = _flat(json.loads(json.dumps(old, default=str))), _flat(json.loads(json.dumps(new, default=str)))
+    a = _flat(json.loads(json.dumps(_resumable(old), default=str)))
+    b = _flat(json.loads(json.dumps(_resumable(new), default=str)))
     missing = object()
     return [
         f"{k} was {a.get(k, 'unset')!r}, now {b.get(k, 'unset')!r}"
@@ -210,9 +211,37 @@ def settings_doc(**configs: Any) -> dict[str, Any]:
     return {k: _plain(c) for k, c in configs.items()}
 
 
+ADDABLE = ("cloud_format",)
+"""Output settings a later call may change and still resume: the cloud formats (a frame missing
+a newly asked format is fused again and written in every format)."""
+
+
+def _resumable(doc: Any) -> Any:
+    """``doc`` without the ``ADDABLE`` settings; an ``outputs`` entry that is then the default
+    is left out, as the default outputs are (``run_manifest``)."""
+    if not isinstance(doc, dict):
+        return doc
+    out = {k: _resumable(v) for k, v in doc.items() if k not in ADDABLE}
+    for key in ("outputs",):
+        if isinstance(out.get(key), dict) and out[key] == _default_outputs():
+            out.pop(key)
+    if isinstance(out.get("pipeline"), dict):
+        inner = out["pipeline"]
+        if isinstance(inner.get("outputs"), dict) and inner["outputs"] == _default_outputs():
+            out["pipeline"] = {k: v for k, v in inner.items() if k != "outputs"}
+    return out
+
+
+def _default_outputs() -> dict[str, Any]:
+    from fuseflow.pipeline.config import OutputOptions
+
+    return {k: v for k, v in dataclasses.asdict(OutputOptions()).items() if k not in ADDABLE}
+
+
 def settings_digest(doc: dict[str, Any]) -> str:
-    """Digest of a ``settings_doc`` (``OutputManifest.config``)."""
-    return _digest(doc)
+    """Digest of a ``settings_doc`` (``OutputManifest.config``), the ``ADDABLE`` settings left
+    out: adding a cloud format to a finished call resumes it."""
+    return _digest(_resumable(doc))
 
 
 def config_digest(*configs: Any) -> str:
@@ -229,7 +258,7 @@ def _plain(config: Any) -> Any:
 
 
 def _used(out: Path) -> bool:
-    return any((out / name).exists() for name in _OUTPUTS if name not in ("clouds", "meshes")) or any(
+    return any((out / name).exists() for name in _OUTPUTS if name not in ("clouds", "meshes", "splats")) or any(
         any(out.glob(f"clouds/*.{ext}")) for ext in ("ply", "drc", "glb")
     )
 

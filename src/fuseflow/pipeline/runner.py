@@ -23,7 +23,7 @@ from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.recording import Recording, write_json_atomic
 from fuseflow.pipeline.checks import below_calibration, frame_notes, low_agreement, validate_inputs
 from fuseflow.pipeline.config import OutputOptions, PipelineConfig
-from fuseflow.pipeline.exports import FrameWriter, recording_centres, resolve_crop, with_volume, write_sequence
+from fuseflow.pipeline.exports import FrameWriter, recording_centres, resolve_outputs, with_volume, write_sequence
 from fuseflow.pipeline.extrinsics import merge_recalibration, placed_rig
 from fuseflow.pipeline.frames import first_good_frame, process_frame
 from fuseflow.pipeline.health import HealthMonitor
@@ -158,18 +158,26 @@ def run_manifest(
 
 
 def _frame_writer(
-    rec: Recording, out: Path, given: Calibration | None, choice: CalibrationChoice, options: OutputOptions
+    rec: Recording,
+    out: Path,
+    given: Calibration | None,
+    choice: CalibrationChoice,
+    options: OutputOptions,
+    first: int | None = None,
 ) -> FrameWriter:
-    """The writer of the run's frame files, with its capture volume (``options.crop``: "auto"
-    takes the given calibration's stored volume, else OUT/calib.json's, else the placed rig's)
-    written into OUT/calib.json."""
+    """The writer of the run's frame files, with its output frame and capture volume
+    (``pipeline.exports.resolve_outputs`` on the frame at position ``first``: the given
+    calibration's stored ones, else OUT/calib.json's, else found) written into OUT/calib.json."""
     calib_json = out / "calib.json"
     written = read_calibration(calib_json)
-    stored = given if given is not None and "capture_volume" in given.report else written
-    volume = resolve_crop(options.crop, choice.rig, stored)
-    if volume is not None and written.report.get("capture_volume") != volume.to_json():
-        write_calibration(calib_json, with_volume(written, volume), rig=rec.rig)
-    return FrameWriter(out, options, choice.rig, volume, recording_centres(rec.rig, choice.rig))
+    keys = ("capture_volume", "world")
+    stored = given if given is not None and any(k in given.report for k in keys) else written
+    sel = [rec.rig.index(c) for c in choice.rig.ids]
+    world, volume = resolve_outputs(options, choice.rig, stored, rec[first].subset(sel) if first is not None else None)
+    updated = with_volume(written, volume, world)
+    if any(updated.report.get(k) != written.report.get(k) for k in keys):
+        write_calibration(calib_json, updated, rig=rec.rig)
+    return FrameWriter(out, options, choice.rig, volume, recording_centres(rec.rig, choice.rig), world=world)
 
 
 def _check_sync(rec: Recording, state: _RunState, config: PipelineConfig) -> tuple[Recording, dict[str, int]]:
@@ -242,6 +250,7 @@ def _recalibrate(rec: Recording, t: int, sel: list[int], state: _RunState, flagg
                 {"source": f"recalibrated at frame {number}", "gmac": report},
             ),
             state.writer.volume if state.writer is not None else None,
+            state.writer.world if state.writer is not None else None,
         ),
     )
     for c in flagged:
@@ -414,8 +423,8 @@ def run(
     choice = choose_calibration(rec, out, calibration, config, calib_frame, use_rig_extrinsics)
     monitor = HealthMonitor(choice.rig.ids, config.health_warmup, config.health_drop, config.health_patience)
     state = _RunState(choice.rig, monitor, out / "calib.json", warnings=list(choice.warnings))
-    state.writer = _frame_writer(rec, out, calibration, choice, config.outputs)
     positions = list(frames if frames is not None else range(len(rec)))
+    state.writer = _frame_writer(rec, out, calibration, choice, config.outputs, positions[0] if positions else None)
     offsets: dict[str, int] = {}
     if not _finished(rec, out, positions, state.writer):  # nothing to check when nothing is fused
         state.warnings += _check_inputs(rec, choice.rig, positions, config, state.writer.volume)

@@ -24,24 +24,44 @@ class ViewSource:
     items: list[tuple[int, Callable[[], FusedCloud]]]
     volume: object | None = None
     """The capture volume a run stored in its calib.json (``geometry.volume.CaptureVolume``), or None."""
+    weights: bool = True
+    """Whether the clouds store FUSE's weight (False for Draco files: ``read_cloud`` gives 1.0)."""
+    z_up: bool = False
+    """Whether the clouds are in a z-up frame (a run's ``--world floor``)."""
+
+
+def _run_world(path: Path) -> np.ndarray:
+    """Output-from-calibration-world of a run directory's clouds (calib.json's ``world``; the
+    identity without one)."""
+    from fuseflow.io import read_calibration
+
+    try:
+        doc = read_calibration(path / "calib.json").report.get("world")
+    except (FuseFlowError, OSError):
+        return np.eye(4)
+    return np.asarray(doc["T_out_world"], np.float64) if doc else np.eye(4)
 
 
 def _run_rig(path: Path) -> Rig | None:
-    """The calibrated rig of a run directory, or None when its recording is gone or unreadable."""
+    """The calibrated rig of a run directory, placed in its clouds' frame, or None when its
+    recording is gone or unreadable."""
     from fuseflow.io import open_recording, read_calibration
+    from fuseflow.types import Calibration
 
     summary = path / "summary.json"
     if not ((path / "calib.json").exists() and summary.exists()):
         return None
     try:
         rec = open_recording(json.loads(summary.read_text())["recording"])
-        return read_calibration(path / "calib.json").apply(rec.rig)
+        cal = read_calibration(path / "calib.json")
+        back = np.linalg.inv(_run_world(path))
+        return Calibration({c: T @ back for c, T in cal.T_cam_world.items()}, cal.report).apply(rec.rig)
     except (FuseFlowError, OSError, KeyError, ValueError):  # the recording moved: no frustums
         return None
 
 
 def _run_volume(path: Path):
-    """The capture volume in a run directory's calib.json, or None."""
+    """The capture volume in a run directory's calib.json, in its clouds' frame, or None."""
     from fuseflow.geometry.volume import CaptureVolume
     from fuseflow.io import read_calibration
 
@@ -49,7 +69,12 @@ def _run_volume(path: Path):
         doc = read_calibration(path / "calib.json").report.get("capture_volume")
     except (FuseFlowError, OSError):
         return None
-    return CaptureVolume.from_json(doc) if doc else None
+    if not doc:
+        return None
+    v = CaptureVolume.from_json(doc)
+    T = v.T_box_world @ np.linalg.inv(_run_world(path))
+    T[3] = (0.0, 0.0, 0.0, 1.0)
+    return CaptureVolume(v.lo, v.hi, T, v.kind, v.radius, v.axis)
 
 
 def view_source(path: str | Path) -> ViewSource:
@@ -61,11 +86,16 @@ def view_source(path: str | Path) -> ViewSource:
     if (path / "clouds").is_dir():
         from fuseflow.io.exchange import read_cloud
 
-        clouds = sorted(p for ext in ("ply", "drc", "glb") for p in (path / "clouds").glob(f"*.{ext}"))
-        if not clouds:
+        by_frame: dict[int, Path] = {}
+        for ext in ("drc", "glb", "ply"):  # one file a frame: PLY (every field) over GLB over Draco
+            for p in (path / "clouds").glob(f"*.{ext}"):
+                if p.stem.isdigit():
+                    by_frame[int(p.stem)] = p
+        if not by_frame:
             raise RecordingError(f"{path / 'clouds'} holds no .ply, .drc or .glb files")
-        items = [(int(p.stem), (lambda p=p: read_cloud(p))) for p in clouds]
-        return ViewSource(_run_rig(path), items, _run_volume(path))
+        items = [(n, (lambda p=p: read_cloud(p))) for n, p in sorted(by_frame.items())]
+        weights = all(p.suffix != ".drc" for p in by_frame.values())
+        return ViewSource(_run_rig(path), items, _run_volume(path), weights, _floor_world(path))
     rec = open_recording(path)
     if not rec.rig.is_calibrated:
         raise RecordingError(
@@ -74,6 +104,17 @@ def view_source(path: str | Path) -> ViewSource:
     from fuseflow.fuse import fuse
 
     return ViewSource(rec.rig, [(rec.frame_numbers[t], (lambda t=t: fuse(rec[t], rec.rig))) for t in range(len(rec))])
+
+
+def _floor_world(path: Path) -> bool:
+    """Whether a run directory's clouds are in the floor frame (calib.json's world)."""
+    from fuseflow.io import read_calibration
+
+    try:
+        doc = read_calibration(path / "calib.json").report.get("world")
+    except (FuseFlowError, OSError):
+        return False
+    return bool(doc) and doc.get("name") == "floor"
 
 
 def world_up(rig: Rig | None) -> tuple[float, float, float]:
@@ -122,15 +163,16 @@ def _volume(source: ViewSource):
     return capture_volume(source.rig)
 
 
-def send_to_rerun(source: ViewSource, rrd: str | Path | None = None) -> int:
+def send_to_rerun(source: ViewSource, rrd: str | Path | None = None, full: bool = False) -> int:
     """Log the rig (frustums) and each cloud on rerun's frame timeline: to the viewer, or to the
-    file ``rrd``; returns the number of frames."""
-    from fuseflow.viz.rerun_log import RerunLogger
+    file ``rrd``; each cloud subsampled to ``viz.rerun_log.RERUN_POINTS`` unless ``full``;
+    returns the number of frames."""
+    from fuseflow.viz.rerun_log import RERUN_POINTS, RerunLogger
 
-    logger = RerunLogger(save_to=rrd, spawn=rrd is None)
+    logger = RerunLogger(save_to=rrd, spawn=rrd is None, z_up=source.z_up)
     if source.rig is not None:
         logger.log_rig(source.rig)
     for number, load in source.items:
-        logger.log_cloud(number, load())
+        logger.log_cloud(number, load(), max_points=None if full else RERUN_POINTS)
     logger.close()
     return len(source.items)
