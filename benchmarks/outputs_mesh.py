@@ -15,7 +15,7 @@ from benchmarks import common
 def main(argv: list[str] | None = None) -> None:
     ap = common.parser(__doc__.splitlines()[0])
     ap.add_argument("recordings", nargs="+")
-    ap.add_argument("--methods", default="tsdf,poisson,bpa")
+    ap.add_argument("--methods", default="range,poisson,tsdf,bpa")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
     a = ap.parse_args(argv)

@@ -3,7 +3,7 @@ renderer (``fuseflow.viz.splat_render``, numpy, headless). The picture in docs/f
 
     fuseflow convert ../shared/data/hocap-8rs /tmp/hocap --with-extrinsics
     fuseflow fuse /tmp/hocap --out /tmp/hocap-out --format ply,splat --crop auto --points 100000
-    PYTHONPATH=src python benchmarks/outputs_splat_picture.py /tmp/hocap-out/splats/000000.ply \\
+    python -m benchmarks.outputs_splat_picture /tmp/hocap-out/splats/000000.ply \\
         docs/img/hocap-splats.png --azimuth 200 --elevation 30
 """
 
@@ -15,14 +15,14 @@ import time
 from fuseflow.viz import save_splat_png
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("splats", help="a splat PLY (OUT/splats/<frame>.ply)")
     ap.add_argument("png")
     ap.add_argument("--azimuth", type=float, default=35.0)
     ap.add_argument("--elevation", type=float, default=25.0)
     ap.add_argument("--size", default="960x720")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     w, h = (int(v) for v in a.size.split("x"))
     t0 = time.process_time()
     save_splat_png(a.splats, a.png, w, h, a.azimuth, a.elevation)

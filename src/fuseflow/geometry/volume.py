@@ -360,7 +360,7 @@ RING_REACH_M = 0.5
 """A ring's seen volume reaches this far beyond its farthest camera from the middle of what the
 cameras see (metres): a subject leaning in between the cameras is kept (HO-Cap's seated
 person reaches 0.3 m beyond them), a studio's walls, a metre or more behind the cameras, are
-not. Measured with ``benchmarks/outputs_world_crop.py`` (docs/formats.md, "Crop")."""
+not. Measured with ``python -m benchmarks.outputs_world_crop`` (docs/formats.md, "Crop")."""
 
 
 def _ring(P: np.ndarray, cams: np.ndarray) -> tuple[np.ndarray, float] | None:
