@@ -115,7 +115,7 @@ def test_hocap_crop_keeps_what_two_cameras_see_above_the_table(hocap):
     world = World.from_json(cal.report["world"])
     volume = CaptureVolume.from_json(cal.report["capture_volume"])
     from fuseflow.fuse import fuse
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
 
     xyz = fuse(rec[0], rec.rig, preset_config("auto", 100000)).numpy().xyz.astype(np.float64)  # uncropped
     frame = rec.frame(0, numpy=True)
@@ -136,7 +136,7 @@ def studio(tmp_path_factory):
 
 def test_floor_frame_levels_the_simulated_floor_and_other_worlds(studio, tmp_path):
     from fuseflow.fuse import fuse
-    from fuseflow.fuse.config import preset_config
+    from fuseflow.fuse.presets import preset_config
     from fuseflow.io import open_recording
 
     rec = open_recording(studio)

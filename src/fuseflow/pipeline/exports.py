@@ -11,6 +11,7 @@ the floor frame when a floor is found) and the crop (a ``CaptureVolume`` or None
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -197,7 +198,9 @@ def _camera_world(choice: str, rig: Rig, floor) -> World:
 
     if choice == "calib":
         return World("calib", np.eye(4), floor)
-    cid = choice.removeprefix("camera:") if choice.startswith("camera:") else next(c.id for c in rig if c.is_calibrated)
+    cid = choice.removeprefix("camera:")  # "camera:" alone: the first placed camera
+    if not cid:
+        cid = next((c.id for c in rig if c.is_calibrated), "")
     if cid not in rig.ids or not rig[cid].is_calibrated:
         placed = [c.id for c in rig if c.is_calibrated]
         raise ValidationError(f"--world camera:{cid}: no placed camera of that id (placed: {', '.join(placed)})")
@@ -288,7 +291,7 @@ class FrameWriter:
         """The cloud moved into the output frame and thinned there (``voxel_mm``)."""
         c = cloud.numpy()
         if self.world is not None and self.world.name != "calib":
-            c = FusedCloud.from_numpy(self.world.apply(c.xyz), c.rgb, c.weight, c.camera, c.support)
+            c = dataclasses.replace(c, xyz=self.world.apply(c.xyz))  # numpy stays numpy (no torch)
         return thin_cloud(c, self.options.voxel_mm)
 
     def _by_rig(self, cloud: FusedCloud) -> FusedCloud:

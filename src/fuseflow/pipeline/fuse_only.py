@@ -247,10 +247,9 @@ def fuse_recording(
         raise ValidationError(f"no frame selected: the recording has {len(rec)} frames (positions 0:{len(rec)})")
     outputs = outputs if outputs is not None else OutputOptions()
     sel = [rec.rig.index(c) for c in rig.ids]
-    world, volume = resolve_outputs(
-        outputs, rig, calibration, select_views(rec.frame(positions[0], numpy=True), sel, "cpu")
-    )
-    checked = validate_inputs(rec[positions[0]], rig, cfg, volume)  # before anything is written
+    first = rec.frame(positions[0], numpy=True)  # numpy: only the agreement checks load torch
+    world, volume = resolve_outputs(outputs, rig, calibration, select_views(first, sel, "cpu"))
+    checked = validate_inputs(first, rig, cfg, volume)  # before anything is written
     out = prepare_output_dir(out_dir)
     open_output(out, _manifest(rec, rig, cfg, outputs), force)
     source = calibration_source or ("rig.json" if calibration is None else "given")
