@@ -168,8 +168,13 @@ AZURE_KINECT = SensorModel(
     flying_pixel_rate=0.1,
 )
 NO_NOISE = SensorModel(name="none", kind="none", depth_range=(0.1, 10.0), baseline_m=0.0, disparity_subpixel=0.0)
-SENSORS = {"kinect": KINECT_V1, "realsense": REALSENSE_D435, "none": NO_NOISE, "kinect2": KINECT_V2,
-           "azure": AZURE_KINECT}
+SENSORS = {
+    "kinect": KINECT_V1,
+    "realsense": REALSENSE_D435,
+    "none": NO_NOISE,
+    "kinect2": KINECT_V2,
+    "azure": AZURE_KINECT,
+}
 
 
 @dataclass(frozen=True)

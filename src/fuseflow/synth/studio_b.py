@@ -6,12 +6,15 @@ panels, skirting boards, floor sectors and ceiling sectors repeat exactly every 
 repeated piece carries the same solid texture evaluated in its own sector's coordinates, and the
 shading depends on the surface normal's height component only (no directional light), so the
 room looks the same after a turn of 360/N deg. At the centre a static seated figure built from
-boxes and cylinders (a stool, legs, torso, arms, head) with a side table and a bag beside it:
-the only thing that tells the N turns of the room apart. ``SimConfig.dynamic``: the figure turns
+boxes and cylinders (a stool, legs, torso, arms, head) with none, one or two of three props (a
+side table, a bag, a short post) beside it: the only thing that tells the N turns of the room
+apart. ``SimConfig.dynamic``: the figure turns
 and moves (12 deg and 6 cm per frame, the arms swing), otherwise it is still.
 
 Cameras: ``SimConfig.cameras`` on one ring (``rig='ring'``), two rings (``rig='dome'``) or one or
-two from the seed (``'auto'``), 2.5-4 m from the centre, looking at the figure.
+two from the seed (``'auto'``), 2.5-4 m from the centre, looking at the figure; evenly spaced
+from a random phase with +-4 deg of jitter, and in half the seeds moved to the nearest whole
+period of the room (as when mounted on its pillars) where no two cameras of a ring then share one.
 
 Textures are a different function family from ``synth.texture`` (tiled value noise and shapes):
 a solid texture made of eight oriented cosine gratings (wavelengths 10-80 cm), a hashed cell
@@ -41,10 +44,13 @@ from fuseflow.errors import ValidationError
 from fuseflow.synth.config import SimConfig
 from fuseflow.types import Camera, Frame, Rig
 
-__all__ = ["POLYROOM", "PolyroomSimulator", "polyroom_sides", "polyroom_sensor"]
+__all__ = ["POLYROOM", "SUBJECTS", "PolyroomSimulator", "polyroom_sides", "polyroom_sensor"]
 
 #: The scene name of this module in ``synth.config.SCENES``.
 POLYROOM = "polyroom"
+#: What stands in the middle: the seated figure (the scene), or, as controls that cannot tell the
+#: room's turns apart, a column on the room's axis or nothing (``PolyroomSimulator(subject=...)``).
+SUBJECTS = ("figure", "column", "none")
 
 _SENSORS = {
     # name: (hfov deg, range (m), sigma a (m), sigma quadratic (1/m), z0, sigma linear, edge mode, rig sensor)
@@ -169,6 +175,8 @@ class _Layout:
     yaw: float  # the figure's heading
     offset: np.ndarray  # the figure's position (2,)
     materials: tuple
+    props: tuple  # which of the three props stand beside the figure
+    snap: bool  # cameras at whole periods of the room (the rig shares its symmetry)
 
 
 def _layout(seed: int) -> _Layout:
@@ -176,8 +184,10 @@ def _layout(seed: int) -> _Layout:
     mats = (_material(rng), _material(rng, 0.3, 0.55), _material(rng, 0.5, 0.8), _material(rng, 0.15, 0.3)) + tuple(
         _material(rng, 0.2, 0.8) for _ in range(8)
     )
+    props = tuple(sorted(int(k) for k in rng.permutation(3)[: int(rng.integers(3))]))
     return _Layout(polyroom_sides(seed), float(rng.uniform(4.0, 4.8)), float(rng.uniform(2.8, 3.4)),
-                   float(rng.uniform(0, 2 * math.pi)), rng.uniform(-0.15, 0.15, 2), mats)  # fmt: skip
+                   float(rng.uniform(0, 2 * math.pi)), rng.uniform(-0.15, 0.15, 2), mats, props,
+                   bool(rng.random() < 0.5))  # fmt: skip
 
 
 def _room(mesh: _Mesh, lay: _Layout) -> None:
@@ -214,10 +224,13 @@ def _figure(mesh: _Mesh, lay: _Layout, t: int, moving: bool) -> None:
         (*_box(0.12, 0.12, 0.46), 6, (0.42, -0.1, 0.23)),
         (*_box(0.24, 0.4, 0.58), 7, (0.0, 0.0, 0.88)),  # torso
         (*_cylinder(0.1, 0.24), 8, (0.0, 0.0, 1.2)),  # head
+    ]
+    props = [
         (*_box(0.3, 0.26, 0.62), 9, (-0.55, 0.45, 0.31)),  # side table, a box
         (*_box(0.35, 0.2, 0.28), 10, (0.1, -0.5, 0.14)),  # bag on the floor
-        (*_cylinder(0.05, 0.5), 11, (0.45, 0.55, 0.0)),  # a standing pole (a lamp) in front, to one side
+        (*_cylinder(0.05, 0.5), 11, (0.45, 0.55, 0.0)),  # a short post in front, to one side
     ]
+    parts += [props[k] for k in lay.props]
     for part in parts:
         v, f, mat = part[0], part[1], part[2]
         off = np.array(part[3]) if len(part) > 3 else np.zeros(3)
@@ -258,8 +271,13 @@ def _rig(cfg: SimConfig, lay: _Layout, sensor: str) -> Rig:
     for ring, count in enumerate(counts):
         radius = float(rng.uniform(2.5, min(4.0, lay.apothem - 0.4)))
         height = float(rng.uniform(0.9, 1.5) if ring == 0 else rng.uniform(1.9, 2.5))
-        for k in range(count):
-            ang = phase + (2 * math.pi * (k + 0.5 * ring)) / count + math.radians(rng.uniform(-4, 4))
+        angles = [phase + (2 * math.pi * (k + 0.5 * ring)) / count + math.radians(rng.uniform(-4, 4))
+                  for k in range(count)]  # fmt: skip
+        period = 2 * math.pi / lay.sides
+        snapped = [round(a / period) % lay.sides for a in angles]
+        if lay.snap and len(set(snapped)) == count:  # mounted at whole periods (the room's pillars)
+            angles = [k * period for k in snapped]
+        for ang in angles:
             eye = np.array([radius * math.cos(ang), radius * math.sin(ang), height])
             target = np.array([*(lay.offset + rng.uniform(-0.15, 0.15, 2)), rng.uniform(0.7, 1.0)])
             cams.append(Camera(f"cam{len(cams):02d}", w, h, K, depth_scale=cfg.depth_scale, depth_range=rng_m,
@@ -327,11 +345,15 @@ def _noisy_depth(z: np.ndarray, cos_i: np.ndarray, lum: np.ndarray, sensor: str,
 
 class PolyroomSimulator:
     """The ``polyroom`` scene (module docstring) with the interface the recording writer uses:
-    ``rig`` (true extrinsics), ``moving``, ``render(t)`` -> ``simulator.SimFrame``."""
+    ``rig`` (true extrinsics), ``moving``, ``render(t)`` -> ``simulator.SimFrame``. ``subject``:
+    one of ``SUBJECTS``."""
 
-    def __init__(self, cfg: SimConfig):
+    def __init__(self, cfg: SimConfig, subject: str = "figure"):
         if cfg.scene != POLYROOM:
             raise ValidationError(f"PolyroomSimulator needs scene {POLYROOM!r}, got {cfg.scene!r}")
+        if subject not in SUBJECTS:
+            raise ValidationError(f"PolyroomSimulator: subject must be one of {SUBJECTS}, got {subject!r}")
+        self.subject = subject
         self.cfg = cfg
         self.sensor = polyroom_sensor(cfg)
         self.layout = _layout(cfg.seed)
@@ -343,7 +365,11 @@ class PolyroomSimulator:
         """(T, 3, 3) triangles, (T,) material, (T,) sector (-1: the figure) at frame ``t``."""
         m = _Mesh([], [], [])
         _room(m, self.layout)
-        _figure(m, self.layout, t, self.moving)
+        if self.subject == "figure":
+            _figure(m, self.layout, t, self.moving)
+        elif self.subject == "column":  # turns into itself: a control that cannot tell the room's turns
+            v, f = _cylinder(0.3, 1.6, 48)
+            m.add(v, f, 7)
         return m.arrays()
 
     def _albedo(self, p: np.ndarray, mat: np.ndarray, sector: np.ndarray) -> np.ndarray:
