@@ -13,7 +13,8 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    and ceiling are planes that every turn keeps, their texture is not; coarse-to-fine grid around
    where the cameras' optical axes meet); N is the largest in 3..``MAX_SIDES`` whose
    share reaches ``ROOM_MIN_SHARE`` (a 12-fold room also repeats every 60 deg; the smallest turn
-   is the one that matters). The backbone's period (``info["room"]["sides"]``) is tried first.
+   is the one that matters). The backbone's period (``info["room"]["sides"]``, found from its
+   pairs' aliases) is tried first and needs only ``ROOM_HINT_MIN_SHARE``.
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
    ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
    lowest heights; walls and ceiling are outside that volume).
@@ -67,8 +68,9 @@ ROOM_TOL_M = 0.05
 ROOM_MIN_RADIUS_M = 1.5
 #: ... and have a colour within this mean absolute difference (8-bit levels).
 COLOUR_TOL = 30.0
-#: The share of turned points that must land on the cloud for a period to be the room's.
-ROOM_MIN_SHARE = 0.45
+#: The share of turned points that must land on the cloud for a period to be the room's, and for
+#: the period the backbone found from its pairs' aliases (``info["room"]``: independent evidence).
+ROOM_MIN_SHARE, ROOM_HINT_MIN_SHARE = 0.45, 0.25
 #: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
 TAU_M, TAU_REL = 0.02, 0.005
 SUBJECT_FLOOR_M = 0.08
@@ -255,10 +257,11 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     room_pts = (cKDTree(cloud), cols)
     found = None
     for n in ([hint] if hint else []) + [n for n in range(MAX_SIDES, 2, -1) if n != hint]:
+        need = ROOM_HINT_MIN_SHARE if n == hint else ROOM_MIN_SHARE
         c, s = _search_centre(room_pts, P, start, 2 * math.pi / n, ((0.5, 0.125),))
-        if s >= 0.65 * ROOM_MIN_SHARE:
+        if s >= 0.65 * need:
             c, s = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.125, 0.025),))
-            if s >= ROOM_MIN_SHARE:
+            if s >= need:
                 c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
                 found = (n, c, s)
                 break
