@@ -16,6 +16,7 @@ Counted: "silently wrong" (placed, verdict "good", more than 2 deg or 5 cm off) 
 
     python benchmarks/calib_room_turns.py --families symstudio,polyroom --seeds 1000-1009 \
         --resolution 320x240 --json /tmp/turns.json
+    python benchmarks/calib_room_turns.py --families polyroom --seeds 1-10 --planted column
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fuseflow.eval.bench.calib_turns import FAMILIES, parse_seeds, run_turn_bench
+from fuseflow.eval.bench.calib_turns import FAMILIES, parse_seeds, run_planted_bench, run_turn_bench
 
 
 def main() -> None:
@@ -34,12 +35,21 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=1)
     ap.add_argument("--dynamic", action="store_true", help="polyroom: the figure moves between frames")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--planted",
+        choices=("figure", "column", "none"),
+        default=None,
+        help="measure the subject's turn evidence alone: true poses, cameras turned by planted periods",
+    )
     a = ap.parse_args()
     fams = [f for f in a.families.split(",") if f]
     if any(f not in FAMILIES for f in fams):
         ap.error(f"--families: choose from {', '.join(FAMILIES)}")
     res = tuple(int(x) for x in a.resolution.lower().split("x"))
-    run_turn_bench(fams, parse_seeds(a.seeds), res, a.frames, a.dynamic, a.json)
+    if a.planted:
+        run_planted_bench(fams, parse_seeds(a.seeds), res, a.planted, a.json)
+    else:
+        run_turn_bench(fams, parse_seeds(a.seeds), res, a.frames, a.dynamic, a.json)
 
 
 if __name__ == "__main__":

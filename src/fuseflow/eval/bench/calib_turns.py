@@ -14,6 +14,9 @@ to the true one through the placed camera that puts the most cameras within 1 de
 right camera does not count as right), the room turn evidence (``camera_verdicts``' "turn").
 Counted: "silently wrong" (placed, verdict "good", more than 2 deg or 5 cm off) and "within
 1 deg / 3 cm" (of all cameras).
+
+``run_planted_bench`` measures the subject's evidence alone on true poses with cameras turned by
+planted whole periods (no calibration), with the polyroom's control subjects.
 """
 
 from __future__ import annotations
@@ -24,7 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["FAMILIES", "parse_seeds", "run_seed", "seed_line", "summary", "run_turn_bench"]
+__all__ = [
+    "FAMILIES",
+    "parse_seeds",
+    "run_seed",
+    "seed_line",
+    "summary",
+    "run_turn_bench",
+    "planted_turns_seed",
+    "run_planted_bench",
+]
 
 FAMILIES = ("symstudio", "polyroom")
 WRONG_DEG, WRONG_M = 2.0, 0.05
@@ -153,4 +165,64 @@ def run_turn_bench(families, seeds, resolution=(320, 240), frames: int = 1, dyna
             if json_path:
                 Path(json_path).write_text(json.dumps(rows, indent=1, default=str))
     log("\n".join(summary(rows)))
+    return rows
+
+
+def planted_turns_seed(family: str, seed: int, resolution=(320, 240), subject: str = "figure") -> list[dict]:
+    """The subject's turn evidence alone (no calibration): the true poses (world = the first
+    camera), 0-3 cameras other than the first turned by a random whole number of room periods,
+    then ``calib.turns.camera_turns``. Per camera: the planted turn (the one that puts it back),
+    the chosen turn, whether they match, the margin. ``subject`` (polyroom only): 'figure', or the
+    controls 'column' and 'none' (``synth.studio_b.SUBJECTS``)."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib.turns import RoomAxis, camera_turns
+    from fuseflow.synth import Simulator
+    from fuseflow.synth.studio_b import PolyroomSimulator
+    from fuseflow.types import invert_rigid
+
+    cfg = sim_config(family, seed, resolution, 1, False)
+    sim = PolyroomSimulator(cfg, subject=subject) if family == "polyroom" else Simulator(cfg)
+    sides = sim.symmetry if family == "polyroom" else sim.scene.symmetry
+    frame, ids = sim.render(0).frame, list(sim.rig.ids)
+    T0 = sim.rig.cameras[0].T_cam_world
+    T = {c.id: c.T_cam_world @ invert_rigid(T0) for c in sim.rig.cameras}
+    true_room = RoomAxis(sides, (T0 @ np.r_[0.0, 0.0, 0.0, 1.0])[:3], T0[:3, 2], 1.0, 0.0)
+    rng = np.random.default_rng(seed)
+    planted = {}
+    for c in rng.choice(ids[1:], size=min(len(ids) - 1, int(rng.integers(0, 4))), replace=False):
+        k = int(rng.integers(1, sides))
+        T[str(c)] = T[str(c)] @ invert_rigid(true_room.turn(-k))
+        planted[str(c)] = k if k <= sides // 2 else k - sides
+    room, ev = camera_turns(frame, sim.rig, T, SimpleNamespace(backbone_info={}))
+    if room is None:
+        return [{"family": family, "seed": seed, "subject": subject, "sides": sides, "room": None}]
+    return [{"family": family, "seed": seed, "subject": subject, "sides": sides, "room": room.sides, "camera": c,
+             "planted": planted.get(c, 0), "chosen": ev[c].turn, "right": ev[c].turn == planted.get(c, 0),
+             "margin": ev[c].margin} for c in ids]  # fmt: skip
+
+
+def run_planted_bench(families, seeds, resolution=(320, 240), subject: str = "figure", json_path=None,
+                      log=print) -> list[dict]:  # fmt: skip
+    """``planted_turns_seed`` over seeds and families; one line per seed, then per family: rooms
+    found, cameras, right turns, and the margins of right and wrong choices."""
+    rows = []
+    for fam in families:
+        for seed in seeds:
+            r = planted_turns_seed(fam, seed, resolution, subject)
+            rows += r
+            ok = [x for x in r if x.get("camera")]
+            log(f"{fam} {subject} seed {seed} ({r[0]['sides']}-fold): room {r[0].get('room')}, "
+                f"right {sum(x['right'] for x in ok)} of {len(ok)}, margins {[x['margin'] for x in ok]}")  # fmt: skip
+            if json_path:
+                Path(json_path).write_text(json.dumps(rows, indent=1, default=str))
+    for fam in families:
+        cams = [x for x in rows if x["family"] == fam and x.get("camera")]
+        rooms = len({x["seed"] for x in cams})
+        right = [x["margin"] for x in cams if x["right"] and x["margin"] is not None]
+        wrong = [x["margin"] for x in cams if not x["right"] and x["margin"] is not None]
+        log(f"{fam} {subject}: {len(cams)} cameras in {rooms} seeds with a room, {sum(x['right'] for x in cams)} right; "
+            f"margins right {min(right, default=None)}-{max(right, default=None)} (median "
+            f"{np.median(right) if right else None}), wrong {min(wrong, default=None)}-{max(wrong, default=None)}, "
+            f"no margin {sum(x['margin'] is None for x in cams)}")  # fmt: skip
     return rows
