@@ -113,12 +113,12 @@ class CalibReport(Mapping[str, Any]):
     "accuracy_deg", "accuracy_mm", "accuracy_from", "disagreeing", "turn"}
     (:func:`fuseflow.calib.verdicts.camera_verdicts` says how each is measured). Empty in reports
     written before it existed."""
-    room: dict[str, Any] | None = None
-    """The repeating room of the calibrated cloud (:mod:`fuseflow.calib.turns`): {"sides", "point",
-    "up", "share"}, None when the room does not repeat."""
     reference: dict[str, Any] | None = None
     """``calibrate --reference``: the per-camera differences to a reference calibration after
     aligning the two worlds (:func:`fuseflow.calib.reference.compare_to_reference`). None otherwise."""
+    room: dict[str, Any] | None = None
+    """The repeating room of the calibrated cloud (:mod:`fuseflow.calib.turns`): {"sides", "point",
+    "up", "share"}, None when the room does not repeat."""
 
     # -- JSON -----------------------------------------------------------------------------------
 
