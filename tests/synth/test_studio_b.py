@@ -109,3 +109,19 @@ def test_simulate_writes_a_recording_with_ground_truth(tmp_path):
     assert f.depth.shape == (5, 60, 80) and (f.depth > 0).float().mean() > 0.3
     pts, _ = gt.surface(0)
     assert len(pts) > 100
+
+
+def test_cli_simulate_polyroom_and_its_noise_check(tmp_path):
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "fuseflow", "simulate", *args], capture_output=True, text=True,
+                              timeout=300)  # fmt: skip
+
+    bad = run(str(tmp_path / "bad"), "--scene", "polyroom", "--noise", "realsense", "--resolution", "64x48")
+    assert bad.returncode == 2 and "polyroom" in bad.stderr and "Traceback" not in bad.stderr
+    ok = run(str(tmp_path / "ok"), "--scene", "polyroom", "--cameras", "5", "--num-frames", "1",
+             "--resolution", "64x48", "--uncalibrated", "--seed", "3")  # fmt: skip
+    assert ok.returncode == 0, ok.stderr
+    assert read_ground_truth(tmp_path / "ok").config.scene == "polyroom"
