@@ -6,15 +6,17 @@ cycle of pair poses through it still closes (a set of cameras each turned by who
 every relative pose of the room) and its floor stays the floor. Only what is not the room, the
 subject in the middle, tells the turns apart. This module measures, for the final extrinsics:
 
-1. **the room**: up (the cameras' floor normals, refined to the merged cloud's floor), the period N and the axis. The merged cloud of
-   all placed cameras, less its middle (``ROOM_MIN_RADIUS_M``), is turned by 360/N about a
-   vertical axis; the axis position is the one that makes the turned cloud land on the cloud
-   (share of points within ``ROOM_TOL_M`` of a point of a colour within ``COLOUR_TOL``: the floor
-   and ceiling are planes that every turn keeps, their texture is not; coarse-to-fine grid around
-   where the cameras' optical axes meet); N is the largest in 3..``MAX_SIDES`` whose
-   share reaches ``ROOM_MIN_SHARE`` (a 12-fold room also repeats every 60 deg; the smallest turn
-   is the one that matters). The backbone's period (``info["room"]["sides"]``, found from its
-   pairs' aliases) is tried first and needs only ``ROOM_HINT_MIN_SHARE``.
+1. **the room**: up (the cameras' floor normals, refined to the merged cloud's floor), the period N
+   and the axis. The merged cloud of all placed cameras, less its middle (``ROOM_MIN_RADIUS_M``),
+   is turned by 360/N deg about a vertical axis; the score is the share of its points that land
+   within ``ROOM_TOL_M`` of a point of the cloud whose colour (each camera's colours scaled to a
+   mean of 128) is within ``COLOUR_TOL`` (the floor and ceiling are planes that every turn keeps,
+   their texture is not). The axis position maximises it (grid around where the cameras' optical
+   axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
+   period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). The room repeats when
+   the best share is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times the median over
+   all N; N is the largest whose share is within 10 % of the best (a 12-fold room also repeats
+   every 60 deg: the smallest turn is the one that matters), the backbone's period when it is.
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
    ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
    lowest heights; walls and ceiling are outside that volume).
@@ -68,9 +70,9 @@ ROOM_TOL_M = 0.05
 ROOM_MIN_RADIUS_M = 1.5
 #: ... and have a colour within this mean absolute difference (8-bit levels).
 COLOUR_TOL = 30.0
-#: The share of turned points that must land on the cloud for a period to be the room's, and for
-#: the period the backbone found from its pairs' aliases (``info["room"]``: independent evidence).
-ROOM_MIN_SHARE, ROOM_HINT_MIN_SHARE = 0.45, 0.25
+#: A room repeats when its best period's landing share is at least ROOM_MIN_SHARE and
+#: ROOM_MIN_CONTRAST times the median share over the periods 3..MAX_SIDES (module docstring).
+ROOM_MIN_SHARE, ROOM_MIN_CONTRAST = 0.08, 2.0
 #: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
 TAU_M, TAU_REL = 0.02, 0.005
 SUBJECT_FLOOR_M = 0.08
@@ -127,7 +129,11 @@ def _world_points(frame: Frame, rig: Rig, T: Mapping[str, np.ndarray], stride: i
         X = (np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ Kinv.T) * z[ok][:, None]
         Tw = invert_rigid(T[c])
         X = X @ Tw[:3, :3].T + Tw[:3, 3]
-        out[c] = (X, rgb[k, v[ok], u[ok]].astype(np.float32)) if colour else X
+        if colour:  # each camera's colours divided by its mean (gain and white balance differ per camera)
+            col = rgb[k, v[ok], u[ok]].astype(np.float32)
+            out[c] = (X, col / np.maximum(col.mean(axis=0), 1.0) * 128.0)
+        else:
+            out[c] = X
     return out
 
 
@@ -255,19 +261,16 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     pick = np.flatnonzero(wall)
     P = np.c_[cloud, cols][rng.choice(pick, min(len(pick), 1500), replace=False)]
     room_pts = (cKDTree(cloud), cols)
-    found = None
-    for n in ([hint] if hint else []) + [n for n in range(MAX_SIDES, 2, -1) if n != hint]:
-        need = ROOM_HINT_MIN_SHARE if n == hint else ROOM_MIN_SHARE
-        c, s = _search_centre(room_pts, P, start, 2 * math.pi / n, ((0.5, 0.125),))
-        if s >= 0.65 * need:
-            c, s = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.125, 0.025),))
-            if s >= need:
-                c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
-                found = (n, c, s)
-                break
-    if found is None:
+    coarse = {n: _search_centre(room_pts, P, start, 2 * math.pi / n, ((0.5, 0.125),)) for n in range(3, MAX_SIDES + 1)}
+    fine = {n: _search_centre(room_pts, P, coarse[n][0], 2 * math.pi / n, ((0.125, 0.025),))
+            for n in sorted(coarse, key=lambda n: -coarse[n][1])[:4] + ([hint] if hint in coarse else [])}  # fmt: skip
+    shares = {n: fine.get(n, coarse[n])[1] for n in coarse}
+    best = max(shares.values())
+    if best < ROOM_MIN_SHARE or best < ROOM_MIN_CONTRAST * float(np.median(list(shares.values()))):
         return None
-    n, c, s = found
+    n = hint if hint in fine and shares[hint] >= 0.9 * best else max(k for k, v in shares.items() if v >= 0.9 * best)
+    c, s = fine.get(n, coarse[n])
+    c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
     point = B.T @ np.array([c[0], c[1], floor])
     return RoomAxis(n, point, up, s, floor)
 
