@@ -131,3 +131,13 @@ def test_room_is_found_and_the_figure_tells_turns_the_column_does_not(control_vi
     room, ev = T_.camera_turns(frame, rig, T, rep)
     assert room is not None and room.sides == sides
     assert all(e.margin is None or e.margin < TURN_MIN_MARGIN for e in ev.values()), ev
+
+
+@pytest.mark.parametrize("scene", ["studio", "room"])
+def test_a_room_that_does_not_repeat_has_no_turns(scene):
+    from fuseflow.synth import Simulator
+
+    sim = Simulator(SimConfig(cameras=6, frames=1, scene=scene, resolution=(160, 120), seed=1))
+    T = {c.id: c.T_cam_world for c in sim.rig.cameras}
+    room, ev = T_.camera_turns(sim.render(0).frame, sim.rig, T, SimpleNamespace(backbone_info={}))
+    assert room is None and ev == {}
