@@ -29,7 +29,12 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
 first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
 agree, no cycle through it (a floor check alone leaves its heading and horizontal position
-unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
+unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" unless the room
+repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
+background, so only the subject can check the turn (``TurnEvidence`` from ``calib.turns``):
+"ambiguous" when its margin is below ``TURN_MIN_MARGIN`` or nothing of the subject is seen,
+"check it" when the subject prefers another turn, "good" otherwise. This module is the one place
+that decides (docs/gmac-trust.md, "Verdict policy").
 """
 
 from __future__ import annotations
