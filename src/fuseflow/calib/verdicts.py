@@ -33,7 +33,8 @@ unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" un
 repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
 background, so only the subject can check the turn (``TurnEvidence`` from ``calib.turns``):
 "ambiguous" when its margin is below ``TURN_MIN_MARGIN`` or nothing of the subject is seen,
-"check it" when the subject prefers another turn, "good" otherwise. This module is the one place
+"check it" when the subject prefers another turn, "good" otherwise; "ambiguous" too when the
+backbone's pairs say the room repeats but ``calib.turns`` found no axis. This module is the one place
 that decides (docs/gmac-trust.md, "Verdict policy").
 """
 
@@ -299,6 +300,7 @@ def camera_verdicts(
     edges = _rgbd_edges(info) if info else {}
     floor = _floor_check(info, T)
     stacked = _stacked(T)
+    backbone_room = int(((info or {}).get("room") or {}).get("sides") or 0)
     limit = float((report.config or {}).get("min_depth_agreement", 0.0))
     out = {}
     for c in ids:
@@ -328,6 +330,14 @@ def camera_verdicts(
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
         if room is not None and entry["verdict"] == "good":
             entry["verdict"], entry["reason"] = _judge_turn(turn, room.sides, entry["reason"])
+        elif room is None and backbone_room and entry["verdict"] == "good":
+            entry["verdict"], entry["reason"] = (
+                "ambiguous",
+                (
+                    f"the backbone's pairs say the room repeats (every {360.0 / backbone_room:.0f} deg) but its axis "
+                    "was not found in the calibrated cloud, so nothing checks its turn; " + AMBIGUOUS_ACTION
+                ),
+            )
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
 
