@@ -141,3 +141,10 @@ def test_a_room_that_does_not_repeat_has_no_turns(scene):
     T = {c.id: c.T_cam_world for c in sim.rig.cameras}
     room, ev = T_.camera_turns(sim.render(0).frame, sim.rig, T, SimpleNamespace(backbone_info={}))
     assert room is None and ev == {}
+
+
+def test_a_room_the_backbone_calls_repeating_without_an_axis_is_ambiguous():
+    rep, T = _report()
+    rep.backbone_info["room"] = {"sides": 8}
+    v = camera_verdicts(rep, T, list(T), {}, None)
+    assert {x["verdict"] for x in v.values()} == {"ambiguous"} and "45 deg" in v["a"]["reason"]
