@@ -440,7 +440,7 @@ def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvi
 def settle_turns(T: Mapping[str, np.ndarray], room: RoomAxis, evidence: Mapping[str, TurnEvidence],
                  min_margin: float) -> tuple[dict[str, np.ndarray], dict[str, TurnEvidence]]:  # fmt: skip
     """Cameras whose chosen turn is not 0 with a margin of at least ``min_margin`` turned by it
-    about the room's axis (the background keeps agreeing, the subject now does too); their evidence
+    about the room's axis (the background keeps agreeing, the subject then agrees too); their evidence
     then reads turn 0 with ``moved`` set to the turn applied. Others unchanged."""
     T_out, ev_out = dict(T), dict(evidence)
     for c, e in evidence.items():
