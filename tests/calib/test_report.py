@@ -53,6 +53,7 @@ REPORT_KEYS = [
     "pair_agreement",  # issue 27: per-pair depth agreement under the result
     "camera_verdicts",  # issue 27: good / check it / unplaced per camera, with the evidence
     "reference",  # issue 27: calibrate --reference's per-camera differences
+    "room",  # the repeating room found by calib.turns (None: none)
 ]
 
 

@@ -32,8 +32,10 @@ from fuseflow.calib.placement import (
 )
 from fuseflow.calib.pooling import RecordingLike, first_complete, pooled_calibration, warn_verdicts
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
-from fuseflow.calib.verdicts import camera_verdicts, pair_agreements
+from fuseflow.calib.turns import camera_turns, settle_turns
+from fuseflow.calib.verdicts import TURN_MIN_MARGIN, camera_verdicts, pair_agreements
 from fuseflow.errors import ValidationError
+from fuseflow.geometry import depth_agreement
 from fuseflow.types import Calibration, Frame, Rig
 
 # ScaleResult and metric_scale live in scale_stage; re-exported here, where they used to be.
@@ -180,8 +182,15 @@ def _calibrate(frame, rig: Rig, config: CalibConfig, backbone_result: BackboneRe
         progress_events.report("report")
         t = time.perf_counter()
         report = finish_report(pl, frames[0].camera_ids, config)
+        room, turns = camera_turns(frames, rig, pl.T, report)  # a repeating room: the subject decides turns
+        if room is not None:
+            pl.T, turns = settle_turns(pl.T, room, turns, TURN_MIN_MARGIN)
+            if any(t.moved for t in turns.values()):
+                pl.agreement = depth_agreement(frames[0], rig, pl.T) if config.min_depth_agreement > 0 else {}
+                report = finish_report(pl, frames[0].camera_ids, config)
+            report.room = room.to_json()
         report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
-        report.camera_verdicts = camera_verdicts(report, pl.T, frames[0].camera_ids)
+        report.camera_verdicts = camera_verdicts(report, pl.T, frames[0].camera_ids, turns, room)
         drop_answered_scale_warning(report)
         pl.timings["report"] = time.perf_counter() - t
     pl.timings["total"] = time.perf_counter() - t_start

@@ -108,13 +108,17 @@ class CalibReport(Mapping[str, Any]):
     extrinsics (tau 5 %; :func:`fuseflow.calib.verdicts.pair_agreements`); pairs without overlap
     are absent. Empty in reports written before it existed."""
     camera_verdicts: dict[str, dict[str, Any]] = field(default_factory=dict)
-    """Camera -> {"verdict": "good" | "check it" | "unplaced", "reason", "placed_by", "routes",
-    "pairs", "pairs_agreeing", "cycles", "floor", "floor_ok", "checks", "depth_agreement", "accuracy_deg",
-    "accuracy_mm", "accuracy_from", "disagreeing"} (:func:`fuseflow.calib.verdicts.camera_verdicts`
-    says how each is measured). Empty in reports written before it existed."""
+    """Camera -> {"verdict": "good" | "check it" | "ambiguous" | "unplaced", "reason", "placed_by",
+    "routes", "pairs", "pairs_agreeing", "cycles", "floor", "floor_ok", "checks", "depth_agreement",
+    "accuracy_deg", "accuracy_mm", "accuracy_from", "disagreeing", "turn"}
+    (:func:`fuseflow.calib.verdicts.camera_verdicts` says how each is measured). Empty in reports
+    written before it existed."""
     reference: dict[str, Any] | None = None
     """``calibrate --reference``: the per-camera differences to a reference calibration after
     aligning the two worlds (:func:`fuseflow.calib.reference.compare_to_reference`). None otherwise."""
+    room: dict[str, Any] | None = None
+    """The repeating room of the calibrated cloud (:mod:`fuseflow.calib.turns`): {"sides", "point",
+    "up", "share"}, None when the room does not repeat."""
 
     # -- JSON -----------------------------------------------------------------------------------
 

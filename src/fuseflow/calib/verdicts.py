@@ -29,12 +29,19 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
 first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
 agree, no cycle through it (a floor check alone leaves its heading and horizontal position
-unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good".
+unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" unless the room
+repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
+background, so only the subject can check the turn (``TurnEvidence`` from ``calib.turns``):
+"ambiguous" when its margin is below ``TURN_MIN_MARGIN`` or nothing of the subject is seen,
+"check it" when the subject prefers another turn, "good" otherwise; "ambiguous" too when the
+backbone's pairs say the room repeats but ``calib.turns`` found no axis. This module is the one place
+that decides (docs/gmac-trust.md, "Verdict policy").
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from itertools import combinations
 from typing import Any
 
@@ -44,6 +51,9 @@ from fuseflow.geometry import pair_agreement
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = [
+    "TurnEvidence",
+    "TURN_MIN_MARGIN",
+    "AMBIGUOUS_ACTION",
     "camera_verdicts",
     "pair_agreements",
     "edge_residual",
@@ -65,6 +75,38 @@ GOOD_DEG, GOOD_MM = 2.0, 50.0
 FLOOR_DEG, FLOOR_MM = 2.0, 50.0
 #: Two camera centres closer than this (metres; a depth camera is 10-25 cm wide) are stacked.
 STACKED_M = 0.10
+
+#: The subject's margin between a camera's chosen room turn and its runner-up below which the
+#: turn is "ambiguous" (``TurnEvidence.margin``; docs/gmac-trust.md, "Room turns").
+TURN_MIN_MARGIN = 0.05
+#: What a user can do about an ambiguous room turn.
+AMBIGUOUS_ACTION = "put a person or one asymmetric object in the middle, or record a few frames of them moving"
+
+
+@dataclass(frozen=True)
+class TurnEvidence:
+    """What the subject says about a camera's turn in a room that repeats every 360/sides deg
+    (``calib.turns``): its chosen turn (whole periods, 0 = as placed), the subject score there
+    and at the best other turn (minus the share of its subject points and its neighbours' that
+    the other side sees through, both directions), the margin between the two (how much more of
+    the subject the best other turn puts in seen free space), the points seen at the chosen
+    turn, how many other turns are physically possible (not stacked on another camera)."""
+
+    sides: int
+    turn: int
+    score: float | None
+    runner_up: int | None
+    runner_up_score: float | None
+    margin: float | None
+    seen: int
+    alternatives: int
+    subject_radius_m: float
+    moved: int = 0
+    """The turn (whole periods) the subject made the calibration apply to this camera (0: none)."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {**asdict(self), "period_deg": round(360.0 / self.sides, 2)}
+
 
 ROUTE_NAMES = {"floor": "floor", "sift4": "image+floor", "sift3d": "image", "geometric": "geometric"}
 ROUTE_NAMES["subject"] = "subject"  # route (e), calib.subject
@@ -142,10 +184,22 @@ def _stacked(T: Mapping[str, np.ndarray]) -> dict[str, tuple[str, float]]:
     return out
 
 
-def _evidence_rgbd(c: str, edges, T) -> dict[str, Any]:
+def _residual_up_to_turns(T_ba: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, room) -> tuple[float, float]:
+    """``edge_residual``, in a repeating room the smallest over camera a turned by whole periods."""
+    best = edge_residual(T_ba, T_a, T_b)
+    if room is None or (best[0] <= AGREE_DEG and best[1] <= AGREE_MM):
+        return best
+    for k in range(1, room.sides):
+        r = edge_residual(T_ba, T_a @ room.turn(k), T_b)
+        if r[0] <= AGREE_DEG and r[1] <= AGREE_MM:
+            return r
+    return best
+
+
+def _evidence_rgbd(c: str, edges, T, room=None) -> dict[str, Any]:
     """Pairs, agreeing pairs, cycles, routes and residual-based accuracy of an rgbd-placed camera."""
     mine = {(a, b): v for (a, b), v in edges.items() if c in (a, b) and a in T and b in T}
-    res = {e: edge_residual(v[0], T[e[0]], T[e[1]]) for e, v in mine.items()}
+    res = {e: _residual_up_to_turns(v[0], T[e[0]], T[e[1]], room) for e, v in mine.items()}
     agree = {e for e, (d, mm) in res.items() if d <= AGREE_DEG and mm <= AGREE_MM}
     nb = {(b if a == c else a) for a, b in agree}
     good_edges = {frozenset(e) for e, v in edges.items() if e[0] in T and e[1] in T}
@@ -222,19 +276,31 @@ def _unplaced_reason(c: str, report) -> str:
     return "no usable pair links it to the other cameras"
 
 
-def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[str, dict[str, Any]]:
+def camera_verdicts(
+    report,
+    T_cam_world: Mapping[str, np.ndarray],
+    ids,
+    turns: Mapping[str, TurnEvidence] | None = None,
+    room=None,
+) -> dict[str, dict[str, Any]]:
     """Camera id (rig order ``ids``) -> its verdict and evidence (module docstring), plain JSON.
 
     Keys: "verdict" ("good" | "check it" | "unplaced"), "reason", "placed_by", "routes", "pairs",
     "pairs_agreeing", "cycles", "floor" ([tilt deg, height mm] against the rig's floor, or None),
     "floor_ok" (within FLOOR_DEG / FLOOR_MM), "checks" (cycles + a passing floor check), "depth_agreement", "accuracy_deg", "accuracy_mm" (None: unknown),
-    "accuracy_from", "disagreeing" (edge -> [deg, mm] of pairs beyond AGREE_DEG / AGREE_MM).
+    "accuracy_from", "disagreeing" (edge -> [deg, mm] of pairs beyond AGREE_DEG / AGREE_MM),
+    "turn" (``TurnEvidence.to_json`` in a repeating room, else None); verdict "ambiguous" when
+    the subject cannot tell the camera's room turn from another. ``room``: the repeating room
+    (``calib.turns.RoomAxis``: ``sides`` and ``turn(k)``, the world rotation by k periods) or None;
+    in one, a pair pose agrees when it agrees after whole turns of the room (it measures the pose
+    up to the turn, which only the subject decides).
     """
     T = dict(T_cam_world)
     info = _rgbd_info(report)
     edges = _rgbd_edges(info) if info else {}
     floor = _floor_check(info, T)
     stacked = _stacked(T)
+    backbone_room = int(((info or {}).get("room") or {}).get("sides") or 0)
     limit = float((report.config or {}).get("min_depth_agreement", 0.0))
     out = {}
     for c in ids:
@@ -243,7 +309,7 @@ def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
         if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
-            ev = _subject_accuracy(_evidence_rgbd(c, edges, T), info, c)
+            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room), info, c)
         elif report.backbone != "auto":
             ev = _evidence_scale_free(c, report, T)
         else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera
@@ -259,7 +325,19 @@ def camera_verdicts(report, T_cam_world: Mapping[str, np.ndarray], ids) -> dict[
             "depth_agreement": None if agreement is None else round(float(agreement), 3),
         }
         entry["floor_ok"] = floor_ok
+        turn = (turns or {}).get(c)
+        entry["turn"] = None if turn is None else turn.to_json()
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
+        if room is not None and entry["verdict"] == "good":
+            entry["verdict"], entry["reason"] = _judge_turn(turn, room.sides, entry["reason"])
+        elif room is None and backbone_room and entry["verdict"] == "good":
+            entry["verdict"], entry["reason"] = (
+                "ambiguous",
+                (
+                    f"the backbone's pairs say the room repeats (every {360.0 / backbone_room:.0f} deg) but its axis "
+                    "was not found in the calibrated cloud, so nothing checks its turn; " + AMBIGUOUS_ACTION
+                ),
+            )
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
 
@@ -293,6 +371,41 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
         return "check it", f"expected accuracy {_acc(deg, mm)} is beyond {GOOD_DEG:g} deg / {GOOD_MM:g} mm"
     checks = [f"{e['cycles']} cycle{'s' * (e['cycles'] != 1)}"] + (["floor"] if e["floor_ok"] else [])
     return "good", f"checked by {' + '.join(checks)}; expected accuracy {_acc(deg, mm)}"
+
+
+def _judge_turn(t: TurnEvidence | None, sides: int, reason: str) -> tuple[str, str]:
+    """The verdict of a camera its other checks call good, in a room that repeats every 360/sides
+    deg: cycles and the floor cannot tell its turn (a whole-period turn keeps both), only the
+    subject can. Good when its chosen turn is the placed one with a margin of at least
+    TURN_MIN_MARGIN over every other possible turn (or no other turn is possible)."""
+    period = 360.0 / sides
+    if t is None or t.score is None:
+        return "ambiguous", (
+            f"the room repeats every {period:.0f} deg and too little of the subject is seen to tell its turn; "
+            + AMBIGUOUS_ACTION
+        )
+    moved = f"; turned by {t.moved * period:+.0f} deg about the room's axis by the subject" if t.moved else ""
+    reason = reason + moved
+    if t.turn != 0:
+        return "check it", (
+            f"the subject says it is turned by {t.turn * period:+.0f} deg about the room's axis "
+            f"(score {t.score:.2f} there against {t.runner_up_score if t.runner_up_score is not None else float('nan'):.2f})"
+        )
+    if t.alternatives == 0:
+        return "good", f"{reason}; room turn: every other turn puts it on another camera"
+    if t.margin is None or t.margin < TURN_MIN_MARGIN:
+        if t.margin is None:
+            return (
+                "ambiguous",
+                f"the room repeats every {period:.0f} deg and the subject cannot score its other turns; "
+                + AMBIGUOUS_ACTION,
+            )
+        return "ambiguous", (
+            f"the room repeats every {period:.0f} deg and the subject prefers its turn by only {t.margin:.2f} "
+            f"(score {t.score:.2f}) over {t.runner_up * period:+.0f} deg (below {TURN_MIN_MARGIN:.2f}); "
+            + AMBIGUOUS_ACTION
+        )
+    return "good", f"{reason}; room turn checked by the subject (margin {t.margin:.2f})"
 
 
 def _acc(deg: float | None, mm: float | None) -> str:

@@ -266,8 +266,9 @@ def print_verdicts(verdicts: dict) -> None:
     for c, v in verdicts.items():
         if v["verdict"] != "good":
             say(f"{c} {v['verdict']}: {v['reason']}")
-    n = {k: sum(v["verdict"] == k for v in verdicts.values()) for k in ("good", "check it", "unplaced")}
-    say(f"verdicts: {n['good']} good, {n['check it']} check it, {n['unplaced']} unplaced")
+    n = {k: sum(v["verdict"] == k for v in verdicts.values()) for k in ("good", "check it", "ambiguous", "unplaced")}
+    amb = f", {n['ambiguous']} ambiguous" if n["ambiguous"] else ""
+    say(f"verdicts: {n['good']} good, {n['check it']} check it{amb}, {n['unplaced']} unplaced")
 
 
 def print_reference(ref: dict) -> None:

@@ -37,10 +37,16 @@ def command(
     cameras: int = typer.Option(8, "--cameras", help="Number of cameras, 1..64."),
     num_frames: int = typer.Option(10, "--num-frames", help="Number of frames."),
     old_frames: int = OLD_FRAMES_COUNT,
-    scene: str = typer.Option("studio", "--scene", help="studio | room | wall (test scene) | symstudio | farroom."),
+    scene: str = typer.Option(
+        "studio", "--scene", help="studio | room | wall (test scene) | symstudio | farroom | polyroom."
+    ),
     dynamic: bool = typer.Option(False, "--dynamic", help="Add moving objects (walking figure, box, sphere)."),
     resolution: str = typer.Option("640x480", "--resolution", help="WxH pixels."),
-    noise: str = typer.Option("kinect", "--noise", help="kinect | realsense | kinect2 | none."),
+    noise: str = typer.Option(
+        "kinect",
+        "--noise",
+        help="kinect | realsense | kinect2 | azure | none (polyroom: kinect picks kinect2 or azure by seed).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same recording)."),
     rig: str = typer.Option("auto", "--rig", help="auto | ring | dome | path to a rig.json with extrinsics."),
     uncalibrated: bool = typer.Option(False, "--uncalibrated", help="Write rig.json with null extrinsics."),
@@ -85,4 +91,5 @@ EXAMPLES = """\b
 Examples:
   fuseflow simulate /tmp/studio --cameras 8 --num-frames 30 --scene studio --dynamic --uncalibrated
   fuseflow simulate /tmp/small --cameras 3 --num-frames 2 --resolution 160x120
+  fuseflow simulate /tmp/poly --scene polyroom --cameras 7 --num-frames 1 --resolution 320x240 --uncalibrated
 """

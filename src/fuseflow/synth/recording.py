@@ -140,7 +140,14 @@ def simulate_recording(
         raise RecordingError(f"{out}: exists and is not a directory")
     if out.is_dir() and (out / "rig.json").exists():
         raise RecordingError(f"{out}: already holds a recording (rig.json); choose an empty directory")
-    sim = Simulator(cfg)
+    if cfg.scene == "polyroom":
+        from fuseflow.synth.studio_b import PolyroomSimulator
+
+        sim = PolyroomSimulator(cfg)
+        moving = sim.moving
+    else:
+        sim = Simulator(cfg)
+        moving = any(p.moving for p in sim.scene.parts)
     rig = sim.rig
     written = _rig_to_write(rig, cfg, uncalibrated)
     out.mkdir(parents=True, exist_ok=True)
@@ -164,7 +171,6 @@ def simulate_recording(
                 pass
         write_surface_ply(ply, sf.surface_points.numpy(), sf.surface_normals.numpy())
 
-    moving = any(p.moving for p in sim.scene.parts)
     # frame t is written (PNG encoding releases the GIL) while frame t + 1 renders; at most one
     # frame waits, so memory stays at two frames
     with ThreadPoolExecutor(max_workers=1) as pool:

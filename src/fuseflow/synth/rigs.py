@@ -125,7 +125,7 @@ def make_rig(
 #: SimConfig.noise -> the fuseflow.geometry.noise preset its rig.json names per camera
 #: ("none": no sensor, the global choice).
 SIM_SENSOR: dict[str, str | None] = {"kinect": "kinect_v1", "realsense": "realsense_d4xx", "kinect2": "kinect_v2",
-                                     "none": None}  # fmt: skip
+                                     "azure": "azure_kinect", "none": None}  # fmt: skip
 
 
 def with_sensor(rig: Rig, sensor: str | None) -> Rig:

@@ -1,0 +1,451 @@
+"""The room's turn of every camera, decided by the subject from one frame.
+
+In a room that repeats every 360/N deg about a vertical axis, a camera turned about that axis by a
+whole number of periods sees the same walls, floor and ceiling: its background agrees, every
+cycle of pair poses through it still closes (a set of cameras each turned by whole periods keeps
+every relative pose of the room) and its floor stays the floor. Only what is not the room, the
+subject in the middle, tells the turns apart. This module measures, for the final extrinsics:
+
+1. **the room**: up (the cameras' floor normals, refined to the merged cloud's floor), the period N
+   and the axis. The merged cloud of all placed cameras, less its middle (``ROOM_MIN_RADIUS_M``),
+   is turned by 360/N deg about a vertical axis; the score is the share of its points that land
+   within ``ROOM_TOL_M`` of a point of the cloud whose colour (each camera's colours scaled to a
+   mean of 128) is within ``COLOUR_TOL`` (the floor and ceiling are planes that every turn keeps,
+   their texture is not). The axis position maximises it (grid around where the cameras' optical
+   axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
+   period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). The room repeats when
+   the best share is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times the median over
+   all N; N is the largest whose share is within 10 % of the best (a 12-fold room also repeats
+   every 60 deg: the smallest turn is the one that matters), the backbone's period when it is.
+2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
+   ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
+   lowest heights; walls and ceiling are outside that volume).
+3. **pair tables**: for the ordered pair (a, b) and each relative turn d, a's subject points turned
+   by d periods, seen by b: how many b sees (a 3x3 window of depth around the projection), how
+   many agree with b's depth (within ``TAU_M + TAU_REL z``), how many b sees through (every
+   pixel of the window beyond the point by more than that: free space where a puts the subject).
+4. **the joint choice**: one turn k_c per camera minimising the sum over ordered pairs of the
+   see-through share (through / seen) at d = k_a - k_b: cycle-consistent by construction
+   (absolute turns). Agreement is recorded but not scored: a subject that turns into itself (a
+   column on the axis) agrees best where two cameras look from nearly the same place, which says
+   where they see the same surface, not which turn is right; free space seen through the subject
+   is a refutation whatever the subject's shape. Greedy
+   growth from every camera as anchor, then coordinate sweeps; the first placed camera (the world
+   camera) keeps turn 0 (a turn of all cameras together is a turn of the world).
+5. **the margin**: per camera, the see-through share of its pairs in both directions (its subject
+   points seen through by the others and theirs by it) at its best other turn minus that at its
+   chosen turn (turns that would put it within
+   ``STACKED_M`` of another camera's centre are not alternatives). ``verdicts`` reads it.
+
+Pure numpy plus scipy's KD-tree; no backbone state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from fuseflow.calib.verdicts import TurnEvidence
+from fuseflow.types import Frame, Rig, invert_rigid
+
+__all__ = [
+    "RoomAxis",
+    "room_axis",
+    "camera_turns",
+    "settle_turns",
+    "MAX_SIDES",
+    "ROOM_MIN_SHARE",
+    "ROOM_TOL_M",
+    "TAU_M",
+    "TAU_REL",
+]
+
+MAX_SIDES = 16
+#: A turned point lands on the cloud when within this distance of a point of it (metres).
+ROOM_TOL_M = 0.05
+#: Points this far (horizontally) from where the cameras look are the room, not the subject.
+ROOM_MIN_RADIUS_M = 1.5
+#: ... and have a colour within this mean absolute difference (8-bit levels).
+COLOUR_TOL = 30.0
+#: A room repeats when its best period's landing share is at least ROOM_MIN_SHARE and
+#: ROOM_MIN_CONTRAST times the median share over the periods 3..MAX_SIDES (module docstring).
+ROOM_MIN_SHARE, ROOM_MIN_CONTRAST = 0.08, 2.0
+#: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
+TAU_M, TAU_REL = 0.02, 0.005
+SUBJECT_FLOOR_M = 0.08
+SUBJECT_TOP_M = 2.3
+#: Two camera centres closer than this cannot both be right (a turn that does this is no alternative).
+STACKED_M = 0.15
+#: Frames whose subject evidence adds up.
+MAX_FRAMES = 5
+#: Fewer subject points seen by the other cameras than this: no turn evidence.
+MIN_SEEN = 60
+
+
+@dataclass(frozen=True)
+class RoomAxis:
+    """A repeating room: ``sides`` periods of 360/sides deg about the axis through ``point`` along
+    ``up`` (world metres); ``share`` of turned points that land on the cloud; ``floor`` the floor's
+    height along ``up``."""
+
+    sides: int
+    point: np.ndarray
+    up: np.ndarray
+    share: float
+    floor: float
+
+    def to_json(self) -> dict:
+        return {"sides": self.sides, "point": [round(float(x), 4) for x in self.point],
+                "up": [round(float(x), 4) for x in self.up], "share": round(self.share, 3)}  # fmt: skip
+
+    def turn(self, k: int | float) -> np.ndarray:
+        """(4, 4) world rotation by k periods about the axis."""
+        a = 2 * math.pi * k / self.sides
+        u = self.up
+        Kx = np.array([[0, -u[2], u[1]], [u[2], 0, -u[0]], [-u[1], u[0], 0]])
+        R = np.eye(3) + math.sin(a) * Kx + (1 - math.cos(a)) * Kx @ Kx
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, self.point - R @ self.point
+        return T
+
+
+def _world_points(frame: Frame, rig: Rig, T: Mapping[str, np.ndarray], stride: int, colour: bool = False):
+    """Camera -> (P, 3) world points of its depth sampled every ``stride`` pixels (with ``colour``:
+    camera -> ((P, 3) points, (P, 3) float colours))."""
+    depth = frame.depth.cpu().numpy()
+    rgb = frame.color.cpu().numpy() if colour else None
+    out = {}
+    for k, c in enumerate(frame.camera_ids):
+        if c not in T:
+            continue
+        cam = rig[c]
+        z = depth[k, ::stride, ::stride]
+        v, u = np.mgrid[0 : depth.shape[1] : stride, 0 : depth.shape[2] : stride]
+        ok = (z > max(cam.depth_range[0], 0.05)) & (z < cam.depth_range[1])
+        Kinv = np.linalg.inv(cam.K)
+        X = (np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ Kinv.T) * z[ok][:, None]
+        Tw = invert_rigid(T[c])
+        X = X @ Tw[:3, :3].T + Tw[:3, 3]
+        if colour:  # each camera's colours divided by its mean (gain and white balance differ per camera)
+            col = rgb[k, v[ok], u[ok]].astype(np.float32)
+            out[c] = (X, col / np.maximum(col.mean(axis=0), 1.0) * 128.0)
+        else:
+            out[c] = X
+    return out
+
+
+def _up(report, T: Mapping[str, np.ndarray]) -> np.ndarray:
+    """World up: the median of the cameras' floor normals carried into the world, else the mean of
+    the cameras' -y axes (upright cameras)."""
+    info = report.backbone_info or {}
+    info = info.get("sources", {}).get("rgbd", info) if isinstance(info.get("sources"), dict) else info
+    ups = []
+    for c, ci in (info or {}).get("cameras", {}).items():
+        fl = ci.get("floor") if isinstance(ci, dict) else None
+        if c in T and fl and "normal" in fl:
+            ups.append(T[c][:3, :3].T @ np.asarray(fl["normal"], dtype=np.float64))
+    u = np.median(np.stack(ups), axis=0) if ups else -np.mean([M[1, :3] for M in T.values()], axis=0)
+    return u / np.linalg.norm(u)
+
+
+def _floor_normal(cloud: np.ndarray, up: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``up`` refined to the normal of the floor: the plane within 10 deg of ``up`` holding the
+    most of the lowest third of the points (RANSAC, 2 cm), least-squares refitted."""
+    h = cloud @ up
+    low = cloud[h < np.percentile(h, 33)]
+    low = low[rng.choice(len(low), min(len(low), 6000), replace=False)]
+    best, best_n = None, 0
+    for _ in range(200):
+        p = low[rng.choice(len(low), 3, replace=False)]
+        n = np.cross(p[1] - p[0], p[2] - p[0])
+        if np.linalg.norm(n) < 1e-9:
+            continue
+        n = n / np.linalg.norm(n) * np.sign(n @ up)
+        if n @ up < math.cos(math.radians(10)):
+            continue
+        inl = np.abs((low - p[0]) @ n) < 0.02
+        if inl.sum() > best_n:
+            best, best_n = inl, int(inl.sum())
+    if best is None or best_n < 50:
+        return up
+    q = low[best] - low[best].mean(axis=0)
+    n = np.linalg.svd(q, full_matrices=False)[2][-1]
+    return n * np.sign(n @ up)
+
+
+def _basis(up: np.ndarray) -> np.ndarray:
+    e1 = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(up, e1), up])
+
+
+def _share(room_pts, P: np.ndarray, centre: np.ndarray, angle: float, graded: bool = False) -> float:
+    """Share of the room points ``P`` (x, y, height, r, g, b) that, turned by ``angle`` about the
+    vertical axis through ``centre``, land within ROOM_TOL_M of a cloud point of similar colour;
+    ``graded``: each landing counts 1 - distance / ROOM_TOL_M (a sharper optimum for the axis)."""
+    tree, cols = room_pts
+    c, s = math.cos(angle), math.sin(angle)
+    q = P[:, :3].copy()
+    x, y = P[:, 0] - centre[0], P[:, 1] - centre[1]
+    q[:, 0], q[:, 1] = centre[0] + c * x - s * y, centre[1] + s * x + c * y
+    d, j = tree.query(q, distance_upper_bound=ROOM_TOL_M)
+    hit = np.isfinite(d)
+    same = np.zeros(len(P))
+    same[hit] = np.abs(cols[j[hit]] - P[hit, 3:]).mean(axis=1) < COLOUR_TOL
+    if graded:
+        same[hit] *= 1.0 - d[hit] / ROOM_TOL_M
+    return float(same.mean())
+
+
+def _search_centre(room_pts, P: np.ndarray, start: np.ndarray, angle: float, levels,
+                   graded: bool = False) -> tuple[np.ndarray, float]:  # fmt: skip
+    best, best_s = start, -1.0
+    for half, step in levels:
+        g = np.arange(-half, half + 1e-9, step)
+        centre = best
+        for dx in g:
+            for dy in g:
+                cand = centre + np.array([dx, dy])
+                s = _share(room_pts, P, cand, angle, graded)
+                if s > best_s:
+                    best, best_s = cand, s
+    return best, best_s
+
+
+def _axes_meet(T: Mapping[str, np.ndarray], B: np.ndarray) -> np.ndarray:
+    """The floor-plane point (in basis ``B``) nearest, in least squares, to every camera's optical
+    axis projected on the floor: where a studio's cameras look (a turn about the room's axis keeps
+    it); the cameras' centroid when the axes are nearly parallel."""
+    A, b, cs = np.zeros((2, 2)), np.zeros(2), []
+    for M in T.values():
+        c = (invert_rigid(M)[:3, 3] @ B.T)[:2]
+        d = (M[2, :3] @ B.T)[:2]
+        cs.append(c)
+        if np.linalg.norm(d) < 0.2:
+            continue
+        d = d / np.linalg.norm(d)
+        P = np.eye(2) - np.outer(d, d)
+        A += P
+        b += P @ c
+    if np.linalg.cond(A) > 1e3:
+        return np.mean(cs, axis=0)
+    return np.linalg.solve(A, b)
+
+
+def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[str, np.ndarray], up: np.ndarray,
+              hint: int | None = None, rng_seed: int = 0) -> RoomAxis | None:  # fmt: skip
+    """The repeating room of the merged cloud (module docstring, step 1), or None. ``points``:
+    camera -> (world points, colours)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(rng_seed)
+    world = np.concatenate([p for p, _ in points.values()])
+    if len(world) < 500:
+        return None
+    up = _floor_normal(world, up, rng)
+    B = _basis(up)
+    cloud = world @ B.T  # (x, y, height)
+    cols = np.concatenate([c for _, c in points.values()])
+    h = cloud[:, 2]
+    low = h[h < np.percentile(h, 1) + 0.5]
+    hist, edges = np.histogram(low, bins=max(int((low.max() - low.min()) / 0.01), 1))
+    floor = float(edges[np.argmax(hist)] + 0.005)
+    start = _axes_meet(T, B)
+    r = np.linalg.norm(cloud[:, :2] - start, axis=1)
+    wall = r > ROOM_MIN_RADIUS_M  # the room, not the subject: floor and ceiling count by their colour
+    if wall.sum() < 200:
+        return None
+    pick = np.flatnonzero(wall)
+    P = np.c_[cloud, cols][rng.choice(pick, min(len(pick), 1500), replace=False)]
+    room_pts = (cKDTree(cloud), cols)
+    coarse = {n: _search_centre(room_pts, P, start, 2 * math.pi / n, ((0.5, 0.125),)) for n in range(3, MAX_SIDES + 1)}
+    fine = {n: _search_centre(room_pts, P, coarse[n][0], 2 * math.pi / n, ((0.125, 0.025),))
+            for n in sorted(coarse, key=lambda n: -coarse[n][1])[:4] + ([hint] if hint in coarse else [])}  # fmt: skip
+    shares = {n: fine.get(n, coarse[n])[1] for n in coarse}
+    best = max(shares.values())
+    if best < ROOM_MIN_SHARE or best < ROOM_MIN_CONTRAST * float(np.median(list(shares.values()))):
+        return None
+    n = hint if hint in fine and shares[hint] >= 0.9 * best else max(k for k, v in shares.items() if v >= 0.9 * best)
+    c, s = fine.get(n, coarse[n])
+    c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
+    point = B.T @ np.array([c[0], c[1], floor])
+    return RoomAxis(n, point, up, s, floor)
+
+
+def _subject(X: np.ndarray, room: RoomAxis, radius: float) -> np.ndarray:
+    off = X - room.point
+    h = off @ room.up
+    r = np.linalg.norm(off - np.outer(h, room.up), axis=1)
+    return X[(r < radius) & (h > SUBJECT_FLOOR_M) & (h < SUBJECT_TOP_M)]
+
+
+def _tables(subj, frame: Frame, rig: Rig, T, room: RoomAxis, ids) -> np.ndarray:
+    """(M, M, N, 3) seen, agree, through of a's subject turned by d periods, seen by b."""
+    depth = frame.depth.cpu().numpy()
+    n = room.sides
+    out = np.zeros((len(ids), len(ids), n, 3))
+    turns = [room.turn(d) for d in range(n)]
+    for ia, a in enumerate(ids):
+        X = subj[a]
+        if not len(X):
+            continue
+        for ib, b in enumerate(ids):
+            if a == b:
+                continue
+            cam, D = rig[b], depth[frame.camera_ids.index(b)]
+            h, w = D.shape
+            for d in range(n):
+                M = T[b] @ turns[d]
+                Y = X @ M[:3, :3].T + M[:3, 3]
+                z = Y[:, 2]
+                front = z > 0.05
+                zs = np.where(front, z, 1.0)
+                u = np.floor(cam.K[0, 0] * Y[:, 0] / zs + cam.K[0, 2] + 0.5).astype(np.int64)
+                v = np.floor(cam.K[1, 1] * Y[:, 1] / zs + cam.K[1, 2] + 0.5).astype(np.int64)
+                inside = front & (u >= 1) & (u <= w - 2) & (v >= 1) & (v <= h - 2)
+                u, v, z = u[inside], v[inside], z[inside]
+                win = np.stack([D[v + dv, u + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1)
+                seen = (win > 0).all(axis=1)
+                tau = TAU_M + TAU_REL * z
+                agree = seen & (np.abs(win[:, 4] - z) <= tau)
+                through = seen & (win > (z + tau)[:, None]).all(axis=1)
+                out[ia, ib, d] = seen.sum(), agree.sum(), through.sum()
+    return out
+
+
+def _gain(tab: np.ndarray) -> np.ndarray:
+    """(M, M, N) minus the share of a's subject points that b sees through, per relative turn
+    (0 where b sees fewer than 20 of them)."""
+    seen = tab[..., 0]
+    return np.where(seen >= 20, -tab[..., 2] / np.maximum(seen, 1), 0.0)
+
+
+def _objective(gain: np.ndarray, k: np.ndarray, n: int) -> float:
+    d = (k[:, None] - k[None, :]) % n
+    ia, ib = np.meshgrid(range(len(k)), range(len(k)), indexing="ij")
+    return float(gain[ia, ib, d].sum())
+
+
+def _joint(tab: np.ndarray, n: int) -> np.ndarray:
+    """Absolute turns (M,) with the least summed see-through share over ordered pairs."""
+    m = tab.shape[0]
+    gain = _gain(tab)
+    best_k, best_j = np.zeros(m, int), _objective(gain, np.zeros(m, int), n)
+    starts = [None] + list(range(m))
+    for start in starts:
+        if start is None:
+            k = np.zeros(m, int)
+        else:
+            k, placed = np.zeros(m, int), [start]
+            while len(placed) < m:
+                cand = []
+                for c in range(m):
+                    if c in placed:
+                        continue
+                    sc = [
+                        sum(gain[c, p, (t - k[p]) % n] + gain[p, c, (k[p] - t) % n] for p in placed) for t in range(n)
+                    ]
+                    cand.append((max(sc), c, int(np.argmax(sc))))
+                _, c, t = max(cand)
+                k[c] = t
+                placed.append(c)
+        for _ in range(4):
+            changed = False
+            for c in range(m):
+                sc = [sum(gain[c, p, (t - k[p]) % n] + gain[p, c, (k[p] - t) % n] for p in range(m) if p != c)
+                      for t in range(n)]  # fmt: skip
+                t = int(np.argmax(sc))
+                if sc[t] > sc[k[c]] + 1e-9:
+                    k[c], changed = t, True
+            if not changed:
+                break
+        j = _objective(gain, k, n)
+        if j > best_j + 1e-9:
+            best_k, best_j = k.copy(), j
+    return (best_k - best_k[0]) % n  # the first placed camera (the world camera) keeps its pose
+
+
+def camera_turns(
+    frames, rig: Rig, T: Mapping[str, np.ndarray], report
+) -> tuple[RoomAxis | None, dict[str, TurnEvidence]]:
+    """(the room or None, camera -> its TurnEvidence) for the placed cameras of ``T`` (module
+    docstring). Empty when fewer than two cameras are placed or the room does not repeat. With
+    several frames (a Frame or a sequence), the room comes from the first and the pair tables of
+    the first ``MAX_FRAMES`` add up (a moving subject gives new evidence every frame)."""
+    frames = [frames] if isinstance(frames, Frame) else list(frames)
+    frame = frames[0]
+    ids = [c for c in frame.camera_ids if c in T]
+    if len(ids) < 2:
+        return None, {}
+    w = rig[ids[0]].width
+    pts = _world_points(frame, rig, T, max(1, round(w / 160)), colour=True)
+    up = _up(report, T)
+    info = report.backbone_info or {}
+    info = info.get("sources", {}).get("rgbd", info) if isinstance(info.get("sources"), dict) else info
+    hint = ((info or {}).get("room") or {}).get("sides")
+    room = room_axis(pts, T, up, hint=int(hint) if hint else None)
+    if room is None:
+        return None, {}
+    centres = {c: invert_rigid(T[c])[:3, 3] for c in ids}
+    radial = [np.linalg.norm((centres[c] - room.point) - ((centres[c] - room.point) @ room.up) * room.up) for c in ids]
+    radius = float(min(1.3, 0.6 * min(radial)))
+    tab = 0
+    for f in frames[:MAX_FRAMES]:
+        fine = _world_points(f, rig, T, max(1, round(w / 160)))
+        tab = tab + _tables({c: _subject(fine[c], room, radius) for c in ids}, f, rig, T, room, ids)
+    k = _joint(tab, room.sides)
+    return room, _evidence(tab, k, room, ids, centres, radius)
+
+
+def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvidence]:
+    n = room.sides
+    out = {}
+    for ic, c in enumerate(ids):
+        scores, seen_at = [], []
+        for t in range(n):
+            s = np.zeros(3)
+            for ip in range(len(ids)):
+                if ip != ic:
+                    s += tab[ic, ip, (t - k[ip]) % n] + tab[ip, ic, (k[ip] - t) % n]
+            seen_at.append(s[0])
+            scores.append(-s[2] / s[0] if s[0] >= MIN_SEEN else float("nan"))
+        alts = []
+        for t in range(n):
+            if t == k[ic]:
+                continue
+            pos = (room.turn(t - k[ic]) @ np.r_[centres[c], 1.0])[:3]
+            if min((np.linalg.norm(pos - centres[o]) for o in ids if o != c), default=9.0) < STACKED_M:
+                continue
+            alts.append(t)
+        chosen = scores[k[ic]]
+        valid = [t for t in alts if np.isfinite(scores[t])]
+        runner = max(valid, key=lambda t: scores[t]) if valid else None
+        margin = None
+        if np.isfinite(chosen):
+            margin = chosen - scores[runner] if runner is not None else None
+        sgn = lambda t: int(t if t <= n // 2 else t - n)  # noqa: E731
+        out[c] = TurnEvidence(
+            sides=n, turn=sgn(int(k[ic])), score=None if not np.isfinite(chosen) else round(float(chosen), 3),
+            runner_up=None if runner is None else sgn(int(runner)),
+            runner_up_score=None if runner is None else round(float(scores[runner]), 3),
+            margin=None if margin is None else round(float(margin), 3), seen=int(seen_at[k[ic]]),
+            alternatives=len(alts), subject_radius_m=round(radius, 2),
+        )  # fmt: skip
+    return out
+
+
+def settle_turns(T: Mapping[str, np.ndarray], room: RoomAxis, evidence: Mapping[str, TurnEvidence],
+                 min_margin: float) -> tuple[dict[str, np.ndarray], dict[str, TurnEvidence]]:  # fmt: skip
+    """Cameras whose chosen turn is not 0 with a margin of at least ``min_margin`` turned by it
+    about the room's axis (the background keeps agreeing, the subject then agrees too); their evidence
+    then reads turn 0 with ``moved`` set to the turn applied. Others unchanged."""
+    T_out, ev_out = dict(T), dict(evidence)
+    for c, e in evidence.items():
+        if e.turn != 0 and e.margin is not None and e.margin >= min_margin:
+            T_out[c] = T[c] @ invert_rigid(room.turn(e.turn))
+            ev_out[c] = replace(e, turn=0, moved=e.turn,
+                                runner_up=None if e.runner_up is None else e.runner_up - e.turn)  # fmt: skip
+    return T_out, ev_out

@@ -1,0 +1,150 @@
+"""The room's turn of every camera, decided by the subject (calib.turns), and the verdict policy
+in a repeating room (calib.verdicts): cycles and the floor never vouch for a turn."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from fuseflow.calib import turns as T_
+from fuseflow.calib.verdicts import AMBIGUOUS_ACTION, TURN_MIN_MARGIN, TurnEvidence, camera_verdicts
+from fuseflow.synth import SimConfig
+from fuseflow.synth.studio_b import PolyroomSimulator
+from fuseflow.types import invert_rigid
+
+
+def _planted_table(turns: list[int], n: int, rng) -> np.ndarray:
+    """Pair tables where a's subject agrees with b only at d = k_a - k_b (plus noise)."""
+    m = len(turns)
+    tab = np.zeros((m, m, n, 3))
+    for a in range(m):
+        for b in range(m):
+            if a == b:
+                continue
+            tab[a, b, :, 0] = 1000
+            tab[a, b, :, 1] = rng.uniform(100, 300, n)
+            tab[a, b, :, 2] = rng.uniform(200, 400, n)
+            d = (turns[a] - turns[b]) % n
+            tab[a, b, d, 1], tab[a, b, d, 2] = 700, 20
+    return tab
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_joint_choice_recovers_planted_turns_relative_to_the_first_camera(seed):
+    rng = np.random.default_rng(seed)
+    n, m = 9, 7
+    truth = [0] + list(rng.integers(0, n, m - 1))
+    k = T_._joint(_planted_table(truth, n, rng), n)
+    assert list(k) == [(t - truth[0]) % n for t in truth]
+
+
+def _room(n: int = 8) -> T_.RoomAxis:
+    return T_.RoomAxis(n, np.array([0.3, -0.2, 0.0]), np.array([0.0, 0.0, 1.0]), 0.8, 0.0)
+
+
+def test_room_turn_is_a_rotation_about_the_axis():
+    room = _room(8)
+    R = room.turn(2)
+    assert np.allclose(R @ np.r_[room.point, 1.0], np.r_[room.point, 1.0])
+    assert np.isclose(math.degrees(math.acos((np.trace(R[:3, :3]) - 1) / 2)), 90.0)
+    assert np.allclose(room.turn(8), np.eye(4))
+
+
+def _ev(turn: int, margin: float | None, **kw) -> TurnEvidence:
+    base = dict(sides=8, turn=turn, score=0.3, runner_up=1, runner_up_score=0.3 - (margin or 0), margin=margin,
+                seen=5000, alternatives=6, subject_radius_m=1.0)  # fmt: skip
+    return TurnEvidence(**{**base, **kw})
+
+
+def test_settle_turns_moves_only_confident_cameras():
+    room = _room(8)
+    T = {c: np.eye(4) for c in "abc"}
+    T["b"] = T["b"].copy()
+    T["b"][:3, 3] = [0, 0, 3.0]
+    ev = {"a": _ev(0, 0.5), "b": _ev(3, TURN_MIN_MARGIN + 0.1), "c": _ev(2, TURN_MIN_MARGIN / 2)}
+    T2, ev2 = T_.settle_turns(T, room, ev, TURN_MIN_MARGIN)
+    assert np.allclose(T2["a"], T["a"]) and np.allclose(T2["c"], T["c"])
+    assert np.allclose(T2["b"], T["b"] @ invert_rigid(room.turn(3)))
+    assert ev2["b"].turn == 0 and ev2["b"].moved == 3 and ev2["c"].turn == 2 and ev2["c"].moved == 0
+
+
+def _report():
+    """A report whose cameras pass every other check: an rgbd backbone whose three pair poses
+    close one cycle and agree with the extrinsics."""
+    T = {}
+    for i, c in enumerate(("a", "b", "c")):
+        T[c] = np.eye(4)
+        T[c][:3, 3] = [i * 1.0, 0, 0]
+    pairs = [{"cameras": [x, y], "edge": {"T_ji": (T[y] @ invert_rigid(T[x])).tolist(), "route": "floor"}}
+             for x, y in (("a", "b"), ("a", "c"), ("b", "c"))]  # fmt: skip
+    info = {"pairs": pairs, "cameras": {c: {"edges": [o for o in T if o != c]} for c in T}}
+    rep = SimpleNamespace(backbone="rgbd", backbone_info=info, config={}, placed_by={}, depth_agreement={},
+                          unplaced_reasons={}, unregistered_cameras=[])  # fmt: skip
+    return rep, T
+
+
+def test_in_a_repeating_room_cycles_do_not_vouch_for_the_turn():
+    rep, T = _report()
+    ids = list(T)
+    plain = camera_verdicts(rep, T, ids)
+    assert all(v["verdict"] == "good" for v in plain.values()), plain
+    room = _room(8)
+    turns = {"a": _ev(0, 0.6), "b": _ev(0, TURN_MIN_MARGIN / 2), "c": _ev(2, 0.6)}
+    v = camera_verdicts(rep, T, ids, turns, room)
+    assert v["a"]["verdict"] == "good" and "margin 0.60" in v["a"]["reason"]
+    assert v["b"]["verdict"] == "ambiguous" and AMBIGUOUS_ACTION in v["b"]["reason"]
+    assert v["c"]["verdict"] == "check it" and "+90 deg" in v["c"]["reason"]
+    none = camera_verdicts(rep, T, ids, {}, room)  # a repeating room and no subject evidence
+    assert {x["verdict"] for x in none.values()} == {"ambiguous"}
+    assert v["a"]["turn"]["margin"] == 0.6 and v["a"]["turn"]["period_deg"] == 45.0
+
+
+@pytest.fixture(scope="module")
+def control_views():
+    """One frame of a polyroom seed with its figure, and the same room with a column on the axis
+    (a subject that turns into itself), true poses in the first camera's world."""
+    out = {}
+    for subject in ("figure", "column"):
+        cfg = SimConfig(cameras=6, frames=1, scene="polyroom", seed=4, resolution=(160, 120))
+        sim = PolyroomSimulator(cfg, subject=subject)
+        A = invert_rigid(sim.rig.cameras[0].T_cam_world)
+        T = {c.id: c.T_cam_world @ A for c in sim.rig.cameras}
+        out[subject] = (sim.render(0).frame, sim.rig, T, sim.layout.sides)
+    return out
+
+
+def test_room_is_found_and_the_figure_tells_turns_the_column_does_not(control_views):
+    rep = SimpleNamespace(backbone_info={})
+    frame, rig, T, sides = control_views["figure"]
+    room, ev = T_.camera_turns(frame, rig, T, rep)
+    assert room is not None and room.sides == sides
+    assert all(e.turn == 0 and e.margin is not None and e.margin >= TURN_MIN_MARGIN for e in ev.values()), ev
+    # one camera turned by two periods: the subject finds it
+    Tw = dict(T)
+    Tw["cam03"] = T["cam03"] @ room.turn(2)
+    room2, ev2 = T_.camera_turns(frame, rig, Tw, rep)
+    assert ev2["cam03"].turn == 2 and all(e.turn == 0 for c, e in ev2.items() if c != "cam03")
+    frame, rig, T, sides = control_views["column"]
+    room, ev = T_.camera_turns(frame, rig, T, rep)
+    assert room is not None and room.sides == sides
+    assert all(e.margin is None or e.margin < TURN_MIN_MARGIN for e in ev.values()), ev
+
+
+@pytest.mark.parametrize("scene", ["studio", "room"])
+def test_a_room_that_does_not_repeat_has_no_turns(scene):
+    from fuseflow.synth import Simulator
+
+    sim = Simulator(SimConfig(cameras=6, frames=1, scene=scene, resolution=(160, 120), seed=1))
+    T = {c.id: c.T_cam_world for c in sim.rig.cameras}
+    room, ev = T_.camera_turns(sim.render(0).frame, sim.rig, T, SimpleNamespace(backbone_info={}))
+    assert room is None and ev == {}
+
+
+def test_a_room_the_backbone_calls_repeating_without_an_axis_is_ambiguous():
+    rep, T = _report()
+    rep.backbone_info["room"] = {"sides": 8}
+    v = camera_verdicts(rep, T, list(T), {}, None)
+    assert {x["verdict"] for x in v.values()} == {"ambiguous"} and "45 deg" in v["a"]["reason"]
