@@ -1,12 +1,12 @@
 """Calibration in repeating rooms from ONE frame: is any camera placed a whole room period off
-with verdict "good"? Library code and the definitions: fuseflow.eval.bench.calib_turns.
+with verdict "good"? Library code and the definitions: benchmarks.studies.calib_turns.
 
 Two separately written studio families of the simulator: ``symstudio`` (``synth.studios``: an
 8-12-sided room, a small figure, 5-10 cameras on one ring (even seeds) or two rings (odd seeds))
 and ``polyroom`` (``synth.studio_b``: a 6-12-sided room with its own textures, a seated figure of
 boxes and cylinders, Kinect v2 or Azure Kinect time-of-flight noise, 5-10 cameras on one or two
 rings 2.5-4 m out). Cameras: 5 + seed % 6. ``fuseflow.calibrate`` with its defaults on the first
-``--frames`` frames (``--dynamic``: the figure moves between frames).
+``--num-frames`` frames (``--dynamic``: the figure moves between frames).
 
 Per camera: placed, verdict, rotation / centre error against the truth (the calibrated world tied
 to the true one through the placed camera that puts the most cameras within 1 deg / 3 cm; a lone
@@ -14,9 +14,9 @@ right camera does not count as right), the room turn evidence (``camera_verdicts
 Counted: "silently wrong" (placed, verdict "good", more than 2 deg or 5 cm off) and "within
 1 deg / 3 cm" (of all cameras).
 
-    python benchmarks/calib_room_turns.py --families symstudio,polyroom --seeds 1000-1009 \
+    python -m benchmarks.calib_room_turns --families symstudio,polyroom --seeds 1000-1009 \
         --resolution 320x240 --json /tmp/turns.json
-    python benchmarks/calib_room_turns.py --families polyroom --seeds 1-10 --planted column
+    python -m benchmarks.calib_room_turns --families polyroom --seeds 1-10 --planted column
 """
 
 from __future__ import annotations
@@ -24,15 +24,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fuseflow.eval.bench.calib_turns import FAMILIES, parse_seeds, run_planted_bench, run_turn_bench
+from benchmarks.studies.calib_turns import FAMILIES, parse_seeds, run_planted_bench, run_turn_bench
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--families", default=",".join(FAMILIES))
     ap.add_argument("--seeds", default="1000-1004", help="e.g. 1000-1019 or 3,5,7")
     ap.add_argument("--resolution", default="320x240")
-    ap.add_argument("--frames", type=int, default=1)
+    ap.add_argument("--num-frames", type=int, default=1, help="frames to calibrate on")
     ap.add_argument("--dynamic", action="store_true", help="polyroom: the figure moves between frames")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument(
@@ -41,7 +41,7 @@ def main() -> None:
         default=None,
         help="measure the subject's turn evidence alone: true poses, cameras turned by planted periods",
     )
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     fams = [f for f in a.families.split(",") if f]
     if any(f not in FAMILIES for f in fams):
         ap.error(f"--families: choose from {', '.join(FAMILIES)}")
@@ -49,7 +49,7 @@ def main() -> None:
     if a.planted:
         run_planted_bench(fams, parse_seeds(a.seeds), res, a.planted, a.json)
     else:
-        run_turn_bench(fams, parse_seeds(a.seeds), res, a.frames, a.dynamic, a.json)
+        run_turn_bench(fams, parse_seeds(a.seeds), res, a.num_frames, a.dynamic, a.json)
 
 
 if __name__ == "__main__":
