@@ -22,7 +22,7 @@ from fuseflow.io import (
 from fuseflow.pipeline import run, stream
 from fuseflow.types import Calibration, Camera, Frame, FusedCloud, Rig, View
 
-__version__ = "0.2.1"
+__version__ = "0.3.0"
 
 __all__ = [
     "Calibration",

@@ -56,7 +56,10 @@ def test_killed_worker_is_retried_without_loss_or_duplicates(static_rec, tmp_pat
     )
     assert [p for p, *_ in got] == list(range(len(rec)))  # each frame once, in order
     assert all((tmp_path / f"kill{k}").exists() for k in (2, 4))  # the workers really died once
-    ref = run(static_rec, tmp_path / "ref", use_rig_extrinsics=True)
+    from fuseflow.pipeline import OutputOptions
+
+    calib_world = PipelineConfig(outputs=OutputOptions(world="calib"))  # the workers' clouds: calibration world
+    ref = run(static_rec, tmp_path / "ref", use_rig_extrinsics=True, config=calib_world)
     assert ref.frames == len(got)
     for p, cloud, record, _ in got:
         assert record.index == p and _same(cloud, read_ply(cloud_path(tmp_path / "ref", p)))

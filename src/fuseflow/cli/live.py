@@ -90,7 +90,7 @@ def command(
     record: Path = typer.Option(None, "--record", help="Write the fused clouds here (clouds/<n>.ply, as run)."),
     crop: str = oo.CROP,
     codec: str = typer.Option(
-        "compact", "--codec", help="Frame codec of the viewer stream: compact (1.0-1.7 bytes a point) or raw (9)."
+        "compact", "--codec", help="Frame codec of the viewer stream: compact (about 0.9-1.5 bytes a point) or raw (9)."
     ),
     grid_mm: float = typer.Option(
         3.0, "--grid-mm", help="compact: position grid step in mm (positions at most half a step off per axis)."
