@@ -37,6 +37,21 @@ class DeviceConfig:
     """Trustworthy depth range in metres."""
 
 
+def select_serials(found: list[str], asked: list[str] | None, vendor: str) -> list[str]:
+    """The serials to open: ``asked`` (every connected one when None), each connected.
+    RecordingError naming the absent ones (or that none is connected)."""
+    from fuseflow.errors import RecordingError
+
+    found = sorted(found)
+    serials = found if asked is None else list(asked)
+    if not serials:
+        raise RecordingError(f"no {vendor} device connected")
+    absent = [s for s in serials if s not in found]
+    if absent:
+        raise RecordingError(f"{vendor} devices not connected: {absent}; connected: {found}")
+    return serials
+
+
 class DeviceSource:
     """Base of the live device sources (module docstring)."""
 

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.live.sources.device import DeviceConfig, DeviceSource
+from fuseflow.errors import ValidationError, require
+from fuseflow.live.sources.device import DeviceConfig, DeviceSource, select_serials
 from fuseflow.types import Camera, Rig
 
 __all__ = ["OrbbecConfig", "OrbbecSource"]
@@ -58,13 +58,7 @@ class OrbbecSource(DeviceSource):
         self._ob = ob_module if ob_module is not None else _import_ob()
         self.config = config
         devices = self._devices()
-        found = sorted(devices)
-        serials = found if serials is None else list(serials)
-        if not serials:
-            raise RecordingError("no Orbbec device connected")
-        absent = [s for s in serials if s not in devices]
-        if absent:
-            raise RecordingError(f"Orbbec devices not connected: {absent}; connected: {found}")
+        serials = select_serials(list(devices), serials, "Orbbec")
         self.serials = serials
         self._pipes: list[Any] = []
         self._align = self._ob.AlignFilter(align_to_stream=self._ob.OBStreamType.COLOR_STREAM)

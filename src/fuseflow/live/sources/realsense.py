@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.errors import RecordingError, ValidationError, require
-from fuseflow.live.sources.device import DeviceConfig, DeviceSource
+from fuseflow.live.sources.device import DeviceConfig, DeviceSource, select_serials
 from fuseflow.types import Camera, Rig
 
 __all__ = ["RealSenseConfig", "RealSenseSource"]
@@ -61,15 +61,8 @@ class RealSenseSource(DeviceSource):
         self._rs = rs_module if rs_module is not None else _import_rs()
         self.config = config
         rs = self._rs
-        found = sorted(d.get_info(rs.camera_info.serial_number) for d in rs.context().query_devices())
-        if serials is None:
-            serials = found
-        serials = list(serials)
-        if not serials:
-            raise RecordingError("no RealSense device connected")
-        absent = [s for s in serials if s not in found]
-        if absent:
-            raise RecordingError(f"RealSense devices not connected: {absent}; connected: {found}")
+        found = [d.get_info(rs.camera_info.serial_number) for d in rs.context().query_devices()]
+        serials = select_serials(found, serials, "RealSense")
         self.serials = serials
         self._pipes: list[Any] = []
         self._align = rs.align(rs.stream.color)
