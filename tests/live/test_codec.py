@@ -22,8 +22,9 @@ from fuseflow.types import FusedCloud
 STATIC = Path(__file__).resolve().parents[2] / "src" / "fuseflow" / "live" / "static"
 
 
-def _surface(m=20000, seed=0, grey=False):
-    """Points on a 0.6 m sphere and a floor plane, colours varying smoothly over them."""
+def _surface(m=20000, seed=0, grey=False, noisy=False):
+    """Points on a 0.6 m sphere and a floor plane, colours varying smoothly over them (grey: the
+    same in every channel; noisy: random, so a coder meets large residuals and escape codes)."""
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(m // 2, 3))
     sphere = 0.6 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.2, -0.1, 1.5]
@@ -31,6 +32,8 @@ def _surface(m=20000, seed=0, grey=False):
     xyz = np.vstack([sphere, floor]).astype(np.float32)
     base = 128 + 100 * np.sin(xyz * [2.0, 3.0, 1.5] + [0.0, 1.0, 2.0])
     rgb = (base.mean(1, keepdims=True).repeat(3, 1) if grey else base).astype(np.uint8)
+    if noisy:
+        rgb = rng.integers(0, 256, (m, 3)).astype(np.uint8)
     return xyz, rgb
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+from tests.live.test_codec import _surface
 
 from fuseflow.errors import FormatError
 from fuseflow.live.codec import COMPACT_HEADER, MAX_POINTS, CompactParams, decode_compact, encode_compact
@@ -21,19 +22,6 @@ from fuseflow.live.wire import decode_frame
 
 DECODE_JS = Path(__file__).resolve().parents[2] / "src" / "fuseflow" / "live" / "static" / "decode.js"
 needs_node = pytest.mark.skipif(shutil.which("node") is None, reason="needs node to run the viewer's decoder")
-
-
-def _surface(m=20000, seed=0, noisy=False):
-    """Points on a sphere and a floor, colours smooth (or random: large residuals, escape codes)."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(m // 2, 3))
-    sphere = 0.6 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.2, -0.1, 1.5]
-    floor = np.c_[rng.uniform(-1.5, 1.5, m - m // 2), np.full(m - m // 2, 0.9), rng.uniform(0.3, 3.0, m - m // 2)]
-    xyz = np.vstack([sphere, floor]).astype(np.float32)
-    rgb = 128 + 100 * np.sin(xyz * [2.0, 3.0, 1.5] + [0.0, 1.0, 2.0])
-    if noisy:
-        rgb = rng.integers(0, 256, (m, 3))
-    return xyz, rgb.astype(np.uint8)
 
 
 def _with_crc(data: bytes) -> bytes:
