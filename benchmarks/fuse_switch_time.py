@@ -21,7 +21,8 @@ from benchmarks import common
 
 
 def _config(text: str):
-    from fuseflow.fuse import FuseConfig, parse_settings
+    from fuseflow.cli import parse_settings
+    from fuseflow.fuse import FuseConfig
 
     return FuseConfig().replace(**parse_settings(t for t in text.split(",") if t))
 

@@ -51,6 +51,7 @@ def _quiet(line: str) -> None:
 def ablation_methods() -> dict[str, Callable[[Any, Any], Any]]:
     """Row name -> ``(frame, rig) -> FusedCloud``: every row of the table (module docstring)."""
     from benchmarks.studies.fuse_quality import BestVBG
+    from fuseflow.cli.settings import parse_settings
     from fuseflow.eval.baselines import (
         OPEN3D_WEIGHT_THRESHOLD,
         naive_fusion,
@@ -58,7 +59,7 @@ def ablation_methods() -> dict[str, Callable[[Any, Any], Any]]:
         tsdf_fusion_at_thresholds,
         voxel_downsampled_fusion,
     )
-    from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, fuse, parse_settings
+    from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, fuse
 
     def f(cfg):
         return lambda frame, rig: fuse(frame, rig, cfg)

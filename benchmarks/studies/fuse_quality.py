@@ -54,9 +54,9 @@ BEST = "vbg_best"
 
 def fusion_methods(names: Sequence[str]) -> dict[str, Callable[[Any, Any], Any]]:
     """Name -> ``(frame, rig) -> FusedCloud`` for each of ``names`` (module docstring)."""
+    from fuseflow.cli.settings import parse_settings
     from fuseflow.eval.baselines import OPEN3D_WEIGHT_THRESHOLD, naive_fusion, tsdf_fusion, tsdf_fusion_at_thresholds
     from fuseflow.fuse import PRESETS, fuse
-    from fuseflow.fuse.presets import parse_settings
 
     out: dict[str, Callable[[Any, Any], Any]] = {}
     for name in names:

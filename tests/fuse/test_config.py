@@ -1,4 +1,4 @@
-"""FuseConfig's per-stage parts: validation, ``replace``, ``describe``, ``parse_settings`` and the
+"""FuseConfig's per-stage parts: validation, ``replace``, ``describe``, and the
 kernels' parameter structs built from the stage configs."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fuseflow.errors import ValidationError
-from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, RPSConfig, parse_settings
+from fuseflow.fuse import ABLATIONS, PRESETS, FuseConfig, RPSConfig
 from fuseflow.fuse.config import STAGES
 
 
@@ -50,23 +50,6 @@ def test_ablations_each_switch_off_one_stage():
         changed = {k for k, v in cfg.describe().items() if v != default[k]}
         assert len(changed) == 1 and changed.pop().endswith(".enabled"), name
     assert set(STAGES) == {"smoothing", "mcm", "cvgc", "ash", "rps"}
-
-
-def test_describe_and_parse_settings_round_trip_every_setting():
-    cfg = PRESETS["paper"]
-    flat = cfg.describe()
-    assert flat["rps.k_max"] == cfg.rps.k_max and flat["pixel_stride"] == cfg.pixel_stride
-    assert len(flat) == sum(len(dataclasses.fields(v)) for v in STAGES.values()) + len(dataclasses.fields(cfg)) - 5
-    text = [f"{k}={','.join(map(str, v)) if isinstance(v, tuple) else v}" for k, v in flat.items()]
-    assert FuseConfig().replace(**parse_settings(text)) == cfg
-    assert parse_settings(["cvgc.multiview_mean=off", "target_points=none", "ash.s0=2"]) == {
-        "cvgc": {"multiview_mean": False},
-        "target_points": None,
-        "ash": {"s0": 2.0},
-    }
-    for bad in ("rps.k_max", "rps.k_max=2.5", "mcm.enabled=maybe", "nothing=1"):
-        with pytest.raises(ValidationError, match="--set"):
-            parse_settings([bad])
 
 
 def test_kernel_params_read_each_stage_config():

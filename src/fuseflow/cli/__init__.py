@@ -3,6 +3,7 @@
 Every command is registered here, in ``COMMANDS`` (name -> the module whose ``command``
 function implements it) and ``GROUPS`` (sub-apps), and nowhere else: a module that is not
 listed is not a command. Each command parses its options, makes one library call and prints.
+``parse_settings`` / ``fuse_config`` read the ``NAME=VALUE`` form of a FUSE setting (--set).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import typer
 
 from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, live, run, simulate, view
 from fuseflow.cli.app import app, error, guarded
+from fuseflow.cli.settings import fuse_config, parse_settings
 from fuseflow.errors import FuseFlowError
 
 COMMANDS = {
@@ -127,4 +129,4 @@ def main() -> None:
             _flush_stdout()
 
 
-__all__ = ["COMMANDS", "GROUPS", "app", "main"]
+__all__ = ["COMMANDS", "GROUPS", "app", "fuse_config", "main", "parse_settings"]

@@ -169,17 +169,17 @@ SET_HELP = (
 
 def check_fuse_options(preset: str, points: int | None, settings: list[str] | None = None) -> None:
     """`fuse` and `run`'s --preset (a name of fuseflow.fuse.PRESETS), --points (>= 1) and --set
-    (``fuseflow.fuse.parse_settings``, checked against the preset)."""
+    (``cli.settings.parse_settings``, checked against the preset)."""
+    from fuseflow.cli.settings import fuse_config
     from fuseflow.errors import ValidationError
     from fuseflow.fuse import PRESETS
-    from fuseflow.fuse.presets import preset_config
 
     if points is not None and points < 1:
         fail(f"--points must be a positive integer, got {points}")
     if preset not in PRESETS:
         fail(f"--preset: no FUSE preset {preset!r}; presets are {sorted(PRESETS)}")
     try:
-        preset_config(preset, points, settings or ())
+        fuse_config(preset, points, settings or ())
     except ValidationError as e:
         fail(str(e))
 

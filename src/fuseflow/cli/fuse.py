@@ -58,6 +58,7 @@ def command(
     voxel: float = oo.VOXEL,
 ) -> None:
     """FUSE every frame with known extrinsics (no calibration, no health monitor): one PLY per frame."""
+    from fuseflow.cli.settings import parse_settings
     from fuseflow.io import open_recording, read_calibration
     from fuseflow.pipeline import fuse_recording
 
@@ -73,7 +74,7 @@ def command(
             recording, out, calibration, positions, preset, device,
             on_frame=lambda done, total: bar.update(task, completed=done),
             calibration_source=str(calib) if calib is not None else None, force=force, points=points,
-            outputs=outputs, settings=settings or (),
+            outputs=outputs, overrides=parse_settings(settings or ()),
         )  # fmt: skip
     ppf, ms = s.points_per_frame, s.fuse_ms_per_frame
     print_table(

@@ -109,7 +109,7 @@ def command(
     voxel: float = oo.VOXEL,
 ) -> None:
     """Calibrate once (GMAC), fuse every frame (FUSE); resumes when run again on the same --out."""
-    from fuseflow.fuse.presets import preset_config
+    from fuseflow.cli.settings import fuse_config
     from fuseflow.io import open_recording
     from fuseflow.pipeline import PipelineConfig, RayOptions, run
 
@@ -125,7 +125,7 @@ def command(
         device=device,
         recalibrate=recalibrate,
         sync=sync_offsets,
-        fuse=preset_config(preset, points, settings or ()),
+        fuse=fuse_config(preset, points, settings or ()),
         outputs=outputs,
     )
     positions = parse_range(frames, len(recording))

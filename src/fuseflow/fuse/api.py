@@ -3,9 +3,10 @@
 Stages, each in its own module: MCM (mcm.py, eq. 16-18) -> back-projection -> CVGC over the
 neighbour graph (neighbours.py, cvgc.py, eq. 19-21; with ``cvgc.multiview_mean`` each candidate also
 becomes the mean of its agreeing neighbours' measurements) -> joint weight (weights.py, eq. 22) ->
-ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). ``backend="torch"`` runs those modules
-(the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
-(fuse/kernels/); ``"auto"`` picks numba for CPU tensors. A frame of numpy arrays gives a
+ASH (ash.py, eq. 23-25) -> RPS (rps.py, eq. 26-28). This module checks and prepares the frame
+and dispatches to one of two drivers: ``backend="torch"`` runs those modules (torch_driver.py,
+the reference, any device); ``"numba"`` runs the same arithmetic fused into compiled CPU loops
+(kernels/driver.py); ``"auto"`` picks numba for CPU tensors. A frame of numpy arrays gives a
 cloud of numpy arrays, and on the numba path torch is never imported.
 """
 
@@ -149,110 +150,16 @@ def _prepare(frame: Frame, rig: Rig, config: FuseConfig, backend: str = "torch")
     else:
         import torch
 
-        from fuseflow.fuse.mcm import valid_depth
+        from fuseflow.fuse.torch_driver import gate_depth
 
         frame = frame.to(frame.device)  # torch tensors (a numpy frame is shared, not copied)
-        dev, present, color = frame.depth.device, frame.present, frame.color
-        depth = valid_depth(frame.depth, torch.from_numpy(lo).to(dev), torch.from_numpy(hi).to(dev))
-        depth = torch.where(present[:, None, None], depth, torch.zeros_like(depth)).contiguous()
-        per_view = tuple((depth > 0).flatten(1).sum(dim=1).tolist())
-        arrays = {k: torch.from_numpy(v).to(dev) for k, v in arrays.items()}
+        present, color = frame.present, frame.color
+        depth, per_view = gate_depth(frame.depth, lo, hi, present)
+        arrays = {k: torch.from_numpy(v).to(depth.device) for k, v in arrays.items()}
     return _Prepared(
         depth=depth, color=color, **arrays, present=present, graph=graph, ids=tuple(frame.camera_ids),
         valid_per_view=per_view,
     )  # fmt: skip
-
-
-def _to_world(X: torch.Tensor, cam: torch.Tensor, T_wc: torch.Tensor) -> torch.Tensor:
-    """X (M, 3) camera-frame points of cameras ``cam`` -> world, elementwise (kernel order)."""
-    m = T_wc[cam]  # (M, 3, 4)
-    import torch
-
-    x, y, z = X[:, 0], X[:, 1], X[:, 2]
-    cols = [m[:, a, 0] * x + m[:, a, 1] * y + m[:, a, 2] * z + m[:, a, 3] for a in range(3)]
-    return torch.stack(cols, dim=1)
-
-
-def _fuse_torch(p: _Prepared, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
-    """The PyTorch reference. Returns (cloud, valid pixels, candidates, out-of-range)."""
-    import torch
-
-    from fuseflow.fuse.ash import adaptive_hash, fixed_hash
-    from fuseflow.fuse.cvgc import cvgc_counts, multiview_mean, omega_geo
-    from fuseflow.fuse.mcm import confidence
-    from fuseflow.fuse.rps import cell_counts, consensus, select_representatives, selection_priority
-    from fuseflow.fuse.weights import joint_weight
-    from fuseflow.geometry.camera import pixel_rays
-
-    depth = p.depth
-    dev = depth.device
-    n, h, w = depth.shape
-    mcm, cvgc, ash, rps = cfg.mcm, cfg.cvgc, cfg.ash, cfg.rps
-    ns = cfg.noise_sigma if mcm.noise_aware else None
-    c = confidence(depth, mcm.alpha, mcm.beta, mcm.window, cfg.eps, mcm.enabled, ns, mcm.max_missing)  # (16)-(18)
-    valid_pixels = int((depth > 0).sum())
-    cand = (c > rps.r_c) & (depth > 0)  # eq. (27), applied before CVGC: exact, it only needs c
-    if cfg.pixel_stride > 1:  # every s-th pixel of every s-th row (FuseConfig.pixel_stride)
-        s = cfg.pixel_stride
-        on_grid = torch.zeros((h, w), dtype=torch.bool, device=dev)
-        on_grid[::s, ::s] = True
-        cand = cand & on_grid
-    xn, yn = pixel_rays(p.K, h, w)
-    z = depth[cand]
-    X = torch.stack([xn[cand] * z, yn[cand] * z, z], dim=1)
-    nz = torch.nonzero(cand)
-    cam, pix = nz[:, 0], nz[:, 1] * w + nz[:, 2]
-    c_m = c[cand]
-    if cvgc.enabled:
-        agree, votes = cvgc_counts(
-            X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cvgc.tau, cvgc.visibility_aware, cfg.eps
-        )
-        w_geo = omega_geo(agree, votes, c_m)  # eq. (21)
-    else:
-        w_geo = c_m  # "w/o CVGC": eq. (21)'s no-vote case for every point
-    omega = joint_weight(c_m, w_geo, cfg.eps)  # eq. (22)
-    keep = omega >= rps.min_weight
-    X, cam, pix, omega = X[keep], cam[keep], pix[keep], omega[keep]
-    z_s = X[:, 2]  # the pixel's own depth ranks it (range_priority), before any averaging
-    kept = None  # points the lone-cell rule spares (rps.lone_cell_keep)
-    if cvgc.multiview_mean and cvgc.enabled:
-        X, support = multiview_mean(X, cam, depth, p.K, p.T_cam_world, p.graph, p.present, cvgc.multiview_gate,
-                                    cfg.noise_sigma, cfg.eps, with_support=True)  # fmt: skip
-        if rps.lone_cell_keep > 0:
-            kept = support >= rps.lone_cell_keep
-    P = _to_world(X, cam, p.T_world_cam)
-    if ash.enabled:
-        cells = adaptive_hash(P, ash.coarse_size, ash.s0, ash.s_min, ash.s_max, cfg.eps)  # eq. (23)-(25)
-    else:
-        cells = fixed_hash(P, ash.fixed_size)
-    candidates = int(P.shape[0])
-    out_of_range = int((~cells.keep).sum())
-    if out_of_range:
-        P, cam, pix, omega, z_s = P[cells.keep], cam[cells.keep], pix[cells.keep], omega[cells.keep], z_s[cells.keep]
-        kept = None if kept is None else kept[cells.keep]
-        key, size = cells.key[cells.keep], cells.cell_size[cells.keep]
-    else:
-        key, size = cells.key, cells.cell_size
-    if rps.enabled and ash.enabled:
-        inv, _, k = cell_counts(key, size, rps.k0, rps.ratio, rps.k_max, True, 0, rps.lone_cell_mean, kept)  # eq. (26)
-    elif rps.enabled:  # w/o ASH: rho_bar in place of rho(C_f) -> k = ceil(k0 r)
-        k_const = int(min(max(np.ceil(rps.k0 * rps.ratio), 1), rps.k_max))
-        inv, _, k = cell_counts(key, size, rps.k0, rps.ratio, rps.k_max, False, k_const)
-    else:  # w/o RPS: fixed k
-        inv, _, k = cell_counts(key, size, rps.k0, rps.ratio, rps.k_max, False, rps.k_fixed)
-    rank = selection_priority(omega, z_s, cfg.noise_sigma) if rps.range_priority else omega
-    sel = select_representatives(P, rank, inv, k, rps.k_max)  # eq. (28)
-    cam_s = cam[sel]
-    rgb = p.color.reshape(n, h * w, 3)[cam_s, pix[sel]]
-    if rps.consensus:
-        xyz, support = consensus(
-            P, omega, cam, p.T_world_cam, p.T_cam_world, inv, sel, rps.consensus_gate, cfg.noise_sigma
-        )
-    else:
-        xyz, support = P[sel].contiguous(), None
-    cloud = FusedCloud(xyz, rgb.contiguous(), omega[sel].contiguous(), p.rig_index[cam_s].to(torch.int16), support)
-    del dev
-    return cloud, valid_pixels, candidates, out_of_range
 
 
 def _report(
@@ -294,10 +201,9 @@ def _report(
 
 
 def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int]:
-    """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference.
-    With ``target_points`` both search s0 with density.fit_s0: the numba path counts on its
-    candidates, the reference, which is not split into stages, with whole passes.
-    The depth is smoothed first (FuseConfig.smoothing) at this grid's pixels."""
+    """(cloud, valid pixels, candidates, out-of-range) with the compiled kernels or the reference
+    (kernels.fuse_numba, torch_driver.fuse_torch; with ``target_points`` each searches s0 with
+    density.fit_s0). The depth is smoothed first (FuseConfig.smoothing) at this grid's pixels."""
     k = cfg.cvgc.k_neighbours
     if p.graph.index.shape[1] > k:  # auto_config's grid takes fewer than _prepare's
         g = p.graph  # the k most-overlapping neighbours come first (neighbour_graph)
@@ -309,13 +215,9 @@ def _fuse_at(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, i
         from fuseflow.fuse.kernels import fuse_numba
 
         return fuse_numba(p, cfg)
-    if cfg.target_points is None:
-        return _fuse_torch(p, cfg)
-    from fuseflow.fuse.density import fit_s0, with_s0
+    from fuseflow.fuse.torch_driver import fuse_torch
 
-    first = _fuse_torch(p, with_s0(cfg, cfg.ash.s0))
-    fit = fit_s0(cfg, lambda s: len(_fuse_torch(p, with_s0(cfg, s))[0]), len(first[0]), whole_passes=True)
-    return first if fit.ash.s0 == cfg.ash.s0 else _fuse_torch(p, fit)
+    return fuse_torch(p, cfg)
 
 
 def _fuse_prepared(p: _Prepared, cfg: FuseConfig, backend: str) -> tuple[FusedCloud, int, int, int, int]:

@@ -1,6 +1,6 @@
 """FUSE's named settings: the presets, the paper's ablations, the sensor noise tables, the
-``auto`` preset's per-frame choice (``auto_config``) and the ``NAME=VALUE`` form of a setting
-(``parse_settings``, the CLI's ``--set``). Measured numbers of each preset: docs/fuse.md.
+``auto`` preset's per-frame choice (``auto_config``). The ``NAME=VALUE`` form of a setting (the CLI's ``--set``) is read by
+``fuseflow.cli.settings``. Measured numbers of each preset: docs/fuse.md.
 
 * ``FuseConfig()`` / ``PRESETS["default"]``: the project's defaults (visibility-aware CVGC,
   a minimum joint weight for RPS candidates).
@@ -18,14 +18,11 @@
   budget, a coarser grid otherwise (``auto_config``).
 * Ablations exactly as the paper's Table VII: ``PRESETS["w/o CVGC"]``, ``["w/o MCM"]``,
   ``["w/o ASH"]``, ``["w/o RPS"]`` (each is the default with one component removed).
-
-The settings parser stays here, not in the CLI: ``fuseflow.fuse.parse_settings`` is public and
-the pipeline (below the CLI) turns ``settings`` strings into configs with it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from fuseflow.errors import ValidationError
@@ -39,7 +36,6 @@ __all__ = [
     "NOISE_SIGMA",
     "PRESETS",
     "auto_config",
-    "parse_settings",
     "preset",
     "preset_config",
 ]
@@ -51,47 +47,6 @@ NOISE_SIGMA: dict[str, tuple[float, float, float]] = {
     "realsense": tuple(sensor_noise("realsense")),
     "kinect2": tuple(sensor_noise("kinect2")),
 }
-
-
-def parse_settings(assignments: Iterable[str]) -> dict[str, Any]:
-    """``cfg.replace`` keyword arguments from ``NAME=VALUE`` strings (the CLI's ``--set``): NAME is
-    a setting of ``FuseConfig().describe()`` (``rps.k_max``, ``pixel_stride``); VALUE is read as the
-    setting's type (bool: true/false/1/0/on/off; noise_sigma: a,b,z0; target_points: none or an int)."""
-    known = FuseConfig().describe()
-    out: dict[str, Any] = {}
-    for text in assignments:
-        name, sep, raw = text.partition("=")
-        name, raw = name.strip(), raw.strip()
-        if not sep or name not in known:
-            raise ValidationError(f"--set {text!r}: expected NAME=VALUE with NAME one of {', '.join(known)}")
-        value = _parse_value(name, raw, known[name])
-        stage, dot, field_name = name.partition(".")
-        if dot:
-            out.setdefault(stage, {})[field_name] = value
-        else:
-            out[name] = value
-    return out
-
-
-def _parse_value(name: str, raw: str, default: Any) -> Any:
-    """``raw`` as the type of ``default`` (the setting's default value)."""
-    low = raw.lower()
-    try:
-        if isinstance(default, bool):
-            if low not in ("true", "false", "1", "0", "on", "off", "yes", "no"):
-                raise ValueError(raw)
-            return low in ("true", "1", "on", "yes")
-        if name == "target_points":
-            return None if low == "none" else int(raw)
-        if isinstance(default, tuple):
-            return tuple(float(v) for v in raw.split(","))
-        if isinstance(default, int):
-            return int(raw)
-        if isinstance(default, float):
-            return float(raw)
-        return raw
-    except ValueError:
-        raise ValidationError(f"--set {name}={raw}: expected a value like {default!r}") from None
 
 
 _DEFAULT = FuseConfig()
@@ -197,15 +152,17 @@ def auto_config(
     return out, f"auto: stride {out.pixel_stride}, s0 {out.ash.s0:g} ({what}; {budget}; {spacing})"
 
 
-def preset_config(name: str, target_points: int | None = None, settings: Iterable[str] = ()) -> FuseConfig:
-    """``PRESETS[name]``, with ``target_points`` when given and then the ``NAME=VALUE`` settings
-    (``parse_settings``): the `fuse` / `run` commands' --preset, --points and --set.
-    ValidationError naming the presets for an unknown name, or the settings for a bad one."""
+def preset_config(
+    name: str, target_points: int | None = None, overrides: Mapping[str, Any] | None = None
+) -> FuseConfig:
+    """``PRESETS[name]``, with ``target_points`` when given and then ``overrides`` (keyword
+    arguments of ``FuseConfig.replace``, e.g. ``{"rps": {"k_max": 2}}``): the `fuse` / `run`
+    commands' --preset, --points and --set. ValidationError naming the presets for an unknown
+    name, or the setting for a bad value."""
     if name not in PRESETS:
         raise ValidationError(f"no FUSE preset {name!r}; presets are {sorted(PRESETS)}")
     cfg = PRESETS[name] if target_points is None else PRESETS[name].replace(target_points=target_points)
-    changes = parse_settings(settings)
-    return cfg.replace(**changes) if changes else cfg
+    return cfg.replace(**overrides) if overrides else cfg
 
 
 def preset(name: str) -> FuseConfig:

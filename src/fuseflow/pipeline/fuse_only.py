@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -216,7 +216,7 @@ def fuse_recording(
     force: bool = False,
     points: int | None = None,
     outputs: OutputOptions | None = None,
-    settings: Sequence[str] = (),
+    overrides: Mapping[str, Any] | None = None,
 ) -> FuseRunSummary:
     """FUSE the frames at positions ``frames`` (default all) of ``rec`` into OUT/clouds.
 
@@ -231,15 +231,15 @@ def fuse_recording(
             preset's density.
         outputs: crop, cloud format and meshes (``OutputOptions``; default: every point, PLY,
             no mesh).
-        settings: ``NAME=VALUE`` FUSE settings over the preset (``fuseflow.fuse.parse_settings``,
-            the CLI's --set).
+        overrides: FUSE settings over the preset, as ``FuseConfig.replace`` keyword arguments
+            (``{"rps": {"k_max": 2}, "pixel_stride": 2}``; the CLI's --set).
         force: start over in a used ``out_dir`` whose manifest does not match (see
             ``pipeline.outputs.open_output``); with a matching manifest, frames already written
             are kept, not fused again.
     """
     from fuseflow.fuse.presets import preset_config
 
-    cfg = preset_config(preset, points, settings)
+    cfg = preset_config(preset, points, overrides)
     rec = rec if isinstance(rec, Recording) else open_recording(rec)
     rig = rig_for_fusion(rec, calibration)
     positions = list(frames if frames is not None else range(len(rec)))

@@ -26,10 +26,9 @@ _F = np.float32
 
 
 def gate_depth(depth: np.ndarray, lo: np.ndarray, hi: np.ndarray, present: np.ndarray):
-    """(gated depth (N, H, W) float32 array, valid pixels per view): what api._prepare computes
-    with torch (valid_depth, then zero for absent views), as one compiled pass. The array is
-    a view of this thread's FUSE workspace: the next ``fuse_numba`` call overwrites it after
-    reading it (api._prepare's depth is read only by that call)."""
+    """(gated depth (N, H, W) float32 array, valid pixels per view): torch_driver.gate_depth
+    (valid_depth, then zero for absent views) as one compiled pass. The array is a view of this
+    thread's FUSE workspace: the next ``fuse_numba`` call overwrites it after reading it (api._prepare's depth is read only by that call)."""
     d = np.ascontiguousarray(depth, dtype=np.float32)
     n, h, w = d.shape
     # in this thread's workspace (fuse_numba reads it in pixels, then the buffer holds the
@@ -125,7 +124,7 @@ def _select_points(
 
 def fuse_numba(p, cfg: FuseConfig) -> tuple[FusedCloud, int, int, int]:
     """The compiled CPU path over api._Prepared inputs (numpy arrays); same contract as
-    api._fuse_torch, with a cloud of numpy arrays."""
+    torch_driver.fuse_torch, with a cloud of numpy arrays."""
     prm = kernel_params(cfg)
     n, h, w = p.depth.shape
     ws = workspace(n, h, w)
