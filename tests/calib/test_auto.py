@@ -1,4 +1,4 @@
-"""The ``auto`` backbone (issue 15): sources aligned into one world, each camera from the source
+"""The ``auto`` backbone: sources aligned into one world, each camera from the source
 its neighbours' depth confirms best, cameras no source confirms left unplaced with the reason."""
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def test_camera_no_source_confirms_is_unplaced_with_reason(scene5):
 
 
 def test_auto_end_to_end_on_a_sparse_ring():
-    """A 3-camera room ring (COLMAP places 0 of 3 on held-out seeds, issue 15): auto places all
+    """A 3-camera room ring (COLMAP places 0 of 3 on held-out seeds): auto places all
     from rgbd, metric, and says so."""
     from fuseflow.synth.config import SimConfig
     from fuseflow.synth.simulator import Simulator

@@ -1,5 +1,5 @@
 """calibrate() with a metric backbone (scale 1, GMAC's closed form as a check), several frames,
-and frames whose views are all dropped (issue 15)."""
+and frames whose views are all dropped."""
 
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def ring4():
 
 
 def test_rgbd_backbone_through_calibrate_one_and_two_frames(ring4):
-    """The 4-camera ring COLMAP half-places (issue 15): rgbd places all four on one frame, metric;
+    """The 4-camera ring COLMAP half-places: rgbd places all four on one frame, metric;
     pooled over two frames the backbone gets both (its median floor image over these two frames
     loses cam01's floor matches: 3 of 4 placed, measured) and what it places is right."""
     frames, rig, T_true = ring4

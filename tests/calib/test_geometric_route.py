@@ -1,4 +1,4 @@
-"""Route (c) of the rgbd backbone, geometry only (calib/geometric.py, issue 15): a textureless
+"""Route (c) of the rgbd backbone, geometry only (calib/geometric.py): a textureless
 pair is registered from depth alone, a pair that shares no geometry is refused, the result is
 deterministic.
 

@@ -1,4 +1,4 @@
-"""The depth-aware joint refinement (issue 15 item 4) on the analytic box room: it recovers
+"""The depth-aware joint refinement on the analytic box room: it recovers
 perturbed poses from exact depth, uses keypoint tracks, refuses a refinement that fits the depth
 worse, is deterministic, and calibrate reports it (off in the paper preset)."""
 

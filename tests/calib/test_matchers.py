@@ -178,7 +178,7 @@ def test_sift_keypoints_have_pixel_centres_at_integers():
     """docs/design.md's convention: pixel centres at integer coordinates. A point at u in an image is
     at 2 u + 0.5 in the image twice as large whose 2x2 blocks average to it. OpenCV's own
     keypoints give 0.25 (they are 0.25 px off, ``matchers.SIFT_PT_OFFSET``): lifted by depth that
-    was a few millimetres of systematic error per 3-D match (docs/history.md, 2026-11-24, "multi-frame pooling")."""
+    was a few millimetres of systematic error per 3-D match."""
     import cv2
 
     full, _ = _pair(size=(640, 480))

@@ -45,14 +45,14 @@ REPORT_KEYS = [
     "ill_conditioned",
     "refinement",
     "timings_s",
-    "world_anchor",  # issue 16: the camera whose frame is the world
-    "scale_check",  # issue 15: GMAC's s* on a metric backbone's poses
-    "placed_by",  # issue 15: which source placed each camera
-    "unplaced_reasons",  # issue 15: auto, why a camera is not placed
-    "joint_refinement",  # issue 15 item 4: the depth-aware joint refinement's summary
-    "pair_agreement",  # issue 27: per-pair depth agreement under the result
-    "camera_verdicts",  # issue 27: good / check it / unplaced per camera, with the evidence
-    "reference",  # issue 27: calibrate --reference's per-camera differences
+    "world_anchor",  # the camera whose frame is the world
+    "scale_check",  # GMAC's s* on a metric backbone's poses
+    "placed_by",  # which source placed each camera
+    "unplaced_reasons",  # auto, why a camera is not placed
+    "joint_refinement",  # the depth-aware joint refinement's summary
+    "pair_agreement",  # per-pair depth agreement under the result
+    "camera_verdicts",  # good / check it / unplaced per camera, with the evidence
+    "reference",  # calibrate --reference's per-camera differences
     "room",  # the repeating room found by calib.turns (None: none)
 ]
 

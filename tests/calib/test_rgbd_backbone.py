@@ -1,4 +1,4 @@
-"""Metric RGB-D backbone (issue 15): sparse rings placed metrically, wrong poses rejected by the
+"""Metric RGB-D backbone: sparse rings placed metrically, wrong poses rejected by the
 depth check, cycles prune a wrong edge, deterministic and independent of camera order.
 
 Scenes: fuseflow.synth rings (room, Kinect noise, 320x240, one frame): the same simulator the
@@ -41,7 +41,7 @@ def ring3_result(ring3):
 
 
 def test_sparse_four_ring_placed_metric():
-    """Four cameras 90 deg apart (COLMAP places 2 of 4 here, issue 15): all placed, metric."""
+    """Four cameras 90 deg apart (COLMAP places 2 of 4 here): all placed, metric."""
     frame, rig, T_true = _ring(4, 1)
     res = get_backbone("rgbd")(frame, rig, RGBDConfig())
     assert res.metric and res.name == "rgbd"
