@@ -33,7 +33,8 @@ def test_config_presets_and_validation():
     assert PRESETS["paper"].rps.range_priority is False  # eq. (28) ranks by omega alone
     assert PRESETS["paper"].rps.lone_cell_mean == 0.0  # eq. (26) keeps k >= 1 in every cell
     assert PRESETS["paper"].cvgc.multiview_mean is False  # candidates are the pixels' own points
-    assert PRESETS["quality"] == FuseConfig() and (FuseConfig().cvgc.k_neighbours, FuseConfig().ash.s0) == (7, 5.0)
+    assert PRESETS["default"] == FuseConfig() and "quality" not in PRESETS
+    assert (FuseConfig().cvgc.k_neighbours, FuseConfig().ash.s0) == (7, 5.0)
     assert PRESETS["fast"] == FuseConfig().replace(cvgc={"k_neighbours": 4}, ash={"s0": 6.3})
     assert PRESETS["live"] == FuseConfig().replace(
         pixel_stride=2, ash={"s0": 1.0}, mcm={"max_missing": 4}, smoothing={"radius": 0}

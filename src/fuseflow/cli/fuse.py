@@ -39,7 +39,7 @@ def command(
     preset: str = typer.Option(
         "auto",
         "--preset",
-        help=AUTO_HELP + " default (= quality, every pixel), live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
+        help=AUTO_HELP + " default (every pixel), dense, live (every 2nd pixel), fast, paper, 'w/o CVGC', ...",
     ),
     force: bool = typer.Option(
         False,

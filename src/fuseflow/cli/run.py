@@ -80,7 +80,7 @@ def command(
     preset: str = typer.Option(
         "auto",
         "--preset",
-        help=AUTO_HELP + " default (= quality, every pixel), live (every 2nd pixel), fast, paper, ...",
+        help=AUTO_HELP + " default (every pixel), dense, live (every 2nd pixel), fast, paper, ...",
     ),
     points: int = typer.Option(None, "--points", help=POINTS_HELP),
     settings: list[str] = typer.Option(None, "--set", metavar="NAME=VALUE", help=SET_HELP),

@@ -6,7 +6,6 @@
   a minimum joint weight for RPS candidates).
 * ``PRESETS["paper"]``: the paper read literally (eq. 20-21 vote for every neighbour that has
   depth, eq. 27 filters on c only, no minimum joint weight, eq. 28 ranks by omega alone).
-* ``PRESETS["quality"]``: the same as the default (an older name, kept).
 * ``PRESETS["fast"]``: ``cvgc.k_neighbours = 4``, ``ash.s0 = 6.3``: less time, fewer points.
 * ``PRESETS["live"]``: the default with ``pixel_stride = 2``, ``ash.s0 = 1`` and no depth
   smoothing: candidates on every 2nd pixel of every 2nd row, nearly all of them kept; for full
@@ -68,7 +67,6 @@ PRESETS: dict[str, FuseConfig] = {
         ash={"s0": 6.3},  # k_neighbours nor s0
         rps={"min_weight": 0.0, "range_priority": False, "lone_cell_mean": 0.0, "consensus": False},
     ),
-    "quality": _DEFAULT,
     "fast": _DEFAULT.replace(cvgc={"k_neighbours": 4}, ash={"s0": 6.3}),
     # candidates on every 2nd pixel of every 2nd row (4x fewer); every stage costs per candidate,
     # so s0 is low enough that selection keeps nearly all of them
