@@ -1,4 +1,4 @@
-"""Shared multi-view geometry, the layer below FUSE, GMAC and the pipeline (docs/design.md 5).
+"""Shared multi-view geometry, the layer below FUSE, GMAC and the pipeline (docs/architecture.md).
 
 - :mod:`camera`: pixel rays, back-projection, relative transforms E_j E_i^-1.
 - :mod:`overlap`: field-of-view overlap between calibrated cameras and the bounded neighbour

@@ -1,4 +1,4 @@
-"""Pinhole camera primitives shared by FUSE, GMAC and the pipeline (docs/design.md 1 and 5).
+"""Pinhole camera primitives shared by FUSE, GMAC and the pipeline (docs/conventions.md, docs/architecture.md).
 
 Conventions: metres, OpenCV axes (x right, y down, z forward), pixel centres at integer
 coordinates, ``T_cam_world`` camera-from-world. Every function is a stateless tensor function.

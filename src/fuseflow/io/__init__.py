@@ -1,4 +1,4 @@
-"""File formats and dataset readers. Knows formats, no algorithms (docs/design.md section 5)."""
+"""File formats and dataset readers. Knows formats, no algorithms (docs/architecture.md)."""
 
 from fuseflow.io.calibration import read_calibration, write_calibration
 from fuseflow.io.convert import convert as convert_recordings

@@ -2,7 +2,7 @@
 with PyAV (FFmpeg's demuxer; the Azure Kinect SDK is not needed).
 
 Layout read (Azure-Kinect-Sensor-SDK ``src/record/sdk/record.cpp``, ``src/record/internal/
-matroska_write.cpp``; docs/formats.md has the table):
+matroska_write.cpp``; docs/formats.md says what a user gets):
 
 * track "COLOR": codec V_MS/VFW/FOURCC, BITMAPINFOHEADER fourcc MJPG, NV12, YUY2 or BGRA;
   track tag K4A_COLOR_MODE = "<FORMAT>_<height>P" (e.g. "MJPG_1080P", "BGRA_720P").

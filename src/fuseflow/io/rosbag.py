@@ -2,7 +2,7 @@
 and ``rs2::recorder``, read with the pure-Python ``rosbags`` library (no librealsense).
 
 Topics read (librealsense ``src/media/ros/ros_file_format.h``, ``ros_topic``; docs/formats.md
-has the full table)::
+says what a user gets)::
 
     /file_version                                    std_msgs/UInt32   (2 or 3)
     /device_0/info                                   diagnostic_msgs/KeyValue  ("Serial Number", "Name", ...)
