@@ -5,7 +5,7 @@ WebSocket viewer (benchmarks.studies.live).
         [--data-dir ../shared/data] [--json benchmarks/results/live_replay.json] [--stand-in-ms 56]
 
 Prints per case: sustained fused frames/s, drop rate, latency (capture to sent) p50/p95, FUSE ms,
-points per frame and the viewer's Mbit/s, with the issue's target and whether it was met.
+points per frame and the viewer's Mbit/s, with the target (docs/live.md) and whether it was met.
 """
 
 from __future__ import annotations
