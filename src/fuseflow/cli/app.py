@@ -144,7 +144,7 @@ def _interrupted(exc: BaseException) -> bool:
     return False
 
 
-#: Help of `fuse` and `run`'s --preset auto (FuseConfig.auto_grid, fuse.config.auto_config).
+#: Help of `fuse` and `run`'s --preset auto (FuseConfig.auto_grid, fuse.presets.auto_config).
 AUTO_HELP = (
     "FUSE preset: auto (default): per frame, every pixel when the frame has at most 0.8 M valid depth "
     "pixels, else every 2nd pixel where that still samples the surface within 1 cm (every pixel otherwise);"

@@ -48,7 +48,7 @@ class FuseReport:
         points: output points. ms: wall time of the call.
         pixel_stride: the pixel grid the candidates were taken on (FuseConfig.pixel_stride, or
             the coarser one FuseConfig.budget_stride picked for target_points, or auto_grid's).
-        grid: with FuseConfig.auto_grid, what it chose and why (config.auto_config); "" otherwise.
+        grid: with FuseConfig.auto_grid, what it chose and why (presets.auto_config); "" otherwise.
         warnings: human-readable lines about degraded inputs (also logged).
     """
 
