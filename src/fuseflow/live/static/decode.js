@@ -325,7 +325,7 @@
   // the messages of one stream in order: holds the last compact frame for the delta after it
   function createDecoder() {
     const holder = { ref: null };
-    return { decodeFrame: (buf) => decode(buf, holder) };
+    return { decodeFrame: (buf) => decode(buf, holder), held: () => (holder.ref ? holder.ref.number : null) };
   }
   const api = { decodeFrame, createDecoder };
   if (typeof module !== "undefined" && module.exports) module.exports = api;
