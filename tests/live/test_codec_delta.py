@@ -110,7 +110,9 @@ const fs = require("fs"); const { decodeFrame, createDecoder } = require(process
 
     for n, (o, (h, xyz, rgb)) in enumerate(zip(got["out"], expect)):
         assert o["version"] == h.version == (3 if n == 0 else 4) and o["held"] == n
-        assert np.allclose(o["xyz"], xyz.reshape(-1)[:30], atol=0) and o["sum"] == pytest.approx(float(xyz.sum()), rel=1e-6)
+        assert np.allclose(o["xyz"], xyz.reshape(-1)[:30], atol=0) and o["sum"] == pytest.approx(
+            float(xyz.sum()), rel=1e-6
+        )
         assert base64.b64decode(o["rgb"]) == rgb.tobytes()
 
 
@@ -154,7 +156,9 @@ def test_the_server_sends_deltas_to_viewers_that_hold_the_reference_and_key_fram
                 dc = CompactDecoder()
                 assert _frame(c, True, dc) == (3, 3)
                 sink.send(_fused(*seq[4]), LiveFrame(4, 4, time.perf_counter(), 1.0, ()))
-                assert _frame(c, True, dc) == (4, 4) and _frame(a, True, da) == (4, 4) and _frame(b, False, db) == (3, 4)
+                assert (
+                    _frame(c, True, dc) == (4, 4) and _frame(a, True, da) == (4, 4) and _frame(b, False, db) == (3, 4)
+                )
     finally:
         sink.close()
         server.close()

@@ -293,7 +293,16 @@ class InterEncoder:
         cells, origin, levels = self._place(xyz, lo)
         leaves, mean = leaves_v3(cells, levels, rgb)
         p, ref = self.params, self._ref
-        head = (*origin.tolist(), p.step_mm / 1000.0, latency_ms, fuse_ms, levels, p.luma_step, p.chroma_step, p.chroma_block)
+        head = (
+            *origin.tolist(),
+            p.step_mm / 1000.0,
+            latency_ms,
+            fuse_ms,
+            levels,
+            p.luma_step,
+            p.chroma_step,
+            p.chroma_block,
+        )
         counts = (number & 0xFFFFFFFF, len(leaves), len(xyz))
         out: list[bytes | None] = [None, None]
         q = None
@@ -306,7 +315,9 @@ class InterEncoder:
             out[0] = _HEAD3.pack(b"FFLV", 3, COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col))
             out[0] += geo + col
         occ = occupancy(leaves, levels)
-        self._ref = _Reference(number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), occ, ref_first(occ, levels)[0], q, leaves)
+        self._ref = _Reference(
+            number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), occ, ref_first(occ, levels)[0], q, leaves
+        )
         return out[0], out[1]
 
 
@@ -402,7 +413,9 @@ def _grid_of(data: bytes) -> bytes:
     return bytes(data[20:36]) + bytes(data[44:48])
 
 
-def _decode_v3(data: bytes, h: CompactHeader, ref: _Reference | None = None) -> tuple[np.ndarray, np.ndarray, _Reference]:
+def _decode_v3(
+    data: bytes, h: CompactHeader, ref: _Reference | None = None
+) -> tuple[np.ndarray, np.ndarray, _Reference]:
     """(positions, colours, the frame as a reference) of a version 3 message, or of a version 4
     message against ``ref``."""
     from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells, ref_first

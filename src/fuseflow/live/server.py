@@ -331,7 +331,12 @@ class LiveServer:
 
     def _offer(self, data: bytes | dict[str, bytes], meta: dict) -> None:
         last = self._last
-        if last is not None and isinstance(data, dict) and isinstance(last[0], dict) and last[1].get("number") == meta.get("number"):
+        if (
+            last is not None
+            and isinstance(data, dict)
+            and isinstance(last[0], dict)
+            and last[1].get("number") == meta.get("number")
+        ):
             data = {**last[0], **data}  # the same frame again (a key frame after a delta): keep both
         self._last = (data, meta)
         for c in self._clients:
