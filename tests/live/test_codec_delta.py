@@ -162,3 +162,15 @@ def test_the_server_sends_deltas_to_viewers_that_hold_the_reference_and_key_fram
     finally:
         sink.close()
         server.close()
+
+
+def test_sequence_benchmark_rows(tmp_path):
+    from benchmarks.studies.live_codec_versions import measure_sequence, table
+
+    rows = measure_sequence("surface", _sequence(3, 5000), 1, tmp_path if shutil.which("node") else None)
+    key, delta = rows
+    assert key["codec"] == "v3 key frames" and delta["codec"] == "v4 deltas after a key frame"
+    assert delta["bits_per_point"] < key["bits_per_point"] and delta["frames"] == key["frames"] == 3
+    assert delta["rgb_err_p95"] == key["rgb_err_p95"] and delta["pos_err_axis_max_mm"] <= 1.5 + 1e-3
+    assert all(r.get("node_decode_ms", 1) > 0 for r in rows)
+    assert len(table([{k: v for k, v in r.items() if k != "_frames"} for r in rows])) == 4
