@@ -224,9 +224,13 @@ def measure_sequence(name: str, clouds: list, repeats: int, work: Path | None = 
         frames = passes[0][0]
         cpu = np.median([p[1] for p in passes], 0)
         pts = [len(x) for x, _ in clouds]
-        dec, cheb_max, errs, sent = CompactDecoder(), 0.0, [], []
+        dec, cheb_max, errs, sent, repeated, prev = CompactDecoder(), 0.0, [], [], [], None
         for (xyz, rgb), data in zip(clouds, frames):
             _, dx, dc = dec.decode(data)
+            cells = np.ascontiguousarray(dx).view(np.dtype((np.void, 12))).ravel()
+            if prev is not None:  # decoded points on the cell of a point of the frame before
+                repeated.append(float(np.isin(cells, prev).mean()))
+            prev = cells
             cheb, idx = cKDTree(dx).query(xyz, p=np.inf)
             cheb_max = max(cheb_max, float(cheb.max()))
             errs.append(np.abs(dc[idx].astype(np.int16) - rgb.astype(np.int16)).reshape(-1))
@@ -235,6 +239,7 @@ def measure_sequence(name: str, clouds: list, repeats: int, work: Path | None = 
         err = np.concatenate(errs)
         rows.append({"cloud": name, "codec": label, "frames": len(frames), "points_mean": round(float(np.mean(pts))),
                      "points_sent_mean": round(float(np.mean(sent))),
+                     "cells_repeated_mean": round(float(np.mean(repeated)), 3) if repeated else None,
                      "bits_per_point": round(sum(len(f) for f in frames) * 8 / sum(pts), 3),
                      "bits_per_point_after_first": round(float(np.mean(bits[1:])), 3) if len(bits) > 1 else None,
                      "pos_err_axis_max_mm": round(cheb_max * 1e3, 3), "rgb_err_median": float(np.median(err)),
