@@ -1,7 +1,9 @@
 """The compact frame formats of the live stream (``--codec compact``): positions on a grid coded
 as an octree, colour as quantised luma / chroma residuals. Version 3 (written by default)
-range-codes both with adaptive context models; version 2 deflates byte streams. ``decode_compact``
-reads both. docs/live.md has them byte by byte with the decoding steps.
+range-codes both with adaptive context models; version 4 is a delta: the same, coded against the
+previous frame of the stream (``InterEncoder`` writes both, ``CompactDecoder`` reads a stream in
+order); version 2 deflates byte streams. ``decode_compact`` reads versions 2 and 3.
+docs/live.md has them byte by byte with the decoding steps.
 
 Version 3, little-endian::
 
