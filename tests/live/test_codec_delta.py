@@ -174,3 +174,34 @@ def test_sequence_benchmark_rows(tmp_path):
     assert delta["rgb_err_p95"] == key["rgb_err_p95"] and delta["pos_err_axis_max_mm"] <= 1.5 + 1e-3
     assert all(r.get("node_decode_ms", 1) > 0 for r in rows)
     assert len(table([{k: v for k, v in r.items() if k != "_frames"} for r in rows])) == 4
+
+
+def test_damaged_deltas_are_format_errors_and_leave_nothing_to_refer_to():
+    import struct
+    import zlib
+
+    (x0, c0), (x1, c1) = _sequence(2, 5000)
+    enc = InterEncoder(CompactParams())
+    k0, _ = enc.encode(x0, c0, 0)
+    _, d1 = enc.encode(x1, c1, 1, key=False)
+    rng = np.random.default_rng(5)
+    for trial in range(30):
+        body = bytearray(d1[64:])
+        if trial % 2:
+            body = bytearray(rng.bytes(len(body)))  # garbage behind a valid checksum
+        else:
+            body[rng.integers(len(body))] ^= 1 << int(rng.integers(8))
+        bad = d1[:48] + struct.pack("<I", zlib.crc32(bytes(body))) + d1[52:64] + bytes(body)
+        dec = CompactDecoder()
+        dec.decode(k0)
+        try:
+            h, xyz, _ = dec.decode(bad)
+        except FormatError:
+            with pytest.raises(FormatError, match="holds no frame"):
+                dec.decode(d1)  # the failed frame is not a reference either
+        else:
+            assert h.points == len(xyz)  # a flip the coder absorbs still decodes consistently
+    with pytest.raises(FormatError, match="checksum"):
+        dec = CompactDecoder()
+        dec.decode(k0)
+        dec.decode(d1[:-1] + bytes([d1[-1] ^ 1]))
