@@ -157,16 +157,27 @@ def _pool():
 
 @dataclass
 class _Reference:
-    """A decoded frame as the next one may refer to it: its grid and colour steps, its octree
-    (breadth-first bytes and ``ref_first`` of them), its leaves' quantised Y, Co, Cg and (on the
-    encoder's side) its leaf keys."""
+    """A decoded frame as the next one may refer to it: its grid and colour steps, its depth, its
+    leaves' quantised Y, Co, Cg, and its leaf keys (encoder) or octree bytes (decoder); ``octree``
+    makes the breadth-first bytes and ``ref_first`` of them only when a delta refers to it."""
 
     number: int
-    grid: tuple
-    occ: np.ndarray
-    first: np.ndarray
+    grid: bytes
+    levels: int
     q: np.ndarray
     leaves: np.ndarray | None = None
+    occ: np.ndarray | None = None
+    first: np.ndarray | None = None
+
+    def octree(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(breadth-first occupancy bytes, ``ref_first`` of them, quantised colour)."""
+        from fuseflow.live.codec_kernels import occupancy, ref_first
+
+        if self.occ is None:
+            self.occ = occupancy(self.leaves, self.levels)
+        if self.first is None:
+            self.first = ref_first(self.occ, self.levels)[0]
+        return self.occ, self.first, self.q
 
 
 def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rleaf) -> tuple[bytes, bytes, np.ndarray]:
@@ -174,7 +185,7 @@ def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rle
     (None: version 3); the geometry is coded in a worker thread (the kernels release the GIL)."""
     from fuseflow.live.codec_kernels import colour_stream, geometry_stream
 
-    rocc, rfirst, rq = _NO_REF if ref is None else (ref.occ, ref.first, ref.q)
+    rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
     geo = _pool().submit(geometry_stream, leaves, levels, rocc, rfirst)
     col, q = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block, rleaf, rq)
     return geo.result()[0].tobytes(), col.tobytes(), q
@@ -286,7 +297,7 @@ class InterEncoder:
         """(key frame, delta) of a cloud: the key frame when ``key`` is set or no delta can be made,
         the delta when ``delta`` is set and the previous frame is on this one's grid. This frame
         becomes the reference of the next delta."""
-        from fuseflow.live.codec_kernels import leaves_v3, match_leaves, occupancy, ref_first
+        from fuseflow.live.codec_kernels import leaves_v3, match_leaves
 
         xyz, rgb, lo = _finite(xyz, rgb)
         if not len(xyz):
@@ -316,10 +327,7 @@ class InterEncoder:
             geo, col, q = _streams(leaves, mean, levels, p, None, np.full(len(leaves), -1, np.int64))
             out[0] = _HEAD3.pack(b"FFLV", 3, COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col))
             out[0] += geo + col
-        occ = occupancy(leaves, levels)
-        self._ref = _Reference(
-            number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), occ, ref_first(occ, levels)[0], q, leaves
-        )
+        self._ref = _Reference(number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), levels, q, leaves)
         return out[0], out[1]
 
 
@@ -420,13 +428,13 @@ def _decode_v3(
 ) -> tuple[np.ndarray, np.ndarray, _Reference]:
     """(positions, colours, the frame as a reference) of a version 3 message, or of a version 4
     message against ``ref``."""
-    from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells, ref_first
+    from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells
 
     hsize = _HEAD4.size if h.version == 4 else COMPACT_HEADER
     if zlib.crc32(memoryview(data)[hsize:]) != h.occupancy_bytes:
         raise FormatError("live frame: the checksum does not match (corrupt or altered streams)")
     m = h.points
-    rocc, rfirst, rq = _NO_REF if ref is None else (ref.occ, ref.first, ref.q)
+    rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
     if m == 0:
         if sum(h.sizes):
             raise FormatError("live frame: streams given for a frame of no points")
@@ -440,7 +448,7 @@ def _decode_v3(
     if err or used > len(col):
         raise FormatError("live frame: the colour stream is corrupt or ends early")
     xyz = (h.origin.astype(np.float64) + (morton_cells(keys) + 0.5) * h.step).astype(np.float32)
-    return xyz, rgb, _Reference(h.number, _grid_of(data), occ, ref_first(occ, h.levels)[0], q)
+    return xyz, rgb, _Reference(h.number, _grid_of(data), h.levels, q, occ=occ)
 
 
 class CompactDecoder:
