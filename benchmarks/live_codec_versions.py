@@ -1,10 +1,11 @@
 """Bits a point of the live stream's compact codec, version 3 against version 2 and raw, in one run
-on the hocap-8rs frame and a simulated 8-camera studio fused at 200 k points: bits (and geometry
-bits) a point, points sent, position and colour error, encode time, Python and decode.js (node)
-decode time (benchmarks.studies.live_codec_versions; docs/live.md, "Bandwidth: the frame codecs").
+on the hocap-8rs frame and a simulated 8-camera studio fused at 200 k points, then key frames
+against deltas (version 4) on two moving sequences (kinect3-room, a simulated dynamic studio):
+bits (and geometry bits) a point, points sent, position and colour error, encode time, Python and
+decode.js (node) decode time (benchmarks.studies.live_codec_versions; docs/live.md, "Bandwidth").
 
     python -m benchmarks.live_codec_versions [--data-dir ../shared/data] [--json PATH | --save]
-        [--repeats 7] [--no-node]
+        [--repeats 7] [--no-node] [--no-sequences] [--sim-frames 10]
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ def main(argv: list[str] | None = None) -> None:
     ap = common.parser(__doc__, data=True)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--no-node", action="store_true")
+    ap.add_argument("--no-sequences", action="store_true")
+    ap.add_argument("--sim-frames", type=int, default=10)
     a = ap.parse_args(argv)
-    out = run_codec_v3_bench(common.data_dir(a.data_dir), a.repeats, node=not a.no_node, log=common.log)
+    out = run_codec_v3_bench(common.data_dir(a.data_dir), a.repeats, node=not a.no_node, log=common.log,
+                             sequences=not a.no_sequences, sim_frames=a.sim_frames)  # fmt: skip
     common.save(a, "live_codec_versions", common.command("live_codec_versions", argv), out["rows"], out["meta"])
 
 

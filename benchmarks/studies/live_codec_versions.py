@@ -23,10 +23,19 @@ from pathlib import Path
 import numpy as np
 
 import fuseflow.live
-from fuseflow.live.codec import CompactParams, encode_compact
+from fuseflow.live.codec import CompactDecoder, CompactParams, InterEncoder, encode_compact
 from fuseflow.live.wire import decode_frame
 
-__all__ = ["SETTINGS", "fused_clouds", "measure", "node_decode_ms", "run_codec_v3_bench", "table"]
+__all__ = [
+    "SETTINGS",
+    "fused_clouds",
+    "fused_sequences",
+    "measure",
+    "measure_sequence",
+    "node_decode_ms",
+    "run_codec_v3_bench",
+    "table",
+]
 
 DECODE_JS = Path(fuseflow.live.__file__).resolve().parent / "static" / "decode.js"
 SETTINGS: list[tuple[str, CompactParams | None]] = [
@@ -141,15 +150,121 @@ def node_decode_ms(rows: list[dict], repeats: int, work: Path) -> None:
 
 def table(rows: list[dict]) -> list[str]:
     """The rows as markdown table lines."""
-    cols = ["cloud", "codec", "bits_per_point", "geometry_bits_per_point", "points_sent", "pos_err_axis_max_mm",
-            "rgb_err_median", "rgb_err_p95", "encode_cpu_ms", "encode_wall_ms", "node_decode_ms"]  # fmt: skip
+    cols = ["cloud", "codec", "frames", "bits_per_point", "bits_per_point_after_first", "geometry_bits_per_point",
+            "points_sent", "pos_err_axis_max_mm", "rgb_err_median", "rgb_err_p95", "encode_cpu_ms", "encode_wall_ms",
+            "node_decode_ms"]  # fmt: skip
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    rows = [{**r, "points_sent": r.get("points_sent", r.get("points_sent_mean"))} for r in rows]
     return lines + ["| " + " | ".join(str(r.get(c)) for c in cols) + " |" for r in rows]
 
 
-def run_codec_v3_bench(data_dir: Path, repeats: int = 7, node: bool = True, log=print) -> dict:
+NODE_SEQUENCE = """
+const fs = require("fs"); const { createDecoder } = require(process.argv[2]); const repeats = +process.argv[3];
+(async () => {
+  const bufs = process.argv.slice(4).map((n) => { const b = fs.readFileSync(n); return b.buffer.slice(b.byteOffset, b.byteOffset + b.length); });
+  const t = bufs.map(() => []);
+  for (let r = 0; r <= repeats; r++) {
+    const dec = createDecoder();
+    for (let i = 0; i < bufs.length; i++) { const t0 = performance.now(); await dec.decodeFrame(bufs[i]); if (r) t[i].push(performance.now() - t0); }
+  }
+  console.log(JSON.stringify(t.map((x) => x.sort((a, c) => a - c)[x.length >> 1])));
+})();
+"""
+
+
+def fused_sequences(data_dir: Path, work: Path, sim_frames: int = 10) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """name -> fused clouds of a moving sequence at 200 k points (``--preset live``): kinect3-room
+    (every frame, the reference extrinsics) and the simulated dynamic 8-camera studio."""
+    from fuseflow.fuse import fuse
+    from fuseflow.fuse.presets import preset_config
+    from fuseflow.io import open_recording, read_calibration
+    from fuseflow.synth import SimConfig, simulate_recording
+
+    simulate_recording(work / "sim8dyn", SimConfig(cameras=8, frames=sim_frames, scene="studio", dynamic=True,
+                                                   resolution=(640, 480), seed=0, fps=10.0))  # fmt: skip
+    k3 = open_recording(data_dir / "kinect3-room")
+    rigs = {
+        "kinect3-room": (
+            k3,
+            k3.rig.with_extrinsics(read_calibration(data_dir / "kinect3-room" / "reference_calib.json").T_cam_world),
+        )
+    }
+    sim = open_recording(work / "sim8dyn")
+    rigs["sim8-dynamic"] = (sim, sim.rig)
+    out = {}
+    for name, (rec, rig) in rigs.items():
+        out[name] = []
+        for i in range(len(rec)):
+            c = fuse(rec[i], rig, preset_config("live", 200_000))
+            out[name].append((c.xyz.numpy().astype(np.float32), c.rgb.numpy().astype(np.uint8)))
+    return out
+
+
+def _sequence_pass(clouds, delta: bool) -> tuple[list[bytes], list[float]]:
+    """Every frame in order (the first a key frame; then deltas, or key frames when not ``delta``)
+    and the process CPU ms of each."""
+    enc, frames, cpu = InterEncoder(CompactParams()), [], []
+    for n, (xyz, rgb) in enumerate(clouds):
+        c = time.process_time()
+        key, d = enc.encode(xyz, rgb, n, key=not delta, delta=delta)
+        cpu.append((time.process_time() - c) * 1e3)
+        frames.append(d if d is not None else key)
+    return frames, cpu
+
+
+def measure_sequence(name: str, clouds: list, repeats: int, work: Path | None = None) -> list[dict]:
+    """Two rows: every frame a key frame (version 3), and a key frame then deltas (version 4):
+    bits a point over all frames (fused points), of the deltas alone, encode CPU (median over
+    frames of the median over ``repeats`` passes), errors over every frame, decode.js in node."""
+    from scipy.spatial import cKDTree
+
+    rows = []
+    for label, delta in (("v3 key frames", False), ("v4 deltas after a key frame", True)):
+        passes = [_sequence_pass(clouds, delta) for _ in range(max(1, repeats))]
+        frames = passes[0][0]
+        cpu = np.median([p[1] for p in passes], 0)
+        pts = [len(x) for x, _ in clouds]
+        dec, cheb_max, errs, sent, repeated, prev = CompactDecoder(), 0.0, [], [], [], None
+        for (xyz, rgb), data in zip(clouds, frames):
+            _, dx, dc = dec.decode(data)
+            cells = np.ascontiguousarray(dx).view(np.dtype((np.void, 12))).ravel()
+            if prev is not None:  # decoded points on the cell of a point of the frame before
+                repeated.append(float(np.isin(cells, prev).mean()))
+            prev = cells
+            cheb, idx = cKDTree(dx).query(xyz, p=np.inf)
+            cheb_max = max(cheb_max, float(cheb.max()))
+            errs.append(np.abs(dc[idx].astype(np.int16) - rgb.astype(np.int16)).reshape(-1))
+            sent.append(len(dx))
+        bits = [len(f) * 8 / n for f, n in zip(frames, pts)]
+        err = np.concatenate(errs)
+        rows.append({"cloud": name, "codec": label, "frames": len(frames), "points_mean": round(float(np.mean(pts))),
+                     "points_sent_mean": round(float(np.mean(sent))),
+                     "cells_repeated_mean": round(float(np.mean(repeated)), 3) if repeated else None,
+                     "bits_per_point": round(sum(len(f) for f in frames) * 8 / sum(pts), 3),
+                     "bits_per_point_after_first": round(float(np.mean(bits[1:])), 3) if len(bits) > 1 else None,
+                     "pos_err_axis_max_mm": round(cheb_max * 1e3, 3), "rgb_err_median": float(np.median(err)),
+                     "rgb_err_p95": float(np.percentile(err, 95)),
+                     "encode_cpu_ms": round(float(np.median(cpu[1:] if len(cpu) > 1 else cpu)), 1),
+                     "_frames": frames})  # fmt: skip
+    if work is not None and shutil.which("node"):
+        (work / "seq.js").write_text(NODE_SEQUENCE)
+        for r in rows:
+            names = []
+            for f in r["_frames"]:
+                names.append(str(work / f"{name}-{len(names)}-{r['codec'][:2]}.bin"))
+                Path(names[-1]).write_bytes(f)
+            out = subprocess.run(["node", str(work / "seq.js"), str(DECODE_JS), str(max(1, repeats)), *names],
+                                 capture_output=True, text=True, timeout=1800, check=True)  # fmt: skip
+            ms = json.loads(out.stdout)
+            r["node_decode_ms"] = round(float(np.median(ms[1:] if len(ms) > 1 else ms)), 1)
+    return rows
+
+
+def run_codec_v3_bench(data_dir: Path, repeats: int = 7, node: bool = True, log=print, sequences: bool = True,
+                       sim_frames: int = 10) -> dict:  # fmt: skip
     """Every SETTINGS entry on both clouds (and decode.js in node when ``node`` and node is
-    there): {"meta": {load at start and end, cpus}, "rows": [...]}; the table goes to ``log``."""
+    there), then key frames against deltas on the moving sequences (``measure_sequence``):
+    {"meta": {load at start and end, cpus}, "rows": [...]}; the table goes to ``log``."""
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory(prefix="fuseflow-codec-") as tmp:
         work = Path(tmp)
@@ -158,9 +273,13 @@ def run_codec_v3_bench(data_dir: Path, repeats: int = 7, node: bool = True, log=
             rows += measure(name, xyz, rgb, repeats)
         if node and shutil.which("node"):
             node_decode_ms(rows, repeats, work)
+        if sequences:
+            for name, clouds in fused_sequences(Path(data_dir), work, sim_frames).items():
+                rows += measure_sequence(name, clouds, max(1, repeats // 2), work if node else None)
     load.append(os.getloadavg()[0])
     for r in rows:
-        r.pop("_data")
+        r.pop("_data", None)
+        r.pop("_frames", None)
     for line in table(rows):
         log(line)
     meta = {"load_1min_start_end": [round(x, 1) for x in load], "cpus": os.cpu_count()}

@@ -1,7 +1,9 @@
 """The compact frame formats of the live stream (``--codec compact``): positions on a grid coded
 as an octree, colour as quantised luma / chroma residuals. Version 3 (written by default)
-range-codes both with adaptive context models; version 2 deflates byte streams. ``decode_compact``
-reads both. docs/live.md has them byte by byte with the decoding steps.
+range-codes both with adaptive context models; version 4 is a delta: the same, coded against the
+previous frame of the stream (``InterEncoder`` writes both, ``CompactDecoder`` reads a stream in
+order); version 2 deflates byte streams. ``decode_compact`` reads versions 2 and 3.
+docs/live.md has them byte by byte with the decoding steps.
 
 Version 3, little-endian::
 
@@ -76,6 +78,8 @@ from fuseflow.errors import FormatError, ValidationError
 
 __all__ = [
     "CompactParams",
+    "CompactDecoder",
+    "InterEncoder",
     "COMPACT_VERSION",
     "COMPACT_VERSIONS",
     "COMPACT_HEADER",
@@ -87,10 +91,11 @@ __all__ = [
 
 COMPACT_VERSION = 3
 """The compact version written by default."""
-COMPACT_VERSIONS = (2, 3)
+COMPACT_VERSIONS = (2, 3, 4)
 """The compact versions ``decode_compact`` reads."""
 _HEAD = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 2
 _HEAD3 = struct.Struct("<4sHHIII3ffffBBBBIII")
+_HEAD4 = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 3's fields, then the reference's number
 COMPACT_HEADER = _HEAD3.size
 """Header size in bytes of version 3 (60; version 2: 64)."""
 MAX_POINTS = 1 << 26
@@ -138,22 +143,86 @@ def _deflate(data: bytes) -> bytes:
 
 _POOL: dict = {}
 """The geometry worker of this process (by pid: a forked child starts its own)."""
+_NO_REF = (np.zeros(0, np.uint8), np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
 
 
-def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParams) -> tuple[bytes, bytes, int]:
-    """(geometry stream, colour stream, points sent): the two streams are coded at once, the
-    geometry in a worker thread (the kernels release the GIL)."""
+def _pool():
     from concurrent.futures import ThreadPoolExecutor
 
-    from fuseflow.live.codec_kernels import colour_stream, geometry_stream, leaves_v3
-
-    leaves, mean = leaves_v3(cells, levels, rgb)
     pool = _POOL.get(os.getpid())
     if pool is None:
         pool = _POOL[os.getpid()] = ThreadPoolExecutor(1, thread_name_prefix="fuseflow-codec")
-    geo = pool.submit(geometry_stream, leaves, levels)
-    col = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block)
-    return geo.result().tobytes(), col.tobytes(), len(leaves)
+    return pool
+
+
+@dataclass
+class _Reference:
+    """A decoded frame as the next one may refer to it: its grid and colour steps, its depth, its
+    leaves' quantised Y, Co, Cg, and its leaf keys (encoder) or octree bytes (decoder); ``octree``
+    makes the breadth-first bytes and ``ref_first`` of them only when a delta refers to it."""
+
+    number: int
+    grid: bytes
+    levels: int
+    q: np.ndarray
+    leaves: np.ndarray | None = None
+    occ: np.ndarray | None = None
+    first: np.ndarray | None = None
+
+    def octree(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(breadth-first occupancy bytes, ``ref_first`` of them, quantised colour)."""
+        from fuseflow.live.codec_kernels import occupancy, ref_first
+
+        if self.occ is None:
+            self.occ = occupancy(self.leaves, self.levels)
+        if self.first is None:
+            self.first = ref_first(self.occ, self.levels)[0]
+        return self.occ, self.first, self.q
+
+
+def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rleaf) -> tuple[bytes, bytes, np.ndarray]:
+    """(geometry stream, colour stream, quantised colour) of a frame's leaves, against ``ref``
+    (None: version 3); the geometry is coded in a worker thread (the kernels release the GIL)."""
+    from fuseflow.live.codec_kernels import colour_stream, geometry_stream
+
+    rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
+    geo = _pool().submit(geometry_stream, leaves, levels, rocc, rfirst)
+    col, q = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block, rleaf, rq)
+    return geo.result()[0].tobytes(), col.tobytes(), q
+
+
+def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParams) -> tuple[bytes, bytes, int]:
+    """(geometry stream, colour stream, points sent) of a key frame."""
+    from fuseflow.live.codec_kernels import leaves_v3
+
+    leaves, mean = leaves_v3(cells, levels, rgb)
+    geo, col, _ = _streams(leaves, mean, levels, p, None, np.full(len(leaves), -1, np.int64))
+    return geo, col, len(leaves)
+
+
+def _finite(xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(finite points as contiguous float32, their uint8 colours, per-axis minimum): points with a
+    NaN or infinite coordinate are not sent."""
+    from fuseflow.live.codec_kernels import finite_min
+
+    xyz = np.ascontiguousarray(xyz, np.float32)
+    lo, bad = finite_min(xyz)
+    if bad:
+        keep = np.isfinite(xyz).all(1)
+        xyz, rgb = np.ascontiguousarray(xyz[keep]), rgb[keep]
+    if len(xyz) > MAX_POINTS:
+        raise ValidationError(f"compact frame: {len(xyz)} points, over the format's {MAX_POINTS}")
+    return xyz, np.ascontiguousarray(rgb, np.uint8), lo
+
+
+def _levels(top: int, step_mm: float) -> int:
+    levels = max(1, int(top).bit_length())
+    if levels > MAX_LEVELS:
+        raise ValidationError(
+            f"compact frame: the cloud spans {top * step_mm / 1000:.1f} m, over 2^{MAX_LEVELS} cells of {step_mm:g} mm; "
+            "use a larger --grid-mm or --crop"
+        )
+    return levels
 
 
 def encode_compact(
@@ -161,27 +230,15 @@ def encode_compact(
 ) -> bytes:
     """The compact message (``params.version``: 3 or 2) for (M, 3) float32 positions and (M, 3)
     uint8 colours."""
-    from fuseflow.live.codec_kernels import compact_streams, finite_min, grid_cells
+    from fuseflow.live.codec_kernels import compact_streams, grid_cells
 
     params.check()
     step = params.step_mm / 1000.0
-    xyz = np.ascontiguousarray(xyz, np.float32)
-    lo, bad = finite_min(xyz)
-    if bad:  # points with a NaN or infinite coordinate are not sent
-        keep = np.isfinite(xyz).all(1)
-        xyz, rgb = np.ascontiguousarray(xyz[keep]), rgb[keep]
+    xyz, rgb, lo = _finite(xyz, rgb)
     n_in = len(xyz)
-    if n_in > MAX_POINTS:
-        raise ValidationError(f"compact frame: {n_in} points, over the format's {MAX_POINTS}")
     origin = lo.astype(np.float32) if n_in else np.zeros(3, np.float32)
     cells, top = grid_cells(xyz, origin.astype(np.float64), 1.0 / step)
-    levels = max(1, int(top).bit_length())
-    if levels > MAX_LEVELS:
-        raise ValidationError(
-            f"compact frame: the cloud spans {top * step:.1f} m, over 2^{MAX_LEVELS} cells of {params.step_mm:g} mm; "
-            "use a larger --grid-mm or --crop"
-        )
-    rgb = np.ascontiguousarray(rgb, np.uint8)
+    levels = _levels(top, params.step_mm)
     p = params
     fixed = (b"FFLV", p.version, COMPACT_HEADER if p.version == 3 else _HEAD.size, number & 0xFFFFFFFF)
     tail = (*origin.tolist(), step, latency_ms, fuse_ms, levels, p.luma_step, p.chroma_step, p.chroma_block)
@@ -199,6 +256,81 @@ def encode_compact(
     return b"".join([head, *streams])
 
 
+class InterEncoder:
+    """The compact frames of one stream: each frame as a key frame (version 3, decodes alone)
+    and / or as a delta (version 4: coded against the previous frame this encoder coded, which
+    the receiver must hold; ``CompactDecoder``). Frames share one grid (origin and depth, with a
+    margin of a quarter of the extent, at least 32 cells, around the cloud that opened it) until a
+    cloud leaves it; the first frame on a new grid has no delta. Geometry and colour decode exactly
+    as from a key frame of the same grid: a delta changes the bytes, not the picture."""
+
+    def __init__(self, params: CompactParams = CompactParams()):
+        if params.check().version != 3:
+            raise ValidationError("inter-frame coding needs compact version 3 (its deltas are version 4)")
+        self.params = params
+        self._grid: tuple[np.ndarray, int] | None = None
+        self._ref: _Reference | None = None
+
+    @property
+    def reference(self) -> int | None:
+        """The frame number the next delta refers to (None: the next frame has no delta)."""
+        return None if self._ref is None else self._ref.number
+
+    def _place(self, xyz: np.ndarray, lo: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """(cells, origin, levels): on the current grid when the cloud fits it, else on a new one."""
+        from fuseflow.live.codec_kernels import bounds, grid_cells
+
+        inv = 1000.0 / self.params.step_mm
+        if self._grid is not None and np.all(lo >= self._grid[0]):
+            cells, top = grid_cells(xyz, self._grid[0].astype(np.float64), inv)
+            if top < (1 << self._grid[1]):
+                return cells, *self._grid
+        extent = int(np.ceil(float((bounds(xyz)[1] - lo).max()) * inv))
+        pad = max(32, extent // 4)
+        origin = (lo - pad / inv).astype(np.float32)
+        cells, top = grid_cells(xyz, origin.astype(np.float64), inv)
+        self._grid, self._ref = (origin, _levels(max(int(top), extent + 2 * pad), self.params.step_mm)), None
+        return cells, *self._grid
+
+    def encode(self, xyz: np.ndarray, rgb: np.ndarray, number: int, latency_ms: float = 0.0, fuse_ms: float = 0.0,
+               key: bool = True, delta: bool = True) -> tuple[bytes | None, bytes | None]:  # fmt: skip
+        """(key frame, delta) of a cloud: the key frame when ``key`` is set or no delta can be made,
+        the delta when ``delta`` is set and the previous frame is on this one's grid. This frame
+        becomes the reference of the next delta."""
+        from fuseflow.live.codec_kernels import leaves_v3, match_leaves
+
+        xyz, rgb, lo = _finite(xyz, rgb)
+        if not len(xyz):
+            self._grid = self._ref = None
+            return encode_compact(xyz, rgb, number, latency_ms, fuse_ms, self.params), None
+        cells, origin, levels = self._place(xyz, lo)
+        leaves, mean = leaves_v3(cells, levels, rgb)
+        p, ref = self.params, self._ref
+        head = (
+            *origin.tolist(),
+            p.step_mm / 1000.0,
+            latency_ms,
+            fuse_ms,
+            levels,
+            p.luma_step,
+            p.chroma_step,
+            p.chroma_block,
+        )
+        counts = (number & 0xFFFFFFFF, len(leaves), len(xyz))
+        out: list[bytes | None] = [None, None]
+        q = None
+        if delta and ref is not None:
+            geo, col, q = _streams(leaves, mean, levels, p, ref, match_leaves(leaves, ref.leaves))
+            out[1] = _HEAD4.pack(b"FFLV", 4, _HEAD4.size, *counts, *head, zlib.crc32(geo + col), len(geo), len(col),
+                                 ref.number & 0xFFFFFFFF) + geo + col  # fmt: skip
+        if key or out[1] is None:
+            geo, col, q = _streams(leaves, mean, levels, p, None, np.full(len(leaves), -1, np.int64))
+            out[0] = _HEAD3.pack(b"FFLV", 3, COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col))
+            out[0] += geo + col
+        self._ref = _Reference(number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), levels, q, leaves)
+        return out[0], out[1]
+
+
 @dataclass
 class CompactHeader:
     number: int
@@ -213,10 +345,12 @@ class CompactHeader:
     chroma_step: int
     chroma_block: int
     occupancy_bytes: int
-    """Version 2: the decompressed size of the occupancy stream; version 3: the CRC-32."""
+    """Version 2: the decompressed size of the occupancy stream; versions 3 and 4: the CRC-32."""
     sizes: tuple[int, ...]
-    """Byte sizes of the streams (version 2: occupancy, luma, chroma; version 3: geometry, colour)."""
+    """Byte sizes of the streams (version 2: occupancy, luma, chroma; 3 and 4: geometry, colour)."""
     version: int = COMPACT_VERSION
+    reference: int | None = None
+    """Version 4: the number of the frame this one is coded against."""
 
 
 def _inflate(data: bytes, expected: int, what: str) -> bytes:
@@ -236,11 +370,12 @@ def _read_header(data: bytes) -> CompactHeader:
     version = struct.unpack_from("<H", data, 4)[0] if len(data) >= 6 else 0
     if version not in COMPACT_VERSIONS:
         raise FormatError(f"live frame: compact version {version}, expected one of {COMPACT_VERSIONS}")
-    head = _HEAD3 if version == 3 else _HEAD
+    head = {2: _HEAD, 3: _HEAD3, 4: _HEAD4}[version]
     if len(data) < head.size:
         raise FormatError(f"live frame: {len(data)} bytes, shorter than the {head.size}-byte header")
     f = head.unpack_from(data)
-    h = CompactHeader(f[3], f[4], f[5], np.array(f[6:9], np.float32), *f[9:17], tuple(f[17:]), version=version)
+    sizes, ref = (tuple(f[17:19]), f[19]) if version == 4 else (tuple(f[17:]), None)
+    h = CompactHeader(f[3], f[4], f[5], np.array(f[6:9], np.float32), *f[9:17], sizes, version, ref)
     if f[2] != head.size or not (1 <= h.levels <= MAX_LEVELS) or not (h.step > 0) or h.points > h.points_in:
         raise FormatError(f"live frame: bad compact header (size {f[2]}, levels {h.levels}, step {h.step})")
     if min(h.luma_step, h.chroma_step, h.chroma_block) < 1 or h.points_in > MAX_POINTS:
@@ -282,34 +417,71 @@ def _colours(luma: bytes, chroma: bytes, h: CompactHeader) -> np.ndarray:
     return np.clip(np.rint(np.stack([r, g, b], 1)), 0, 255).astype(np.uint8)
 
 
-def _decode_v3(data: bytes, h: CompactHeader) -> tuple[np.ndarray, np.ndarray]:
+def _grid_of(data: bytes) -> bytes:
+    """A message's grid and colour steps (origin, step; depth, luma and chroma steps, block): a
+    delta decodes only against a reference with the same."""
+    return bytes(data[20:36]) + bytes(data[44:48])
+
+
+def _decode_v3(
+    data: bytes, h: CompactHeader, ref: _Reference | None = None
+) -> tuple[np.ndarray, np.ndarray, _Reference]:
+    """(positions, colours, the frame as a reference) of a version 3 message, or of a version 4
+    message against ``ref``."""
     from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells
 
-    if zlib.crc32(memoryview(data)[COMPACT_HEADER:]) != h.occupancy_bytes:
+    hsize = _HEAD4.size if h.version == 4 else COMPACT_HEADER
+    if zlib.crc32(memoryview(data)[hsize:]) != h.occupancy_bytes:
         raise FormatError("live frame: the checksum does not match (corrupt or altered streams)")
     m = h.points
+    rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
     if m == 0:
         if sum(h.sizes):
             raise FormatError("live frame: streams given for a frame of no points")
-        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
-    raw = np.frombuffer(data, np.uint8, offset=COMPACT_HEADER)
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), None
+    raw = np.frombuffer(data, np.uint8, offset=hsize)
     geo, col = raw[: h.sizes[0]], raw[h.sizes[0] :]
-    keys, used, err = decode_geometry(geo, h.levels, m)
+    keys, used, err, rleaf, occ = decode_geometry(geo, h.levels, m, rocc, rfirst)
     if err or len(keys) != m or used > len(geo):
         raise FormatError(f"live frame: the geometry stream gives {len(keys)} points, the header says {m}")
-    rgb, used, err = decode_colour(col, m, h.luma_step, h.chroma_step, h.chroma_block)
+    rgb, used, err, q = decode_colour(col, m, h.luma_step, h.chroma_step, h.chroma_block, rleaf, rq)
     if err or used > len(col):
         raise FormatError("live frame: the colour stream is corrupt or ends early")
     xyz = (h.origin.astype(np.float64) + (morton_cells(keys) + 0.5) * h.step).astype(np.float32)
-    return xyz, rgb
+    return xyz, rgb, _Reference(h.number, _grid_of(data), h.levels, q, occ=occ)
+
+
+class CompactDecoder:
+    """Decodes the compact messages of one stream in the order they came, holding the last
+    decoded frame for a delta (version 4) that refers to it; ``decode`` as ``decode_compact``."""
+
+    def __init__(self) -> None:
+        self._ref: _Reference | None = None
+
+    def decode(self, data: bytes) -> tuple[CompactHeader, np.ndarray, np.ndarray]:
+        h = _read_header(data)
+        if h.version == 2:
+            self._ref = None
+            return decode_compact(data)
+        ref = None
+        if h.version == 4:
+            ref = self._ref
+            if ref is None or ref.number != h.reference or ref.grid != _grid_of(data):
+                held = "no frame" if ref is None else f"frame {ref.number}"
+                raise FormatError(f"live frame: a delta against frame {h.reference}, but this decoder holds {held}")
+        self._ref = None  # a frame that fails to decode leaves nothing to refer to
+        xyz, rgb, self._ref = _decode_v3(data, h, ref)
+        return h, xyz, rgb
 
 
 def decode_compact(data: bytes) -> tuple[CompactHeader, np.ndarray, np.ndarray]:
     """(header, (M, 3) float32 cell-centre positions, (M, 3) uint8 colours) of a version-3 or
     version-2 message; FormatError for anything truncated, corrupt or inconsistent."""
     h = _read_header(data)
+    if h.version == 4:
+        raise FormatError(f"live frame: a delta against frame {h.reference}: decode the stream with CompactDecoder")
     if h.version == 3:
-        return (h, *_decode_v3(data, h))
+        return (h, *_decode_v3(data, h)[:2])
     a = _HEAD.size
     b, c = a + h.sizes[0], a + h.sizes[0] + h.sizes[1]
     m = h.points

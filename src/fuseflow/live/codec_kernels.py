@@ -22,6 +22,9 @@ __all__ = [
     "leaves_v3",
     "geometry_stream",
     "colour_stream",
+    "occupancy",
+    "ref_first",
+    "match_leaves",
     "decode_geometry",
     "decode_colour",
     "morton_cells",
@@ -238,12 +241,22 @@ bits: 128) and of the single child's index, 3 bits as a binary tree (TREE + (las
 neighbour bits) x tree node: 1024)."""
 SINGLE = 4096
 TREE = 4096 + 128
+P_CHILD = GEO_CONTEXTS
+"""Contexts of a frame coded against a reference (version 4) where the reference has the node:
+a child bit as above x whether the reference has that child (8192); the single-child flag x
+whether the reference node has one child (256); the single child's index bits x (the
+reference's bit is 0, is 1, the bits so far differ from it) (3072). Without the node: as above."""
+P_SINGLE = P_CHILD + 8192
+P_TREE = P_SINGLE + 256
+INTER_GEO_CONTEXTS = P_TREE + 3072
 RES = 32
 """Contexts of one residual: nonzero, sign, 13 unary magnitude bits, 9 Exp-Golomb prefix bits,
 8 suffix bit positions."""
-COL_CONTEXTS = 21 * RES
+COL_CONTEXTS = 30 * RES
 """Colour residual context groups: luma (3: previous luma residual's size), Co (9: previous Co
-size x this point's luma size), Cg (9: previous Cg size x this block's Co size)."""
+size x this point's luma size), Cg (9: previous Cg size x this block's Co size); against a
+reference point (version 4): luma (3), Co (3: the previous referenced block's larger chroma
+size), Cg (3: this block's Co size)."""
 ESCAPE = 14
 """Residual magnitudes from this on continue as an Exp-Golomb code of ``magnitude - ESCAPE``."""
 MAX_PREFIX = 16
@@ -421,11 +434,70 @@ def _popcount(b):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def geometry_decisions(leaves, levels):  # pragma: no cover - compiled
-    """(contexts, bits) of the octree of sorted unique Morton keys of depth ``levels``: every
+def ref_first(rocc, levels):  # pragma: no cover - compiled
+    """(first, ok) of a reference octree's breadth-first occupancy bytes (root first): first[g]
+    is where node g's first child is (the next depth's position in ``rocc``, or at the last
+    depth the leaf index); ok 0 when the bytes do not make an octree of ``levels`` depths."""
+    first = np.zeros(rocc.shape[0], np.int64)
+    pos = 0
+    n = 1
+    for d in range(levels):
+        if pos + n > rocc.shape[0]:
+            return first, 0
+        cnt = 0
+        for g in range(pos, pos + n):
+            first[g] = (pos + n + cnt) if d < levels - 1 else cnt
+            cnt += _popcount(np.int64(rocc[g]))
+        pos += n
+        n = cnt
+    return first, 1 if pos == rocc.shape[0] else 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ref_child(rocc, rfirst, g, k):  # pragma: no cover - compiled
+    """The reference's child k of its node g (-1: none, or g is -1)."""
+    if g < 0:
+        return -1
+    rb = np.int64(rocc[g])
+    if not (rb >> k) & 1:
+        return -1
+    return rfirst[g] + _popcount(rb & ((1 << k) - 1))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _single_ctx(row, g, rb):  # pragma: no cover - compiled
+    """Context of the single-child flag: as version 3 without a reference node, else by whether
+    the reference node has one child or more."""
+    if g < 0:
+        return SINGLE + row
+    return P_SINGLE + (0 if (rb & (rb - 1)) == 0 else 128) + row
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tree_ctx(row, node, cls):  # pragma: no cover - compiled
+    return TREE + row * 8 + node if cls == 0 else P_TREE + ((cls - 1) * 128 + row) * 8 + node
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tree_cls(g, rb, depth_bit, match):  # pragma: no cover - compiled
+    """Class of a single child's index bit: 0 without a single-child reference node, else 1 + the
+    reference child's bit while the bits so far agree with it, 3 once they do not."""
+    if g < 0 or (rb & (rb - 1)) != 0:
+        return 0
+    if not match:
+        return 3
+    return 1 + ((_popcount(rb - 1) >> depth_bit) & 1)
+
+
+@njit(cache=True, nogil=True)
+def geometry_decisions(leaves, levels, rocc, rfirst):  # pragma: no cover - compiled
+    """(contexts, bits, ref) of the octree of sorted unique Morton keys of depth ``levels``: every
     node from the root down, depth by depth in Morton order: whether it has a single child; if
     so that child's index k = 4 x + 2 y + z as 3 bits (x, y, z) of a binary tree, else its 8
-    child bits in increasing k (bit 7 not when bits 0-6 hold at most one child)."""
+    child bits in increasing k (bit 7 not when bits 0-6 hold at most one child). With a reference
+    octree (``rocc``, its breadth-first bytes, and ``ref_first`` of them; empty: none), a node
+    that the reference also has codes in contexts of the reference's children; ``ref`` is each
+    leaf's index in the reference (-1: new)."""
     keys, start = _node_levels(leaves, levels)
     base, extra = geo_contexts()
     ctx = np.empty(9 * start[levels] + 8, np.int32)  # a node: at most 1 + 8 decisions
@@ -434,88 +506,113 @@ def geometry_decisions(leaves, levels):  # pragma: no cover - compiled
     pbyte = np.ones(1, np.int64)  # a virtual parent of the root: child 0
     pstart = np.zeros(1, np.int64)
     pup = np.full((3, 1), -1, np.int64)
+    rref = np.full(1, 0 if rocc.shape[0] else -1, np.int64)
     for d in range(levels):
         lo, hi = start[d], start[d + 1]
         nbs, up = child_neighbours(pbyte, pstart, pup, hi - lo)
         last = 1 if d == levels - 1 else 0
         byte_d = np.zeros(hi - lo, np.int64)
         cstart = np.zeros(hi - lo, np.int64)
+        rnext = np.empty(start[d + 2] - hi, np.int64)
         j = hi  # the first child of this depth's first node
         for i in range(hi - lo):
             parent = keys[lo + i]
             cstart[i] = j - hi
             byte = 0
             while j < start[d + 2] and (keys[j] >> np.uint64(3)) == parent:
-                byte |= 1 << np.int64(keys[j] & np.uint64(7))
+                k = np.int64(keys[j] & np.uint64(7))
+                byte |= 1 << k
+                rnext[j - hi] = _ref_child(rocc, rfirst, rref[i], k)
                 j += 1
             byte_d[i] = byte
+            g = rref[i]
+            rb = np.int64(rocc[g]) if g >= 0 else 0
             row = last * 64 + np.int64(nbs[i])
             single = 1 if (byte & (byte - 1)) == 0 else 0
-            ctx[t], bits[t] = SINGLE + row, single
+            ctx[t], bits[t] = _single_ctx(row, g, rb), single
             t += 1
             if single:
                 node = 1
+                match = True
                 for b in range(2, -1, -1):
                     bit = (_popcount(byte - 1) >> b) & 1  # the child's index, bit b
-                    ctx[t], bits[t] = TREE + row * 8 + node, bit
+                    ctx[t], bits[t] = _tree_ctx(row, node, _tree_cls(g, rb, b, match)), bit
                     t += 1
                     node = 2 * node + bit
+                    match = match and ((_popcount(rb - 1) >> b) & 1) == bit
                 continue
             for k in range(8):
                 below = byte & ((1 << k) - 1)
                 if k == 7 and _popcount(below) <= 1:
                     break
-                ctx[t] = base[row * 8 + k] + extra[k * 128 + below]
+                c = base[row * 8 + k] + extra[k * 128 + below]
+                ctx[t] = c if g < 0 else c + P_CHILD + ((rb >> k) & 1) * 4096
                 bits[t] = (byte >> k) & 1
                 t += 1
-        pbyte, pstart, pup = byte_d, cstart, up
-    return ctx[:t], bits[:t]
+        pbyte, pstart, pup, rref = byte_d, cstart, up, rnext
+    return ctx[:t], bits[:t], rref
 
 
 @njit(cache=True, nogil=True)
-def decode_geometry(data, levels, points):  # pragma: no cover - compiled
-    """(sorted Morton keys of the leaves, bytes read, error): error 1 when a depth would hold
-    more nodes than ``points`` (not a valid stream)."""
+def decode_geometry(data, levels, points, rocc, rfirst):  # pragma: no cover - compiled
+    """(sorted Morton keys of the leaves, bytes read, error, each leaf's index in the reference
+    (-1: new), the breadth-first occupancy bytes): error 1 when a depth would hold more nodes
+    than ``points`` (not a valid stream). ``rocc``, ``rfirst``: as ``geometry_decisions``."""
     st = _reader(data)
-    probs = np.full(GEO_CONTEXTS, 1024, np.int64)
+    probs = np.full(INTER_GEO_CONTEXTS, 1024, np.int64)
     base, extra = geo_contexts()
     keys = np.zeros(1, np.uint64)
     pbyte = np.ones(1, np.int64)
     pstart = np.zeros(1, np.int64)
     pup = np.full((3, 1), -1, np.int64)
+    rref = np.full(1, 0 if rocc.shape[0] else -1, np.int64)
+    occ = np.empty(0, np.uint8)
     for d in range(levels):
         n = keys.shape[0]
         nbs, up = child_neighbours(pbyte, pstart, pup, n)
         last = 1 if d == levels - 1 else 0
         nxt = np.empty(min(8 * n, points + 8), np.uint64)
+        rnext = np.empty(min(8 * n, points + 8), np.int64)
         byte_d = np.zeros(n, np.int64)
         cstart = np.zeros(n, np.int64)
         m = 0
         for i in range(n):
             cstart[i] = m
+            g = rref[i]
+            rb = np.int64(rocc[g]) if g >= 0 else 0
             row = last * 64 + np.int64(nbs[i])
             byte = 0
-            if _get(st, data, probs, SINGLE + row):
+            if _get(st, data, probs, _single_ctx(row, g, rb)):
                 node = 1
-                for _ in range(3):
-                    node = 2 * node + _get(st, data, probs, TREE + row * 8 + node)
+                match = True
+                for b in range(2, -1, -1):
+                    bit = _get(st, data, probs, _tree_ctx(row, node, _tree_cls(g, rb, b, match)))
+                    node = 2 * node + bit
+                    match = match and ((_popcount(rb - 1) >> b) & 1) == bit
                 byte = 1 << (node - 8)
             else:
                 for k in range(8):
                     if k == 7 and _popcount(byte) <= 1:
                         byte |= 128
-                    elif _get(st, data, probs, base[row * 8 + k] + extra[k * 128 + byte]):
+                        continue
+                    c = base[row * 8 + k] + extra[k * 128 + byte]
+                    if _get(st, data, probs, c if g < 0 else c + P_CHILD + ((rb >> k) & 1) * 4096):
                         byte |= 1 << k
             for k in range(8):
                 if (byte >> k) & 1:
                     if m >= points:
-                        return keys[:0], st[2], 1
+                        return keys[:0], st[2], 1, rref[:0], occ
                     nxt[m] = (keys[i] << np.uint64(3)) | np.uint64(k)
+                    rnext[m] = _ref_child(rocc, rfirst, g, k)
                     m += 1
             byte_d[i] = byte
         keys = nxt[:m]
-        pbyte, pstart, pup = byte_d, cstart, up
-    return keys, st[2], 0
+        grown = np.empty(occ.shape[0] + n, np.uint8)
+        grown[: occ.shape[0]] = occ
+        grown[occ.shape[0] :] = byte_d
+        occ = grown
+        pbyte, pstart, pup, rref = byte_d, cstart, up, rnext[:m]
+    return keys, st[2], 0, rref, occ
 
 
 @njit(cache=True, nogil=True)
@@ -577,32 +674,48 @@ def _residual(ctx, bits, t, base, r):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def colour_decisions(qy, qc, block):  # pragma: no cover - compiled
-    """(contexts, bits) of the colour: per point its luma residual to the previous point's, and
-    at the first point of each block the block's Co and Cg residuals to the previous block's."""
+def colour_decisions(qy, qc, block, rleaf, rq):  # pragma: no cover - compiled
+    """(contexts, bits) of the colour: per point its luma residual, and at the first point of each
+    block the block's Co and Cg residuals. A point with a reference (``rleaf[i]`` >= 0, an index
+    into the reference's per-point quantised (Y, Co, Cg) ``rq``) predicts them from it, in
+    contexts of their own; any other from the previous point's luma and the previous block's
+    chroma (with no reference at all: version 3)."""
     m = qy.shape[0]
     ctx = np.empty(8 * m + 256, np.int32)
     bits = np.empty(8 * m + 256, np.uint8)
     t = 0
     py = pco = pcg = 0
-    sy = sco = scg = 0
+    sy = sco = scg = sry = src = 0
     for i in range(m):
         if t + 120 > ctx.shape[0]:  # three residuals take at most 3 x 37 decisions
             ctx2 = np.empty(2 * ctx.shape[0], np.int32)
             bits2 = np.empty(2 * ctx.shape[0], np.uint8)
             ctx2[:t], bits2[:t] = ctx[:t], bits[:t]
             ctx, bits = ctx2, bits2
-        r = qy[i] - py
-        t = _residual(ctx, bits, t, sy * RES, r)
-        sy = _size(r)
+        j = rleaf[i]
+        if j >= 0:
+            r = qy[i] - rq[j, 0]
+            t = _residual(ctx, bits, t, (21 + sry) * RES, r)
+            sry = _size(r)
+        else:
+            r = qy[i] - py
+            t = _residual(ctx, bits, t, sy * RES, r)
+            sy = _size(r)
         py = qy[i]
         if i % block == 0:
             b = i // block
-            r1, r2 = qc[b, 0] - pco, qc[b, 1] - pcg
-            t = _residual(ctx, bits, t, (3 + sco * 3 + sy) * RES, r1)
-            s1 = _size(r1)
-            t = _residual(ctx, bits, t, (12 + scg * 3 + s1) * RES, r2)
-            sco, scg = s1, _size(r2)
+            if j >= 0:
+                r1, r2 = qc[b, 0] - rq[j, 1], qc[b, 1] - rq[j, 2]
+                t = _residual(ctx, bits, t, (24 + src) * RES, r1)
+                s1 = _size(r1)
+                t = _residual(ctx, bits, t, (27 + s1) * RES, r2)
+                src = max(s1, _size(r2))
+            else:
+                r1, r2 = qc[b, 0] - pco, qc[b, 1] - pcg
+                t = _residual(ctx, bits, t, (3 + sco * 3 + sy) * RES, r1)
+                s1 = _size(r1)
+                t = _residual(ctx, bits, t, (12 + scg * 3 + s1) * RES, r2)
+                sco, scg = s1, _size(r2)
             pco, pcg = qc[b, 0], qc[b, 1]
     return ctx[:t], bits[:t]
 
@@ -630,31 +743,47 @@ def _get_residual(st, data, probs, base):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def decode_colour(data, m, luma_step, chroma_step, block):  # pragma: no cover - compiled
-    """((M, 3) uint8 RGB, bytes read, error) of a colour stream (``colour_decisions``)."""
+def decode_colour(data, m, luma_step, chroma_step, block, rleaf, rq):  # pragma: no cover - compiled
+    """((M, 3) uint8 RGB, bytes read, error, (M, 3) quantised Y, Co, Cg of every point) of a
+    colour stream (``colour_decisions``; ``rleaf``, ``rq`` as there)."""
     st = _reader(data)
     probs = np.full(COL_CONTEXTS, 1024, np.int64)
     rgb = np.empty((m, 3), np.uint8)
+    q = np.empty((m, 3), np.int64)
     py = pco = pcg = 0
-    sy = sco = scg = 0
+    sy = sco = scg = sry = src = 0
     for i in range(m):
-        r, err = _get_residual(st, data, probs, sy * RES)
-        sy = _size(r)
-        py += r
+        j = rleaf[i]
+        if j >= 0:
+            r, err = _get_residual(st, data, probs, (21 + sry) * RES)
+            sry = _size(r)
+            py = rq[j, 0] + r
+        else:
+            r, err = _get_residual(st, data, probs, sy * RES)
+            sy = _size(r)
+            py += r
         if i % block == 0:
-            r1, e1 = _get_residual(st, data, probs, (3 + sco * 3 + sy) * RES)
-            s1 = _size(r1)
-            r2, e2 = _get_residual(st, data, probs, (12 + scg * 3 + s1) * RES)
-            sco, scg = s1, _size(r2)
-            pco += r1
-            pcg += r2
+            if j >= 0:
+                r1, e1 = _get_residual(st, data, probs, (24 + src) * RES)
+                s1 = _size(r1)
+                r2, e2 = _get_residual(st, data, probs, (27 + s1) * RES)
+                src = max(s1, _size(r2))
+                pco, pcg = rq[j, 1] + r1, rq[j, 2] + r2
+            else:
+                r1, e1 = _get_residual(st, data, probs, (3 + sco * 3 + sy) * RES)
+                s1 = _size(r1)
+                r2, e2 = _get_residual(st, data, probs, (12 + scg * 3 + s1) * RES)
+                sco, scg = s1, _size(r2)
+                pco += r1
+                pcg += r2
             err |= e1 | e2
         if err:
-            return rgb[:0], st[2], 1
+            return rgb[:0], st[2], 1, q[:0]
+        q[i, 0], q[i, 1], q[i, 2] = py, pco, pcg
         y, co, cg = float(py * luma_step), float(pco * chroma_step), float(pcg * chroma_step)
         for c, v in enumerate(((y + co * 0.5) - cg * 0.5, y + cg * 0.5, (y - co * 0.5) - cg * 0.5)):
             rgb[i, c] = np.uint8(min(max(np.rint(v), 0.0), 255.0))
-    return rgb, st[2], 0
+    return rgb, st[2], 0, q
 
 
 @njit(cache=True, nogil=True)
@@ -665,18 +794,43 @@ def leaves_v3(cells, levels, rgb):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def geometry_stream(leaves, levels):  # pragma: no cover - compiled
-    """The range-coded geometry stream of sorted unique leaf keys."""
-    ctx, bits = geometry_decisions(leaves, levels)
-    return range_code(ctx, bits, GEO_CONTEXTS)
+def geometry_stream(leaves, levels, rocc, rfirst):  # pragma: no cover - compiled
+    """(the range-coded geometry stream of sorted unique leaf keys, each leaf's index in the
+    reference or -1); ``rocc``, ``rfirst``: the reference (``geometry_decisions``)."""
+    ctx, bits, rleaf = geometry_decisions(leaves, levels, rocc, rfirst)
+    return range_code(ctx, bits, INTER_GEO_CONTEXTS), rleaf
 
 
 @njit(cache=True, nogil=True)
-def colour_stream(mean, luma_step, chroma_step, block):  # pragma: no cover - compiled
-    """The range-coded colour stream of (M, 3) mean colours in Morton order."""
+def colour_stream(mean, luma_step, chroma_step, block, rleaf, rq):  # pragma: no cover - compiled
+    """(the range-coded colour stream of (M, 3) mean colours in Morton order, (M, 3) quantised
+    Y, Co, Cg of every point); ``rleaf``, ``rq``: the reference (``colour_decisions``)."""
     qy, qc = colour_values(mean, luma_step, chroma_step, block)
-    ctx, bits = colour_decisions(qy, qc, block)
-    return range_code(ctx, bits, COL_CONTEXTS)
+    ctx, bits = colour_decisions(qy, qc, block, rleaf, rq)
+    m = qy.shape[0]
+    q = np.empty((m, 3), np.int64)
+    for i in range(m):
+        q[i, 0], q[i, 1], q[i, 2] = qy[i], qc[i // block, 0], qc[i // block, 1]
+    return range_code(ctx, bits, COL_CONTEXTS), q
+
+
+@njit(cache=True, nogil=True)
+def match_leaves(leaves, ref):  # pragma: no cover - compiled
+    """Each sorted key's index in the sorted keys ``ref`` (-1: not there)."""
+    out = np.full(leaves.shape[0], -1, np.int64)
+    j = 0
+    for i in range(leaves.shape[0]):
+        while j < ref.shape[0] and ref[j] < leaves[i]:
+            j += 1
+        if j < ref.shape[0] and ref[j] == leaves[i]:
+            out[i] = j
+    return out
+
+
+@njit(cache=True, nogil=True)
+def occupancy(leaves, levels):  # pragma: no cover - compiled
+    """Breadth-first occupancy bytes (root first) of sorted unique keys: a reference octree."""
+    return _occupancy(leaves, levels)
 
 
 @njit(cache=True, nogil=True)

@@ -28,7 +28,11 @@ codec (``fuseflow.live.wire``). With ``ack=1`` each binary frame is preceded by 
 send times in the server's clock, the frame's age when sent, the last measured round trip, the
 frames dropped for this client so far, whether an attributes message follows). A raw client
 that also asks ``attrs=1`` gets, after each frame, a binary message with each point's camera and
-weight (``fuseflow.live.wire.encode_attributes``). ``{"type": "end", "reason": ...}`` says the stream
+weight (``fuseflow.live.wire.encode_attributes``). A compact client that asks ``inter=1`` decodes
+the stream in order (``codec.CompactDecoder``, decode.js ``createDecoder``) and is sent a frame as
+a delta against the previous one (version 4) whenever it was sent that one, else as a key frame;
+its acknowledgement may say which frame its decoder holds (``"held"``: a number, or null after a
+frame it could not decode: a key frame follows). ``{"type": "end", "reason": ...}`` says the stream
 ended (a replay's last frame), ``{"type": "error", "message": ...}`` that it failed.
 ``codecs()`` tells the publisher which codecs the connected clients want, so that a frame is
 encoded only in those.
@@ -156,6 +160,10 @@ class _Client:
     shown: dict[str, Any] = field(default_factory=dict)
     """What the client reported in its last acknowledgement (age_ms, decode_ms, dropped, ...)."""
     age_max_ms: float = 0.0
+    inter: bool = False
+    """Takes deltas (``/ws?inter=1``, compact): its decoder holds the last frame sent to it."""
+    held: int | None = None
+    """The number of the last compact frame sent to it (what a delta may refer to)."""
 
 
 class LiveServer:
@@ -264,6 +272,20 @@ class LiveServer:
         clients = list(self._clients)
         return {c.codec for c in clients} | {"raw.attrs" for c in clients if c.attrs and c.codec == "raw"}
 
+    def compact_needs(self, reference: int | None) -> tuple[bool, bool]:
+        """(key frame, delta) of the next compact frame: whether a compact client needs a key
+        frame, and whether an ``inter`` client holds frame ``reference`` with nothing waiting in
+        its slot, so that a delta against it reaches it. From any thread."""
+        key = delta = False
+        for c in list(self._clients):
+            if c.codec != "compact":
+                continue
+            if c.inter and reference is not None and c.held == reference and c.pending is None:
+                delta = True
+            else:
+                key = True
+        return key, delta
+
     def client_stats(self) -> list[dict[str, Any]]:
         """Per client (connected ones, then those gone): frames sent and dropped, bytes, seconds,
         and for clients that acknowledge the age of the frame they show (``age_ms``, its maximum)."""
@@ -308,12 +330,25 @@ class LiveServer:
             await asyncio.wait_for(server.wait_closed(), timeout=3.0)
 
     def _offer(self, data: bytes | dict[str, bytes], meta: dict) -> None:
+        last = self._last
+        if (
+            last is not None
+            and isinstance(data, dict)
+            and isinstance(last[0], dict)
+            and last[1].get("number") == meta.get("number")
+        ):
+            data = {**last[0], **data}  # the same frame again (a key frame after a delta): keep both
         self._last = (data, meta)
         for c in self._clients:
             self._give(c, data, meta)
 
     def _give(self, c: _Client, data: bytes | dict[str, bytes], meta: dict) -> None:
         mine = data.get(c.codec) if isinstance(data, dict) else data
+        if c.inter and c.codec == "compact" and c.held is not None and isinstance(data, dict):
+            if c.pending is None and meta.get("number") == c.held:
+                return  # it has this frame already
+            if "compact.delta" in data and meta.get("ref") == c.held:
+                mine = data["compact.delta"]
         if mine is None:
             return
         extra = data.get(c.codec + ".attrs") if c.attrs and isinstance(data, dict) else None
@@ -342,6 +377,7 @@ class LiveServer:
         query = parse_qs(urlsplit(ws.request.path).query)
         client = _Client(ws, asyncio.Event(), self._client_codec(ws.request.path),
                          ack=query.get("ack", ["0"])[-1] == "1", attrs=query.get("attrs", ["0"])[-1] == "1",
+                         inter=query.get("inter", ["0"])[-1] == "1",
                          connected=time.perf_counter())  # fmt: skip
         self._clients.add(client)
         if self._last is not None:
@@ -377,6 +413,8 @@ class LiveServer:
                     client.shown = {k: doc.get(k) for k in ("number", "age_ms", "decode_ms", "dropped")}
                     if isinstance(doc.get("age_ms"), (int, float)):
                         client.age_max_ms = max(client.age_max_ms, float(doc["age_ms"]))
+                    if "held" in doc and client.inter:
+                        client.held = doc["held"] if isinstance(doc["held"], int) else None
                     client.waiting_ack = False
                     client.event.set()
         except ConnectionClosed:
@@ -420,6 +458,8 @@ class LiveServer:
             client.waiting_ack = True
             client.sent_at = time.perf_counter()
         await client.ws.send(data)
+        if client.codec == "compact":
+            client.held = meta.get("number")
         if extra is not None:
             await client.ws.send(extra)
         client.sent += 1

@@ -15,7 +15,7 @@ import numpy as np
 from fuseflow.io.calibration import write_calibration
 from fuseflow.io.paths import prepare_output_dir
 from fuseflow.io.ply import write_ply
-from fuseflow.live.codec import CompactParams
+from fuseflow.live.codec import CompactParams, InterEncoder
 from fuseflow.live.loop import LiveFrame
 from fuseflow.live.server import LiveServer
 from fuseflow.live.wire import CODECS, encode_attributes, encode_frame
@@ -74,6 +74,9 @@ class WebSink:
         self._closed = False
         self._error: BaseException | None = None
         self._last: tuple[FusedCloud, LiveFrame] | None = None
+        self.inter = InterEncoder(params) if params.version == 3 else None
+        """Codes compact frames as deltas for the viewers that take them (``LiveServer.compact_needs``)."""
+        self._keyless = False
         self._thread = threading.Thread(target=self._run, name="fuseflow-encoder", daemon=True)
         self._thread.start()
 
@@ -117,16 +120,30 @@ class WebSink:
             return
         t0, c0 = time.perf_counter(), time.thread_time()
         latency = (t0 - info.captured) * 1000.0
+        inter = self.inter is not None and "compact" in codecs
         frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params)
-                  for c in sorted(codecs) if c in CODECS}  # fmt: skip
+                  for c in sorted(codecs) if c in CODECS and not (inter and c == "compact")}  # fmt: skip
         if "raw.attrs" in codecs:
             frames["raw.attrs"] = encode_attributes(cloud, info.number)
+        meta = {"number": info.number, "captured": time.time() - (t0 - info.captured)}
+        if inter:
+            ref = self.inter.reference
+            frames.update(self._compact(cloud, info, latency, *self.server.compact_needs(ref)))
+            meta["ref"] = ref
         self.encode_ms.append((time.perf_counter() - t0) * 1000.0)
         self.encode_cpu_ms.append((time.thread_time() - c0) * 1000.0)
         del self.encode_ms[:-1000], self.encode_cpu_ms[:-1000]
         self.encoded += 1
         self.stats.update(encoded=self.encoded, encoder_skipped=self.skipped, encode_ms=round(self.encode_ms[-1], 1))
-        self.server.publish(frames, {"number": info.number, "captured": time.time() - (t0 - info.captured)})
+        self.server.publish(frames, meta)
+
+    def _compact(self, cloud: FusedCloud, info: LiveFrame, latency: float, key: bool, delta: bool) -> dict[str, bytes]:
+        """The compact key frame and / or delta the viewers need ({"compact": ..., "compact.delta": ...})."""
+        xyz = cloud.xyz.detach().cpu().numpy()
+        rgb = cloud.rgb.detach().cpu().numpy()
+        k, d = self.inter.encode(xyz, rgb, info.number, latency, info.fuse_ms, key=key, delta=delta)
+        self._keyless = k is None
+        return {n: b for n, b in (("compact", k), ("compact.delta", d)) if b is not None}
 
     def hold(self) -> None:
         """Publish the last cloud once more, encoded in every codec, so that viewers who connect
@@ -145,6 +162,12 @@ class WebSink:
             self._closed = True
             self._cond.notify()
         self._thread.join(timeout=10.0)
+        if self._keyless and self._last is not None:  # the last frame as a key frame, for late viewers
+            cloud, info = self._last
+            self._keyless = False
+            key = encode_frame(cloud, info.number, 0.0, info.fuse_ms, "compact", self.params)
+            captured = time.time() - (time.perf_counter() - info.captured)
+            self.server.publish({"compact": key}, {"number": info.number, "captured": captured})
         if self.owns_server:
             self.server.close()
 

@@ -1,10 +1,11 @@
-// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3 and 2
-// "compact"; docs/live.md has them byte by byte). No dependencies: version 3 is range coded (the
-// decoder below mirrors fuseflow/live/codec_kernels.py decision for decision); version 2's zlib
+// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3, 4 and 2
+// "compact"; docs/live.md has them byte by byte). No dependencies: versions 3 and 4 are range coded
+// (the decoder below mirrors fuseflow/live/codec_kernels.py decision for decision); version 2's zlib
 // streams are inflated by the browser's DecompressionStream("deflate") (Chromium, Firefox,
 // Safari 16.4+, Node 18+). decodeFrame(arrayBuffer) -> Promise of {version, number, m, pointsIn,
 // xyz (Float32Array, 3 m, metres), rgb (Uint8ClampedArray, 3 m), latency, fuseMs}; it rejects
-// (an Error) a truncated, corrupt or inconsistent frame.
+// (an Error) a truncated, corrupt or inconsistent frame. A version-4 frame (a delta) decodes only
+// with createDecoder().decodeFrame, fed the stream's frames in order (it holds the last one).
 "use strict";
 (function (root) {
   const f32 = (dv, o) => dv.getFloat32(o, true);
@@ -120,7 +121,21 @@
   }
   for (let k = 0; k < 8; k++) for (let below = 0; below < (1 << k); below++)
     EXTRA[k * 128 + below] = (((below >> (k ^ 4)) & 1) + ((below >> (k ^ 2)) & 1) + ((below >> (k ^ 1)) & 1)) * 2 + (below ? 1 : 0);
-  const SINGLE = 4096, TREE = 4096 + 128, GEO_CONTEXTS = 4096 + 128 + 1024, RES = 32, COL_CONTEXTS = 21 * RES, ESCAPE = 14, MAX_PREFIX = 16;
+  const SINGLE = 4096, TREE = 4096 + 128, P_CHILD = 5248, P_SINGLE = P_CHILD + 8192, P_TREE = P_SINGLE + 256;
+  const GEO_CONTEXTS = P_TREE + 3072, RES = 32, COL_CONTEXTS = 30 * RES, ESCAPE = 14, MAX_PREFIX = 16;
+  const NO_REF = { occ: new Uint8Array(0), first: new Int32Array(0), q: new Int32Array(0) };
+  function refFirst(occ, levels) {
+    // where each node's first child is in a reference octree (breadth-first bytes, root first):
+    // the next depth's position, or at the last depth the leaf index (codec_kernels.ref_first)
+    const first = new Int32Array(occ.length);
+    let pos = 0, n = 1;
+    for (let d = 0; d < levels; d++) {
+      let cnt = 0;
+      for (let g = pos; g < pos + n; g++) { first[g] = d < levels - 1 ? pos + n + cnt : cnt; cnt += POP[occ[g]]; }
+      pos += n; n = cnt;
+    }
+    return first;
+  }
   function childNeighbours(pbyte, pstart, pup, n) {
     // face neighbours of the n nodes one depth below parents (bytes pbyte, first children at
     // pstart, upper neighbours pup[a], -1 none; all in Morton order): nb bit 2a = lower neighbour
@@ -144,23 +159,27 @@
     }
     return [nb, up];
   }
-  function geometry(bytes, levels, m) {
+  function geometry(bytes, levels, m, ref) {
     // the range decoder inlined (one decision site, a small state machine per node): the state in
-    // local variables, not an array, is what makes this loop fast
-    const probs = new Uint16Array(GEO_CONTEXTS).fill(1024), nbytes = bytes.length;
+    // local variables, not an array, is what makes this loop fast. ref: the reference octree of a
+    // delta (version 4; NO_REF: none): a node it also has is coded in contexts of its children
+    const probs = new Uint16Array(GEO_CONTEXTS).fill(1024), nbytes = bytes.length, rocc = ref.occ, rfirst = ref.first;
     let range = 0xFFFFFFFF, code = 0, pos = 5;
     for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
-    let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1);
+    let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1), rref = new Int32Array([rocc.length ? 0 : -1]);
     let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = [new Int32Array([-1]), new Int32Array([-1]), new Int32Array([-1])];
+    const occParts = [];
     for (let d = 0; d < levels; d++) {
       const n = xs.length, [nb, up] = childNeighbours(pbyte, pstart, pup, n), last = d === levels - 1 ? 1 : 0;
       const cap = Math.min(8 * n, m + 8), nx = new Uint32Array(cap), ny = new Uint32Array(cap), nz = new Uint32Array(cap);
-      const cbyte = new Uint8Array(n), cstart = new Int32Array(n);
+      const rnext = new Int32Array(cap), cbyte = new Uint8Array(n), cstart = new Int32Array(n);
       let t = 0;
       for (let i = 0; i < n; i++) {
-        const row = last * 64 + nb[i];
+        const row = last * 64 + nb[i], g = rref[i], rb = g >= 0 ? rocc[g] : 0;
+        const rsingle = g >= 0 && (rb & (rb - 1)) === 0, ridx = rsingle ? POP[(rb - 1) & 255] : 0;
         // mode 0: the single-child flag; 1: the single child's index (node of a 3-bit tree); 2: child bit k
-        let mode = 0, c = SINGLE + row, node = 1, k = 0, byte = 0;
+        let mode = 0, c = g < 0 ? SINGLE + row : P_SINGLE + (rsingle ? 0 : 128) + row, node = 1, k = 0, byte = 0, match = 1;
+        const roff = g < 0 ? 0 : P_CHILD;  // child bit contexts: + 4096 where the reference has the child
         for (;;) {
           const p = probs[c], bound = (range >>> 11) * p;
           let b = 0;
@@ -168,33 +187,44 @@
           else { code -= bound; range -= bound; probs[c] = p - (p >> 5); b = 1; }
           while (range < 16777216) { range *= 256; code = ((code << 8) | (pos < nbytes ? bytes[pos] : 0)) >>> 0; pos++; }
           if (mode === 0) {
-            if (b) { mode = 1; c = TREE + row * 8 + 1; }
-            else { mode = 2; c = BASE[row * 8] + EXTRA[0]; }
+            if (b) { mode = 1; c = rsingle ? P_TREE + ((((ridx >> 2) & 1) * 128 + row) << 3) + 1 : TREE + (row << 3) + 1; }
+            else { mode = 2; c = BASE[row * 8] + EXTRA[0] + roff + (g < 0 ? 0 : (rb & 1) << 12); }
           } else if (mode === 1) {
+            // the single child's index bits, high first; class: the reference's bit while the bits agree, else 2
+            if (((ridx >> (node >= 4 ? 0 : node >= 2 ? 1 : 2)) & 1) !== b) match = 0;
             node = 2 * node + b;
             if (node >= 8) { byte = 1 << (node - 8); break; }
-            c = TREE + row * 8 + node;
+            c = !rsingle ? TREE + (row << 3) + node
+              : P_TREE + (((match ? (ridx >> (node >= 4 ? 0 : 1)) & 1 : 2) * 128 + row) << 3) + node;
           } else {
             byte |= b << k;
             k++;
             if (k === 7 && POP[byte] <= 1) { byte |= 128; break; }
             if (k === 8) break;
-            c = BASE[row * 8 + k] + EXTRA[k * 128 + byte];
+            c = BASE[row * 8 + k] + EXTRA[k * 128 + byte] + roff + (g < 0 ? 0 : ((rb >> k) & 1) << 12);
           }
         }
         cstart[i] = t;
         if (t + POP[byte] > m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
         const x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
         for (let q = 0; q < 8; q++)
-          if ((byte >> q) & 1) { nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1); t++; }
+          if ((byte >> q) & 1) {
+            nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1);
+            rnext[t] = g >= 0 && (rb >> q) & 1 ? rfirst[g] + POP[rb & ((1 << q) - 1)] : -1;
+            t++;
+          }
         cbyte[i] = byte;
       }
-      xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t);
+      occParts.push(cbyte);
+      xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t); rref = rnext.subarray(0, t);
       pbyte = cbyte; pstart = cstart; pup = up;
     }
     if (xs.length !== m || pos > nbytes)
       throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
-    return [xs, ys, zs];
+    const occ = new Uint8Array(occParts.reduce((a, o) => a + o.length, 0));
+    let o = 0;
+    for (const part of occParts) { occ.set(part, o); o += part.length; }
+    return [xs, ys, zs, rref, occ];
   }
   function residual(rc, bytes, P, base) {
     // a signed residual: nonzero, sign, unary magnitude up to ESCAPE, Exp-Golomb of the rest
@@ -213,61 +243,91 @@
     return neg ? -a : a;
   }
   const size = (r) => (r === 0 ? 0 : r === 1 || r === -1 ? 1 : 2);
-  function colours(bytes, m, ls, cs, blk) {
+  function colours(bytes, m, ls, cs, blk, rleaf, rq) {
+    // a point with a reference point (rleaf[i] >= 0; rq: the reference's quantised Y, Co, Cg,
+    // 3 per point) predicts from it, in contexts of its own; returns [rgb, this frame's q]
     const rc = rangeDecoder(bytes), P = new Uint16Array(COL_CONTEXTS).fill(1024);
-    const rgb = new Uint8ClampedArray(3 * m);  // clamps, and rounds half to even as numpy's rint
-    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0;
+    const rgb = new Uint8ClampedArray(3 * m), q = new Int32Array(3 * m);  // clamps, and rounds half to even as numpy's rint
+    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0, sry = 0, src = 0;
     for (let i = 0; i < m; i++) {
-      const r = residual(rc, bytes, P, sy * RES);
-      sy = size(r); py += r;
+      const j = rleaf ? rleaf[i] : -1;
+      if (j >= 0) { const r = residual(rc, bytes, P, (21 + sry) * RES); sry = size(r); py = rq[3 * j] + r; }
+      else { const r = residual(rc, bytes, P, sy * RES); sy = size(r); py += r; }
       if (i % blk === 0) {
-        const r1 = residual(rc, bytes, P, (3 + sco * 3 + sy) * RES), s1 = size(r1);
-        const r2 = residual(rc, bytes, P, (12 + scg * 3 + s1) * RES);
-        sco = s1; scg = size(r2); pco += r1; pcg += r2;
+        if (j >= 0) {
+          const r1 = residual(rc, bytes, P, (24 + src) * RES), s1 = size(r1);
+          const r2 = residual(rc, bytes, P, (27 + s1) * RES);
+          src = Math.max(s1, size(r2)); pco = rq[3 * j + 1] + r1; pcg = rq[3 * j + 2] + r2;
+        } else {
+          const r1 = residual(rc, bytes, P, (3 + sco * 3 + sy) * RES), s1 = size(r1);
+          const r2 = residual(rc, bytes, P, (12 + scg * 3 + s1) * RES);
+          sco = s1; scg = size(r2); pco += r1; pcg += r2;
+        }
       }
+      q[3 * i] = py; q[3 * i + 1] = pco; q[3 * i + 2] = pcg;
       const Y = py * ls, Co = pco * cs, Cg = pcg * cs;
       rgb[3 * i] = (Y + Co * 0.5) - Cg * 0.5; rgb[3 * i + 1] = Y + Cg * 0.5; rgb[3 * i + 2] = (Y - Co * 0.5) - Cg * 0.5;
     }
     if (rc[2] > bytes.length) throw new Error("live frame: the colour stream ends early");
-    return rgb;
+    return [rgb, q];
   }
-  function decodeV3(buf, dv) {
-    const H = 60;
-    if (buf.byteLength < H || dv.getUint16(6, true) !== H) throw new Error("live frame: bad version-3 header");
+  const gridOf = (buf) => Array.from(new Uint8Array(buf, 20, 16)).concat(Array.from(new Uint8Array(buf, 44, 4))).join(",");
+  function decodeV3(buf, dv, holder) {
+    // version 3 (a key frame) or 4 (a delta against the frame holder.ref holds); holder.ref
+    // becomes this frame
+    const version = dv.getUint16(4, true), H = version === 4 ? 64 : 60;
+    if (buf.byteLength < H || dv.getUint16(6, true) !== H) throw new Error("live frame: bad version-" + version + " header");
     const m = dv.getUint32(12, true), pointsIn = dv.getUint32(16, true);
     const origin = [f32(dv, 20), f32(dv, 24), f32(dv, 28)], step = f32(dv, 32);
     const levels = dv.getUint8(44), ls = dv.getUint8(45), cs = dv.getUint8(46), blk = dv.getUint8(47);
     const s1 = dv.getUint32(52, true), s2 = dv.getUint32(56, true);
     if (buf.byteLength !== H + s1 + s2) throw new Error("live frame: " + buf.byteLength + " bytes, the header says " + (H + s1 + s2));
     if (levels < 1 || levels > 21 || !(step > 0) || m > pointsIn || pointsIn > (1 << 26) || !ls || !cs || !blk)
-      throw new Error("live frame: bad version-3 header");
+      throw new Error("live frame: bad version-" + version + " header");
     if (crc32(new Uint8Array(buf, H)) !== dv.getUint32(48, true)) throw new Error("live frame: the checksum does not match");
+    let ref = NO_REF;
+    if (version === 4) {
+      const want = dv.getUint32(60, true), held = holder && holder.ref;
+      if (!held || held.number !== want || held.grid !== gridOf(buf))
+        throw new Error("live frame: a delta against frame " + want + ", but this decoder holds " + (held ? "frame " + held.number : "no frame"));
+      ref = held;
+    }
+    if (holder) holder.ref = null;  // a frame that fails to decode leaves nothing to refer to
     const xyz = new Float32Array(3 * m);
     let rgb = new Uint8ClampedArray(0);
     if (m > 0) {
-      const [xs, ys, zs] = geometry(new Uint8Array(buf, H, s1), levels, m);
+      const [xs, ys, zs, rleaf, occ] = geometry(new Uint8Array(buf, H, s1), levels, m, ref);
       for (let i = 0; i < m; i++) {
         xyz[3 * i] = origin[0] + (xs[i] + 0.5) * step;
         xyz[3 * i + 1] = origin[1] + (ys[i] + 0.5) * step;
         xyz[3 * i + 2] = origin[2] + (zs[i] + 0.5) * step;
       }
-      rgb = colours(new Uint8Array(buf, H + s1, s2), m, ls, cs, blk);
+      const [c, q] = colours(new Uint8Array(buf, H + s1, s2), m, ls, cs, blk, ref === NO_REF ? null : rleaf, ref.q);
+      rgb = c;
+      if (holder) holder.ref = { number: dv.getUint32(8, true), grid: gridOf(buf), occ, first: refFirst(occ, levels), q };
     } else if (s1 + s2) throw new Error("live frame: streams given for a frame of no points");
     return { m, pointsIn, xyz, rgb, latency: f32(dv, 36), fuseMs: f32(dv, 40) };
   }
-  async function decodeFrame(buf) {
+  async function decode(buf, holder) {
     if (buf.byteLength < 8) throw new Error("frame shorter than a header");
     const dv = new DataView(buf);
     const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
     const version = magic === "FFLV" ? dv.getUint16(4, true) : 0;
     let frame;
     if (version === 1) frame = decodeRaw(buf, dv);
-    else if (version === 3) frame = decodeV3(buf, dv);
-    else if (version === 2) frame = await decodeCompact(buf, dv);
+    else if (version === 3 || version === 4) frame = decodeV3(buf, dv, holder);
+    else if (version === 2) { if (holder) holder.ref = null; frame = await decodeCompact(buf, dv); }
     else throw new Error("unknown frame format");
     return Object.assign(frame, { version, number: dv.getUint32(8, true) });
   }
-  const api = { decodeFrame };
+  // one message on its own (a delta, version 4, is refused: it needs the frame before it)
+  const decodeFrame = (buf) => decode(buf, null);
+  // the messages of one stream in order: holds the last compact frame for the delta after it
+  function createDecoder() {
+    const holder = { ref: null };
+    return { decodeFrame: (buf) => decode(buf, holder), held: () => (holder.ref ? holder.ref.number : null) };
+  }
+  const api = { decodeFrame, createDecoder };
   if (typeof module !== "undefined" && module.exports) module.exports = api;
   else root.FuseFlowDecode = api;
 })(typeof self !== "undefined" ? self : globalThis);

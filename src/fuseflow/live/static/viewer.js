@@ -220,6 +220,7 @@ function inline(button) { // the addons place their buttons at the bottom centre
 
 // ---- frames: meta (text), frame (binary), attributes (binary, raw codec only); ack once shown
 let meta = null, queued = null, decoding = false, shown = null, ws = null, times = [], ended = false;
+let decoder = FuseFlowDecode.createDecoder();  // one per connection: it holds the frame a delta refers to
 function setStatus(text, kind) {
   $("status").textContent = text;
   $("status").className = kind || "";
@@ -246,7 +247,12 @@ async function decodeNext() {
       const item = queued; queued = null;
       const t0 = performance.now();
       let f;
-      try { f = await FuseFlowDecode.decodeFrame(item.buf); } catch (err) { setStatus("bad frame: " + err.message, "error"); continue; }
+      try { f = await decoder.decodeFrame(item.buf); } catch (err) {
+        setStatus("bad frame: " + err.message, "error");
+        // say so (its decoder holds no frame now), so that the server goes on with a key frame
+        if (ws && ws.readyState === 1 && item.meta) ws.send(JSON.stringify({ type: "ack", number: item.meta.number, held: null }));
+        continue;
+      }
       const decodeMs = performance.now() - t0;
       stats.decodeMs.push(decodeMs); if (stats.decodeMs.length > 200) stats.decodeMs.shift();
       last = { ...f, attrs: item.attrs };
@@ -272,7 +278,7 @@ function acknowledge() {
   $("dropped").textContent = dropped;
   if (ws && ws.readyState === 1 && m) {
     ws.send(JSON.stringify({ type: "ack", number: s.number, age_ms: age == null ? null : +age.toFixed(1),
-      decode_ms: +s.decodeMs.toFixed(1), dropped: stats.dropped, held_ms: +(now - s.received).toFixed(1) }));
+      decode_ms: +s.decodeMs.toFixed(1), dropped: stats.dropped, held_ms: +(now - s.received).toFixed(1), held: decoder.held() }));
   }
 }
 function updateHud(f) {
@@ -286,7 +292,8 @@ function updateHud(f) {
 }
 
 function connect() {
-  const q = new URLSearchParams({ ack: "1", attrs: "1" });
+  const q = new URLSearchParams({ ack: "1", attrs: "1", inter: "1" });  // inter: compact deltas, decoded in order
+  decoder = FuseFlowDecode.createDecoder();
   if (params.get("codec")) q.set("codec", params.get("codec"));
   if (token) q.set("token", token);
   ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws?" + q);
