@@ -109,6 +109,10 @@ def residual_accuracy(residuals: Sequence[tuple[float, float]]) -> tuple[float, 
     return float(np.sqrt(np.mean(r[:, 0] ** 2) / n)), float(np.sqrt(np.mean(r[:, 1] ** 2) / n))
 
 
+def _poses(n: int) -> str:
+    return f"{n} pair pose{'s' * (n != 1)}"
+
+
 def camera_accuracy(
     residuals: Sequence[tuple[float, float]], pair_estimates: Sequence[tuple[float, float, str]]
 ) -> tuple[float | None, float | None, str]:
@@ -122,10 +126,11 @@ def camera_accuracy(
     track = [(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] in TRACK_ROUTES]
     indep = combine_pair_accuracies([(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] not in TRACK_ROUTES])
     worst = (max(d for d, _ in track), max(m for _, m in track)) if track else None
+    n_ind = len(pair_estimates) - len(track)
     est = {
         f"RMS / sqrt({len(residuals)}) of its agreeing pair poses' disagreement with the result": res,
-        f"the fit covariance of {len(pair_estimates) - len(track)} independent pair poses combined": indep,
-        f"the worst fit covariance of its {len(track)} moving-object track pair poses": worst,
+        f"the fit covariance of its {_poses(n_ind)}" + (" combined" if n_ind > 1 else ""): indep,
+        f"the worst fit covariance of its {_poses(len(track))} on one moving-object track": worst,
     }
     est = {k: v for k, v in est.items() if v is not None}
     if not est:
