@@ -104,3 +104,12 @@ def test_track_pair_poses_are_not_combined():
     assert camera_accuracy([], track)[:2] == (1.5, 60.0)
     d, m, _ = camera_accuracy([], [(1.5, 60.0, "sift3d"), (1.5, 60.0, "floor+refit")])
     assert np.isclose(d, 1.5 / np.sqrt(2), atol=1e-3) and np.isclose(m, 60 / np.sqrt(2), atol=0.1)
+
+
+def test_after_the_joint_refinement_the_pair_poses_scatter_is_theirs():
+    """Pair poses 3 deg off a refined result say how wrong they were, not the result: with a fit
+    covariance at hand the residual estimate no longer counts; without one it still does."""
+    res, fits = [(3.0, 40.0), (3.0, 40.0)], [(0.4, 6.0, "sift3d"), (0.4, 6.0, "sift3d")]
+    assert camera_accuracy(res, fits)[0] > 2.0
+    assert camera_accuracy(res, fits, refined=True)[0] < 0.3
+    assert camera_accuracy(res, [], refined=True)[0] > 2.0

@@ -15,7 +15,9 @@ Two estimates, the larger one printed (each sees an error the other cannot):
    inverse-variance combination.
 2. **From the disagreement of its pair poses with the result** (``residual_accuracy``): RMS /
    sqrt(n) over its n >= 2 agreeing pair poses: each pair is one independent measurement of
-   the pose, so their scatter about the result shows errors of the individual pairs.
+   the pose, so their scatter about the result shows errors of the individual pairs. After an
+   accepted joint refinement that scatter is the pair poses' own error, not the refined
+   result's, so it counts only where no pair pose has a fit covariance.
 
 Measured against the truth (simulated rings, ICL, HO-Cap's target calibration, the kinect3-room
 reference) in docs/gmac-trust.md, "Expected accuracy".
@@ -114,15 +116,17 @@ def _poses(n: int) -> str:
 
 
 def camera_accuracy(
-    residuals: Sequence[tuple[float, float]], pair_estimates: Sequence[tuple[float, float, str]]
+    residuals: Sequence[tuple[float, float]], pair_estimates: Sequence[tuple[float, float, str]], refined: bool = False
 ) -> tuple[float | None, float | None, str]:
     """(deg, mm, how) of a camera from its agreeing pair poses' ``residuals`` with the result and
     their correspondence-based ``pair_estimates`` (deg, mm, route) (module docstring): the
     largest of the residual estimate, the inverse-variance combination of the independent pair
     poses and the worst pair pose of a moving-object track (``TRACK_ROUTES``: every pair pose of
     a camera reuses its one track, so they are not independent); (None, None, why) when none
-    applies."""
-    res = residual_accuracy(residuals)
+    applies. ``refined``: the depth-aware joint refinement moved the cameras after the pair
+    poses were measured, so their disagreement with the result is theirs, not the result's: the
+    residual estimate then counts only where no pair pose has a fit covariance."""
+    res = None if refined and pair_estimates else residual_accuracy(residuals)
     track = [(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] in TRACK_ROUTES]
     indep = combine_pair_accuracies([(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] not in TRACK_ROUTES])
     worst = (max(d for d, _ in track), max(m for _, m in track)) if track else None

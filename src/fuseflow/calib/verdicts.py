@@ -201,7 +201,7 @@ def _residual_up_to_turns(T_ba: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, ro
     return best
 
 
-def _evidence_rgbd(c: str, edges, T, room=None) -> dict[str, Any]:
+def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False) -> dict[str, Any]:
     """Pairs, agreeing pairs, cycles, routes and residual-based accuracy of an rgbd-placed camera."""
     mine = {(a, b): v for (a, b), v in edges.items() if c in (a, b) and a in T and b in T}
     res = {e: _residual_up_to_turns(v[0], T[e[0]], T[e[1]], room) for e, v in mine.items()}
@@ -220,7 +220,7 @@ def _evidence_rgbd(c: str, edges, T, room=None) -> dict[str, Any]:
     }
     # a disagreeing pair is an outlier (reported in "disagreeing"), not noise: calib.accuracy
     fits = [mine[e][2] for e in agree if mine[e][2] is not None]
-    ev["accuracy_deg"], ev["accuracy_mm"], ev["accuracy_from"] = camera_accuracy([res[e] for e in agree], fits)
+    ev["accuracy_deg"], ev["accuracy_mm"], ev["accuracy_from"] = camera_accuracy([res[e] for e in agree], fits, refined)
     return ev
 
 
@@ -308,7 +308,8 @@ def camera_verdicts(
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
         if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
-            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room), info, c)
+            refined = bool((report.joint_refinement or {}).get("accepted"))
+            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined), info, c)
         elif report.backbone != "auto":
             ev = _evidence_scale_free(c, report, T)
         else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera
