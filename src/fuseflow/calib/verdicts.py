@@ -308,7 +308,7 @@ def camera_verdicts(
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
         if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
-            refined = bool((report.joint_refinement or {}).get("accepted"))
+            refined = bool((getattr(report, "joint_refinement", None) or {}).get("accepted"))
             ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined), info, c)
         elif report.backbone != "auto":
             ev = _evidence_scale_free(c, report, T)
