@@ -15,7 +15,18 @@ from fuseflow.types import invert_rigid
 
 
 def _placement(T: dict, agreement: dict) -> Placement:
-    return Placement(None, None, T, [], None, agreement, None, None, [], {})
+    return Placement(
+        bb=None,
+        sr=None,
+        T=T,
+        connected=[],
+        anchor=None,
+        agreement=agreement,
+        scale_check=None,
+        refinement=None,
+        warnings=[],
+        timings={},
+    )
 
 
 def _rotated(T: np.ndarray, deg: float) -> np.ndarray:

@@ -256,5 +256,6 @@ def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, 
     scale_check = runs["rgbd"].scale_check if "rgbd" in runs else None
     connected = [k for k, c in enumerate(ids) if c in T]
     return Placement(
-        bb, first.sr, T, connected, anchor, agreement, scale_check, None, warnings, timings, placed_by, reasons
-    )
+        bb=bb, sr=first.sr, T=T, connected=connected, anchor=anchor, agreement=agreement, scale_check=scale_check,
+        refinement=None, warnings=warnings, timings=timings, placed_by=placed_by, unplaced_reasons=reasons,
+    )  # fmt: skip

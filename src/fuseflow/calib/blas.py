@@ -5,7 +5,7 @@ few thousand to a few tens of thousands. OpenBLAS splits such products over its 
 a loaded machine the threads cost more than they save: on the 2-core benchmark machine, with
 other (niced) jobs running, (12 000, 3) x (3, 3) took 96 us on two threads and 48 on one,
 (288 000, 3) x (3, 3) 67-93 ms against 3.9 ms, and the default ``calibrate`` of a simulated
-8-camera ring 12-18 s against 9-13 s (docs/history.md, 2026-11-24, "calibration time"). This is
+8-camera ring 12-18 s against 9-13 s (the same ring timed with and without the limit). This is
 ``fuseflow.geometry.one_torch_thread`` for numpy's BLAS, done with threadpoolctl (the library
 scikit-learn uses for the same job). A BLAS splits a product's output over threads, not its
 sums, so the thread count changes no result beyond the last bits of a few reductions (the

@@ -312,8 +312,8 @@ def consistent_counts(
     gate) on (G, M) arrays, without what the count does not use (validity, normals), and with the
     projection written out instead of a (G M, 3) x (3, 3) matrix product (OpenBLAS threads that
     product, 15-20x slower than one thread on a loaded 2-core machine). The coarse scale search
-    evaluates ~220 scales per edge; one ``consistent_count`` call per scale was the largest part
-    of the metric scale check (docs/history.md, 2026-11-24, "calibration time")."""
+    evaluates ~220 scales per edge; one ``consistent_count`` call per scale would be the largest
+    part of the metric scale check."""
     X = cam_i.X if mask is None else cam_i.X[mask]
     scales = np.asarray(scales, dtype=np.float64)
     if len(X) == 0 or len(scales) == 0:

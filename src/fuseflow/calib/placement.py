@@ -66,7 +66,7 @@ SCALE_CHECK_WARNING = "GMAC's closed-form scale on the metric backbone's poses i
 """How the scale check's warning (``metric_scale_check``) starts."""
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Placement:
     """One backbone's cameras placed in metres (the steps of ``calibrate`` up to the report).
 
@@ -137,7 +137,10 @@ def place_with_backbone(
         timings["refine"] = time.perf_counter() - t
     T, anchor = anchor_world(T, rig.ids)
     agreement = depth_agreement(frame, rig, T) if config.min_depth_agreement > 0 and T else {}
-    return Placement(bb, sr, T, connected, anchor, agreement, scale_check, refinement, warnings, timings)
+    return Placement(
+        bb=bb, sr=sr, T=T, connected=connected, anchor=anchor, agreement=agreement, scale_check=scale_check,
+        refinement=refinement, warnings=warnings, timings=timings,
+    )  # fmt: skip
 
 
 def metric_scale_check(
@@ -149,7 +152,11 @@ def metric_scale_check(
     try:
         sr = metric_scale(bb, cams, config)
     except CalibrationError as e:
-        empty = ScaleResult(1.0, 1.0, 1.0, None, {}, {}, (), (), (), "off", {}, {}, {}, 0.0, 0, True, 0.0, ())
+        empty = ScaleResult(
+            s=1.0, s_initial=1.0, s_coarse=1.0, s_naive=None, edge_scales={}, edge_counts={}, edges=(), kept=(),
+            pruned=(), cycle_mode="off", cycle_residuals={}, cycle_residuals_before={}, cycle_residuals_mm={},
+            std_error=0.0, iterations=0, converged=True, peak_spread=0.0, warnings=(),
+        )  # fmt: skip
         return empty, None, [f"the scale check on the metric backbone's poses could not run: {e}"]
     check = sr.s
     warnings = []

@@ -58,7 +58,7 @@ __all__ = [
 Edge = tuple[int, int]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ScaleResult:
     """The scale stage's result (everything the report needs).
 

@@ -18,10 +18,9 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
 - **floor**: the camera's own floor plane, carried into the world by its pose, against the
   median of every floor-seeing camera's: a check when within ``FLOOR_DEG`` / ``FLOOR_MM``. A
   camera whose dominant plane is another surface (a table top) simply has no floor check.
-- **accuracy**: ``rgbd``: RMS / sqrt(n) of the disagreement (deg, mm) of the camera's n >= 2
-  agreeing pair poses with the final extrinsics (each pair an independent measurement of the
-  pose; with one pair the pose fits it exactly and nothing can be estimated). Scale-free
-  backbones: the position error the standard error of s* causes at the camera's distance from
+- **accuracy**: ``rgbd``: :func:`fuseflow.calib.accuracy.camera_accuracy`: the larger of the
+  fit covariance of its agreeing pair poses (from their correspondences) and RMS / sqrt(n) of
+  their disagreement with the final extrinsics. Scale-free backbones: the position error the standard error of s* causes at the camera's distance from
   the world camera (the scale part only; no angle).
 - **plausibility**: two camera centres closer than ``STACKED_M`` (a device's width) cannot both
   be right.
@@ -47,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from fuseflow.calib.accuracy import camera_accuracy
 from fuseflow.geometry import pair_agreement
 from fuseflow.types import Frame, Rig, invert_rigid
 
@@ -68,8 +68,8 @@ __all__ = [
 
 #: A measured pair pose agrees with the final extrinsics within these (module docstring).
 AGREE_DEG, AGREE_MM = 5.0, 100.0
-#: Expected accuracy within these reads "good" (on hocap-8rs the estimate is 1.1-5.4x the rotation
-#: difference to its reference: docs/gmac-trust.md, "Reading the verdict table").
+#: Expected accuracy within these reads "good" (its calibration against the truth:
+#: docs/gmac-trust.md, "Expected accuracy").
 GOOD_DEG, GOOD_MM = 2.0, 50.0
 #: The floor check: tilt and height of a camera's floor against the rig's median floor.
 FLOOR_DEG, FLOOR_MM = 2.0, 50.0
@@ -147,7 +147,12 @@ def _rgbd_edges(info: Mapping[str, Any]) -> dict[tuple[str, str], tuple[np.ndarr
             continue  # dropped by its cycle check
         parts = str(e.get("route", "?")).split("+")
         name = ROUTE_NAMES.get(parts[0], parts[0]) + (" turned" if "turn" in parts else "")
-        out[(a, b)] = (np.asarray(e["T_ji"], dtype=np.float64), name)
+        x = e.get("expected")
+        out[(a, b)] = (
+            np.asarray(e["T_ji"], dtype=np.float64),
+            name,
+            None if not x else (x["deg"], x["mm"], e["route"]),
+        )
     return out
 
 
@@ -196,7 +201,7 @@ def _residual_up_to_turns(T_ba: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, ro
     return best
 
 
-def _evidence_rgbd(c: str, edges, T, room=None) -> dict[str, Any]:
+def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False) -> dict[str, Any]:
     """Pairs, agreeing pairs, cycles, routes and residual-based accuracy of an rgbd-placed camera."""
     mine = {(a, b): v for (a, b), v in edges.items() if c in (a, b) and a in T and b in T}
     res = {e: _residual_up_to_turns(v[0], T[e[0]], T[e[1]], room) for e, v in mine.items()}
@@ -212,16 +217,10 @@ def _evidence_rgbd(c: str, edges, T, room=None) -> dict[str, Any]:
         "disagreeing": {
             f"{a}-{b}": [round(d, 2), round(mm, 1)] for (a, b), (d, mm) in res.items() if (a, b) not in agree
         },
-        "accuracy_deg": None,
-        "accuracy_mm": None,
-        "accuracy_from": "fewer than two agreeing pair poses: nothing to estimate from",
     }
-    if len(agree) >= 2:  # a disagreeing pair is an outlier (reported in "disagreeing"), not noise
-        r = np.array([res[e] for e in agree])
-        n = len(r)
-        ev["accuracy_deg"] = round(float(np.sqrt(np.mean(r[:, 0] ** 2) / n)), 3)
-        ev["accuracy_mm"] = round(float(np.sqrt(np.mean(r[:, 1] ** 2) / n)), 1)
-        ev["accuracy_from"] = f"RMS / sqrt({n}) of its {n} agreeing pair poses' disagreement with the result"
+    # a disagreeing pair is an outlier (reported in "disagreeing"), not noise: calib.accuracy
+    fits = [mine[e][2] for e in agree if mine[e][2] is not None]
+    ev["accuracy_deg"], ev["accuracy_mm"], ev["accuracy_from"] = camera_accuracy([res[e] for e in agree], fits, refined)
     return ev
 
 
@@ -309,7 +308,8 @@ def camera_verdicts(
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
         if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
-            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room), info, c)
+            refined = bool((getattr(report, "joint_refinement", None) or {}).get("accepted"))
+            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined), info, c)
         elif report.backbone != "auto":
             ev = _evidence_scale_free(c, report, T)
         else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera

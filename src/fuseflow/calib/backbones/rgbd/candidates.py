@@ -186,8 +186,8 @@ def merge_repeats(uv: np.ndarray, Xa: np.ndarray, Xb: np.ndarray) -> tuple[np.nd
     their first member. A static rig re-detects the same keypoints in every frame, with the same
     localisation error (the image is the same, only the depth noise differs): pooled k times, one
     keypoint's error counted k times against the floor route's, computed once from the median
-    image, and pooling 10 frames came out less accurate than 1 (docs/history.md, "multi-frame
-    pooling"). The mean keeps the depth noise averaged over the frames."""
+    image, so pooling 10 frames without merging comes out less accurate than 1 frame. The mean
+    keeps the depth noise averaged over the frames."""
     if len(uv) < 2:
         return Xa, Xb
     from scipy.sparse import coo_matrix

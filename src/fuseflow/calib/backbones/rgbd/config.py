@@ -133,10 +133,10 @@ class RGBDConfig:
     camera are tried in order of descriptor consensus (the best FPFH-RANSAC hypothesis's
     inliers: it orders the work, never accepts a pose) until this many are proposed. The ICP
     stage is ~1.2 s a pair; on hocap-8rs each up-looking camera has 6 such pairs, one gives a
-    candidate, and it ranks first (48 and 36 inliers against 5-30). Default 1: hocap-8rs 28 ->
-    ~17 s with the same edges (docs/history.md, 2026-11-24, "calibration time"); the cost, a camera held by
-    one route (c) edge closes no cycle with it (it is flagged as unchecked, as on hocap-8rs
-    before). A number >= the cameras tries every pair."""
+    candidate, and it ranks first (48 and 36 inliers against 5-30). Default 1: the rgbd backbone
+    on hocap-8rs takes ~17 s instead of 28 s with every pair tried, with the same edges; the cost,
+    a camera held by one route (c) edge closes no cycle with it (it is flagged as unchecked). A
+    number >= the cameras tries every pair."""
     people: bool = False
     """Route (d), person keypoints (:mod:`fuseflow.calib.people`): each pair also gets the
     person's keypoint pose and its depth refinement as candidates. Off by default: on the

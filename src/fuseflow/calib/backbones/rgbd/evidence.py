@@ -211,9 +211,9 @@ def _lift_keypoints(
     points (Q, 3) and their features. Depth: a least-squares plane through the (2 LIFT_HALF + 1)^2
     window around the nearest pixel, evaluated at the keypoint's sub-pixel position; only where
     every pixel has depth and none is more than 2 % of the depth off that plane (keypoints sit on
-    edges; a depth edge gives no point). The depth at the rounded pixel was up to half a pixel's
+    edges; a depth edge gives no point). The depth at the rounded pixel is up to half a pixel's
     depth gradient off (~6 mm on the floor at 3 m), the same in every frame of a static scene, so
-    pooling frames did not average it out (docs/history.md, 2026-11-24, "multi-frame pooling")."""
+    pooling frames does not average it out."""
     feats = matcher.extract(image)
     if not len(feats):
         return np.zeros((0, 3)), feats

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fuseflow.calib.accuracy import expected_entry
 from fuseflow.calib.backbones.rgbd.config import RGBDConfig
 from fuseflow.calib.backbones.rgbd.evidence import CameraEvidence, backproject, plausible, verify_pose
 from fuseflow.calib.backbones.rgbd.judge import subject_ok
@@ -87,6 +88,8 @@ def geometric_edges(
             new[(i, j)] = Edge(i, j, T_ba, float(chk.agree), X_a, X_b, sigma)
             entry["edge"] = {"route": "geometric", "pose": how, "agreement": round(chk.agreement, 4),
                              "starts": c.starts, "support": int(len(X_a)), "T_ji": np.round(T_ba, 6).tolist()}  # fmt: skip
+            # the descriptor matches, not ICP's nearest neighbours (ICP slides without a residual)
+            entry["edge"].update(expected_entry(T_ba, c.M_a, c.M_b) if len(c.M_a) >= 6 else {})
         if not new:
             return out, info, solved
         out.update(new)

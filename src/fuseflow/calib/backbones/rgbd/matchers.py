@@ -66,7 +66,7 @@ pixel centres sit at half-integers) and halves the coordinates without the half-
 Measured on OpenCV 5.0: keypoints of an image and of its 2x2 block average give u_full - 2 u_half
 = 0.244 / 0.249 px (0.5 when unbiased; tests/calib/test_matchers.py). Lifted by depth, 0.25 px
 moves a floor keypoint at 3 m by ~3 mm along the floor, a different way in every camera: the
-systematic part of the rgbd backbone's 3-D matches (docs/history.md, 2026-11-24, "multi-frame pooling")."""
+systematic part of the rgbd backbone's 3-D matches, which pooling frames does not average out."""
 
 
 def sift_uv(keypoints) -> np.ndarray:

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from fuseflow.calib import progress
+from fuseflow.calib.accuracy import expected_entry
 from fuseflow.calib.backbones.rgbd.candidates import floor_candidates, pooled_matches, sift3d_candidates
 from fuseflow.calib.backbones.rgbd.config import RGBDConfig
 from fuseflow.calib.backbones.rgbd.evidence import CLOSE_DEPTH_SHARE, CameraEvidence, PairCheck, plausible, verify_pose
@@ -232,6 +233,7 @@ def edge_of(a: CameraEvidence, b: CameraEvidence, h: Hypothesis, cfg: RGBDConfig
     entry = {"route": c["route"], "agreement": round(chk.agreement, 4), "support": int(len(X_i)),
              "T_ji": np.round(c["T_ba"], 6).tolist()}  # fmt: skip
     entry.update({k: round(c[k], 4) for k in ("expected_m", "spread_m", "track_frames") if k in c})  # route (e)
+    entry.update(expected_entry(c["T_ba"], X_i, X_j))
     return Edge(h.i, h.j, c["T_ba"], float(chk.agree), X_i, X_j, sigma), entry
 
 

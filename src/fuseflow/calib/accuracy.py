@@ -1,0 +1,143 @@
+"""Expected accuracy of a placed camera: how far its pose probably is from the truth.
+
+Two estimates, the larger one printed (each sees an error the other cannot):
+
+1. **From the correspondences of its pair poses** (``pair_pose_accuracy``, stored per edge by
+   the rgbd backbone): the 3-D correspondences a pair pose was fitted to are grouped into cells
+   of ``CELL_M`` (points of one patch share their depth error, so a cell is one measurement,
+   not hundreds), and the covariance of the rigid fit follows from the cells' residuals and
+   their geometry: rotation sigma^2 H^-1 (H = sum of [q]x^T [q]x over the centred cells q),
+   position of camera a's centre in camera b sigma^2 / n + the rotation's lever arm from the
+   cells' centroid to the camera. A few cells far away (a ball 4 m off, a track 1 m long)
+   give a large lever arm; hundreds of cells around the cameras give a small one. Each edge's
+   estimate is at least ``SYSTEMATIC_DEG`` / ``SYSTEMATIC_MM`` (a depth bias common to all
+   cells, which no residual shows). A camera linked by several agreeing pair poses gets their
+   inverse-variance combination.
+2. **From the disagreement of its pair poses with the result** (``residual_accuracy``): RMS /
+   sqrt(n) over its n >= 2 agreeing pair poses: each pair is one independent measurement of
+   the pose, so their scatter about the result shows errors of the individual pairs. After an
+   accepted joint refinement that scatter is the pair poses' own error, not the refined
+   result's, so it counts only where no pair pose has a fit covariance.
+
+Measured against the truth (simulated rings, ICL, HO-Cap's target calibration, the kinect3-room
+reference) in docs/gmac-trust.md, "Expected accuracy".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = [
+    "pair_pose_accuracy",
+    "expected_entry",
+    "TRACK_ROUTES",
+    "residual_accuracy",
+    "combine_pair_accuracies",
+    "camera_accuracy",
+    "CELL_M",
+    "SYSTEMATIC_DEG",
+    "SYSTEMATIC_MM",
+]
+
+#: Correspondences within one cube of this side (metres, in camera a) count as one measurement.
+CELL_M = 0.10
+#: Routes whose pair poses share each camera's one track of a moving object (not independent).
+TRACK_ROUTES = ("sphere", "subject")
+#: The least expected error of one pair pose (a depth bias every correspondence shares).
+SYSTEMATIC_DEG, SYSTEMATIC_MM = 0.05, 2.0
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def pair_pose_accuracy(T_ba: np.ndarray, X_a: np.ndarray, X_b: np.ndarray) -> tuple[float, float, int] | None:
+    """(expected rotation error deg, expected position error mm, cells) of the pair pose
+    ``T_ba`` (camera b from camera a) fitted to the correspondences ``X_a`` (M, 3) in camera a
+    and ``X_b`` (M, 3) in camera b (module docstring, 1), or None with fewer than 4 cells or a
+    degenerate geometry (cells on a line)."""
+    X_a = np.asarray(X_a, dtype=np.float64).reshape(-1, 3)
+    X_b = np.asarray(X_b, dtype=np.float64).reshape(-1, 3)
+    if len(X_a) < 4:
+        return None
+    _, cell = np.unique(np.floor(X_a / CELL_M).astype(np.int64), axis=0, return_inverse=True)
+    cell = cell.ravel()
+    n = int(cell.max()) + 1
+    if n < 4:
+        return None
+    cnt = np.bincount(cell, minlength=n).astype(np.float64)
+    A = np.stack([np.bincount(cell, X_a[:, k], n) for k in range(3)], axis=1) / cnt[:, None]
+    B = np.stack([np.bincount(cell, X_b[:, k], n) for k in range(3)], axis=1) / cnt[:, None]
+    R, t = T_ba[:3, :3], T_ba[:3, 3]
+    r = A @ R.T + t - B
+    sigma2 = float((r**2).sum() / max(3 * n - 6, 1))
+    q = (A - A.mean(axis=0)) @ R.T
+    H = sum(_skew(x).T @ _skew(x) for x in q)
+    if np.linalg.cond(H) > 1e8:
+        return None
+    cov_rot = sigma2 * np.linalg.inv(H)
+    lever = _skew(R @ A.mean(axis=0))
+    cov_pos = sigma2 / n * np.eye(3) + lever @ cov_rot @ lever.T
+    deg = float(np.degrees(np.sqrt(np.trace(cov_rot))))
+    mm = float(np.sqrt(np.trace(cov_pos)) * 1000)
+    return max(deg, SYSTEMATIC_DEG), max(mm, SYSTEMATIC_MM), n
+
+
+def expected_entry(T_ba: np.ndarray, X_a: np.ndarray, X_b: np.ndarray) -> dict:
+    """``{"expected": {"deg", "mm", "cells"}}`` of ``pair_pose_accuracy`` for a pair pose's info
+    entry, or {} when it cannot be estimated."""
+    acc = pair_pose_accuracy(T_ba, X_a, X_b)
+    if acc is None:
+        return {}
+    return {"expected": {"deg": round(acc[0], 3), "mm": round(acc[1], 1), "cells": acc[2]}}
+
+
+def combine_pair_accuracies(acc: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """Inverse-variance combination (deg, mm) of a camera's agreeing pair poses' estimates."""
+    if not acc:
+        return None
+    a = np.asarray(acc, dtype=np.float64)
+    return float(1.0 / np.sqrt((1.0 / a[:, 0] ** 2).sum())), float(1.0 / np.sqrt((1.0 / a[:, 1] ** 2).sum()))
+
+
+def residual_accuracy(residuals: Sequence[tuple[float, float]]) -> tuple[float, float] | None:
+    """RMS / sqrt(n) (deg, mm) of n >= 2 agreeing pair poses' disagreement with the result."""
+    if len(residuals) < 2:
+        return None
+    r = np.asarray(residuals, dtype=np.float64)
+    n = len(r)
+    return float(np.sqrt(np.mean(r[:, 0] ** 2) / n)), float(np.sqrt(np.mean(r[:, 1] ** 2) / n))
+
+
+def _poses(n: int) -> str:
+    return f"{n} pair pose{'s' * (n != 1)}"
+
+
+def camera_accuracy(
+    residuals: Sequence[tuple[float, float]], pair_estimates: Sequence[tuple[float, float, str]], refined: bool = False
+) -> tuple[float | None, float | None, str]:
+    """(deg, mm, how) of a camera from its agreeing pair poses' ``residuals`` with the result and
+    their correspondence-based ``pair_estimates`` (deg, mm, route) (module docstring): the
+    largest of the residual estimate, the inverse-variance combination of the independent pair
+    poses and the worst pair pose of a moving-object track (``TRACK_ROUTES``: every pair pose of
+    a camera reuses its one track, so they are not independent); (None, None, why) when none
+    applies. ``refined``: the depth-aware joint refinement moved the cameras after the pair
+    poses were measured, so their disagreement with the result is theirs, not the result's: the
+    residual estimate then counts only where no pair pose has a fit covariance."""
+    res = None if refined and pair_estimates else residual_accuracy(residuals)
+    track = [(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] in TRACK_ROUTES]
+    indep = combine_pair_accuracies([(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] not in TRACK_ROUTES])
+    worst = (max(d for d, _ in track), max(m for _, m in track)) if track else None
+    n_ind = len(pair_estimates) - len(track)
+    est = {
+        f"RMS / sqrt({len(residuals)}) of its agreeing pair poses' disagreement with the result": res,
+        f"the fit covariance of its {_poses(n_ind)}" + (" combined" if n_ind > 1 else ""): indep,
+        f"the worst fit covariance of its {_poses(len(track))} on one moving-object track": worst,
+    }
+    est = {k: v for k, v in est.items() if v is not None}
+    if not est:
+        return None, None, "fewer than two agreeing pair poses and no correspondences: nothing to estimate from"
+    deg, mm = max(v[0] for v in est.values()), max(v[1] for v in est.values())
+    return round(deg, 3), round(mm, 1), ("the larger of: " if len(est) > 1 else "") + "; ".join(est)
