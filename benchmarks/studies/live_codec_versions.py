@@ -6,7 +6,7 @@ budget). Per codec setting: bits a point (of the fused cloud; and of its geometr
 point to its nearest decoded point, and that over half the grid step), colour error (|decoded -
 fused| per RGB channel, median and 95th percentile), encode time (CPU of the process: the calling
 thread and its geometry worker; and wall; median of ``repeats``), Python decode time, and
-decode.js's time in node (median of ``repeats``; the viewer's decoder). Timings depend on the
+decode.js's CPU time in node (``process.cpuUsage``, median of ``repeats``; the viewer's decoder). Timings depend on the
 machine's load, recorded in ``meta``: compare rows of one run.
 """
 
@@ -57,7 +57,7 @@ const fs = require("fs"); const { decodeFrame } = require(process.argv[2]); cons
   for (const name of process.argv.slice(4)) {
     const b = fs.readFileSync(name), ab = b.buffer.slice(b.byteOffset, b.byteOffset + b.length), t = [];
     await decodeFrame(ab);
-    for (let r = 0; r < repeats; r++) { const t0 = performance.now(); await decodeFrame(ab); t.push(performance.now() - t0); }
+    for (let r = 0; r < repeats; r++) { const t0 = process.cpuUsage(); await decodeFrame(ab); const u = process.cpuUsage(t0); t.push((u.user + u.system) / 1e3); }
     t.sort((a, c) => a - c); out[name] = t[t.length >> 1];
   }
   console.log(JSON.stringify(out));
@@ -133,7 +133,7 @@ def measure(name: str, xyz: np.ndarray, rgb: np.ndarray, repeats: int) -> list[d
 
 
 def node_decode_ms(rows: list[dict], repeats: int, work: Path) -> None:
-    """Add ``node_decode_ms`` (decode.js in node, median) to every row."""
+    """Add ``node_decode_ms`` (decode.js's CPU time in node, median) to every row."""
     files = []
     for i, r in enumerate(rows):
         f = work / f"frame{i}.bin"
@@ -164,7 +164,7 @@ const fs = require("fs"); const { createDecoder } = require(process.argv[2]); co
   const t = bufs.map(() => []);
   for (let r = 0; r <= repeats; r++) {
     const dec = createDecoder();
-    for (let i = 0; i < bufs.length; i++) { const t0 = performance.now(); await dec.decodeFrame(bufs[i]); if (r) t[i].push(performance.now() - t0); }
+    for (let i = 0; i < bufs.length; i++) { const t0 = process.cpuUsage(); await dec.decodeFrame(bufs[i]); const u = process.cpuUsage(t0); if (r) t[i].push((u.user + u.system) / 1e3); }
   }
   console.log(JSON.stringify(t.map((x) => x.sort((a, c) => a - c)[x.length >> 1])));
 })();
