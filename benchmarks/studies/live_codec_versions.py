@@ -1,12 +1,12 @@
-"""Bits a point of the live stream's compact codec, version 3 (range coded) against version 2
-(deflated) and raw, in one run on the same fused clouds: the hocap-8rs frame and a simulated
+"""Bits a point of the live stream's compact codec, versions 5 and 3 (range coded, with and
+without split chroma blocks) against version 2 (deflated) and raw, in one run on the same fused clouds: the hocap-8rs frame and a simulated
 8-camera 640x480 studio, each fused with ``--preset live`` at 200 k points (the live path's
 budget). Per codec setting: bits a point (of the fused cloud; and of its geometry stream, bytes
 52-55 of both compact headers), points sent, position error (largest per-axis offset of a fused
 point to its nearest decoded point, and that over half the grid step), colour error (|decoded -
 fused| per RGB channel, median and 95th percentile), encode time (CPU of the process: the calling
 thread and its geometry worker; and wall; median of ``repeats``), Python decode time, and
-decode.js's time in node (median of ``repeats``; the viewer's decoder). Timings depend on the
+decode.js's CPU time in node (``process.cpuUsage``, median of ``repeats``; the viewer's decoder). Timings depend on the
 machine's load, recorded in ``meta``: compare rows of one run.
 """
 
@@ -41,16 +41,15 @@ DECODE_JS = Path(fuseflow.live.__file__).resolve().parent / "static" / "decode.j
 SETTINGS: list[tuple[str, CompactParams | None]] = [
     ("raw", None),
     ("v2, 3 mm / 4, 8, 4 (version 2 default)", CompactParams(3.0, 4, 8, 4, version=2)),
-    ("v2, 3 mm / 8, 16, 4", CompactParams(3.0, 8, 16, 4, version=2)),
-    ("v3, 3 mm / 8, 16, 4 (default)", CompactParams(3.0, 8, 16, 4)),
-    ("v3, 3 mm / 4, 8, 4", CompactParams(3.0, 4, 8, 4)),
-    ("v3, 3 mm / 8, 16, 2", CompactParams(3.0, 8, 16, 2)),
-    ("v3, 3 mm / 8, 16, 1", CompactParams(3.0, 8, 16, 1)),
-    ("v3, 4 mm / 8, 16, 4", CompactParams(4.0, 8, 16, 4)),
-    ("v3, 5 mm / 8, 16, 4", CompactParams(5.0, 8, 16, 4)),
-    ("v3, 6 mm / 8, 16, 1", CompactParams(6.0, 8, 16, 1)),
-    ("v3, 8 mm / 8, 16, 1", CompactParams(8.0, 8, 16, 1)),
+    ("v3, 3 mm / 8, 16, 4", CompactParams(3.0, 8, 16, 4, split=0.0)),
+    ("v3, 3 mm / 8, 16, 1", CompactParams(3.0, 8, 16, 1, split=0.0)),
+    ("v5, 3 mm / 8, 16, 4, split 1.5 (default)", CompactParams(3.0, 8, 16, 4)),
+    ("v5, 3 mm / 8, 16, 4, split 1.75", CompactParams(3.0, 8, 16, 4, split=1.75)),
+    ("v5, 5 mm / 8, 16, 4, split 1.5", CompactParams(5.0, 8, 16, 4)),
+    ("v5, 8 mm / 8, 16, 4, split 1.5", CompactParams(8.0, 8, 16, 4)),
 ]
+"""(label, parameters) of every row: v3 and v4 are the range-coded messages with chroma blocks
+that never split (``split=0``), v5 and v6 those where they may (the default)."""
 NODE_SCRIPT = """
 const fs = require("fs"); const { decodeFrame } = require(process.argv[2]); const repeats = +process.argv[3];
 (async () => {
@@ -58,7 +57,7 @@ const fs = require("fs"); const { decodeFrame } = require(process.argv[2]); cons
   for (const name of process.argv.slice(4)) {
     const b = fs.readFileSync(name), ab = b.buffer.slice(b.byteOffset, b.byteOffset + b.length), t = [];
     await decodeFrame(ab);
-    for (let r = 0; r < repeats; r++) { const t0 = performance.now(); await decodeFrame(ab); t.push(performance.now() - t0); }
+    for (let r = 0; r < repeats; r++) { const t0 = process.cpuUsage(); await decodeFrame(ab); const u = process.cpuUsage(t0); t.push((u.user + u.system) / 1e3); }
     t.sort((a, c) => a - c); out[name] = t[t.length >> 1];
   }
   console.log(JSON.stringify(out));
@@ -134,7 +133,7 @@ def measure(name: str, xyz: np.ndarray, rgb: np.ndarray, repeats: int) -> list[d
 
 
 def node_decode_ms(rows: list[dict], repeats: int, work: Path) -> None:
-    """Add ``node_decode_ms`` (decode.js in node, median) to every row."""
+    """Add ``node_decode_ms`` (decode.js's CPU time in node, median) to every row."""
     files = []
     for i, r in enumerate(rows):
         f = work / f"frame{i}.bin"
@@ -165,7 +164,7 @@ const fs = require("fs"); const { createDecoder } = require(process.argv[2]); co
   const t = bufs.map(() => []);
   for (let r = 0; r <= repeats; r++) {
     const dec = createDecoder();
-    for (let i = 0; i < bufs.length; i++) { const t0 = performance.now(); await dec.decodeFrame(bufs[i]); if (r) t[i].push(performance.now() - t0); }
+    for (let i = 0; i < bufs.length; i++) { const t0 = process.cpuUsage(); await dec.decodeFrame(bufs[i]); const u = process.cpuUsage(t0); if (r) t[i].push((u.user + u.system) / 1e3); }
   }
   console.log(JSON.stringify(t.map((x) => x.sort((a, c) => a - c)[x.length >> 1])));
 })();
@@ -201,8 +200,8 @@ def fused_sequences(data_dir: Path, work: Path, sim_frames: int = 10) -> dict[st
 
 
 def _sequence_pass(clouds, delta: bool) -> tuple[list[bytes], list[float]]:
-    """Every frame in order (the first a key frame; then deltas, or key frames when not ``delta``)
-    and the process CPU ms of each."""
+    """Every frame in order (the first a key frame; then deltas, or key frames when not ``delta``;
+    the default parameters: versions 5 and 6) and the process CPU ms of each."""
     enc, frames, cpu = InterEncoder(CompactParams()), [], []
     for n, (xyz, rgb) in enumerate(clouds):
         c = time.process_time()
@@ -213,13 +212,13 @@ def _sequence_pass(clouds, delta: bool) -> tuple[list[bytes], list[float]]:
 
 
 def measure_sequence(name: str, clouds: list, repeats: int, work: Path | None = None) -> list[dict]:
-    """Two rows: every frame a key frame (version 3), and a key frame then deltas (version 4):
+    """Two rows: every frame a key frame (version 5), and a key frame then deltas (version 6):
     bits a point over all frames (fused points), of the deltas alone, encode CPU (median over
     frames of the median over ``repeats`` passes), errors over every frame, decode.js in node."""
     from scipy.spatial import cKDTree
 
     rows = []
-    for label, delta in (("v3 key frames", False), ("v4 deltas after a key frame", True)):
+    for label, delta in (("key frames", False), ("a key frame, then deltas", True)):
         passes = [_sequence_pass(clouds, delta) for _ in range(max(1, repeats))]
         frames = passes[0][0]
         cpu = np.median([p[1] for p in passes], 0)

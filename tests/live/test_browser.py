@@ -89,8 +89,8 @@ def test_page_draws_live_frames(dynamic_rec, tmp_path):
         assert first >= 1 and later > first, (first, later)  # frames arrive and the counter advances
         assert int(driver.find_element("id", "cameras").text) == 4
         stats = driver.execute_script("return window.fuseflowStats")  # decode.js decoded them
-        # after its first (key) frame the page holds the previous frame and is sent deltas (version 4)
-        assert stats["version"] == 4 and driver.find_element("id", "codec").text == "compact", stats
+        # after its first (key) frame the page holds the previous frame and is sent deltas (version 6)
+        assert stats["version"] == 6 and driver.find_element("id", "codec").text == "compact", stats
         assert len(stats["decodeMs"]) >= 2 and "bad frame" not in driver.find_element("id", "status").text
         assert _stats(port)["clients"] == 1
         shot = tmp_path / "viewer.png"

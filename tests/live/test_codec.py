@@ -51,7 +51,7 @@ def test_round_trip_positions_within_half_a_step_and_one_point_per_cell():
     p = CompactParams(step_mm=2.0)
     data = encode_compact(xyz, rgb, 7, 12.5, 40.0, p)
     d = decode_frame(data)
-    assert (d.version, d.number, d.latency_ms, d.fuse_ms, d.points_in) == (3, 7, 12.5, 40.0, len(xyz))
+    assert (d.version, d.number, d.latency_ms, d.fuse_ms, d.points_in) == (5, 7, 12.5, 40.0, len(xyz))
     origin = xyz.min(0).astype(np.float64)
     cells = np.unique(_cells(xyz, 0.002, origin), axis=0)
     assert len(d.xyz) == len(cells) < len(xyz)  # points sharing a cell are merged
@@ -206,7 +206,7 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
             cloud = _fused(xyz, rgb)
             sink.send(cloud, LiveFrame(5, 5, time.perf_counter(), 10.0, ()))
             fa, fb = decode_frame(a.recv(timeout=10)), decode_frame(b.recv(timeout=10))
-            assert (fa.version, fa.number, fa.step) == (3, 5, pytest.approx(0.003))
+            assert (fa.version, fa.number, fa.step) == (5, 5, pytest.approx(0.003))
             assert (fb.version, fb.number, len(fb.xyz)) == (1, 5, 4000)
             assert sink.encoded == 1 and len(sink.encode_ms) == 1
             assert extra["encoded"] == 1 and extra["encoder_skipped"] == 0 and extra["encode_ms"] >= 0

@@ -19,12 +19,15 @@ from fuseflow.live.codec import CompactDecoder, CompactParams, InterEncoder, dec
 DECODE_JS = Path(__file__).resolve().parents[2] / "src" / "fuseflow" / "live" / "static" / "decode.js"
 
 
-def _sequence(frames=4, m=20000, keep=0.7, seed=0):
+def _sequence(frames=4, m=20000, keep=0.7, seed=0, patchy=False):
     """Clouds of a surface where a fraction ``keep`` of the points (and their colours) repeat from
-    one frame to the next and the others are drawn anew, as in a studio where most points stay."""
+    one frame to the next and the others are drawn anew, as in a studio where most points stay
+    (patchy: a fifth of the points with random colours, so that some chroma blocks split)."""
     xyz, rgb = _surface(m, seed)
-    out = [(xyz, rgb)]
     rng = np.random.default_rng(seed + 1)
+    if patchy:
+        rgb = np.where(rng.random(m)[:, None] < 0.2, rng.integers(0, 256, (m, 3)), rgb).astype(np.uint8)
+    out = [(xyz, rgb)]
     for f in range(1, frames):
         new_xyz, new_rgb = _surface(m, seed + 10 + f)
         swap = rng.random(m) > keep
@@ -33,8 +36,9 @@ def _sequence(frames=4, m=20000, keep=0.7, seed=0):
     return out
 
 
-def test_a_delta_decodes_to_its_key_frames_picture_and_is_smaller():
-    enc, dec = InterEncoder(CompactParams()), CompactDecoder()
+@pytest.mark.parametrize("split", [1.5, 0.0])
+def test_a_delta_decodes_to_its_key_frames_picture_and_is_smaller(split):
+    enc, dec = InterEncoder(CompactParams(split=split)), CompactDecoder()
     for n, (xyz, rgb) in enumerate(_sequence()):
         key, delta = enc.encode(xyz, rgb, n, key=True, delta=True)
         _, kx, kc = decode_compact(key)
@@ -43,7 +47,7 @@ def test_a_delta_decodes_to_its_key_frames_picture_and_is_smaller():
             dec.decode(key)
             continue
         h, dx, dc = dec.decode(delta)
-        assert (h.version, h.reference, h.number) == (4, n - 1, n)
+        assert (h.version, h.reference, h.number) == (6 if split else 4, n - 1, n)
         assert np.array_equal(dx, kx) and np.array_equal(dc, kc)
         assert len(delta) < 0.8 * len(key), (len(delta), len(key))
 
@@ -71,16 +75,17 @@ def test_a_cloud_that_leaves_the_grid_starts_a_new_one_with_a_key_frame_only():
     enc = InterEncoder(CompactParams())
     enc.encode(x0, c0, 0)
     key, delta = enc.encode(x1 + np.float32(50.0), c1, 1, key=False)  # 50 m away
-    assert delta is None and key is not None and decode_compact(key)[0].version == 3
+    assert delta is None and key is not None and decode_compact(key)[0].version == 5
     _, delta = enc.encode(x1 + np.float32(50.0), c1, 2, key=False)
     assert delta is not None  # on the new grid
 
 
 @pytest.mark.skipif(shutil.which("node") is None, reason="needs node to run the viewer's decoder")
-def test_browser_decoder_decodes_deltas_bit_identically(tmp_path):
-    enc, dec = InterEncoder(CompactParams()), CompactDecoder()
+@pytest.mark.parametrize("split", [1.5, 0.0])
+def test_browser_decoder_decodes_deltas_bit_identically(tmp_path, split):
+    enc, dec = InterEncoder(CompactParams(split=split)), CompactDecoder()
     names, expect = [], []
-    for n, (xyz, rgb) in enumerate(_sequence(3)):
+    for n, (xyz, rgb) in enumerate(_sequence(3, patchy=True)):
         key, delta = enc.encode(xyz, rgb, n, key=n == 0)
         data = delta if delta is not None else key
         (tmp_path / f"{n}.bin").write_bytes(data)
@@ -109,7 +114,7 @@ const fs = require("fs"); const { decodeFrame, createDecoder } = require(process
     import base64
 
     for n, (o, (h, xyz, rgb)) in enumerate(zip(got["out"], expect)):
-        assert o["version"] == h.version == (3 if n == 0 else 4) and o["held"] == n
+        assert o["version"] == h.version == (3 if n == 0 else 4) + (2 if split else 0) and o["held"] == n
         assert np.allclose(o["xyz"], xyz.reshape(-1)[:30], atol=0) and o["sum"] == pytest.approx(
             float(xyz.sum()), rel=1e-6
         )
@@ -150,14 +155,14 @@ def test_the_server_sends_deltas_to_viewers_that_hold_the_reference_and_key_fram
                 sink.send(_fused(xyz, rgb), LiveFrame(n, n, time.perf_counter(), 1.0, ()))
                 got_a.append(_frame(a, True, da))
                 got_b.append(_frame(b, False, db))
-            assert got_a == [(3, 0), (4, 1), (4, 2), (4, 3)] and got_b == [(3, n) for n in range(4)]
+            assert got_a == [(5, 0), (6, 1), (6, 2), (6, 3)] and got_b == [(5, n) for n in range(4)]
             with ws_client.connect(url + "?inter=1&ack=1", max_size=None) as c:  # a late viewer: a key frame first
                 c.recv(timeout=5)
                 dc = CompactDecoder()
-                assert _frame(c, True, dc) == (3, 3)
+                assert _frame(c, True, dc) == (5, 3)
                 sink.send(_fused(*seq[4]), LiveFrame(4, 4, time.perf_counter(), 1.0, ()))
                 assert (
-                    _frame(c, True, dc) == (4, 4) and _frame(a, True, da) == (4, 4) and _frame(b, False, db) == (3, 4)
+                    _frame(c, True, dc) == (6, 4) and _frame(a, True, da) == (6, 4) and _frame(b, False, db) == (5, 4)
                 )
     finally:
         sink.close()
@@ -169,7 +174,7 @@ def test_sequence_benchmark_rows(tmp_path):
 
     rows = measure_sequence("surface", _sequence(3, 5000), 1, tmp_path if shutil.which("node") else None)
     key, delta = rows
-    assert key["codec"] == "v3 key frames" and delta["codec"] == "v4 deltas after a key frame"
+    assert key["codec"] == "key frames" and delta["codec"] == "a key frame, then deltas"
     assert delta["bits_per_point"] < key["bits_per_point"] and delta["frames"] == key["frames"] == 3
     assert delta["rgb_err_p95"] == key["rgb_err_p95"] and delta["pos_err_axis_max_mm"] <= 1.5 + 1e-3
     assert all(r.get("node_decode_ms", 1) > 0 for r in rows)

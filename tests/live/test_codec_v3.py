@@ -42,7 +42,7 @@ def test_positions_exact_to_the_cell_and_colour_within_the_bound():
     origin = xyz.min(0).astype(np.float64)
     cells = np.unique(np.floor((xyz - origin) / 0.002).astype(np.int64), axis=0)
     got = np.floor((d.xyz.astype(np.float64) - origin) / 0.002).astype(np.int64)
-    assert d.version == 3 and len(got) == len(cells) and np.array_equal(np.unique(got, axis=0), cells)
+    assert d.version == 5 and len(got) == len(cells) and np.array_equal(np.unique(got, axis=0), cells)
     cheb, idx = cKDTree(d.xyz).query(xyz, p=np.inf)
     assert cheb.max() <= 0.001 + 1e-5  # half the 2 mm step per axis
     err = np.abs(d.rgb[idx].astype(int) - rgb.astype(int))
@@ -115,6 +115,8 @@ def test_browser_decoder_is_bit_identical_and_rejects_malformed_messages(tmp_pat
         "default.bin": encode_compact(xyz, rgb, 1, 2.0, 3.0, CompactParams()),
         "fine.bin": encode_compact(xyz, rgb, 2, 2.0, 3.0, CompactParams(1.0, 2, 4, 1)),
         "escape.bin": encode_compact(nx, nrgb, 3, 2.0, 3.0, CompactParams(0.5, 1, 2, 1)),
+        "split.bin": encode_compact(nx, nrgb, 5, 2.0, 3.0, CompactParams(0.5)),  # noisy colours: split blocks
+        "unsplit.bin": encode_compact(nx, nrgb, 6, 2.0, 3.0, CompactParams(0.5, split=0.0)),  # version 3
         "empty.bin": encode_compact(
             np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), 4, 0.0, 0.0, CompactParams()
         ),  # fmt: skip
@@ -149,10 +151,11 @@ const fs = require("fs"); const {{ decodeFrame }} = require({json.dumps(str(DECO
     for name, frame in good.items():
         r, py = results[name], decode_frame(frame)
         m = len(py.xyz)
-        assert (r["m"], r["number"], r["version"], r["pointsIn"]) == (m, py.number, 3, py.points_in), name
+        assert (r["m"], r["number"], r["version"], r["pointsIn"]) == (m, py.number, py.version, py.points_in), name
         js = (tmp_path / (name + ".out")).read_bytes()
         assert np.array_equal(np.frombuffer(js[: 12 * m], np.float32).reshape(m, 3), py.xyz), name
         assert np.array_equal(np.frombuffer(js[12 * m :], np.uint8).reshape(m, 3), py.rgb), name
+    assert {decode_frame(good[n]).version for n in ("split.bin", "unsplit.bin")} == {5, 3}
     for name in ("truncated.bin", "header-only.bin", "flipped.bin", "huge.bin"):
         assert "live frame" in results[name].get("error", ""), (name, results[name])
     for name, frame in bad.items():  # garbage behind a valid checksum: rejected, or M points as Python says
@@ -172,10 +175,38 @@ def test_codec_benchmark_rows(tmp_path):
     rows = measure("surface", xyz, rgb, repeats=1)
     by = {r["codec"]: r for r in rows}
     assert len(rows) == len(SETTINGS) and by["raw"]["bits_per_point"] == pytest.approx(72.0, abs=0.1)
-    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v3, 3 mm / 8, 16, 4 (default)"]
+    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v5, 3 mm / 8, 16, 4, split 1.5 (default)"]
     assert v3["bits_per_point"] < v2["bits_per_point"] and 0 < v3["geometry_bits_per_point"] < v3["bits_per_point"]
     assert all(r["pos_err_over_half_step"] <= 1.0 + 1e-3 for r in rows if r["pos_err_over_half_step"] is not None)
     if shutil.which("node"):
         node_decode_ms(rows, 1, tmp_path)
         assert all(r["node_decode_ms"] > 0 for r in rows)
     assert len(table([{k: v for k, v in r.items() if k != "_data"} for r in rows])) == len(rows) + 2
+
+
+def test_split_chroma_blocks_bound_the_colour_error_at_hard_colour_edges():
+    xyz, _ = _surface(20000)
+    rng = np.random.default_rng(4)
+    palette = np.array([[220, 30, 30], [30, 200, 40], [40, 60, 220], [230, 220, 40], [240, 240, 240]], np.uint8)
+    rgb = palette[rng.integers(0, len(palette), len(xyz))]  # neighbours of unrelated colours
+    err = {}
+    for split in (1.5, 0.0):
+        h, dx, dc = decode_compact(encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams(step_mm=0.5, split=split)))
+        _, idx = cKDTree(dx).query(xyz)
+        err[h.version] = np.percentile(np.abs(dc[idx].astype(int) - rgb.astype(int)), 95)
+    assert err[5] <= 12 < err[3], err
+
+
+def test_version_3_and_4_bytes_are_those_of_the_unsplit_format():
+    from tests.live.test_codec_delta import _sequence
+
+    from fuseflow.live.codec import InterEncoder
+
+    xyz, rgb = _surface(5000, seed=2)
+    key = encode_compact(xyz, rgb, 9, 1.0, 2.0, CompactParams(split=0.0))
+    enc = InterEncoder(CompactParams(split=0.0))
+    (x0, c0), (x1, c1) = _sequence(2, m=5000)
+    enc.encode(x0, c0, 0)
+    _, delta = enc.encode(x1, c1, 1, key=False)
+    # lengths and CRC-32s of the same messages written before chroma blocks could split
+    assert (len(key), zlib.crc32(key), len(delta), zlib.crc32(delta)) == (10316, 1421772074, 6155, 1163930191)

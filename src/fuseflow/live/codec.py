@@ -1,8 +1,9 @@
 """The compact frame formats of the live stream (``--codec compact``): positions on a grid coded
-as an octree, colour as quantised luma / chroma residuals. Version 3 (written by default)
-range-codes both with adaptive context models; version 4 is a delta: the same, coded against the
-previous frame of the stream (``InterEncoder`` writes both, ``CompactDecoder`` reads a stream in
-order); version 2 deflates byte streams. ``decode_compact`` reads versions 2 and 3.
+as an octree, colour as quantised luma / chroma residuals. Version 3 range-codes both with
+adaptive context models; version 4 is a delta: the same, coded against the previous frame of the
+stream (``InterEncoder`` writes both, ``CompactDecoder`` reads a stream in order); versions 5
+(written by default) and 6 are 3 and 4 with chroma blocks that split; version 2 deflates byte
+streams. ``decode_compact`` reads versions 2, 3 and 5.
 docs/live.md has them byte by byte with the decoding steps.
 
 Version 3, little-endian::
@@ -46,7 +47,10 @@ over blocks of ``chroma block`` consecutive points, each rounded to a multiple o
 sent as the difference to the previous point's (block's) value: a nonzero flag, the sign, the
 magnitude in unary up to 14, then an Exp-Golomb code of ``magnitude - 14``, all in contexts of
 the size (0, 1, more) of the previous residual of the channel (and of this point's luma or Co
-residual for Co and Cg). Decoding: ``R = Y + Co/2 - Cg/2``, ``G = Y + Cg/2``,
+residual for Co and Cg). Versions 5 and 6: each block starts with a split flag (in a context of
+the previous block's flag); the points of a split block each send their own Co, Cg (after their
+luma), predicted from the previous point's. The encoder splits a block when a point's Co or Cg is
+more than ``CompactParams.split`` chroma steps off the block's mean. Decoding: ``R = Y + Co/2 - Cg/2``, ``G = Y + Cg/2``,
 ``B = Y - Co/2 - Cg/2``, rounded half to even and clamped to 0-255.
 
 Version 2 (deflated byte streams; read, and written with ``CompactParams(version=2)``)::
@@ -90,12 +94,14 @@ __all__ = [
 ]
 
 COMPACT_VERSION = 3
-"""The compact version written by default."""
-COMPACT_VERSIONS = (2, 3, 4)
+"""``CompactParams.version`` by default: the range-coded format (messages of version 5, or 3)."""
+COMPACT_VERSIONS = (2, 3, 4, 5, 6)
 """The compact versions ``decode_compact`` reads."""
 _HEAD = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 2
 _HEAD3 = struct.Struct("<4sHHIII3ffffBBBBIII")
 _HEAD4 = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 3's fields, then the reference's number
+_KEY, _DELTA = {False: 3, True: 5}, {False: 4, True: 6}
+"""Message versions of a key frame and a delta, without and with split chroma blocks."""
 COMPACT_HEADER = _HEAD3.size
 """Header size in bytes of version 3 (60; version 2: 64)."""
 MAX_POINTS = 1 << 26
@@ -118,8 +124,11 @@ class CompactParams:
     chroma_block: int = 4
     """Consecutive points (in Morton order: neighbours) that share one chroma pair."""
     version: int = COMPACT_VERSION
-    """Format version written: 3 (range coded) or 2 (deflated; its rows in docs/live.md use luma
-    step 4, chroma step 8)."""
+    """Format version written: 3 (range coded; with ``split`` its messages are versions 5 and 6)
+    or 2 (deflated; its rows in docs/live.md use luma step 4, chroma step 8)."""
+    split: float = 1.5
+    """A chroma block where a point's Co or Cg is more than this many chroma steps off the
+    block's mean sends every point's own (versions 5 and 6); 0: never (versions 3 and 4)."""
 
     def check(self) -> CompactParams:
         if not (0.01 <= self.step_mm <= 1000.0):
@@ -129,8 +138,10 @@ class CompactParams:
                 f"compact colour: luma step 1-64, chroma step 2-64, chroma block 1-64; got "
                 f"{self.luma_step}, {self.chroma_step}, {self.chroma_block}"
             )
-        if self.version not in COMPACT_VERSIONS:
-            raise ValidationError(f"compact version must be one of {COMPACT_VERSIONS}, got {self.version}")
+        if not (0.0 <= self.split <= 64.0):
+            raise ValidationError(f"compact chroma split must be between 0 and 64 chroma steps, got {self.split}")
+        if self.version not in (2, 3):
+            raise ValidationError(f"compact version must be 2 or 3, got {self.version}")
         return self
 
 
@@ -187,7 +198,7 @@ def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rle
 
     rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
     geo = _pool().submit(geometry_stream, leaves, levels, rocc, rfirst)
-    col, q = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block, rleaf, rq)
+    col, q = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block, rleaf, rq, float(p.split))
     return geo.result()[0].tobytes(), col.tobytes(), q
 
 
@@ -228,8 +239,8 @@ def _levels(top: int, step_mm: float) -> int:
 def encode_compact(
     xyz: np.ndarray, rgb: np.ndarray, number: int, latency_ms: float, fuse_ms: float, params: CompactParams
 ) -> bytes:
-    """The compact message (``params.version``: 3 or 2) for (M, 3) float32 positions and (M, 3)
-    uint8 colours."""
+    """The compact message (``params.version`` 3: version 5, or 3 with ``split=0``; or 2) for
+    (M, 3) float32 positions and (M, 3) uint8 colours."""
     from fuseflow.live.codec_kernels import compact_streams, grid_cells
 
     params.check()
@@ -240,7 +251,8 @@ def encode_compact(
     cells, top = grid_cells(xyz, origin.astype(np.float64), 1.0 / step)
     levels = _levels(top, params.step_mm)
     p = params
-    fixed = (b"FFLV", p.version, COMPACT_HEADER if p.version == 3 else _HEAD.size, number & 0xFFFFFFFF)
+    version = _KEY[p.split > 0] if p.version == 3 else 2
+    fixed = (b"FFLV", version, COMPACT_HEADER if p.version == 3 else _HEAD.size, number & 0xFFFFFFFF)
     tail = (*origin.tolist(), step, latency_ms, fuse_ms, levels, p.luma_step, p.chroma_step, p.chroma_block)
     if p.version == 3:
         geo, col, m = _streams_v3(cells, levels, rgb, p) if n_in else (b"", b"", 0)
@@ -257,8 +269,8 @@ def encode_compact(
 
 
 class InterEncoder:
-    """The compact frames of one stream: each frame as a key frame (version 3, decodes alone)
-    and / or as a delta (version 4: coded against the previous frame this encoder coded, which
+    """The compact frames of one stream: each frame as a key frame (version 5, or 3 with
+    ``split=0``; decodes alone) and / or as a delta (version 6 or 4: coded against the previous frame this encoder coded, which
     the receiver must hold; ``CompactDecoder``). Frames share one grid (origin and depth, with a
     margin of a quarter of the extent, at least 32 cells, around the cloud that opened it) until a
     cloud leaves it; the first frame on a new grid has no delta. Geometry and colour decode exactly
@@ -266,7 +278,7 @@ class InterEncoder:
 
     def __init__(self, params: CompactParams = CompactParams()):
         if params.check().version != 3:
-            raise ValidationError("inter-frame coding needs compact version 3 (its deltas are version 4)")
+            raise ValidationError("inter-frame coding needs the range-coded compact format (version 3, not 2)")
         self.params = params
         self._grid: tuple[np.ndarray, int] | None = None
         self._ref: _Reference | None = None
@@ -321,11 +333,13 @@ class InterEncoder:
         q = None
         if delta and ref is not None:
             geo, col, q = _streams(leaves, mean, levels, p, ref, match_leaves(leaves, ref.leaves))
-            out[1] = _HEAD4.pack(b"FFLV", 4, _HEAD4.size, *counts, *head, zlib.crc32(geo + col), len(geo), len(col),
+            out[1] = _HEAD4.pack(b"FFLV", _DELTA[p.split > 0], _HEAD4.size, *counts, *head, zlib.crc32(geo + col), len(geo), len(col),
                                  ref.number & 0xFFFFFFFF) + geo + col  # fmt: skip
         if key or out[1] is None:
             geo, col, q = _streams(leaves, mean, levels, p, None, np.full(len(leaves), -1, np.int64))
-            out[0] = _HEAD3.pack(b"FFLV", 3, COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col))
+            out[0] = _HEAD3.pack(
+                b"FFLV", _KEY[p.split > 0], COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col)
+            )
             out[0] += geo + col
         self._ref = _Reference(number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), levels, q, leaves)
         return out[0], out[1]
@@ -345,12 +359,12 @@ class CompactHeader:
     chroma_step: int
     chroma_block: int
     occupancy_bytes: int
-    """Version 2: the decompressed size of the occupancy stream; versions 3 and 4: the CRC-32."""
+    """Version 2: the decompressed size of the occupancy stream; versions 3-6: the CRC-32."""
     sizes: tuple[int, ...]
-    """Byte sizes of the streams (version 2: occupancy, luma, chroma; 3 and 4: geometry, colour)."""
+    """Byte sizes of the streams (version 2: occupancy, luma, chroma; 3-6: geometry, colour)."""
     version: int = COMPACT_VERSION
     reference: int | None = None
-    """Version 4: the number of the frame this one is coded against."""
+    """Versions 4 and 6: the number of the frame this one is coded against."""
 
 
 def _inflate(data: bytes, expected: int, what: str) -> bytes:
@@ -370,11 +384,11 @@ def _read_header(data: bytes) -> CompactHeader:
     version = struct.unpack_from("<H", data, 4)[0] if len(data) >= 6 else 0
     if version not in COMPACT_VERSIONS:
         raise FormatError(f"live frame: compact version {version}, expected one of {COMPACT_VERSIONS}")
-    head = {2: _HEAD, 3: _HEAD3, 4: _HEAD4}[version]
+    head = {2: _HEAD, 3: _HEAD3, 4: _HEAD4, 5: _HEAD3, 6: _HEAD4}[version]
     if len(data) < head.size:
         raise FormatError(f"live frame: {len(data)} bytes, shorter than the {head.size}-byte header")
     f = head.unpack_from(data)
-    sizes, ref = (tuple(f[17:19]), f[19]) if version == 4 else (tuple(f[17:]), None)
+    sizes, ref = (tuple(f[17:19]), f[19]) if version in (4, 6) else (tuple(f[17:]), None)
     h = CompactHeader(f[3], f[4], f[5], np.array(f[6:9], np.float32), *f[9:17], sizes, version, ref)
     if f[2] != head.size or not (1 <= h.levels <= MAX_LEVELS) or not (h.step > 0) or h.points > h.points_in:
         raise FormatError(f"live frame: bad compact header (size {f[2]}, levels {h.levels}, step {h.step})")
@@ -426,11 +440,11 @@ def _grid_of(data: bytes) -> bytes:
 def _decode_v3(
     data: bytes, h: CompactHeader, ref: _Reference | None = None
 ) -> tuple[np.ndarray, np.ndarray, _Reference]:
-    """(positions, colours, the frame as a reference) of a version 3 message, or of a version 4
-    message against ``ref``."""
+    """(positions, colours, the frame as a reference) of a version 3 or 5 message, or of a
+    version 4 or 6 message against ``ref``."""
     from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells
 
-    hsize = _HEAD4.size if h.version == 4 else COMPACT_HEADER
+    hsize = _HEAD4.size if h.version in (4, 6) else COMPACT_HEADER
     if zlib.crc32(memoryview(data)[hsize:]) != h.occupancy_bytes:
         raise FormatError("live frame: the checksum does not match (corrupt or altered streams)")
     m = h.points
@@ -444,7 +458,7 @@ def _decode_v3(
     keys, used, err, rleaf, occ = decode_geometry(geo, h.levels, m, rocc, rfirst)
     if err or len(keys) != m or used > len(geo):
         raise FormatError(f"live frame: the geometry stream gives {len(keys)} points, the header says {m}")
-    rgb, used, err, q = decode_colour(col, m, h.luma_step, h.chroma_step, h.chroma_block, rleaf, rq)
+    rgb, used, err, q = decode_colour(col, m, h.luma_step, h.chroma_step, h.chroma_block, rleaf, rq, h.version >= 5)
     if err or used > len(col):
         raise FormatError("live frame: the colour stream is corrupt or ends early")
     xyz = (h.origin.astype(np.float64) + (morton_cells(keys) + 0.5) * h.step).astype(np.float32)
@@ -453,7 +467,7 @@ def _decode_v3(
 
 class CompactDecoder:
     """Decodes the compact messages of one stream in the order they came, holding the last
-    decoded frame for a delta (version 4) that refers to it; ``decode`` as ``decode_compact``."""
+    decoded frame for a delta (version 4 or 6) that refers to it; ``decode`` as ``decode_compact``."""
 
     def __init__(self) -> None:
         self._ref: _Reference | None = None
@@ -464,7 +478,7 @@ class CompactDecoder:
             self._ref = None
             return decode_compact(data)
         ref = None
-        if h.version == 4:
+        if h.version in (4, 6):
             ref = self._ref
             if ref is None or ref.number != h.reference or ref.grid != _grid_of(data):
                 held = "no frame" if ref is None else f"frame {ref.number}"
@@ -475,12 +489,12 @@ class CompactDecoder:
 
 
 def decode_compact(data: bytes) -> tuple[CompactHeader, np.ndarray, np.ndarray]:
-    """(header, (M, 3) float32 cell-centre positions, (M, 3) uint8 colours) of a version-3 or
-    version-2 message; FormatError for anything truncated, corrupt or inconsistent."""
+    """(header, (M, 3) float32 cell-centre positions, (M, 3) uint8 colours) of a version 5, 3 or
+    2 message; FormatError for anything truncated, corrupt or inconsistent."""
     h = _read_header(data)
-    if h.version == 4:
+    if h.version in (4, 6):
         raise FormatError(f"live frame: a delta against frame {h.reference}: decode the stream with CompactDecoder")
-    if h.version == 3:
+    if h.version in (3, 5):
         return (h, *_decode_v3(data, h)[:2])
     a = _HEAD.size
     b, c = a + h.sizes[0], a + h.sizes[0] + h.sizes[1]

@@ -252,11 +252,13 @@ INTER_GEO_CONTEXTS = P_TREE + 3072
 RES = 32
 """Contexts of one residual: nonzero, sign, 13 unary magnitude bits, 9 Exp-Golomb prefix bits,
 8 suffix bit positions."""
-COL_CONTEXTS = 30 * RES
+SPLIT = 30 * RES
+COL_CONTEXTS = SPLIT + 2
 """Colour residual context groups: luma (3: previous luma residual's size), Co (9: previous Co
 size x this point's luma size), Cg (9: previous Cg size x this block's Co size); against a
 reference point (version 4): luma (3), Co (3: the previous referenced block's larger chroma
-size), Cg (3: this block's Co size)."""
+size), Cg (3: this block's Co size); then a block's split flag (versions 5 and 6: 2, the
+previous block's flag)."""
 ESCAPE = 14
 """Residual magnitudes from this on continue as an Exp-Golomb code of ``magnitude - ESCAPE``."""
 MAX_PREFIX = 16
@@ -616,26 +618,43 @@ def decode_geometry(data, levels, points, rocc, rfirst):  # pragma: no cover - c
 
 
 @njit(cache=True, nogil=True)
-def colour_values(mean, luma_step, chroma_step, block):  # pragma: no cover - compiled
-    """Quantised colour of (M, 3) float RGB in point order: (M,) Y = (R + 2G + B) / 4 and
-    (ceil(M / block), 2) Co = R - B, Cg = G - (R + B) / 2 (means over each block of ``block``
-    points), each rounded to a multiple of its step."""
+def colour_values(mean, luma_step, chroma_step, block, split):  # pragma: no cover - compiled
+    """Quantised colour of (M, 3) float RGB in point order: (M,) Y = (R + 2G + B) / 4, (M, 2)
+    Co = R - B, Cg = G - (R + B) / 2 (the mean over each block of ``block`` points) each rounded
+    to a multiple of its step, and (ceil(M / block),) split flags. With ``split`` > 0, a block
+    where a point's Co or Cg is more than ``split`` chroma steps off the block's mean is split:
+    each of its points has its own Co, Cg (``split`` <= 0: no block is split)."""
     m = mean.shape[0]
     nb = (m + block - 1) // block
     qy = np.empty(m, np.int64)
-    qc = np.empty((nb, 2), np.int64)
+    qc = np.empty((m, 2), np.int64)
+    flags = np.zeros(nb, np.uint8)
     for b in range(nb):
         co = cg = 0.0
         n = 0
-        for i in range(b * block, min(m, (b + 1) * block)):
+        end = min(m, (b + 1) * block)
+        for i in range(b * block, end):
             r, g, bl = mean[i, 0], mean[i, 1], mean[i, 2]
             qy[i] = np.int64(np.rint((r + 2.0 * g + bl) / 4.0 / luma_step))
             co += r - bl
             cg += g - 0.5 * (r + bl)
             n += 1
-        qc[b, 0] = np.int64(np.rint(co / n / chroma_step))
-        qc[b, 1] = np.int64(np.rint(cg / n / chroma_step))
-    return qy, qc
+        co /= n
+        cg /= n
+        cut = split * chroma_step
+        for i in range(b * block, end):
+            r, g, bl = mean[i, 0], mean[i, 1], mean[i, 2]
+            if split > 0 and (abs(r - bl - co) > cut or abs(g - 0.5 * (r + bl) - cg) > cut):
+                flags[b] = 1
+        for i in range(b * block, end):
+            if flags[b]:
+                r, g, bl = mean[i, 0], mean[i, 1], mean[i, 2]
+                qc[i, 0] = np.int64(np.rint((r - bl) / chroma_step))
+                qc[i, 1] = np.int64(np.rint((g - 0.5 * (r + bl)) / chroma_step))
+            else:
+                qc[i, 0] = np.int64(np.rint(co / chroma_step))
+                qc[i, 1] = np.int64(np.rint(cg / chroma_step))
+    return qy, qc, flags
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -674,20 +693,22 @@ def _residual(ctx, bits, t, base, r):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def colour_decisions(qy, qc, block, rleaf, rq):  # pragma: no cover - compiled
+def colour_decisions(qy, qc, block, rleaf, rq, flags, adaptive):  # pragma: no cover - compiled
     """(contexts, bits) of the colour: per point its luma residual, and at the first point of each
-    block the block's Co and Cg residuals. A point with a reference (``rleaf[i]`` >= 0, an index
-    into the reference's per-point quantised (Y, Co, Cg) ``rq``) predicts them from it, in
-    contexts of their own; any other from the previous point's luma and the previous block's
-    chroma (with no reference at all: version 3)."""
+    block (of every point of a split block) the Co and Cg residuals; with ``adaptive`` (versions 5
+    and 6) each block starts with its split flag (``flags``), in contexts of the previous block's.
+    A point with a reference (``rleaf[i]`` >= 0, an index into the reference's per-point quantised
+    (Y, Co, Cg) ``rq``) predicts them from it, in contexts of their own; any other from the
+    previous point's luma and the previous chroma sent (with no reference at all: version 3)."""
     m = qy.shape[0]
     ctx = np.empty(8 * m + 256, np.int32)
     bits = np.empty(8 * m + 256, np.uint8)
     t = 0
     py = pco = pcg = 0
     sy = sco = scg = sry = src = 0
+    split = 0
     for i in range(m):
-        if t + 120 > ctx.shape[0]:  # three residuals take at most 3 x 37 decisions
+        if t + 120 > ctx.shape[0]:  # a flag and three residuals take at most 1 + 3 x 37 decisions
             ctx2 = np.empty(2 * ctx.shape[0], np.int32)
             bits2 = np.empty(2 * ctx.shape[0], np.uint8)
             ctx2[:t], bits2[:t] = ctx[:t], bits[:t]
@@ -702,21 +723,25 @@ def colour_decisions(qy, qc, block, rleaf, rq):  # pragma: no cover - compiled
             t = _residual(ctx, bits, t, sy * RES, r)
             sy = _size(r)
         py = qy[i]
-        if i % block == 0:
-            b = i // block
+        first = i % block == 0
+        if first and adaptive:
+            ctx[t], bits[t] = SPLIT + split, flags[i // block]
+            split = np.int64(flags[i // block])
+            t += 1
+        if first or split:
             if j >= 0:
-                r1, r2 = qc[b, 0] - rq[j, 1], qc[b, 1] - rq[j, 2]
+                r1, r2 = qc[i, 0] - rq[j, 1], qc[i, 1] - rq[j, 2]
                 t = _residual(ctx, bits, t, (24 + src) * RES, r1)
                 s1 = _size(r1)
                 t = _residual(ctx, bits, t, (27 + s1) * RES, r2)
                 src = max(s1, _size(r2))
             else:
-                r1, r2 = qc[b, 0] - pco, qc[b, 1] - pcg
+                r1, r2 = qc[i, 0] - pco, qc[i, 1] - pcg
                 t = _residual(ctx, bits, t, (3 + sco * 3 + sy) * RES, r1)
                 s1 = _size(r1)
                 t = _residual(ctx, bits, t, (12 + scg * 3 + s1) * RES, r2)
                 sco, scg = s1, _size(r2)
-            pco, pcg = qc[b, 0], qc[b, 1]
+            pco, pcg = qc[i, 0], qc[i, 1]
     return ctx[:t], bits[:t]
 
 
@@ -743,15 +768,16 @@ def _get_residual(st, data, probs, base):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def decode_colour(data, m, luma_step, chroma_step, block, rleaf, rq):  # pragma: no cover - compiled
+def decode_colour(data, m, luma_step, chroma_step, block, rleaf, rq, adaptive):  # pragma: no cover - compiled
     """((M, 3) uint8 RGB, bytes read, error, (M, 3) quantised Y, Co, Cg of every point) of a
-    colour stream (``colour_decisions``; ``rleaf``, ``rq`` as there)."""
+    colour stream (``colour_decisions``; ``rleaf``, ``rq``, ``adaptive`` as there)."""
     st = _reader(data)
     probs = np.full(COL_CONTEXTS, 1024, np.int64)
     rgb = np.empty((m, 3), np.uint8)
     q = np.empty((m, 3), np.int64)
     py = pco = pcg = 0
     sy = sco = scg = sry = src = 0
+    split = 0
     for i in range(m):
         j = rleaf[i]
         if j >= 0:
@@ -762,7 +788,10 @@ def decode_colour(data, m, luma_step, chroma_step, block, rleaf, rq):  # pragma:
             r, err = _get_residual(st, data, probs, sy * RES)
             sy = _size(r)
             py += r
-        if i % block == 0:
+        first = i % block == 0
+        if first and adaptive:
+            split = _get(st, data, probs, SPLIT + split)
+        if first or split:
             if j >= 0:
                 r1, e1 = _get_residual(st, data, probs, (24 + src) * RES)
                 s1 = _size(r1)
@@ -802,15 +831,16 @@ def geometry_stream(leaves, levels, rocc, rfirst):  # pragma: no cover - compile
 
 
 @njit(cache=True, nogil=True)
-def colour_stream(mean, luma_step, chroma_step, block, rleaf, rq):  # pragma: no cover - compiled
+def colour_stream(mean, luma_step, chroma_step, block, rleaf, rq, split):  # pragma: no cover - compiled
     """(the range-coded colour stream of (M, 3) mean colours in Morton order, (M, 3) quantised
-    Y, Co, Cg of every point); ``rleaf``, ``rq``: the reference (``colour_decisions``)."""
-    qy, qc = colour_values(mean, luma_step, chroma_step, block)
-    ctx, bits = colour_decisions(qy, qc, block, rleaf, rq)
+    Y, Co, Cg of every point); ``rleaf``, ``rq``: the reference (``colour_decisions``); ``split``
+    > 0: adaptive chroma blocks (``colour_values``)."""
+    qy, qc, flags = colour_values(mean, luma_step, chroma_step, block, split)
+    ctx, bits = colour_decisions(qy, qc, block, rleaf, rq, flags, split > 0)
     m = qy.shape[0]
     q = np.empty((m, 3), np.int64)
     for i in range(m):
-        q[i, 0], q[i, 1], q[i, 2] = qy[i], qc[i // block, 0], qc[i // block, 1]
+        q[i, 0], q[i, 1], q[i, 2] = qy[i], qc[i, 0], qc[i, 1]
     return range_code(ctx, bits, COL_CONTEXTS), q
 
 

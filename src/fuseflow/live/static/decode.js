@@ -1,10 +1,10 @@
-// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3, 4 and 2
-// "compact"; docs/live.md has them byte by byte). No dependencies: versions 3 and 4 are range coded
+// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3-6 and 2
+// "compact"; docs/live.md has them byte by byte). No dependencies: versions 3-6 are range coded
 // (the decoder below mirrors fuseflow/live/codec_kernels.py decision for decision); version 2's zlib
 // streams are inflated by the browser's DecompressionStream("deflate") (Chromium, Firefox,
 // Safari 16.4+, Node 18+). decodeFrame(arrayBuffer) -> Promise of {version, number, m, pointsIn,
 // xyz (Float32Array, 3 m, metres), rgb (Uint8ClampedArray, 3 m), latency, fuseMs}; it rejects
-// (an Error) a truncated, corrupt or inconsistent frame. A version-4 frame (a delta) decodes only
+// (an Error) a truncated, corrupt or inconsistent frame. A version-4 or 6 frame (a delta) decodes only
 // with createDecoder().decodeFrame, fed the stream's frames in order (it holds the last one).
 "use strict";
 (function (root) {
@@ -122,7 +122,7 @@
   for (let k = 0; k < 8; k++) for (let below = 0; below < (1 << k); below++)
     EXTRA[k * 128 + below] = (((below >> (k ^ 4)) & 1) + ((below >> (k ^ 2)) & 1) + ((below >> (k ^ 1)) & 1)) * 2 + (below ? 1 : 0);
   const SINGLE = 4096, TREE = 4096 + 128, P_CHILD = 5248, P_SINGLE = P_CHILD + 8192, P_TREE = P_SINGLE + 256;
-  const GEO_CONTEXTS = P_TREE + 3072, RES = 32, COL_CONTEXTS = 30 * RES, ESCAPE = 14, MAX_PREFIX = 16;
+  const GEO_CONTEXTS = P_TREE + 3072, RES = 32, SPLIT = 30 * RES, COL_CONTEXTS = SPLIT + 2, ESCAPE = 14, MAX_PREFIX = 16;
   const NO_REF = { occ: new Uint8Array(0), first: new Int32Array(0), q: new Int32Array(0) };
   function refFirst(occ, levels) {
     // where each node's first child is in a reference octree (breadth-first bytes, root first):
@@ -243,17 +243,21 @@
     return neg ? -a : a;
   }
   const size = (r) => (r === 0 ? 0 : r === 1 || r === -1 ? 1 : 2);
-  function colours(bytes, m, ls, cs, blk, rleaf, rq) {
+  function colours(bytes, m, ls, cs, blk, rleaf, rq, adaptive) {
     // a point with a reference point (rleaf[i] >= 0; rq: the reference's quantised Y, Co, Cg,
-    // 3 per point) predicts from it, in contexts of its own; returns [rgb, this frame's q]
+    // 3 per point) predicts from it, in contexts of its own; adaptive (versions 5 and 6): a block
+    // starts with its split flag, and every point of a split block has its own chroma; returns
+    // [rgb, this frame's q]
     const rc = rangeDecoder(bytes), P = new Uint16Array(COL_CONTEXTS).fill(1024);
     const rgb = new Uint8ClampedArray(3 * m), q = new Int32Array(3 * m);  // clamps, and rounds half to even as numpy's rint
-    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0, sry = 0, src = 0;
+    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0, sry = 0, src = 0, split = 0;
     for (let i = 0; i < m; i++) {
       const j = rleaf ? rleaf[i] : -1;
       if (j >= 0) { const r = residual(rc, bytes, P, (21 + sry) * RES); sry = size(r); py = rq[3 * j] + r; }
       else { const r = residual(rc, bytes, P, sy * RES); sy = size(r); py += r; }
-      if (i % blk === 0) {
+      const first = i % blk === 0;
+      if (first && adaptive) split = bit(rc, bytes, P, SPLIT + split);
+      if (first || split) {
         if (j >= 0) {
           const r1 = residual(rc, bytes, P, (24 + src) * RES), s1 = size(r1);
           const r2 = residual(rc, bytes, P, (27 + s1) * RES);
@@ -275,7 +279,7 @@
   function decodeV3(buf, dv, holder) {
     // version 3 (a key frame) or 4 (a delta against the frame holder.ref holds); holder.ref
     // becomes this frame
-    const version = dv.getUint16(4, true), H = version === 4 ? 64 : 60;
+    const version = dv.getUint16(4, true), delta = version === 4 || version === 6, H = delta ? 64 : 60;
     if (buf.byteLength < H || dv.getUint16(6, true) !== H) throw new Error("live frame: bad version-" + version + " header");
     const m = dv.getUint32(12, true), pointsIn = dv.getUint32(16, true);
     const origin = [f32(dv, 20), f32(dv, 24), f32(dv, 28)], step = f32(dv, 32);
@@ -286,7 +290,7 @@
       throw new Error("live frame: bad version-" + version + " header");
     if (crc32(new Uint8Array(buf, H)) !== dv.getUint32(48, true)) throw new Error("live frame: the checksum does not match");
     let ref = NO_REF;
-    if (version === 4) {
+    if (delta) {
       const want = dv.getUint32(60, true), held = holder && holder.ref;
       if (!held || held.number !== want || held.grid !== gridOf(buf))
         throw new Error("live frame: a delta against frame " + want + ", but this decoder holds " + (held ? "frame " + held.number : "no frame"));
@@ -302,7 +306,7 @@
         xyz[3 * i + 1] = origin[1] + (ys[i] + 0.5) * step;
         xyz[3 * i + 2] = origin[2] + (zs[i] + 0.5) * step;
       }
-      const [c, q] = colours(new Uint8Array(buf, H + s1, s2), m, ls, cs, blk, ref === NO_REF ? null : rleaf, ref.q);
+      const [c, q] = colours(new Uint8Array(buf, H + s1, s2), m, ls, cs, blk, ref === NO_REF ? null : rleaf, ref.q, version >= 5);
       rgb = c;
       if (holder) holder.ref = { number: dv.getUint32(8, true), grid: gridOf(buf), occ, first: refFirst(occ, levels), q };
     } else if (s1 + s2) throw new Error("live frame: streams given for a frame of no points");
@@ -315,12 +319,12 @@
     const version = magic === "FFLV" ? dv.getUint16(4, true) : 0;
     let frame;
     if (version === 1) frame = decodeRaw(buf, dv);
-    else if (version === 3 || version === 4) frame = decodeV3(buf, dv, holder);
+    else if (version >= 3 && version <= 6) frame = decodeV3(buf, dv, holder);
     else if (version === 2) { if (holder) holder.ref = null; frame = await decodeCompact(buf, dv); }
     else throw new Error("unknown frame format");
     return Object.assign(frame, { version, number: dv.getUint32(8, true) });
   }
-  // one message on its own (a delta, version 4, is refused: it needs the frame before it)
+  // one message on its own (a delta, version 4 or 6, is refused: it needs the frame before it)
   const decodeFrame = (buf) => decode(buf, null);
   // the messages of one stream in order: holds the last compact frame for the delta after it
   function createDecoder() {
