@@ -73,7 +73,6 @@ __all__ = [
 METHODS = {
     "fuse": "FUSE (default preset; numba on CPU, PyTorch on CUDA)",
     "fuse_torch": "FUSE, PyTorch reference backend (eager)",
-    "fuse_quality": "FUSE, PRESETS['quality'] (k_neighbours = 7, s0 = 5; the default)",
     "fuse_fast": "FUSE, PRESETS['fast'] (k_neighbours = 4, s0 = 6.3)",
     "fuse_live": "FUSE, PRESETS['live'] (pixel_stride = 2: every 2nd pixel of every 2nd row; s0 = 1; mcm_max_missing = 4)",
     "fuse_auto": "FUSE, PRESETS['auto'] (the CLI's default: live's grid on >= 6 well-filled views, every pixel otherwise)",
@@ -177,13 +176,12 @@ def _render(work: Path, cameras: int, frames: int, resolution: tuple[int, int], 
 
 def _method_fn(method: str, dev: Any, points: int | None = None) -> Callable:
     """``fn(frame, rig) -> FusedCloud`` for a key of :data:`METHODS`."""
-    if method in ("fuse", "fuse_torch", "fuse_quality", "fuse_fast", "fuse_live", "fuse_auto"):
+    if method in ("fuse", "fuse_torch", "fuse_fast", "fuse_live", "fuse_auto"):
         from dataclasses import replace
 
         from fuseflow.fuse import PRESETS, FuseConfig, fuse
 
         base = {
-            "fuse_quality": PRESETS["quality"],
             "fuse_fast": PRESETS["fast"],
             "fuse_live": PRESETS["live"],
             "fuse_auto": PRESETS["auto"],
