@@ -16,7 +16,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, live, run, simulate, view
+from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, live, node, run, simulate, view
 from fuseflow.cli.app import app, error, guarded
 from fuseflow.errors import FuseFlowError
 
@@ -30,6 +30,7 @@ COMMANDS = {
     "run": run,
     "view": view,
     "live": live,
+    "node": node,
 }
 """Command name -> module defining ``command(...)`` (typer parameters)."""
 
