@@ -148,7 +148,7 @@ def command(
     outputs = _outputs(serve, rerun, record, codec, grid_mm, _access(allow_origin, token, max_viewers), hold)
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
-    opened = _open(source, ray, nodes, wait, rate, loop, preload)
+    opened = _open(source, (ray, nodes, wait), rate, loop, preload)
     try:
         checked = _check_replay(getattr(opened, "source", opened), calibration, settings)
     except BaseException:
@@ -175,10 +175,11 @@ def _check_options(device, crop, preset, points) -> None:
     check_fuse_options(preset, points)
 
 
-def _open(source, ray, nodes, wait, rate, loop, preload):
+def _open(source, ray_options, rate, loop, preload):
     """SOURCE opened here, or (``--ray``) the frames of the capture nodes on a Ray cluster."""
     from fuseflow.live import ReplayOptions, open_source
 
+    ray, nodes, wait = ray_options
     if ray is None:
         if not source:
             fail("give a SOURCE (realsense, orbbec, a recording, .bag/.mkv files), or --ray ADDRESS for capture nodes")
@@ -193,7 +194,8 @@ def _open(source, ray, nodes, wait, rate, loop, preload):
         fail(f"--wait must be a positive number of seconds, got {wait}")
     from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
 
-    return RaySource(RayLiveOptions(address=ray, nodes=nodes, wait_s=wait), warn=lambda m: warn(m, stderr=True))
+    options = RayLiveOptions(address=ray, nodes=nodes, wait_s=wait)
+    return RaySource(options, warn=lambda m: warn(m, stderr=True))
 
 
 def _check_limits(frames, duration) -> None:

@@ -435,7 +435,6 @@ class LiveLoop:
         ]
         status = getattr(self.source, "status", None)
         capture = status() if callable(status) else {}
-        warnings += getattr(self.source, "skew_warnings", list)()
         return LiveSummary(
             frames_in=self.stats.frames_in + int(getattr(self.source, "skipped", 0)),
             frames_out=out,

@@ -5,11 +5,13 @@ A ``CaptureNode`` runs in a Ray actor on the capture machine. It opens its SOURC
 (``open_source``: RealSense, Orbbec, or a replay of a recording, optionally of some of its
 cameras, ``NodeOptions.cameras``), reads it in a thread, stamps each frame with the node's clock
 (``clock.NodeClock``: when the replay released it, or when the devices delivered it), encodes
-its views (``frame_codec``: JPEG or PNG colour, lossless PNG depth) and keeps the newest
-``buffer`` frames. The fusing host (``ray_source.RaySource``) asks for frames with ``next``
-(the answer travels through Ray's object store) and probes ``clock`` to estimate the node's
-clock offset. The actor is threaded (``max_concurrency``), so a probe is answered while a
-``next`` waits for a frame.
+and keeps the newest ``buffer`` frames. The fusing host (``ray_source.RaySource``) asks for
+the stamp of the newest one (``newest``), then every node for its frame nearest one instant
+(``frame_at``): the node encodes that frame (``frame_codec``: JPEG or PNG colour, lossless PNG
+depth) and the answer travels through Ray's object store. A node slower than its cameras thus
+skips the same instants as the others, and the fused frames keep every view. The host probes
+``clock`` to estimate the node's clock offset. The actor is threaded (``max_concurrency``), so
+a probe is answered while a ``newest`` waits for a frame.
 
 Nodes register by name in the Ray namespace ``NAMESPACE`` (``fuseflow-node:<name>``); the
 fusing host finds them there, also when one comes back after it died. ``start_node`` pins the
@@ -70,8 +72,8 @@ class NodeOptions:
     start every node shares, so that nodes replaying other cameras of it stay in step."""
     clock_offset_s: float = 0.0
     """Added to the node's clock (tests: a node whose clock is off by a known amount)."""
-    buffer: int = 4
-    """Encoded frames kept for the fusing host (the newest ``buffer``)."""
+    buffer: int = 8
+    """Frames kept (decoded) for the fusing host to ask for: the newest ``buffer``."""
     token: str | None = None
     """Tells this start of the node from an earlier one of the same name (``spawn_node`` sets it)."""
 
@@ -151,13 +153,10 @@ class CaptureNode:
                 due = getattr(src, "due", None)  # a replay's capture time, on the wall clock
                 stamp = due + self._clock.offset_s if due is not None else self._clock()
                 f = frame.subset(self._sel) if self._sel != list(range(frame.num_views)) else frame
-                color, depth, present = (np.asarray(x) for x in (f.color, f.depth, f.present))
-                views = encode_views(color, depth, present, self._scales, self.options.codec)
+                raw = tuple(np.asarray(x) for x in (f.color, f.depth, f.present))
                 with self._cond:
-                    self._frames.append(NodeFrame(self._count, int(frame.index), stamp, views))
+                    self._frames.append((self._count, int(frame.index), stamp, raw))
                     self._count += 1
-                    self._encode_ms.append(views.encode_ms)
-                    self._bytes.append(views.nbytes)
                     self._cond.notify_all()
                 if self._closed:
                     break
@@ -168,17 +167,35 @@ class CaptureNode:
                 self._closed = True
                 self._cond.notify_all()
 
-    def next(self, after: int, timeout: float = 0.5) -> NodeFrame | None:
-        """The newest frame numbered above ``after``, waiting up to ``timeout`` s; None if none
-        came (or the source ended: ``stats()["ended"]``)."""
+    def newest(self, after: int, timeout: float = 0.5) -> tuple[int, float] | None:
+        """(number, stamp) of the newest frame once one numbered above ``after`` is there,
+        waiting up to ``timeout`` s; None if none came."""
         deadline = time.monotonic() + timeout
         with self._cond:
-            while not (self._frames and self._frames[-1].number > after) and not self._closed:
+            while not (self._frames and self._frames[-1][0] > after) and not self._closed:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None
                 self._cond.wait(left)
-            return self._frames[-1] if self._frames and self._frames[-1].number > after else None
+            if not self._frames or self._frames[-1][0] <= after:
+                return None
+            return self._frames[-1][0], self._frames[-1][2]
+
+    def frame_at(self, stamp: float, tolerance: float) -> NodeFrame | None:
+        """The kept frame whose stamp is nearest ``stamp`` (node clock), if within ``tolerance``
+        seconds, encoded; None otherwise. Every node is asked for the same instant, so that the
+        frames a slow node encodes are the ones the others encode too."""
+        with self._cond:
+            near = [f for f in self._frames if abs(f[2] - stamp) <= tolerance]
+            pick = min(near, key=lambda f: abs(f[2] - stamp)) if near else None
+        if pick is None:
+            return None
+        number, index, at, (color, depth, present) = pick
+        views = encode_views(color, depth, present, self._scales, self.options.codec)
+        with self._cond:
+            self._encode_ms.append(views.encode_ms)
+            self._bytes.append(views.nbytes)
+        return NodeFrame(number, index, at, views)
 
     def stats(self) -> dict[str, Any]:
         with self._cond:

@@ -5,20 +5,20 @@
   ``RayLiveOptions.nodes`` nodes registered (or, without a count, until one did and no other
   joined for a second); its cameras are theirs, ordered by camera id. A node that registers
   later (one restarted after it died) joins the stream when its cameras are among these.
-- **Transport**: the source keeps one ``next`` call outstanding per node; each answer (a
-  ``node.NodeFrame``, its views JPEG/PNG-encoded) travels through Ray's object store and is
-  decoded here (``frame_codec.decode_views``).
+- **Transport**: per fused frame the source asks every node for the stamp of its newest frame
+  (``newest``), chooses the instant T (below) and asks every node for its frame nearest T
+  (``frame_at``); each answer (a ``node.NodeFrame``, its views JPEG/PNG-encoded on the node)
+  travels through Ray's object store and is decoded here (``frame_codec.decode_views``).
 - **Clocks**: a thread probes every node's ``clock`` every ``probe_every_s`` and keeps a
   min-RTT estimate of its offset (``clock.OffsetEstimator``); each frame's stamp is moved onto
   this host's clock by it before pairing.
-- **Pairing**: the frames of all nodes are paired by their corrected stamps: the earliest
-  unpaired stamp T takes, from every node, its frame within half a frame interval of T. The
-  source waits for a node that has not delivered past T yet, unless it stalled: a node that
-  delivered nothing for ``stall_s`` is not waited for and its cameras are missing from the
-  fused frames (counted by the live loop, warned through ``warn``) until it delivers again.
+- **Pairing**: T is the oldest of the nodes' newest corrected stamps, once every node has a
+  frame past the last T; each node answers with its frame within half a frame interval of T.
+  A node that delivered no new frame for ``stall_s`` is stalled: it is not waited for and its
+  cameras are missing from the fused frames (counted by the live loop, warned through ``warn``)
+  until it delivers again.
 - **Skew report** (``status``): per node the offset, its uncertainty and round trip; per camera
-  how far its paired stamps were from T (median and max over the last frames), with a warning
-  when the median is over half a frame interval.
+  how far its paired stamps were from T (median and max over the last frames).
 """
 
 from __future__ import annotations
@@ -134,7 +134,6 @@ class RaySource:
         self.skipped = 0
         self._last_t = -np.inf
         self._skew: dict[str, deque] = {c: deque(maxlen=100) for c in self.rig.ids}
-        self._skew_warned: set[str] = set()
         self._paired = {"frames": 0, "mixed_index": 0}
         self._thread = threading.Thread(target=self._watch, name="fuseflow-ray-clock", daemon=True)
         self._thread.start()
@@ -279,70 +278,72 @@ class RaySource:
         return est.offset_s if est is not None and self.options.correct_clocks else 0.0
 
     # -- frames ------------------------------------------------------------------------------
-    def _receive(self, timeout: float) -> None:
+    def _call_all(self, nodes: list[_Node], call, timeout: float) -> dict[str, Any]:
+        """``call(node)`` (a remote call) on every node at once; name -> answer of those that
+        answered within ``timeout``. A node whose actor is gone is marked lost."""
         import ray
 
-        live = [n for n in self._nodes.values() if n.alive]
-        for n in live:
-            if n.pending is None:
-                try:
-                    n.pending = n.handle.next.remote(n.after, 0.5)
-                except Exception as exc:  # noqa: BLE001 - Ray cannot find the actor any more
-                    self._lost(n, exc)
-        live = [n for n in live if n.alive]
-        refs = {n.pending: n for n in live}
-        if not refs:
-            self._closed.wait(timeout)
-            return
-        ready, _ = ray.wait(list(refs), num_returns=1, timeout=timeout)
-        for ref in ready:
-            node = refs[ref]
-            node.pending = None
-            try:
-                got = ray.get(ref)
-            except Exception as exc:  # noqa: BLE001 - RayError, or Ray's plain Exception for a lost actor
-                self._lost(node, exc)
-                continue
-            if got is not None:
-                self._arrive(node, got)
-
-    def _arrive(self, node: _Node, got: Any) -> None:
-        t0 = time.perf_counter()
-        color, depth, present = decode_views(got.views, node.scales, (self.resolution[1], self.resolution[0]))
-        node.decode_ms.append((time.perf_counter() - t0) * 1e3)
-        node.encode_ms.append(got.views.encode_ms)
-        node.bytes.append(got.views.nbytes)
-        t = got.stamp - self.offset(node)
-        node.after = got.number
-        node.frames += 1
-        node.last_arrival = time.time()
-        node.newest = max(node.newest, t)
-        node.buffer.append(_Arrived(t, got.index, got.stamp, color, depth, present))
-        if node.stalled:
-            node.stalled = False
-            self._say(f"capture node {node.name} delivers again: cameras {', '.join(node.cameras)}")
-
-    def _pair(self, now: float) -> Frame | None:
-        """The next paired frame, or None while a node that is due has not delivered (see the
-        module docstring)."""
-        half = 0.5 / self.rate
-        nodes = [n for n in self._nodes.values() if n.alive and n.slots]
-        cands = [a.t for n in nodes for a in n.buffer if a.t > self._last_t + half]
-        if not cands:
-            return None
-        T = min(cands)
-        picks: dict[str, _Arrived] = {}
+        refs = {}
         for n in nodes:
-            near = [a for a in n.buffer if abs(a.t - T) <= half]
-            if near:
-                picks[n.name] = min(near, key=lambda a: abs(a.t - T))
-            elif not n.stalled and n.newest <= T + half and now - T < self.options.stall_s:
-                return None  # its frame for T may still come
+            try:
+                refs[call(n)] = n
+            except Exception as exc:  # noqa: BLE001 - Ray cannot find the actor any more
+                self._lost(n, exc)
+        ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=timeout) if refs else ([], [])
+        out = {}
+        for ref in ready:
+            try:
+                out[refs[ref].name] = ray.get(ref)
+            except Exception as exc:  # noqa: BLE001 - RayError, or Ray's plain Exception for a lost actor
+                self._lost(refs[ref], exc)
+        return out
+
+    def _instant(self, nodes: list[_Node]) -> float | None:
+        """The instant to fuse next: the oldest of the nodes' newest stamps (host clock), once
+        every node that is not stalled has a frame past the last one fused."""
+        half = 0.5 / self.rate
+        news = self._call_all(nodes, lambda n: n.handle.newest.remote(n.after, 0.05), self.options.stall_s)
+        now = time.time()
+        for n in nodes:
+            got = news.get(n.name)
+            if got is not None and got[0] > n.after:
+                n.after, n.newest, n.last_arrival = got[0], got[1] - self.offset(n), now
+                if n.stalled:
+                    n.stalled = False
+                    self._say(f"capture node {n.name} delivers again: cameras {', '.join(n.cameras)}")
+        self._check_stalls(now)
+        active = [n for n in nodes if n.alive and not n.stalled]
+        if not active or any(n.newest <= self._last_t + half for n in active):
+            return None
+        return min(n.newest for n in active)
+
+    def _fetch(self, T: float, nodes: list[_Node]) -> dict[str, _Arrived]:
+        half = 0.5 / self.rate
+        got = self._call_all(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half), self.options.stall_s)
+        picks = {}
+        for n in nodes:
+            f = got.get(n.name)
+            if f is None:
+                continue
+            t0 = time.perf_counter()
+            color, depth, present = decode_views(f.views, n.scales, (self.resolution[1], self.resolution[0]))
+            n.decode_ms.append((time.perf_counter() - t0) * 1e3)
+            n.encode_ms.append(f.views.encode_ms)
+            n.bytes.append(f.views.nbytes)
+            n.frames += 1
+            picks[n.name] = _Arrived(f.stamp - self.offset(n), f.index, f.stamp, color, depth, present)
+        return picks
+
+    def _next_frame(self) -> Frame | None:
+        nodes = [n for n in self._nodes.values() if n.alive and n.slots]
+        T = self._instant(nodes) if nodes else None
+        if T is None:
+            self._closed.wait(0.005)
+            return None
+        active = [n for n in nodes if n.alive and not n.stalled]
+        picks = self._fetch(T, active)
         self._last_t = T
         self.last_t = T
-        for n in nodes:
-            while n.buffer and n.buffer[0].t <= T + half:
-                n.buffer.popleft()
         return self._assemble(T, nodes, picks)
 
     def _assemble(self, T: float, nodes: list[_Node], picks: dict[str, _Arrived]) -> Frame:
@@ -365,18 +366,16 @@ class RaySource:
         index = min(indices) if indices else -1
         self.released = T - (time.time() - time.perf_counter())
         self.last_indices = {node.name: picks[node.name].index for node in nodes if node.name in picks}
-        return Frame(index=index, camera_ids=self.rig.ids, color=torch.from_numpy(color), depth=torch.from_numpy(depth),
-                     present=torch.from_numpy(present), timestamp=T)  # fmt: skip
+        frame = Frame(index=index, camera_ids=self.rig.ids, color=torch.from_numpy(color), depth=torch.from_numpy(depth),
+                      present=torch.from_numpy(present), timestamp=T)  # fmt: skip
+        return frame
 
     def frames(self) -> Iterator[Frame]:
         """Paired frames as the nodes deliver them, until ``close``."""
         while not self._closed.is_set():
-            self._receive(0.02)
-            self._check_stalls(time.time())
-            frame = self._pair(time.time())
-            while frame is not None:
+            frame = self._next_frame()
+            if frame is not None:
                 yield frame
-                frame = self._pair(time.time())
 
     # -- report ------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -411,16 +410,6 @@ class RaySource:
             "frame_interval_ms": round(1e3 / self.rate, 2),
             "paired": dict(self._paired),
         }
-
-    def skew_warnings(self) -> list[str]:
-        """Cameras whose paired stamps were, at the median, more than half a frame interval off."""
-        half = 500.0 / self.rate
-        out = []
-        for c, s in self.status()["skew"].items():
-            if s is not None and s["median_ms"] > half:
-                out.append(f"camera {c} drifts: its frames were {s['median_ms']:.0f} ms (median) from the paired "
-                           f"time, over half a frame interval ({half:.0f} ms)")  # fmt: skip
-        return out
 
     def close(self) -> None:
         """Stop gathering (``frames()`` returns); the capture nodes keep running. Idempotent."""
