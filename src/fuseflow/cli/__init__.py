@@ -17,7 +17,7 @@ from pathlib import Path
 
 import typer
 
-from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, live, run, simulate, view
+from fuseflow.cli import bench, calibrate, convert, demo, fuse, info, live, node, run, simulate, view
 from fuseflow.cli.app import app, error, guarded
 from fuseflow.cli.settings import fuse_config, parse_settings
 from fuseflow.errors import FuseFlowError
@@ -32,6 +32,7 @@ COMMANDS = {
     "run": run,
     "view": view,
     "live": live,
+    "node": node,
 }
 """Command name -> module defining ``command(...)`` (typer parameters)."""
 

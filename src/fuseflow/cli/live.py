@@ -46,9 +46,26 @@ def _print_summary(result, source: str) -> None:
     if result.encode_ms_median is not None:
         rows.append(("encoding", f"{result.encode_ms_median:.1f} ms median per frame (encoder thread), "
                      f"{result.encoder_skipped} frames not encoded"))  # fmt: skip
+    rows += _capture_rows(s.capture)
     print_table("FuseFlow live", rows)
     for w in s.warnings:
         warn(w)
+
+
+def _capture_rows(capture: dict) -> list[tuple[str, str]]:
+    """Per capture node: state, clock offset +- uncertainty, bytes per frame; the largest camera skew."""
+    rows = []
+    for name, n in (capture.get("nodes") or {}).items():
+        clock = f"clock {n['offset_ms']:+.1f} ms +- {n['uncertainty_ms']:.1f}" if "offset_ms" in n else "clock unknown"
+        size = f"{n['bytes_per_frame'] / 1e3:.0f} kB/frame" if n.get("bytes_per_frame") else "no frames"
+        rows.append((f"node {name}", f"{n['state']}, cameras {', '.join(n['cameras'])}; {clock}; {size}; "
+                     f"encode {n['encode_ms']} ms, decode {n['decode_ms']} ms"))  # fmt: skip
+    skew = {c: v for c, v in (capture.get("skew") or {}).items() if v}
+    if skew:
+        worst = max(skew, key=lambda c: skew[c]["median_ms"])
+        rows.append(("camera skew", f"median |skew| at most {skew[worst]['median_ms']:.1f} ms ({worst}), "
+                     f"frame interval {capture['frame_interval_ms']:.1f} ms"))  # fmt: skip
+    return rows
 
 
 def _check_replay(source, calibration, settings) -> list[str]:
@@ -69,7 +86,9 @@ def _check_replay(source, calibration, settings) -> list[str]:
 
 def command(
     source: list[str] = typer.Argument(
-        ..., help="realsense[:SERIAL,...] | orbbec[:SERIAL,...] | a recording directory | .bag/.mkv files."
+        None,
+        help="realsense[:SERIAL,...] | orbbec[:SERIAL,...] | a recording directory | .bag/.mkv files "
+        "(none with --ray: the capture nodes' cameras).",
     ),
     calib: Path = typer.Option(
         None, "--calib", help="Extrinsics (calib.json from fuseflow calibrate); a replayed rig.json's otherwise."
@@ -105,6 +124,13 @@ def command(
         "auto", "--token", help="Viewer token: auto (random when the host is not loopback), none, or your own."
     ),
     max_viewers: int = typer.Option(16, "--max-viewers", help="WebSocket viewers at once (more get 503)."),
+    ray: str = typer.Option(
+        None,
+        "--ray",
+        help="HOST:PORT (or auto) of a Ray cluster: fuse the cameras of its capture nodes (fuseflow node).",
+    ),
+    nodes: int = typer.Option(None, "--nodes", help="--ray: wait for this many capture nodes (default: those there)."),
+    wait: float = typer.Option(30.0, "--wait", help="--ray: seconds to wait for the capture nodes."),
 ) -> None:
     """Fuse cameras (or a recording replayed as cameras) live; serve, log or record the clouds.
 
@@ -113,24 +139,18 @@ def command(
     --serve 8080. Ctrl-C (or the end of a replay) stops it with a summary.
     """
     from fuseflow.io import read_calibration
-    from fuseflow.live import ReplayOptions, open_source, run_live
-    from fuseflow.live.app import StopRequest
+    from fuseflow.live import StopRequest, run_live
     from fuseflow.live.loop import LiveSettings
 
-    check_device(device)
-    if crop is not None and crop not in ("auto", "off"):
-        from fuseflow.geometry.volume import parse_crop
-
-        parse_crop(crop)  # a bad box fails in one line before the source opens
-    check_fuse_options(preset, points)
+    _check_options(device, crop, preset, points)
     frames = frame_count(num_frames, old_frames)
     _check_limits(frames, duration)
     outputs = _outputs(serve, rerun, record, codec, grid_mm, _access(allow_origin, token, max_viewers), hold)
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
-    opened = open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))
+    opened = _open(source, (ray, nodes, wait), rate, loop, preload)
     try:
-        checked = _check_replay(opened.source, calibration, settings)
+        checked = _check_replay(getattr(opened, "source", opened), calibration, settings)
     except BaseException:
         opened.close()
         raise
@@ -144,6 +164,38 @@ def command(
     with _signals(stop):
         result = run_live(opened, calibration, settings, outputs, on_start=started, stop=stop)
     _print_summary(result, opened.description)
+
+
+def _check_options(device, crop, preset, points) -> None:
+    check_device(device)
+    if crop is not None and crop not in ("auto", "off"):
+        from fuseflow.geometry.volume import parse_crop
+
+        parse_crop(crop)  # a bad box fails in one line before the source opens
+    check_fuse_options(preset, points)
+
+
+def _open(source, ray_options, rate, loop, preload):
+    """SOURCE opened here, or (``--ray``) the frames of the capture nodes on a Ray cluster."""
+    from fuseflow.live import ReplayOptions, open_source
+
+    ray, nodes, wait = ray_options
+    if ray is None:
+        if not source:
+            fail("give a SOURCE (realsense, orbbec, a recording, .bag/.mkv files), or --ray ADDRESS for capture nodes")
+        return open_source(source, ReplayOptions(rate=rate, loop=loop, preload=preload))
+    if source:
+        fail(
+            "--ray fuses the cameras of the capture nodes: give no SOURCE (start fuseflow node SOURCE on each capture PC)"
+        )
+    if nodes is not None and nodes < 1:
+        fail(f"--nodes must be a positive integer, got {nodes}")
+    if not wait > 0:
+        fail(f"--wait must be a positive number of seconds, got {wait}")
+    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
+
+    options = RayLiveOptions(address=ray, nodes=nodes, wait_s=wait)
+    return RaySource(options, warn=lambda m: warn(m, stderr=True))
 
 
 def _check_limits(frames, duration) -> None:
@@ -210,4 +262,5 @@ Examples:
   fuseflow live realsense --calib calib.json --serve 8080 --crop auto
   fuseflow live /tmp/studio --record /tmp/live-clouds --num-frames 30 --preset default
   fuseflow live /tmp/studio --serve 0.0.0.0:8080 --hold     # LAN viewers: open the printed address (token)
+  fuseflow live --ray auto --nodes 3 --calib calib.json --serve 8080   # cameras of 3 capture nodes (fuseflow node)
 """

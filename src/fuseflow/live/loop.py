@@ -11,8 +11,10 @@ waiting frame, and the fused stream stays current when fusion is slower than the
 A source is a ``Source`` (a typed protocol: ``rig``, ``frames()``, ``close()``; ``RealSenseSource``,
 ``OrbbecSource``, ``ReplaySource`` and ``live.sources.OpenedSource`` are ones); a ``skipped`` count
 (frames the source itself let go, e.g. a replay that fell behind) and a ``released`` time (a
-replay's due time of the frame it yielded last) are read when present. Dropped views are fused
-from the other cameras, as ``run`` does, and counted per camera.
+replay's due time of the frame it yielded last) are read when present, and so is a ``status()``
+(a source gathered from several machines, ``sources.ray_source.RaySource``: its nodes' clock
+offsets, bytes and per-camera skew), shown in ``/stats`` as ``capture`` and kept in the summary.
+Dropped views are fused from the other cameras, as ``run`` does, and counted per camera.
 """
 
 from __future__ import annotations
@@ -244,6 +246,9 @@ class LiveSummary:
     ("interrupted" for Ctrl-C, "terminated" for SIGTERM in ``fuseflow live``)."""
     dropped_views: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    capture: dict[str, Any] = field(default_factory=dict)
+    """The source's ``status()`` at the end, when it has one (capture nodes: clock offsets and
+    their uncertainty, bytes per frame, encode / decode ms, per-camera skew)."""
 
     @property
     def drop_rate(self) -> float:
@@ -298,6 +303,7 @@ class LiveLoop:
         self._ended = False
         self._fuse_ms: list[float] = []
         self._points: list[int] = []
+        self._status_at = 0.0
 
     def stop(self, reason: str = "stop") -> None:
         """Ask the loop to finish (from any thread); ``run`` returns its summary, whose
@@ -366,6 +372,10 @@ class LiveLoop:
         self._points.append(len(cloud))
         self.stats.set_dropped(self._dropped(), int(getattr(self.source, "skipped", 0)))
         self.stats.frame_out(time.perf_counter() - item.captured, len(cloud), info.missing)
+        status = getattr(self.source, "status", None)
+        if callable(status) and time.perf_counter() - self._status_at > 0.5:
+            self._status_at = time.perf_counter()
+            self.stats.extra["capture"] = status()
 
     def _loop(self, t0: float) -> str:
         duration = self.settings.duration
@@ -423,6 +433,8 @@ class LiveLoop:
             f"camera {c} was missing in {n} of {out} fused frames; those frames were fused from the other views"
             for c, n in dropped_views.items()
         ]
+        status = getattr(self.source, "status", None)
+        capture = status() if callable(status) else {}
         return LiveSummary(
             frames_in=self.stats.frames_in + int(getattr(self.source, "skipped", 0)),
             frames_out=out,
@@ -436,4 +448,5 @@ class LiveLoop:
             stopped_by=stopped_by,
             dropped_views=dropped_views,
             warnings=warnings,
+            capture=capture,
         )

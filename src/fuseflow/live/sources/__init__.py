@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +35,10 @@ class ReplayOptions:
     rate: float | None = None
     loop: bool = False
     preload: bool = False
+    aligned: bool = False
+    """Pace by the wall clock (``time.time``) from a start shared by every replay of the
+    recording (``ReplaySource.align_start``): capture nodes that replay some cameras each show
+    the same frame at the same time."""
 
 
 def parse_device_spec(spec: str) -> tuple[str, list[str] | None] | None:
@@ -124,10 +129,18 @@ def open_source(
         except BaseException:
             shutil.rmtree(temp, ignore_errors=True)
             raise
-        src = ReplaySource(rec, replay.rate, replay.loop, replay.preload)
+        src = _replay(rec, replay)
         return OpenedSource(src, f"replay of {len(files)} camera files ({len(rec)} frames)", temp)
     if len(specs) > 1:
         raise ValidationError(f"SOURCE: one recording directory, or .bag/.mkv files; got {specs}")
     rec = open_recording(specs[0])
-    return OpenedSource(ReplaySource(rec, replay.rate, replay.loop, replay.preload),
+    return OpenedSource(_replay(rec, replay),
                         f"replay of {rec.path} ({len(rec)} frames, {len(rec.rig)} cameras)")  # fmt: skip
+
+
+def _replay(rec: Any, replay: ReplayOptions) -> ReplaySource:
+    if not replay.aligned:
+        return ReplaySource(rec, replay.rate, replay.loop, replay.preload)
+    src = ReplaySource(rec, replay.rate, replay.loop, replay.preload, clock=time.time)
+    src.start = src.align_start(time.time())
+    return src

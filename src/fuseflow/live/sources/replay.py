@@ -38,6 +38,11 @@ class ReplaySource:
             (the replay then costs no decoding: as cameras deliver decoded images). Memory is the
             recording's decoded size.
         clock, sleep: time source and sleep (tests pass fakes).
+        start: ``clock`` time at which the first frame of the first pass was due (None: when
+            ``frames()`` starts). Replays of one recording on several capture nodes whose clocks
+            agree, given the same ``start`` (``align_start``), show the same frame at the same
+            time, as cameras filming one scene do; with ``loop``, passes that ended before
+            ``frames()`` starts are not replayed.
     """
 
     def __init__(
@@ -48,6 +53,7 @@ class ReplaySource:
         preload: bool = False,
         clock: Callable[[], float] = time.perf_counter,
         sleep: Callable[[float], None] | None = None,
+        start: float | None = None,
     ):
         if rate is not None and not rate > 0:
             raise ValidationError(f"--rate must be a positive number of frames per second, got {rate}")
@@ -59,6 +65,10 @@ class ReplaySource:
         self.loop = loop
         self.skipped = 0
         self.delivered = 0
+        self.start = start
+        self.due: float | None = None
+        """Clock time at which the frame ``frames()`` yielded last was due: when a camera
+        filming the recording's scene would have captured it (a capture node's stamp)."""
         self.released: float | None = None
         """Clock time at which the frame ``frames()`` yielded last was released (when it was due,
         or when it was decoded if that was later): its capture time, read by the live loop."""
@@ -94,9 +104,10 @@ class ReplaySource:
         first = self._frame(0)
         due_in = self._offsets(first)
         span = self._period() if self.loop else 0.0
-        start = self._clock()  # after the first frame is decoded: the replay starts with it
+        now = self._clock()  # after the first frame is decoded: the replay starts with it
+        start = now if self.start is None else self.start
         n = len(self.rec)
-        k = 0  # pass number
+        k = int(max(0.0, now - start) // span) if span > 0 else 0  # pass number
         interval = 1.0 / (self.rate or DEFAULT_RATE)
         prev = None
         while not self._closed.is_set():
@@ -119,11 +130,18 @@ class ReplaySource:
                 if self._closed.is_set():
                     return
                 self.released = max(due, now)
+                self.due = due
                 self.delivered += 1
                 yield frame
             if not self.loop:
                 return
             k += 1
+
+    def align_start(self, now: float) -> float:
+        """A ``start`` shared by every replay of this recording: the latest multiple of one
+        pass (the recording's span plus a frame period, ``loop``) at or before ``now``."""
+        span = self._period()
+        return (now // span) * span if span > 0 else now
 
     def __iter__(self) -> Iterator[Frame]:
         return self.frames()

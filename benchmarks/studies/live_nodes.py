@@ -1,0 +1,206 @@
+"""``python -m benchmarks.live_replay --nodes 3``: one fused stream from capture nodes on Ray
+against the same cameras on one host, on this machine.
+
+Data: a simulated 8-camera 640x480 dynamic studio (``SimConfig(cameras=8, frames=10,
+scene="studio", dynamic=True, resolution=(640, 480), seed=0, fps=15)``) replayed in a loop at
+15 fps. One host: ``ReplaySource`` (preloaded) through the live loop (FUSE ``--preset live``,
+no sinks). Nodes: a local Ray cluster (``ray.cluster_utils.Cluster``: a head and ``nodes``
+nodes, each with a custom resource ``capK``) with one capture node actor per node replaying
+cameras 0-2, 3-5 and 6-7 (``fuseflow node --cameras``), clocks off by 0, +40 and -25 ms, JPEG
+quality 90 colour and lossless PNG depth; the fusing host (this process) gathers them with
+``RaySource`` into the same live loop. The one-host rate is measured before and after the nodes
+run (the machine is shared: the ratio uses their mean). Per fused frame with every view, the
+cloud is compared with the one-host FUSE of the same recording frame: positions, weights and
+cameras bit for bit, colour as the mean absolute difference. The rates compared are fused frames
+with all 8 views per second (a frame a node did not deliver in time is fused from the others and
+not counted).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["SPLITS", "codec_costs", "run_nodes_bench"]
+
+SPLITS = [(("cam00", "cam01", "cam02"), 0.0), (("cam03", "cam04", "cam05"), 0.040), (("cam06", "cam07"), -0.025)]
+
+
+class _Keep:
+    """Keeps the first ``limit`` clouds fused from every view; counts fused frames with every view."""
+
+    def __init__(self, limit: int = 6):
+        self.got: list[tuple[Any, Any]] = []
+        self.limit = limit
+        self.complete = 0
+
+    def send(self, cloud, info) -> None:
+        if not info.missing:
+            self.complete += 1
+            if len(self.got) < self.limit:
+                self.got.append((info, cloud))
+
+    def close(self) -> None:
+        pass
+
+
+def _codec_row(color: np.ndarray, depth: np.ndarray, scales: list[float], reps: int = 5) -> dict[str, Any]:
+    from fuseflow.live.sources.frame_codec import ViewCodec, decode_views, encode_views
+
+    out = {}
+    n = len(color)
+    for codec in (ViewCodec("jpeg", 90), ViewCodec("png")):
+        enc_t, dec_t = [], []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            e = encode_views(color, depth, np.ones(n, bool), scales, codec)
+            enc_t.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            c2, d2, _ = decode_views(e, scales, depth.shape[1:])
+            dec_t.append(time.perf_counter() - t0)
+        cb, db = sum(len(b) for b in e.color) / n, sum(len(b) for b in e.depth) / n
+        err = np.abs(c2.astype(int) - color.astype(int))
+        out[codec.color] = {"color_bytes_per_view": int(cb), "depth_bytes_per_view": int(db),
+                            "encode_ms_per_view": round(float(np.median(enc_t)) * 1e3 / n, 2),
+                            "decode_ms_per_view": round(float(np.median(dec_t)) * 1e3 / n, 2),
+                            "depth_identical": bool(np.array_equal(d2, depth)), "rgb_mean_abs_err": round(float(err.mean()), 2),
+                            "mbit_per_s_8cams_15fps": round((cb + db) * 8 * 8 * 15 / 1e6, 1)}  # fmt: skip
+    return out
+
+
+def codec_costs(rec: Any, data_dir: Path | None) -> dict[str, Any]:
+    """Bytes, encode / decode ms per view and the 8 x 15 fps bandwidth of the node codec (JPEG 90
+    and PNG colour, PNG depth) on frame 3 of the simulated recording and on hocap-8rs's 8 real
+    RealSense views (when ``data_dir`` has it)."""
+    import cv2
+
+    f = rec[3]
+    out = {"sim8": _codec_row(f.color.numpy(), f.depth.numpy(), [c.depth_scale for c in rec.rig.cameras])}
+    root = Path(data_dir or "") / "hocap-8rs" / "frames"
+    cams = sorted(p for p in root.glob("*") if p.is_dir()) if root.is_dir() else []
+    if cams:
+        color = np.stack([cv2.imread(str(c / "color_000000.jpg"))[..., ::-1] for c in cams])
+        depth = np.stack([cv2.imread(str(c / "depth_000000.png"), cv2.IMREAD_UNCHANGED) for c in cams])
+        out["hocap-8rs"] = _codec_row(color, depth.astype(np.float32) / np.float32(1000.0), [1000.0] * len(cams))
+    return out
+
+
+def _one_host(rec: Any, duration: float) -> dict[str, Any]:
+    from fuseflow.live.loop import LiveLoop, LiveSettings
+    from fuseflow.live.sources.replay import ReplaySource
+
+    src = ReplaySource(rec, rate=15.0, loop=True, preload=True)
+    keep = _Keep(0)
+    s = LiveLoop(src, rec.rig, LiveSettings(preset="live", duration=duration), sinks=[keep]).run()
+    return {"fps": s.fps, "complete_fps": round(keep.complete / s.wall_s, 3), "fuse_ms_median": s.fuse_ms_median, "latency_ms_p50": s.latency_ms_p50,
+            "frames_out": s.frames_out, "drop_rate": round(s.drop_rate, 4)}  # fmt: skip
+
+
+def _compare(rec: Any, keep: _Keep) -> dict[str, Any]:
+    import torch
+
+    from fuseflow.fuse import fuse_with_report
+    from fuseflow.fuse.presets import preset_config
+
+    cfg = preset_config("live")
+    same, rgb = [], []
+    for info, cloud in keep.got:
+        one = fuse_with_report(rec[info.index], rec.rig, cfg).cloud
+        same.append(bool(torch.equal(cloud.xyz, one.xyz) and torch.equal(cloud.weight, one.weight)
+                         and torch.equal(cloud.camera, one.camera)))  # fmt: skip
+        if same[-1]:
+            rgb.append(float((cloud.rgb.int() - one.rgb.int()).abs().float().mean()))
+    return {"clouds_compared": len(same), "geometry_bit_identical": sum(same),
+            "rgb_mean_abs_diff": round(float(np.mean(rgb)), 2) if rgb else None}  # fmt: skip
+
+
+def _nodes_run(path: Path, rec: Any, nodes: int, duration: float) -> dict[str, Any]:
+    import ray
+    from ray.cluster_utils import Cluster
+
+    from fuseflow.live.loop import LiveLoop, LiveSettings
+    from fuseflow.live.sources import ReplayOptions
+    from fuseflow.live.sources.node import NAMESPACE, NodeOptions, spawn_node
+    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        for k in range(nodes):
+            cluster.add_node(num_cpus=1, resources={f"cap{k}": 1})
+        ray.init(address=cluster.address, namespace=NAMESPACE, include_dashboard=False, logging_level="ERROR",
+                 log_to_driver=False)  # fmt: skip
+        replay = ReplayOptions(rate=15.0, loop=True, preload=True, aligned=True)
+        splits = _splits(rec.rig.ids, nodes)
+        handles = [spawn_node([str(path)], NodeOptions(name=f"n{k}", cameras=cams, clock_offset_s=off, replay=replay),
+                              {f"cap{k}": 1}) for k, (cams, off) in enumerate(splits)]  # fmt: skip
+        src = RaySource(RayLiveOptions(address=cluster.address, nodes=nodes))
+        keep = _Keep()
+        s = LiveLoop(src, src.rig, LiveSettings(preset="live", duration=duration), sinks=[keep]).run()
+        status = s.capture
+        del handles
+        row = {"fps": s.fps, "complete_fps": round(keep.complete / s.wall_s, 3), "fuse_ms_median": s.fuse_ms_median, "latency_ms_p50": s.latency_ms_p50,
+               "frames_out": s.frames_out, "drop_rate": round(s.drop_rate, 4), "missing_views": s.dropped_views,
+               "nodes": status["nodes"], "paired": status["paired"], "skew": status["skew"],
+               "injected_offsets_ms": {f"n{k}": off * 1e3 for k, (_, off) in enumerate(splits)}}  # fmt: skip
+        row.update(_compare(rec, keep))
+        return row
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+
+
+def _splits(ids: tuple[str, ...], nodes: int) -> list[tuple[tuple[str, ...], float]]:
+    if nodes == 3 and len(ids) == 8:
+        return SPLITS
+    parts = np.array_split(np.arange(len(ids)), nodes)
+    offsets = [0.0, 0.040, -0.025]
+    return [(tuple(ids[i] for i in p), offsets[k % 3]) for k, p in enumerate(parts)]
+
+
+def run_nodes_bench(nodes: int = 3, duration: float = 20.0, log=lambda s: None,
+                    resolution: tuple[int, int] = (640, 480), data_dir: Path | None = None) -> list[dict[str, Any]]:  # fmt: skip
+    """One row: one-host rate (before and after), the nodes' rate, their ratio, offsets found,
+    bytes per frame, encode / decode ms, the 1 Gbit/s check and the cloud comparison."""
+    import os
+
+    from fuseflow.io import open_recording
+    from fuseflow.synth import SimConfig, simulate_recording
+
+    with tempfile.TemporaryDirectory(prefix="bench_live_nodes_") as tmp:
+        path = Path(tmp) / "sim8"
+        simulate_recording(path, SimConfig(cameras=8, frames=10, scene="studio", dynamic=True, resolution=resolution,
+                                           seed=0, fps=15.0))  # fmt: skip
+        rec = open_recording(path)
+        codec = codec_costs(rec, data_dir)
+        log(f"node codec: {codec}")
+        load0 = os.getloadavg()[0]
+        before = _one_host(rec, duration)
+        log(f"one host: {before['complete_fps']:.2f} fused/s, FUSE {before['fuse_ms_median']} ms")
+        multi = _nodes_run(path, rec, nodes, duration)
+        log(f"{nodes} nodes: {multi['complete_fps']:.2f} fused/s with every view ({multi['fps']:.2f} with some "
+            f"missing), FUSE {multi['fuse_ms_median']} ms; node encode ms "
+            f"{[n['encode_ms'] for n in multi['nodes'].values()]}")  # fmt: skip
+        after = _one_host(rec, duration)
+        log(f"one host again: {after['complete_fps']:.2f} fused/s")
+        load1 = os.getloadavg()[0]
+    bytes_frame = sum(n["bytes_per_frame"] or 0 for n in multi["nodes"].values())
+    ref = (before["complete_fps"] + after["complete_fps"]) / 2
+    row = {"case": f"nodes{nodes}", "data": f"simulated 8 x {resolution[0]}x{resolution[1]} dynamic studio, 15 fps",
+           "one_host_before": before, "one_host_after": after, "nodes_run": multi,
+           "ratio": round(multi["complete_fps"] / ref, 3) if ref else None,
+           "ratio_note": "fused frames with all 8 views per second, nodes / mean of one host before and after",
+           "target": ">= 0.9 of the one-host rate",
+           "bytes_per_frame_all_cameras": bytes_frame, "mbit_per_s_at_15fps": round(bytes_frame * 8 * 15 / 1e6, 1),
+           "fits_1gbit": bytes_frame * 8 * 15 < 1e9, "loadavg_1min_before_after": [round(load0, 2), round(load1, 2)],
+           "codec": codec, "duration_s": duration, "when": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
+    row["target_met"] = bool(row["ratio"] is not None and row["ratio"] >= 0.9)
+    log(f"ratio {row['ratio']} (target >= 0.9: {'met' if row['target_met'] else 'MISSED'}); "
+        f"{bytes_frame / 1e3:.0f} kB per 8-camera frame = {row['mbit_per_s_at_15fps']} Mbit/s at 15 fps; "
+        f"offsets {[(k, n.get('offset_ms'), n.get('uncertainty_ms')) for k, n in multi['nodes'].items()]}; "
+        f"geometry identical {multi['geometry_bit_identical']}/{multi['clouds_compared']}, rgb diff {multi['rgb_mean_abs_diff']}; "
+        f"load {load0:.1f} -> {load1:.1f}")  # fmt: skip
+    return [row]
