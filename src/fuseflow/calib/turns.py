@@ -73,6 +73,10 @@ COLOUR_TOL = 30.0
 #: A room repeats when its best period's landing share is at least ROOM_MIN_SHARE and
 #: ROOM_MIN_CONTRAST times the median share over the periods 3..MAX_SIDES (module docstring).
 ROOM_MIN_SHARE, ROOM_MIN_CONTRAST = 0.08, 2.0
+#: ... or, for the period the backbone's pair aliases found (``hint``), HINT_MIN_CONTRAST times
+#: that median (the pairs already say the room repeats; the cloud confirms the period and finds
+#: the axis: symstudio's plain floor and ceiling lift every period's share).
+HINT_MIN_CONTRAST = 1.3
 #: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
 TAU_M, TAU_REL = 0.02, 0.005
 SUBJECT_FLOOR_M = 0.08
@@ -265,10 +269,13 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     fine = {n: _search_centre(room_pts, P, coarse[n][0], 2 * math.pi / n, ((0.125, 0.025),))
             for n in sorted(coarse, key=lambda n: -coarse[n][1])[:4] + ([hint] if hint in coarse else [])}  # fmt: skip
     shares = {n: fine.get(n, coarse[n])[1] for n in coarse}
-    best = max(shares.values())
-    if best < ROOM_MIN_SHARE or best < ROOM_MIN_CONTRAST * float(np.median(list(shares.values()))):
+    best, median = max(shares.values()), float(np.median(list(shares.values())))
+    hinted = hint in fine and shares[hint] >= 0.9 * best and shares[hint] >= HINT_MIN_CONTRAST * median
+    if not hinted and (best < ROOM_MIN_SHARE or best < ROOM_MIN_CONTRAST * median):
         return None
-    n = hint if hint in fine and shares[hint] >= 0.9 * best else max(k for k, v in shares.items() if v >= 0.9 * best)
+    if best < ROOM_MIN_SHARE:
+        return None
+    n = hint if hinted else max(k for k, v in shares.items() if v >= 0.9 * best)
     c, s = fine.get(n, coarse[n])
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
     point = B.T @ np.array([c[0], c[1], floor])
