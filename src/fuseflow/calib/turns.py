@@ -77,6 +77,10 @@ ROOM_MIN_SHARE, ROOM_MIN_CONTRAST = 0.08, 2.0
 #: that median (the pairs already say the room repeats; the cloud confirms the period and finds
 #: the axis: symstudio's plain floor and ceiling lift every period's share).
 HINT_MIN_CONTRAST = 1.3
+#: A multiple of the best period (or the hinted one) whose share is at least this share of the
+#: best's is the room's period: its turns keep the room too (a 12-fold symstudio at 512x424: 0.84
+#: of the 6-fold share), and an unchecked turn is what makes a camera silently wrong.
+SUB_PERIOD_SHARE = 0.75
 #: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
 TAU_M, TAU_REL = 0.02, 0.005
 SUBJECT_FLOOR_M = 0.08
@@ -270,12 +274,12 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
             for n in sorted(coarse, key=lambda n: -coarse[n][1])[:4] + ([hint] if hint in coarse else [])}  # fmt: skip
     shares = {n: fine.get(n, coarse[n])[1] for n in coarse}
     best, median = max(shares.values()), float(np.median(list(shares.values())))
-    hinted = hint in fine and shares[hint] >= 0.9 * best and shares[hint] >= HINT_MIN_CONTRAST * median
-    if not hinted and (best < ROOM_MIN_SHARE or best < ROOM_MIN_CONTRAST * median):
+    near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
+    hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
+    if best < ROOM_MIN_SHARE or (not hinted and best < ROOM_MIN_CONTRAST * median):
         return None
-    if best < ROOM_MIN_SHARE:
-        return None
-    n = hint if hinted else max(k for k, v in shares.items() if v >= 0.9 * best)
+    top = max(shares, key=lambda k: shares[k])
+    n = hint if hinted else max(k for k in near if k % top == 0)  # the smallest turn that repeats it
     c, s = fine.get(n, coarse[n])
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
     point = B.T @ np.array([c[0], c[1], floor])
