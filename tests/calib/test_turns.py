@@ -148,3 +148,21 @@ def test_a_room_the_backbone_calls_repeating_without_an_axis_is_ambiguous():
     rep.backbone_info["room"] = {"sides": 8}
     v = camera_verdicts(rep, T, list(T), {}, None)
     assert {x["verdict"] for x in v.values()} == {"ambiguous"} and "45 deg" in v["a"]["reason"]
+
+
+def _shares(base=0.25, **peaks):
+    out = dict.fromkeys(range(3, T_.MAX_SIDES + 1), base)
+    out.update({int(k[1:]): v for k, v in peaks.items()})
+    return out
+
+
+def test_the_period_is_the_smallest_turn_that_keeps_the_room():
+    # the 12-fold symstudio (seed 20, 512x424, calibrated cloud): 3-, 4-, 6- and 12-fold turns all
+    # keep the room; the 6-fold one lands the most points, the 12-fold one 0.84 of that
+    seen = _shares(0.27, n3=0.445, n4=0.491, n6=0.511, n12=0.431)
+    assert T_.room_period(seen, hint=12) == 12
+    assert T_.room_period(seen) is None  # 0.511 is under twice the median without the pairs' period
+    strong = _shares(n4=0.6, n6=0.7, n12=0.62, n16=0.69)
+    assert T_.room_period(strong) == 12  # 16 lands as many but is no multiple of 6: not a turn of this room
+    assert T_.room_period(_shares(n8=0.6)) == 8 and T_.room_period(_shares(n8=0.6), hint=9) == 8
+    assert T_.room_period(_shares()) is None and T_.room_period(_shares(n8=0.3), hint=8) is None

@@ -13,10 +13,12 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    mean of 128) is within ``COLOUR_TOL`` (the floor and ceiling are planes that every turn keeps,
    their texture is not). The axis position maximises it (grid around where the cameras' optical
    axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
-   period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). The room repeats when
-   the best share is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times the median over
-   all N; N is the largest whose share is within 10 % of the best (a 12-fold room also repeats
-   every 60 deg: the smallest turn is the one that matters), the backbone's period when it is.
+   period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). ``room_period``: the
+   backbone's period when its share is at least ``SUB_PERIOD_SHARE`` of the best and
+   ``HINT_MIN_CONTRAST`` times the median over all N; else the room repeats when the best share
+   is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and N is the
+   largest multiple of the best period with at least ``SUB_PERIOD_SHARE`` of its share (a
+   12-fold room also repeats every 60 deg: the smallest turn is the one that matters).
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
    ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
    lowest heights; walls and ceiling are outside that volume).
@@ -54,6 +56,7 @@ from fuseflow.types import Frame, Rig, invert_rigid
 __all__ = [
     "RoomAxis",
     "room_axis",
+    "room_period",
     "camera_turns",
     "settle_turns",
     "MAX_SIDES",
@@ -243,6 +246,21 @@ def _axes_meet(T: Mapping[str, np.ndarray], B: np.ndarray) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
+def room_period(shares: Mapping[int, float], hint: int | None = None) -> int | None:
+    """The room's period from each period's landing share (module docstring, step 1), None when
+    the room does not repeat: the backbone's ``hint`` when its share is at least SUB_PERIOD_SHARE
+    of the best and HINT_MIN_CONTRAST times the median; else, when the best share is at least
+    ROOM_MIN_SHARE and ROOM_MIN_CONTRAST times the median, the largest multiple of the best
+    period with at least SUB_PERIOD_SHARE of its share (the smallest turn that keeps the room)."""
+    best, median = max(shares.values()), float(np.median(list(shares.values())))
+    near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
+    hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
+    if best < ROOM_MIN_SHARE or (not hinted and best < ROOM_MIN_CONTRAST * median):
+        return None
+    top = max(shares, key=lambda k: shares[k])
+    return hint if hinted else max(k for k in near if k % top == 0)
+
+
 def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[str, np.ndarray], up: np.ndarray,
               hint: int | None = None, rng_seed: int = 0) -> RoomAxis | None:  # fmt: skip
     """The repeating room of the merged cloud (module docstring, step 1), or None. ``points``:
@@ -272,14 +290,9 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     coarse = {n: _search_centre(room_pts, P, start, 2 * math.pi / n, ((0.5, 0.125),)) for n in range(3, MAX_SIDES + 1)}
     fine = {n: _search_centre(room_pts, P, coarse[n][0], 2 * math.pi / n, ((0.125, 0.025),))
             for n in sorted(coarse, key=lambda n: -coarse[n][1])[:4] + ([hint] if hint in coarse else [])}  # fmt: skip
-    shares = {n: fine.get(n, coarse[n])[1] for n in coarse}
-    best, median = max(shares.values()), float(np.median(list(shares.values())))
-    near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
-    hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
-    if best < ROOM_MIN_SHARE or (not hinted and best < ROOM_MIN_CONTRAST * median):
+    n = room_period({n: fine.get(n, coarse[n])[1] for n in coarse}, hint)
+    if n is None:
         return None
-    top = max(shares, key=lambda k: shares[k])
-    n = hint if hinted else max(k for k in near if k % top == 0)  # the smallest turn that repeats it
     c, s = fine.get(n, coarse[n])
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
     point = B.T @ np.array([c[0], c[1], floor])
