@@ -27,7 +27,8 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
   be right.
 
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
-first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
+first failing reason: stacked, placed by ``auto``'s fallback alone (``FALLBACK_ALONE``: no metric
+pair pose measures it), depth agreement below the threshold, fewer than half of its pairs
 agree, no cycle through it (a floor check alone leaves its heading and horizontal position
 unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" unless the room
 repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
@@ -54,6 +55,7 @@ __all__ = [
     "TurnEvidence",
     "TURN_MIN_MARGIN",
     "AMBIGUOUS_ACTION",
+    "FALLBACK_ALONE",
     "camera_verdicts",
     "pair_agreements",
     "edge_residual",
@@ -297,7 +299,8 @@ def camera_verdicts(
     "pairs_agreeing", "cycles", "floor" ([tilt deg, height mm] against the rig's floor, or None),
     "floor_ok" (within FLOOR_DEG / FLOOR_MM), "checks" (cycles + a passing floor check), "depth_agreement", "accuracy_deg", "accuracy_mm" (None: unknown),
     "accuracy_from", "disagreeing" (edge -> [deg, mm] of pairs beyond AGREE_DEG / AGREE_MM),
-    "turn" (``TurnEvidence.to_json`` in a repeating room, else None); verdict "ambiguous" when
+    "turn" (``TurnEvidence.to_json`` in a repeating room, else None), "placed_alone" (the source,
+    only for a camera ``auto``'s fallback placed with no metric pair pose); verdict "ambiguous" when
     the subject cannot tell the camera's room turn from another. ``room``: the repeating room
     (``calib.turns.RoomAxis``: ``sides`` and ``turn(k)``, the world rotation by k periods) or None;
     in one, a pair pose agrees when it agrees after whole turns of the room (it measures the pose
