@@ -37,7 +37,7 @@ def test_joint_choice_recovers_planted_turns_relative_to_the_first_camera(seed):
     rng = np.random.default_rng(seed)
     n, m = 9, 7
     truth = [0] + list(rng.integers(0, n, m - 1))
-    k = T_._joint(_planted_table(truth, n, rng), n)
+    k = T_.joint_turns(_planted_table(truth, n, rng), n)
     assert list(k) == [(t - truth[0]) % n for t in truth]
 
 
@@ -166,3 +166,19 @@ def test_the_period_is_the_smallest_turn_that_keeps_the_room():
     assert T_.room_period(strong) == 12  # 16 lands as many but is no multiple of 6: not a turn of this room
     assert T_.room_period(_shares(n8=0.6)) == 8 and T_.room_period(_shares(n8=0.6), hint=9) == 8
     assert T_.room_period(_shares()) is None and T_.room_period(_shares(n8=0.3), hint=8) is None
+
+
+def test_the_joint_choice_never_puts_two_cameras_on_one_spot():
+    """Three cameras 90 deg apart in a 4-fold room: cameras turned onto each other's spots see the
+    same surface and so see through none of each other's subject, a better score than the true
+    turns' (10 % seen through); no real rig does that, so the choice keeps the true turns."""
+    room = T_.RoomAxis(4, np.zeros(3), np.array([0.0, 0.0, 1.0]), 1.0, 0.0)
+    centres = np.array([[3.0, 0, 1], [0, 3.0, 1], [-3.0, 0, 1]])
+    stacked = T_.stacking(room, centres)
+    assert stacked[0, 1, 1] and stacked[1, 0, 3] and not stacked[0, 1, 0] and not stacked[0, 0].any()
+    tab = np.zeros((3, 3, 4, 3))
+    tab[..., 0] = 100
+    tab[..., 2] = np.where(stacked, 0, 50)
+    tab[:, :, 0, 2] = 10
+    assert T_.joint_turns(tab, 4).any()  # left free, it folds the rig
+    assert not T_.joint_turns(tab, 4, stacked).any()

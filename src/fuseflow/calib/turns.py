@@ -59,6 +59,8 @@ __all__ = [
     "room_period",
     "camera_turns",
     "settle_turns",
+    "stacking",
+    "joint_turns",
     "MAX_SIDES",
     "ROOM_MIN_SHARE",
     "ROOM_TOL_M",
@@ -353,10 +355,27 @@ def _objective(gain: np.ndarray, k: np.ndarray, n: int) -> float:
     return float(gain[ia, ib, d].sum())
 
 
-def _joint(tab: np.ndarray, n: int) -> np.ndarray:
-    """Absolute turns (M,) with the least summed see-through share over ordered pairs."""
+def stacking(room: RoomAxis, centres: np.ndarray) -> np.ndarray:
+    """(M, M, N) bool: camera a turned by d periods more than camera b has its centre within
+    STACKED_M of b's (``centres`` (M, 3) world, as placed); False on the diagonal."""
+    m = len(centres)
+    out = np.zeros((m, m, room.sides), bool)
+    for d in range(room.sides):
+        M = room.turn(d)
+        moved = centres @ M[:3, :3].T + M[:3, 3]
+        out[:, :, d] = np.linalg.norm(moved[:, None] - centres[None], axis=2) < STACKED_M
+    out[np.arange(m), np.arange(m)] = False
+    return out
+
+
+def joint_turns(tab: np.ndarray, n: int, stacked: np.ndarray | None = None) -> np.ndarray:
+    """Absolute turns (M,) with the least summed see-through share over ordered pairs, never
+    two cameras on one spot (``stacked``, :func:`stacking`): two cameras there see the same
+    surface and so see through none of each other's subject, which no turn of a real rig does."""
     m = tab.shape[0]
     gain = _gain(tab)
+    if stacked is not None:  # a stacking relative turn scores below any real one
+        gain = np.where(stacked, -1e6, gain)  # stacked[a, b, d] == stacked[b, a, -d]: both directions
     best_k, best_j = np.zeros(m, int), _objective(gain, np.zeros(m, int), n)
     starts = [None] + list(range(m))
     for start in starts:
@@ -420,12 +439,13 @@ def camera_turns(
     for f in frames[:MAX_FRAMES]:
         fine = _world_points(f, rig, T, max(1, round(w / 160)))
         tab = tab + _tables({c: _subject(fine[c], room, radius) for c in ids}, f, rig, T, room, ids)
-    k = _joint(tab, room.sides)
+    k = joint_turns(tab, room.sides, stacking(room, np.stack([centres[c] for c in ids])))
     return room, _evidence(tab, k, room, ids, centres, radius)
 
 
 def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvidence]:
     n = room.sides
+    stacked = stacking(room, np.stack([centres[c] for c in ids]))
     out = {}
     for ic, c in enumerate(ids):
         scores, seen_at = [], []
@@ -436,14 +456,8 @@ def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvi
                     s += tab[ic, ip, (t - k[ip]) % n] + tab[ip, ic, (k[ip] - t) % n]
             seen_at.append(s[0])
             scores.append(-s[2] / s[0] if s[0] >= MIN_SEEN else float("nan"))
-        alts = []
-        for t in range(n):
-            if t == k[ic]:
-                continue
-            pos = (room.turn(t - k[ic]) @ np.r_[centres[c], 1.0])[:3]
-            if min((np.linalg.norm(pos - centres[o]) for o in ids if o != c), default=9.0) < STACKED_M:
-                continue
-            alts.append(t)
+        # a turn that puts it on another camera (at that one's chosen turn) is no alternative
+        alts = [t for t in range(n) if t != k[ic] and not any(stacked[ic, o, (t - k[o]) % n] for o in range(len(ids)))]
         chosen = scores[k[ic]]
         valid = [t for t in alts if np.isfinite(scores[t])]
         runner = max(valid, key=lambda t: scores[t]) if valid else None
