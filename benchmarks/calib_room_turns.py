@@ -17,24 +17,36 @@ Counted: "silently wrong" (placed, verdict "good", more than 2 deg or 5 cm off) 
     python -m benchmarks.calib_room_turns --families symstudio,polyroom --seeds 1000-1009 \
         --resolution 320x240 --json /tmp/turns.json
     python -m benchmarks.calib_room_turns --families polyroom --seeds 1-10 --planted column
+    python -m benchmarks.calib_room_turns --seeds 3000-3039 --resolution symstudio=512x424,polyroom=320x240 --save
+
+Seeds run in order, each over every family; ``--progress PATH`` rewrites the rows there after each.
 """
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from benchmarks.common import command, parser, save
 from benchmarks.studies.calib_turns import FAMILIES, parse_seeds, run_planted_bench, run_turn_bench
 
 
+def _resolutions(spec: str, fams: list[str]) -> dict[str, tuple[int, int]]:
+    """'WxH' for every family, or 'FAMILY=WxH,...' (families not named: 320x240)."""
+    out = dict.fromkeys(fams, (320, 240))
+    for part in spec.split(","):
+        fam, _, wh = part.rpartition("=")
+        for f in [fam] if fam else fams:
+            out[f] = tuple(int(x) for x in wh.lower().split("x"))
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = parser(__doc__, num_frames=1)
     ap.add_argument("--families", default=",".join(FAMILIES))
     ap.add_argument("--seeds", default="1000-1004", help="e.g. 1000-1019 or 3,5,7")
-    ap.add_argument("--resolution", default="320x240")
-    ap.add_argument("--num-frames", type=int, default=1, help="frames to calibrate on")
+    ap.add_argument("--resolution", default="320x240", help="WxH, or FAMILY=WxH,FAMILY=WxH")
     ap.add_argument("--dynamic", action="store_true", help="polyroom: the figure moves between frames")
-    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--progress", type=Path, default=None, help="rewrite the rows here after each seed")
     ap.add_argument(
         "--planted",
         choices=("figure", "column", "none"),
@@ -45,11 +57,13 @@ def main(argv: list[str] | None = None) -> None:
     fams = [f for f in a.families.split(",") if f]
     if any(f not in FAMILIES for f in fams):
         ap.error(f"--families: choose from {', '.join(FAMILIES)}")
-    res = tuple(int(x) for x in a.resolution.lower().split("x"))
+    res = _resolutions(a.resolution, fams)
     if a.planted:
-        run_planted_bench(fams, parse_seeds(a.seeds), res, a.planted, a.json)
+        rows = run_planted_bench(fams, parse_seeds(a.seeds), res[fams[0]], a.planted, a.progress)
     else:
-        run_turn_bench(fams, parse_seeds(a.seeds), res, a.num_frames, a.dynamic, a.json)
+        rows = run_turn_bench(fams, parse_seeds(a.seeds), res, a.num_frames, a.dynamic, a.progress)
+    save(a, "calib_room_turns", command("calib_room_turns", argv), rows,
+         {"resolution": {f: f"{w}x{h}" for f, (w, h) in res.items()}, "frames": a.num_frames})  # fmt: skip
 
 
 if __name__ == "__main__":

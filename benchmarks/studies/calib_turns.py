@@ -155,12 +155,15 @@ def summary(rows: list[dict]) -> list[str]:
 
 def run_turn_bench(families, seeds, resolution=(320, 240), frames: int = 1, dynamic: bool = False,
                    json_path=None, log=print) -> list[dict]:  # fmt: skip
-    """Every seed of every family: a line per seed, then the summary table, through ``log``; all
-    rows to ``json_path`` (rewritten after each seed) when given. Returns the rows."""
+    """Every seed, each over every family: a line per seed, then the summary table, through
+    ``log``; all rows to ``json_path`` (rewritten after each seed) when given. ``resolution``:
+    (w, h) or family -> (w, h). Returns the rows."""
     rows = []
-    for fam in families:
-        for seed in seeds:
-            rows.append(run_seed(fam, seed, resolution, frames, dynamic))
+    for seed in seeds:
+        for fam in families:
+            res = resolution[fam] if isinstance(resolution, dict) else resolution
+            rows.append(run_seed(fam, seed, res, frames, dynamic))
+            rows[-1]["resolution"] = f"{res[0]}x{res[1]}"
             log(seed_line(rows[-1]))
             if json_path:
                 Path(json_path).write_text(json.dumps(rows, indent=1, default=str))

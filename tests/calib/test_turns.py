@@ -37,7 +37,7 @@ def test_joint_choice_recovers_planted_turns_relative_to_the_first_camera(seed):
     rng = np.random.default_rng(seed)
     n, m = 9, 7
     truth = [0] + list(rng.integers(0, n, m - 1))
-    k = T_._joint(_planted_table(truth, n, rng), n)
+    k = T_.joint_turns(_planted_table(truth, n, rng), n)
     assert list(k) == [(t - truth[0]) % n for t in truth]
 
 
@@ -148,3 +148,37 @@ def test_a_room_the_backbone_calls_repeating_without_an_axis_is_ambiguous():
     rep.backbone_info["room"] = {"sides": 8}
     v = camera_verdicts(rep, T, list(T), {}, None)
     assert {x["verdict"] for x in v.values()} == {"ambiguous"} and "45 deg" in v["a"]["reason"]
+
+
+def _shares(base=0.25, **peaks):
+    out = dict.fromkeys(range(3, T_.MAX_SIDES + 1), base)
+    out.update({int(k[1:]): v for k, v in peaks.items()})
+    return out
+
+
+def test_the_period_is_the_smallest_turn_that_keeps_the_room():
+    # the 12-fold symstudio (seed 20, 512x424, calibrated cloud): 3-, 4-, 6- and 12-fold turns all
+    # keep the room; the 6-fold one lands the most points, the 12-fold one 0.84 of that
+    seen = _shares(0.27, n3=0.445, n4=0.491, n6=0.511, n12=0.431)
+    assert T_.room_period(seen, hint=12) == 12
+    assert T_.room_period(seen) is None  # 0.511 is under twice the median without the pairs' period
+    strong = _shares(n4=0.6, n6=0.7, n12=0.62, n16=0.69)
+    assert T_.room_period(strong) == 12  # 16 lands as many but is no multiple of 6: not a turn of this room
+    assert T_.room_period(_shares(n8=0.6)) == 8 and T_.room_period(_shares(n8=0.6), hint=9) == 8
+    assert T_.room_period(_shares()) is None and T_.room_period(_shares(n8=0.3), hint=8) is None
+
+
+def test_the_joint_choice_never_puts_two_cameras_on_one_spot():
+    """Three cameras 90 deg apart in a 4-fold room: cameras turned onto each other's spots see the
+    same surface and so see through none of each other's subject, a better score than the true
+    turns' (10 % seen through); no real rig does that, so the choice keeps the true turns."""
+    room = T_.RoomAxis(4, np.zeros(3), np.array([0.0, 0.0, 1.0]), 1.0, 0.0)
+    centres = np.array([[3.0, 0, 1], [0, 3.0, 1], [-3.0, 0, 1]])
+    stacked = T_.stacking(room, centres)
+    assert stacked[0, 1, 1] and stacked[1, 0, 3] and not stacked[0, 1, 0] and not stacked[0, 0].any()
+    tab = np.zeros((3, 3, 4, 3))
+    tab[..., 0] = 100
+    tab[..., 2] = np.where(stacked, 0, 50)
+    tab[:, :, 0, 2] = 10
+    assert T_.joint_turns(tab, 4).any()  # left free, it folds the rig
+    assert not T_.joint_turns(tab, 4, stacked).any()

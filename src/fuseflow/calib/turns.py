@@ -13,10 +13,12 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    mean of 128) is within ``COLOUR_TOL`` (the floor and ceiling are planes that every turn keeps,
    their texture is not). The axis position maximises it (grid around where the cameras' optical
    axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
-   period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). The room repeats when
-   the best share is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times the median over
-   all N; N is the largest whose share is within 10 % of the best (a 12-fold room also repeats
-   every 60 deg: the smallest turn is the one that matters), the backbone's period when it is.
+   period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). ``room_period``: the
+   backbone's period when its share is at least ``SUB_PERIOD_SHARE`` of the best and
+   ``HINT_MIN_CONTRAST`` times the median over all N; else the room repeats when the best share
+   is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and N is the
+   largest multiple of the best period with at least ``SUB_PERIOD_SHARE`` of its share (a
+   12-fold room also repeats every 60 deg: the smallest turn is the one that matters).
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
    ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
    lowest heights; walls and ceiling are outside that volume).
@@ -54,8 +56,11 @@ from fuseflow.types import Frame, Rig, invert_rigid
 __all__ = [
     "RoomAxis",
     "room_axis",
+    "room_period",
     "camera_turns",
     "settle_turns",
+    "stacking",
+    "joint_turns",
     "MAX_SIDES",
     "ROOM_MIN_SHARE",
     "ROOM_TOL_M",
@@ -73,6 +78,14 @@ COLOUR_TOL = 30.0
 #: A room repeats when its best period's landing share is at least ROOM_MIN_SHARE and
 #: ROOM_MIN_CONTRAST times the median share over the periods 3..MAX_SIDES (module docstring).
 ROOM_MIN_SHARE, ROOM_MIN_CONTRAST = 0.08, 2.0
+#: ... or, for the period the backbone's pair aliases found (``hint``), HINT_MIN_CONTRAST times
+#: that median (the pairs already say the room repeats; the cloud confirms the period and finds
+#: the axis: symstudio's plain floor and ceiling lift every period's share).
+HINT_MIN_CONTRAST = 1.3
+#: A multiple of the best period (or the hinted one) whose share is at least this share of the
+#: best's is the room's period: its turns keep the room too (a 12-fold symstudio at 512x424: 0.84
+#: of the 6-fold share), and an unchecked turn is what makes a camera silently wrong.
+SUB_PERIOD_SHARE = 0.75
 #: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
 TAU_M, TAU_REL = 0.02, 0.005
 SUBJECT_FLOOR_M = 0.08
@@ -235,6 +248,21 @@ def _axes_meet(T: Mapping[str, np.ndarray], B: np.ndarray) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
+def room_period(shares: Mapping[int, float], hint: int | None = None) -> int | None:
+    """The room's period from each period's landing share (module docstring, step 1), None when
+    the room does not repeat: the backbone's ``hint`` when its share is at least SUB_PERIOD_SHARE
+    of the best and HINT_MIN_CONTRAST times the median; else, when the best share is at least
+    ROOM_MIN_SHARE and ROOM_MIN_CONTRAST times the median, the largest multiple of the best
+    period with at least SUB_PERIOD_SHARE of its share (the smallest turn that keeps the room)."""
+    best, median = max(shares.values()), float(np.median(list(shares.values())))
+    near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
+    hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
+    if best < ROOM_MIN_SHARE or (not hinted and best < ROOM_MIN_CONTRAST * median):
+        return None
+    top = max(shares, key=lambda k: shares[k])
+    return hint if hinted else max(k for k in near if k % top == 0)
+
+
 def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[str, np.ndarray], up: np.ndarray,
               hint: int | None = None, rng_seed: int = 0) -> RoomAxis | None:  # fmt: skip
     """The repeating room of the merged cloud (module docstring, step 1), or None. ``points``:
@@ -264,11 +292,9 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     coarse = {n: _search_centre(room_pts, P, start, 2 * math.pi / n, ((0.5, 0.125),)) for n in range(3, MAX_SIDES + 1)}
     fine = {n: _search_centre(room_pts, P, coarse[n][0], 2 * math.pi / n, ((0.125, 0.025),))
             for n in sorted(coarse, key=lambda n: -coarse[n][1])[:4] + ([hint] if hint in coarse else [])}  # fmt: skip
-    shares = {n: fine.get(n, coarse[n])[1] for n in coarse}
-    best = max(shares.values())
-    if best < ROOM_MIN_SHARE or best < ROOM_MIN_CONTRAST * float(np.median(list(shares.values()))):
+    n = room_period({n: fine.get(n, coarse[n])[1] for n in coarse}, hint)
+    if n is None:
         return None
-    n = hint if hint in fine and shares[hint] >= 0.9 * best else max(k for k, v in shares.items() if v >= 0.9 * best)
     c, s = fine.get(n, coarse[n])
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
     point = B.T @ np.array([c[0], c[1], floor])
@@ -329,10 +355,27 @@ def _objective(gain: np.ndarray, k: np.ndarray, n: int) -> float:
     return float(gain[ia, ib, d].sum())
 
 
-def _joint(tab: np.ndarray, n: int) -> np.ndarray:
-    """Absolute turns (M,) with the least summed see-through share over ordered pairs."""
+def stacking(room: RoomAxis, centres: np.ndarray) -> np.ndarray:
+    """(M, M, N) bool: camera a turned by d periods more than camera b has its centre within
+    STACKED_M of b's (``centres`` (M, 3) world, as placed); False on the diagonal."""
+    m = len(centres)
+    out = np.zeros((m, m, room.sides), bool)
+    for d in range(room.sides):
+        M = room.turn(d)
+        moved = centres @ M[:3, :3].T + M[:3, 3]
+        out[:, :, d] = np.linalg.norm(moved[:, None] - centres[None], axis=2) < STACKED_M
+    out[np.arange(m), np.arange(m)] = False
+    return out
+
+
+def joint_turns(tab: np.ndarray, n: int, stacked: np.ndarray | None = None) -> np.ndarray:
+    """Absolute turns (M,) with the least summed see-through share over ordered pairs, never
+    two cameras on one spot (``stacked``, :func:`stacking`): two cameras there see the same
+    surface and so see through none of each other's subject, which no turn of a real rig does."""
     m = tab.shape[0]
     gain = _gain(tab)
+    if stacked is not None:  # a stacking relative turn scores below any real one
+        gain = np.where(stacked, -1e6, gain)  # stacked[a, b, d] == stacked[b, a, -d]: both directions
     best_k, best_j = np.zeros(m, int), _objective(gain, np.zeros(m, int), n)
     starts = [None] + list(range(m))
     for start in starts:
@@ -396,12 +439,13 @@ def camera_turns(
     for f in frames[:MAX_FRAMES]:
         fine = _world_points(f, rig, T, max(1, round(w / 160)))
         tab = tab + _tables({c: _subject(fine[c], room, radius) for c in ids}, f, rig, T, room, ids)
-    k = _joint(tab, room.sides)
+    k = joint_turns(tab, room.sides, stacking(room, np.stack([centres[c] for c in ids])))
     return room, _evidence(tab, k, room, ids, centres, radius)
 
 
 def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvidence]:
     n = room.sides
+    stacked = stacking(room, np.stack([centres[c] for c in ids]))
     out = {}
     for ic, c in enumerate(ids):
         scores, seen_at = [], []
@@ -412,14 +456,8 @@ def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvi
                     s += tab[ic, ip, (t - k[ip]) % n] + tab[ip, ic, (k[ip] - t) % n]
             seen_at.append(s[0])
             scores.append(-s[2] / s[0] if s[0] >= MIN_SEEN else float("nan"))
-        alts = []
-        for t in range(n):
-            if t == k[ic]:
-                continue
-            pos = (room.turn(t - k[ic]) @ np.r_[centres[c], 1.0])[:3]
-            if min((np.linalg.norm(pos - centres[o]) for o in ids if o != c), default=9.0) < STACKED_M:
-                continue
-            alts.append(t)
+        # a turn that puts it on another camera (at that one's chosen turn) is no alternative
+        alts = [t for t in range(n) if t != k[ic] and not any(stacked[ic, o, (t - k[o]) % n] for o in range(len(ids)))]
         chosen = scores[k[ic]]
         valid = [t for t in alts if np.isfinite(scores[t])]
         runner = max(valid, key=lambda t: scores[t]) if valid else None

@@ -26,7 +26,8 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
   be right.
 
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
-first failing reason: stacked, depth agreement below the threshold, fewer than half of its pairs
+first failing reason: stacked, placed by ``auto``'s fallback alone (``FALLBACK_ALONE``: no metric
+pair pose measures it), depth agreement below the threshold, fewer than half of its pairs
 agree, no cycle through it (a floor check alone leaves its heading and horizontal position
 unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" unless the room
 repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
@@ -54,6 +55,7 @@ __all__ = [
     "TurnEvidence",
     "TURN_MIN_MARGIN",
     "AMBIGUOUS_ACTION",
+    "FALLBACK_ALONE",
     "camera_verdicts",
     "pair_agreements",
     "edge_residual",
@@ -79,6 +81,14 @@ STACKED_M = 0.10
 #: The subject's margin between a camera's chosen room turn and its runner-up below which the
 #: turn is "ambiguous" (``TurnEvidence.margin``; docs/gmac-trust.md, "Room turns").
 TURN_MIN_MARGIN = 0.05
+#: The verdict reason of a camera ``auto`` placed by its fallback source alone: the scale stage's
+#: cycles rebuild relative poses from that source's own poses, so they close by construction and
+#: check its scale, not its pose (symstudio at 320x240: COLMAP folded 5- and 7-camera rings onto
+#: one wall, 33-163 deg off, every cycle closed).
+FALLBACK_ALONE = (
+    "placed by {src} alone, as no metric pair pose measures it: its cycles check the scale, not the pose "
+    "(in a repeating room image matching folds cameras onto each other); record more frames or check it by eye"
+)
 #: What a user can do about an ambiguous room turn.
 AMBIGUOUS_ACTION = "put a person or one asymmetric object in the middle, or record a few frames of them moving"
 
@@ -288,7 +298,8 @@ def camera_verdicts(
     "pairs_agreeing", "cycles", "floor" ([tilt deg, height mm] against the rig's floor, or None),
     "floor_ok" (within FLOOR_DEG / FLOOR_MM), "checks" (cycles + a passing floor check), "depth_agreement", "accuracy_deg", "accuracy_mm" (None: unknown),
     "accuracy_from", "disagreeing" (edge -> [deg, mm] of pairs beyond AGREE_DEG / AGREE_MM),
-    "turn" (``TurnEvidence.to_json`` in a repeating room, else None); verdict "ambiguous" when
+    "turn" (``TurnEvidence.to_json`` in a repeating room, else None), "placed_alone" (the source,
+    only for a camera ``auto``'s fallback placed with no metric pair pose); verdict "ambiguous" when
     the subject cannot tell the camera's room turn from another. ``room``: the repeating room
     (``calib.turns.RoomAxis``: ``sides`` and ``turn(k)``, the world rotation by k periods) or None;
     in one, a pair pose agrees when it agrees after whole turns of the room (it measures the pose
@@ -312,8 +323,9 @@ def camera_verdicts(
             ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined), info, c)
         elif report.backbone != "auto":
             ev = _evidence_scale_free(c, report, T)
-        else:  # auto's scale stage is rgbd's check: nothing recorded for another source's camera
+        else:  # auto's fallback: no metric pair pose measures it (FALLBACK_ALONE)
             ev = {**_evidence_scale_free(c, report, {}), "accuracy_from": f"{src} records no pair poses for it"}
+            ev["placed_alone"] = src
         fl = floor.get(c)
         floor_ok = fl is not None and fl[0] <= FLOOR_DEG and fl[1] <= FLOOR_MM
         agreement = (report.depth_agreement or {}).get(c)
@@ -349,6 +361,8 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
             f"its centre is {stacked[1] * 100:.0f} cm from {stacked[0]}'s: two cameras cannot share a spot "
             "(a symmetric scene can fold cameras onto each other)"
         )
+    if e.get("placed_alone"):
+        return "check it", FALLBACK_ALONE.format(src=e["placed_alone"])
     a = e["depth_agreement"]
     if a is not None and a < limit:
         return "check it", f"its neighbours confirm only {a:.2f} of its depth (below {limit:.2f})"
