@@ -30,7 +30,7 @@ frames dropped for this client so far, whether an attributes message follows). A
 that also asks ``attrs=1`` gets, after each frame, a binary message with each point's camera and
 weight (``fuseflow.live.wire.encode_attributes``). A compact client that asks ``inter=1`` decodes
 the stream in order (``codec.CompactDecoder``, decode.js ``createDecoder``) and is sent a frame as
-a delta against the previous one (version 4) whenever it was sent that one, else as a key frame;
+a delta against the previous one (version 6, or 4 unsplit) whenever it was sent that one, else as a key frame;
 its acknowledgement may say which frame its decoder holds (``"held"``: a number, or null after a
 frame it could not decode: a key frame follows). ``{"type": "end", "reason": ...}`` says the stream
 ended (a replay's last frame), ``{"type": "error", "message": ...}`` that it failed.
