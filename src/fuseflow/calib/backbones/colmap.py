@@ -42,7 +42,7 @@ COLMAP_THREADS = 1
 #: Seed of the two-view verification RANSAC: COLMAP's default (-1) draws a new seed every run, and
 #: two calibrations of one frame then differed by 0.12 m; fixed, they are identical.
 RANSAC_SEED = 0
-#: COLMAP puts the centre of the top-left pixel at (0.5, 0.5); docs/design.md 2.3 puts it at (0, 0).
+#: COLMAP puts the centre of the top-left pixel at (0.5, 0.5); docs/conventions.md puts it at (0, 0).
 #: Principal points go to COLMAP shifted by this and keypoints come back shifted by it (measured:
 #: without it, ground-truth reprojections of verified matches are off by (-0.14, -0.04) px on average).
 PIXEL_ORIGIN = 0.5
