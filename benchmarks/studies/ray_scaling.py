@@ -51,7 +51,7 @@ def _ray_row(rec, tmp: Path, W: int, clouds) -> dict:
     from fuseflow.pipeline.ray import RayOptions
 
     t0 = time.perf_counter()
-    ray.init(num_cpus=W, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    ray.init(address="local", num_cpus=W, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
     init_s = time.perf_counter() - t0
     try:
         opts = RayOptions(max_in_flight=2 * W)

@@ -133,10 +133,10 @@ def ray_frame_results(
         check_ray_address(options.address)
     if not ray.is_initialized():
         kw: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "log_to_driver": False}
-        if options.address is None:
+        if options.address is None:  # a private local Ray, also beside a cluster `ray start` left running
             kw["num_cpus"] = options.num_cpus
         try:
-            ray.init(address=options.address, **kw)
+            ray.init(address=options.address or "local", **kw)
         except (ConnectionError, RuntimeError, ValueError) as exc:
             where = f"--ray-address {options.address}" if options.address else "a local Ray"
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
