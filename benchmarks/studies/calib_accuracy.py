@@ -1,20 +1,10 @@
-"""GMAC accuracy and timing benchmark (docs/design.md section 4 metrics).
+"""GMAC accuracy and timing benchmark (docs/design.md section 4 metrics): the library code of
+``python -m benchmarks.calib_accuracy``, whose docstring (its ``--help``) defines the rows, the
+data sets and the robustness count.
 
-Rows per data set: the backbone's poses scaled by the naive median depth ratio; GMAC with each
-closed form (z-only = paper eq. 12 corrected, full-3D, point-to-plane = default); GMAC +
-refinement; the paper's ablations (w/o RC, w/o CC, w/o feature weight); robust weights; the
-oracle scale (best scale for these backbone poses, a lower bound for any scale method); and
-Open3D RGB-D odometry + pose-graph multiway registration (classical target-free peer).
-Rotation error (deg) and translation error (mm, no scale alignment) are means over camera pairs
-(fuseflow.eval.metrics.pose_errors), then mean +- std over seeds. Time per calibration includes
-the backbone (run once per seed and shared by the GMAC rows; its time is added to every row).
-
-Data: ``sim4`` / ``sim8``: fuseflow.synth rigs with Kinect noise when the simulator is
-installed, else an analytic textured room with Kinect-model depth noise built here (the output
-says which). ``icl8``: ICL-NUIM living room virtual rig (8 frames, 26 apart, start = 3 x seed;
-reference = Open3D trajectory, ~1 cm), read from a folder the caller names. Robustness: per
-seed, an edge with wrong matches is injected (its points shifted 0.3 m along the baseline) and
-we count how often CC prunes it.
+What only this module decides: without the simulator installed, ``sim4`` / ``sim8`` are an
+analytic textured room with Kinect-model depth noise built here (the output says which);
+``icl8`` is read from a folder the caller names.
 
 :func:`run_calib_accuracy` runs it and hands each report line to a ``log`` callback (Markdown
 tables per data set); ``python -m benchmarks.calib_accuracy`` prints them.
