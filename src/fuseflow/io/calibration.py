@@ -158,18 +158,13 @@ def read_calibration(path: str | Path) -> Calibration:
         raise FormatError(f"{path}: field 'report' must be an object")
     if FINGERPRINT_KEY in doc:
         report = {**report, FINGERPRINT_KEY: _read_fingerprint(doc[FINGERPRINT_KEY], path)}
-    if VOLUME_KEY in doc:
-        try:
-            volume = CaptureVolume.from_json(doc[VOLUME_KEY], f"{path}: field {VOLUME_KEY!r}")
-        except ValidationError as exc:
-            raise FormatError(str(exc)) from None
-        report = {**report, VOLUME_KEY: volume.to_json()}
-    if WORLD_KEY in doc:
-        try:
-            world = World.from_json(doc[WORLD_KEY], f"{path}: field {WORLD_KEY!r}")
-        except ValidationError as exc:
-            raise FormatError(str(exc)) from None
-        report = {**report, WORLD_KEY: world.to_json()}
+    for key, kind in ((VOLUME_KEY, CaptureVolume), (WORLD_KEY, World)):
+        if key in doc:
+            try:
+                value = kind.from_json(doc[key], f"{path}: field {key!r}")
+            except ValidationError as exc:
+                raise FormatError(str(exc)) from None
+            report = {**report, key: value.to_json()}
     try:
         return Calibration(T, report)
     except ValidationError as exc:
