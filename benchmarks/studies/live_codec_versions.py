@@ -43,10 +43,12 @@ SETTINGS: list[tuple[str, CompactParams | None]] = [
     ("v2, 3 mm / 4, 8, 4 (version 2 default)", CompactParams(3.0, 4, 8, 4, version=2)),
     ("v3, 3 mm / 8, 16, 4", CompactParams(3.0, 8, 16, 4, split=0.0)),
     ("v3, 3 mm / 8, 16, 1", CompactParams(3.0, 8, 16, 1, split=0.0)),
-    ("v5, 3 mm / 8, 16, 4, split 1.5 (default)", CompactParams(3.0, 8, 16, 4)),
-    ("v5, 3 mm / 8, 16, 4, split 1.75", CompactParams(3.0, 8, 16, 4, split=1.75)),
-    ("v5, 5 mm / 8, 16, 4, split 1.5", CompactParams(5.0, 8, 16, 4)),
-    ("v5, 8 mm / 8, 16, 4, split 1.5", CompactParams(8.0, 8, 16, 4)),
+    ("v5, 3 mm / 8, 16, 4, split 1.5", CompactParams(3.0, 8, 16, 4)),
+    ("v5, 3 mm / 12, 16, 4, split 1.5 (default)", CompactParams(3.0, 12, 16, 4)),
+    ("v5, 3 mm / 14, 16, 4, split 1.5", CompactParams(3.0, 14, 16, 4)),
+    ("v5, 3 mm / 12, 16, 4, split 1.75", CompactParams(3.0, 12, 16, 4, split=1.75)),
+    ("v5, 5 mm / 12, 16, 4, split 1.5", CompactParams(5.0, 12, 16, 4)),
+    ("v5, 8 mm / 12, 16, 4, split 1.5", CompactParams(8.0, 12, 16, 4)),
 ]
 """(label, parameters) of every row: v3 and v4 are the range-coded messages with chroma blocks
 that never split (``split=0``), v5 and v6 those where they may (the default)."""

@@ -58,10 +58,10 @@ def test_geometry_round_trips_at_extreme_shapes():
     }
     for name, pts in shapes.items():
         xyz = pts.astype(np.float32) + 0.0001
-        d = decode_frame(encode_compact(xyz, np.full((len(xyz), 3), 80, np.uint8), 0, 0.0, 0.0, CompactParams()))
+        d = decode_frame(encode_compact(xyz, np.full((len(xyz), 3), 96, np.uint8), 0, 0.0, 0.0, CompactParams()))
         cheb, _ = cKDTree(d.xyz).query(xyz, p=np.inf)
         assert cheb.max() <= 0.0015 + 2.4e-7 * np.abs(xyz).max(), name  # half a 3 mm step (+ float32 rounding)
-        assert np.all(d.rgb == 80), name  # grey on the luma step
+        assert np.all(d.rgb == 96), name  # grey on the luma step (8 and 12)
 
 
 def test_fewer_bytes_than_version_2_at_the_same_quantisation():
@@ -175,7 +175,7 @@ def test_codec_benchmark_rows(tmp_path):
     rows = measure("surface", xyz, rgb, repeats=1)
     by = {r["codec"]: r for r in rows}
     assert len(rows) == len(SETTINGS) and by["raw"]["bits_per_point"] == pytest.approx(72.0, abs=0.1)
-    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v5, 3 mm / 8, 16, 4, split 1.5 (default)"]
+    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v5, 3 mm / 12, 16, 4, split 1.5 (default)"]
     assert v3["bits_per_point"] < v2["bits_per_point"] and 0 < v3["geometry_bits_per_point"] < v3["bits_per_point"]
     assert all(r["pos_err_over_half_step"] <= 1.0 + 1e-3 for r in rows if r["pos_err_over_half_step"] is not None)
     if shutil.which("node"):
@@ -203,10 +203,23 @@ def test_version_3_and_4_bytes_are_those_of_the_unsplit_format():
     from fuseflow.live.codec import InterEncoder
 
     xyz, rgb = _surface(5000, seed=2)
-    key = encode_compact(xyz, rgb, 9, 1.0, 2.0, CompactParams(split=0.0))
-    enc = InterEncoder(CompactParams(split=0.0))
+    key = encode_compact(xyz, rgb, 9, 1.0, 2.0, CompactParams(luma_step=8, split=0.0))
+    enc = InterEncoder(CompactParams(luma_step=8, split=0.0))
     (x0, c0), (x1, c1) = _sequence(2, m=5000)
     enc.encode(x0, c0, 0)
     _, delta = enc.encode(x1, c1, 1, key=False)
     # lengths and CRC-32s of the same messages written before chroma blocks could split
     assert (len(key), zlib.crc32(key), len(delta), zlib.crc32(delta)) == (10316, 1421772074, 6155, 1163930191)
+
+
+def test_the_default_luma_step_holds_the_colour_error_with_fewer_bits_than_a_finer_one():
+    xyz, rgb = _surface(20000, seed=3)
+    rgb = np.clip(rgb + np.random.default_rng(3).normal(0, 6, rgb.shape), 0, 255).astype(np.uint8)  # sensor noise
+    out = {}
+    for luma in (CompactParams().luma_step, 8):
+        data = encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams(luma_step=luma))
+        h, dx, dc = decode_compact(data)
+        _, idx = cKDTree(dx).query(xyz)
+        out[luma] = (h.sizes[1], np.percentile(np.abs(dc[idx].astype(int) - rgb.astype(int)), 95))
+    (default_bytes, default_p95), (fine_bytes, _) = out[CompactParams().luma_step], out[8]
+    assert default_bytes < 0.9 * fine_bytes and default_p95 <= 12, out  # the colour stream's bytes
