@@ -1,6 +1,6 @@
 """Bits a point of the live stream's compact codec, versions 5 and 3 (range coded, with and
-without split chroma blocks) against version 2 (deflated) and raw, in one run on the same fused clouds: the hocap-8rs frame and a simulated
-8-camera 640x480 studio, each fused with ``--preset live`` at 200 k points (the live path's
+without split chroma blocks) against version 2 (deflated) and raw, in one run on the same fused clouds: the hocap-8rs frame, a simulated
+8-camera 640x480 studio and a simulated 8-camera polyroom studio, each fused with ``--preset live`` at 200 k points (the live path's
 budget). Per codec setting: bits a point (of the fused cloud; and of its geometry stream, bytes
 52-55 of both compact headers), points sent, position error (largest per-axis offset of a fused
 point to its nearest decoded point, and that over half the grid step), colour error (|decoded -
@@ -68,7 +68,8 @@ const fs = require("fs"); const { decodeFrame } = require(process.argv[2]); cons
 
 
 def fused_clouds(data_dir: Path, work: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """name -> (xyz float32, rgb uint8): hocap8-200k and sim8-200k."""
+    """name -> (xyz float32, rgb uint8): hocap8-200k, sim8-200k and polyroom8-200k (a second,
+    separately written simulated studio the codec's parameters were not chosen on)."""
     from fuseflow.fuse import fuse
     from fuseflow.fuse.presets import preset_config
     from fuseflow.io import open_recording
@@ -78,8 +79,10 @@ def fused_clouds(data_dir: Path, work: Path) -> dict[str, tuple[np.ndarray, np.n
     convert_hocap(data_dir / "hocap-8rs", work / "hocap8", with_extrinsics=True)
     simulate_recording(work / "sim8", SimConfig(cameras=8, frames=1, scene="studio", dynamic=True,
                                                 resolution=(640, 480), seed=0, fps=10.0))  # fmt: skip
+    simulate_recording(work / "poly8", SimConfig(cameras=8, frames=1, scene="polyroom", resolution=(640, 480),
+                                                 seed=0, fps=10.0))  # fmt: skip
     out = {}
-    for name, folder in (("hocap8-200k", "hocap8"), ("sim8-200k", "sim8")):
+    for name, folder in (("hocap8-200k", "hocap8"), ("sim8-200k", "sim8"), ("polyroom8-200k", "poly8")):
         rec = open_recording(work / folder)
         c = fuse(rec[0], rec.rig, preset_config("live", 200_000))
         out[name] = (c.xyz.numpy().astype(np.float32), c.rgb.numpy().astype(np.uint8))

@@ -210,3 +210,43 @@ def test_damaged_deltas_are_format_errors_and_leave_nothing_to_refer_to():
         dec = CompactDecoder()
         dec.decode(k0)
         dec.decode(d1[:-1] + bytes([d1[-1] ^ 1]))
+
+
+def test_a_frame_is_coded_once_per_kind_however_many_viewers_want_it(monkeypatch):
+    from fuseflow.live import codec
+    from fuseflow.live.loop import LiveFrame
+    from fuseflow.live.sinks import WebSink
+
+    class Viewers:  # two viewers that need key frames and two that take deltas
+        def __init__(self):
+            self.published = []
+
+        def codecs(self):
+            return {"compact"}
+
+        def compact_needs(self, reference):
+            return True, reference is not None
+
+        def publish(self, frames, meta):
+            self.published.append((sorted(frames), meta))
+
+        def close(self):
+            pass
+
+    calls = []
+    streams = codec._streams
+    monkeypatch.setattr(codec, "_streams", lambda *a: calls.append(a[4] is not None) or streams(*a))
+    server = Viewers()
+    sink = WebSink(server, CompactParams())
+    calls.clear()  # the sink's warm-up
+    try:
+        for n, (xyz, rgb) in enumerate(_sequence(3, 5000)):
+            sink.send(_fused(xyz, rgb), LiveFrame(n, n, time.perf_counter(), 1.0, ()))
+            for _ in range(200):
+                if len(server.published) > n:
+                    break
+                time.sleep(0.02)
+    finally:
+        sink.close()
+    assert [p[0] for p in server.published] == [["compact"], ["compact", "compact.delta"], ["compact", "compact.delta"]]
+    assert calls == [False, True, False, True, False]  # per frame: the key frame, and from the second a delta
