@@ -223,3 +223,19 @@ def test_the_default_luma_step_holds_the_colour_error_with_fewer_bits_than_a_fin
         out[luma] = (h.sizes[1], np.percentile(np.abs(dc[idx].astype(int) - rgb.astype(int)), 95))
     (default_bytes, default_p95), (fine_bytes, _) = out[CompactParams().luma_step], out[8]
     assert default_bytes < 0.9 * fine_bytes and default_p95 <= 12, out  # the colour stream's bytes
+
+
+def test_the_split_of_bits_adds_up_to_the_coded_streams(tmp_path):
+    from benchmarks.studies.live_codec_split import node_split_ms, split_row
+
+    xyz, rgb = _surface(20000, seed=5)
+    row = split_row("surface", xyz, rgb, repeats=1)
+    parts = [v for k, v in row.items() if k.startswith(("child_bits", "single_flags", "index_bits"))]
+    assert len(parts) == 6 and sum(parts) == pytest.approx(row["geometry_bits_per_point"], rel=0.01)
+    colour = row["luma_bits"] + row["chroma_bits"] + row["split_flag_bits"]
+    assert colour == pytest.approx(row["colour_bits_per_point"], rel=0.01) and row["luma_bits"] > 0
+    data = encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams())
+    assert row["bits_per_point"] == pytest.approx((len(data) - 60) * 8 / len(xyz), abs=1e-3)  # the same streams
+    if shutil.which("node"):
+        node_split_ms([row], 1, tmp_path)
+        assert row["node_decode_geometry_ms"] > 0 and row["node_decode_colour_ms"] > 0
