@@ -250,3 +250,44 @@ def test_a_frame_is_coded_once_per_kind_however_many_viewers_want_it(monkeypatch
         sink.close()
     assert [p[0] for p in server.published] == [["compact"], ["compact", "compact.delta"], ["compact", "compact.delta"]]
     assert calls == [False, True, False, True, False]  # per frame: the key frame, and from the second a delta
+
+
+def test_holding_the_last_frame_sends_the_key_frame_closing_coded_instead_of_coding_it_again(monkeypatch):
+    from fuseflow.live import codec
+    from fuseflow.live.loop import LiveFrame
+    from fuseflow.live.sinks import WebSink
+
+    class DeltaViewer:  # one viewer that holds every frame: the last one is sent as a delta only
+        def __init__(self):
+            self.published = []
+
+        def codecs(self):
+            return {"compact"}
+
+        def compact_needs(self, reference):
+            return reference is None, reference is not None
+
+        def publish(self, frames, meta):
+            self.published.append((frames, meta))
+
+        def close(self):
+            pass
+
+    keys = []
+    streams = codec._streams
+    monkeypatch.setattr(codec, "_streams", lambda *a: (keys.append(1) if a[4] is None else None) or streams(*a))
+    server = DeltaViewer()
+    sink = WebSink(server, CompactParams())
+    sink.owns_server = False
+    for n, (xyz, rgb) in enumerate(_sequence(2, 5000)):
+        sink.send(_fused(xyz, rgb), LiveFrame(n, n, time.perf_counter(), 1.0, ()))
+        for _ in range(200):
+            if len(server.published) > n:
+                break
+            time.sleep(0.02)
+    keys.clear()  # the first frame's key frame
+    sink.hold()  # closes the sink (a key frame of the last frame for late viewers), then sends it in every codec
+    codecs = [sorted(f) for f, _ in server.published[2:]]
+    assert keys == [1] and codecs == [["compact"], ["compact", "raw", "raw.attrs"]]
+    closing, held = server.published[2][0]["compact"], server.published[3][0]["compact"]
+    assert held is closing and decode_compact(held)[0].number == 1

@@ -77,6 +77,8 @@ class WebSink:
         self.inter = InterEncoder(params) if params.version == 3 else None
         """Codes compact frames as deltas for the viewers that take them (``LiveServer.compact_needs``)."""
         self._keyless = False
+        self._closing_key: tuple[int, bytes] | None = None
+        """(frame number, compact key frame) that ``close`` coded for late viewers."""
         self._thread = threading.Thread(target=self._run, name="fuseflow-encoder", daemon=True)
         self._thread.start()
 
@@ -153,7 +155,9 @@ class WebSink:
             return
         cloud, info = self._last
         latency = (time.perf_counter() - info.captured) * 1000.0
-        frames = {c: encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in CODECS}
+        key = self._closing_key if self._closing_key is not None and self._closing_key[0] == info.number else None
+        frames = {c: key[1] if key is not None and c == "compact" else
+                  encode_frame(cloud, info.number, latency, info.fuse_ms, c, self.params) for c in CODECS}  # fmt: skip
         frames["raw.attrs"] = encode_attributes(cloud, info.number)
         self.server.publish(frames, {"number": info.number, "captured": time.time() - latency / 1000.0})
 
@@ -165,9 +169,10 @@ class WebSink:
         if self._keyless and self._last is not None:  # the last frame as a key frame, for late viewers
             cloud, info = self._last
             self._keyless = False
-            key = encode_frame(cloud, info.number, 0.0, info.fuse_ms, "compact", self.params)
-            captured = time.time() - (time.perf_counter() - info.captured)
-            self.server.publish({"compact": key}, {"number": info.number, "captured": captured})
+            latency = (time.perf_counter() - info.captured) * 1000.0
+            key = encode_frame(cloud, info.number, latency, info.fuse_ms, "compact", self.params)
+            self._closing_key = (info.number, key)  # ``hold`` sends it again rather than coding it twice
+            self.server.publish({"compact": key}, {"number": info.number, "captured": time.time() - latency / 1000.0})
         if self.owns_server:
             self.server.close()
 
