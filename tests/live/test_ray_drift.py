@@ -50,7 +50,8 @@ def test_node_on_this_ray_node_ships_raw_and_a_sliding_camera_is_warned(local_no
         src.close()
     assert {(n["link"], n["wire"]) for n in status["nodes"].values()} == {("same Ray node", "raw")}
     one = rec[full.index]  # raw: the views are the recording's, bit for bit
-    assert np.array_equal(full.color.numpy(), one.color.numpy()) and np.array_equal(full.depth.numpy(), one.depth.numpy())
+    assert np.array_equal(full.color.numpy(), one.color.numpy())
+    assert np.array_equal(full.depth.numpy(), one.depth.numpy())
     drifted = [m for _, m in src.events if "drifted" in m]
     assert sorted(m.split()[1] for m in drifted) == ["cam04", "cam05"], src.events  # once each, only the sliding node's
     half = 500.0 / 15.0
