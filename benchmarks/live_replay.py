@@ -3,7 +3,7 @@ WebSocket viewer (benchmarks.studies.live).
 
     python -m benchmarks.live_replay [--cases sim4,hocap8,hocap8-200k] [--duration 20]
         [--data-dir ../shared/data] [--json benchmarks/results/live_replay.json] [--stand-in-ms 56]
-    python -m benchmarks.live_replay --nodes 3 [--duration 20] [--runs 3] [--wires auto,jpeg] [--save]
+    python -m benchmarks.live_replay --nodes 3 [--duration 20] [--runs 3] [--wires auto,jpeg,auto@head] [--save]
 
 --nodes N: N capture nodes on a local Ray cluster, each replaying some cameras of a simulated
 8-camera 640x480 dynamic recording, against the one-host rate measured in the same run
@@ -27,7 +27,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--stand-in-ms", type=float, default=None, help="replace FUSE by a sleep (all but FUSE)")
     ap.add_argument("--nodes", type=int, default=None, help="capture nodes on a local Ray cluster vs one host")
     ap.add_argument("--runs", type=int, default=1, help="--nodes: repeat the whole comparison")
-    ap.add_argument("--wires", default="auto,jpeg", help="--nodes: wire formats (fuseflow live --frame-codec)")
+    ap.add_argument("--wires", default="auto,jpeg,auto@head",
+                    help="--nodes: wire formats (fuseflow live --frame-codec); @head: the capture actors on the "
+                         "fusing process's Ray node instead of one Ray node each")  # fmt: skip
     a = ap.parse_args(argv)
     command = common.command("live_replay", argv)
     if a.nodes is not None:

@@ -8,10 +8,14 @@ no sinks). Nodes: a local Ray cluster (``ray.cluster_utils.Cluster``: a head and
 nodes, each with a custom resource ``capK``) with one capture node actor per node replaying
 cameras 0-2, 3-5 and 6-7 (``fuseflow node --cameras``), clocks off by 0, +40 and -25 ms; the
 fusing host (this process) gathers them with ``RaySource`` into the same live loop, once per wire
-format in ``wires``: ``auto`` (the nodes run on this machine: raw arrays) and ``jpeg`` (JPEG
-quality 90 colour, lossless PNG depth: what crosses a network). Per run the one-host rate is
-measured before and after the nodes (the machine is shared: the ratio uses their mean); ``runs``
-repeats the whole. Per fused frame with every view, the cloud is compared with the one-host FUSE
+format in ``wires``: ``auto`` (the nodes run on this machine: raw arrays, copied between the Ray
+nodes' object stores), ``jpeg`` (JPEG quality 90 colour, lossless PNG depth: what crosses a
+network) and ``auto@head`` (the same capture actors placed on this process's own Ray node: raw
+through shared memory, the layout of a capture node on the fusing machine). Per run the one-host
+rate is measured four times: without Ray before and after, and in this process with the cluster
+up before and after the nodes' runs (FUSE ran about twice as fast in a process with a Ray
+cluster up on this loaded machine, cause not found); the ratio uses the mean of the two with
+the cluster up, ``ratio_to_one_host_without_ray`` the other two. ``runs`` repeats the whole. Per fused frame with every view, the cloud is compared with the one-host FUSE
 of the same recording frame: positions, weights and cameras bit for bit, colour bit for bit or as
 the mean absolute difference. The rates compared are fused frames with all 8 views per second (a
 frame a node did not deliver in time is fused from the others and not counted).
@@ -150,19 +154,51 @@ def _nodes_run(path: Path, rec: Any, nodes: int, duration: float, wires: tuple[s
                  log_to_driver=False)  # fmt: skip
         replay = ReplayOptions(rate=15.0, loop=True, preload=True, aligned=True)
         splits = _splits(rec.rig.ids, nodes)
-        handles = [spawn_node([str(path)], NodeOptions(name=f"n{k}", cameras=cams, clock_offset_s=off, replay=replay),
-                              {f"cap{k}": 1}) for k, (cams, off) in enumerate(splits)]  # fmt: skip
+        here = ray.get_runtime_context().get_node_id()
+
+        def spawn(on_head: bool) -> list:
+            return [spawn_node([str(path)], NodeOptions(name=f"n{k}", cameras=cams, clock_offset_s=off, replay=replay),
+                               None if on_head else {f"cap{k}": 1}, node_id=here if on_head else None)
+                    for k, (cams, off) in enumerate(splits)]  # fmt: skip
+
         # one host again with the cluster up: FUSE in this process ran 2-2.5x faster while a
         # Ray cluster was up on this loaded machine (cause not found), so the baseline is taken
         # in the same state as the nodes' runs, before and after them
+        handles = spawn(False)
         out = {"one_host_ray_up_before": _one_host(rec, duration)}
-        out.update({w: _gather(rec, cluster.address, nodes, duration, w) for w in wires})
+        out.update({w: _gather(rec, cluster.address, nodes, duration, w) for w in wires if not w.endswith("@head")})
+        if any(w.endswith("@head") for w in wires):  # the capture actors on this process's Ray node
+            for h in handles:
+                ray.kill(h)
+            _wait_gone()
+            handles = spawn(True)
+            out.update(
+                {
+                    w: _gather(rec, cluster.address, nodes, duration, w.split("@")[0])
+                    for w in wires
+                    if w.endswith("@head")
+                }
+            )
         out["one_host_ray_up_after"] = _one_host(rec, duration)
         del handles
         return out
     finally:
         ray.shutdown()
         cluster.shutdown()
+
+
+def _wait_gone(timeout: float = 30.0) -> None:
+    import ray
+
+    from fuseflow.live.sources.node import NAMESPACE, PREFIX
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        names = ray.util.list_named_actors(all_namespaces=True)
+        if not any(d.get("namespace") == NAMESPACE and d["name"].startswith(PREFIX) for d in names):
+            return
+        time.sleep(0.2)
+    raise RuntimeError("the killed capture nodes are still registered")
 
 
 def _splits(ids: tuple[str, ...], nodes: int) -> list[tuple[tuple[str, ...], float]]:
@@ -193,7 +229,8 @@ def _row(run: int, wire: str, multi: dict[str, Any], base: dict[str, dict], load
 
 
 def run_nodes_bench(nodes: int = 3, duration: float = 20.0, log=lambda s: None, resolution: tuple[int, int] = (640, 480),
-                    data_dir: Path | None = None, runs: int = 1, wires: tuple[str, ...] = ("auto", "jpeg")) -> list[dict[str, Any]]:  # fmt: skip
+                    data_dir: Path | None = None, runs: int = 1,
+                    wires: tuple[str, ...] = ("auto", "jpeg", "auto@head")) -> list[dict[str, Any]]:  # fmt: skip
     """Rows per run and wire format: one-host rate (before and after), the nodes' rate, their
     ratio, offsets found, bytes per frame, encode / decode ms, the 1 Gbit/s check and the cloud
     comparison; the codec costs (bytes, ms per view) in the first row."""

@@ -285,3 +285,56 @@ def test_node_killed_mid_stream_is_missing_within_a_second_and_rejoins(cluster, 
     summary = out["summary"]
     assert summary.dropped_views.get(cams[0], 0) > 0, [m for _, m in src.events]
     assert any("joined" in m for _, m in src.events)
+
+
+def test_whole_ray_node_removed_mid_stream_is_missing_and_rejoins_when_added_back(cluster, sim8):
+    import ray
+
+    from fuseflow.live.loop import LiveLoop, LiveSettings
+    from fuseflow.live.sources.node import NodeOptions, spawn_node
+    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
+    from fuseflow.types import FusedCloud
+
+    c, machines, handles = cluster
+    v = 1
+    name, cams, off = SPLIT[v]
+
+    def stand_in(frame, rig):
+        m = int(frame.present.sum())
+        return FusedCloud(torch.zeros(m, 3), torch.zeros(m, 3, dtype=torch.uint8), torch.ones(m),
+                          torch.arange(m, dtype=torch.int16)), 1.0  # fmt: skip
+
+    src = RaySource(RayLiveOptions(address=c.address, nodes=3))
+    keep = _Keep()
+    loop = LiveLoop(src, src.rig, LiveSettings(warmup=False), sinks=[keep], fuse_fn=stand_in)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("summary", loop.run()), daemon=True)
+    t.start()
+    try:
+        time.sleep(1.5)
+        c.remove_node(machines[v])  # the capture machine's Ray node (raylet, its actors) goes away
+        removed = time.time()
+        while not any(m.startswith(f"capture node {name} ") for _, m in src.events):
+            assert time.time() < removed + 20
+            time.sleep(0.05)
+        warned = next(w for w, m in src.events if m.startswith(f"capture node {name} "))
+        assert warned - removed <= 1.0
+        time.sleep(1.0)
+        after = [i for i, _, w in keep.got if w > warned + 0.1]
+        assert after and all(set(i.missing) == set(cams) for i in after)
+        machines[v] = c.add_node(num_cpus=1, resources={f"cap{v}": 1})
+        handles[v] = spawn_node(
+            [str(sim8[0])], NodeOptions(name=name, cameras=cams, clock_offset_s=off, replay=REPLAY), {f"cap{v}": 1}
+        )
+        back = time.time()
+        while not any(w > back and not i.missing for i, _, w in keep.got):
+            assert time.time() < back + 30, [m for _, m in src.events]
+            time.sleep(0.1)
+        time.sleep(2.0)  # the added node stays up (Ray's health check keeps it)
+        assert src.status()["nodes"][name]["state"] == "ok"
+        alive = {n["NodeID"] for n in ray.nodes() if n["Alive"]}
+        assert machines[v].node_id in alive
+    finally:
+        loop.stop()
+        t.join(30)
+    assert out["summary"].dropped_views.get(cams[0], 0) > 0
