@@ -338,3 +338,15 @@ def test_whole_ray_node_removed_mid_stream_is_missing_and_rejoins_when_added_bac
         loop.stop()
         t.join(30)
     assert out["summary"].dropped_views.get(cams[0], 0) > 0
+
+
+def test_bad_frame_codec_or_node_colour_says_so_in_one_line(sim8):
+    from typer.testing import CliRunner
+
+    from fuseflow.cli import app
+
+    res = CliRunner().invoke(app, ["live", "--ray", "127.0.0.1:1", "--frame-codec", "webp"])
+    assert res.exit_code == 2 and "--frame-codec must be one of auto, raw, jpeg, png" in res.output
+    res = CliRunner().invoke(app, ["node", str(sim8[0]), "--ray", "127.0.0.1:1", "--color", "raw"])
+    assert res.exit_code == 2 and "--color must be jpeg or png" in res.output
+    assert "Traceback" not in res.output

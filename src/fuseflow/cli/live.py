@@ -90,6 +90,17 @@ def _check_replay(source, calibration, settings) -> list[str]:
     return validate_inputs(rec[0], rig, preset_config(settings.preset, settings.points), volume)
 
 
+RAY_OPTION = typer.Option(
+    None, "--ray", help="HOST:PORT (or auto) of a Ray cluster: fuse the cameras of its capture nodes (fuseflow node)."
+)
+FRAME_CODEC_OPTION = typer.Option(
+    "auto",
+    "--frame-codec",
+    help="--ray: how frames travel: auto (raw from nodes on this machine, the node's JPEG/PNG from others), "
+    "raw, jpeg or png.",
+)
+
+
 def command(
     source: list[str] = typer.Argument(
         None,
@@ -130,19 +141,10 @@ def command(
         "auto", "--token", help="Viewer token: auto (random when the host is not loopback), none, or your own."
     ),
     max_viewers: int = typer.Option(16, "--max-viewers", help="WebSocket viewers at once (more get 503)."),
-    ray: str = typer.Option(
-        None,
-        "--ray",
-        help="HOST:PORT (or auto) of a Ray cluster: fuse the cameras of its capture nodes (fuseflow node).",
-    ),
+    ray: str = RAY_OPTION,
     nodes: int = typer.Option(None, "--nodes", help="--ray: wait for this many capture nodes (default: those there)."),
     wait: float = typer.Option(30.0, "--wait", help="--ray: seconds to wait for the capture nodes."),
-    frame_codec: str = typer.Option(
-        "auto",
-        "--frame-codec",
-        help="--ray: how frames travel: auto (raw from nodes on this machine, the node's JPEG/PNG from others), "
-        "raw, jpeg or png.",
-    ),
+    frame_codec: str = FRAME_CODEC_OPTION,
 ) -> None:
     """Fuse cameras (or a recording replayed as cameras) live; serve, log or record the clouds.
 
