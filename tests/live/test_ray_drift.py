@@ -9,7 +9,8 @@ import pytest
 from fuseflow.live.sources import ReplayOptions
 
 REPLAY = ReplayOptions(rate=15.0, loop=True, preload=True, aligned=True)
-SLIDE = 0.05  # s a second: past half a frame interval (33 ms at 15 fps) within a second
+SLIDE = 0.02  # s a second: past half a frame interval (33 ms at 15 fps) within 3.3 s, and under half
+# an interval between fused frames down to 0.6 fused frames a second (the drift is unwrapped)
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +44,7 @@ def test_node_on_this_ray_node_ships_raw_and_a_sliding_camera_is_warned(local_no
         for frame in src.frames():
             if full is None and bool(frame.present.all()):
                 full = frame
-            if any("drifted" in m for _, m in src.events) and time.time() - t0 > 4.0 or time.time() - t0 > 20:
+            if any("drifted" in m for _, m in src.events) and time.time() - t0 > 4.0 or time.time() - t0 > 30:
                 break
         status = src.status()
     finally:
@@ -55,7 +56,7 @@ def test_node_on_this_ray_node_ships_raw_and_a_sliding_camera_is_warned(local_no
     drifted = [m for _, m in src.events if "drifted" in m]
     assert sorted(m.split()[1] for m in drifted) == ["cam04", "cam05"], src.events  # once each, only the sliding node's
     half = 500.0 / 15.0
-    assert all(float(m.split("drifted ")[1].split(" ms")[0]) > half for m in drifted)
+    assert all(float(m.split("drifted ")[1].split(" ms")[0]) > half for m in drifted), drifted
     skew = status["skew"]
     assert all(abs(skew[c]["drift_ms"]) < 5.0 for c in ("cam00", "cam01", "cam02", "cam03"))
     assert skew["cam04"]["drift_ms"] > half
