@@ -11,7 +11,7 @@ import torch
 
 from fuseflow.errors import ValidationError
 from fuseflow.live.sources import ReplayOptions, open_source
-from fuseflow.live.sources.clock import NodeClock, OffsetEstimator
+from fuseflow.live.sources.clock import NodeClock, OffsetEstimator, StampDrift
 from fuseflow.live.sources.frame_codec import ViewCodec, decode_views, encode_views
 
 SPLIT = [("a", ("cam00", "cam01", "cam02"), 0.0), ("b", ("cam03", "cam04", "cam05"), 0.040),
@@ -49,6 +49,57 @@ def test_view_codec_depth_lossless_colour_jpeg_bounded(tmp_path, sim8):
         )  # the simulator's colour is noisy: about 6 levels
     with pytest.raises(ValidationError):
         ViewCodec("webp").check()
+
+
+def test_raw_views_travel_bit_for_bit(sim8):
+    rec = sim8[1]
+    f = rec[3]
+    color, depth, present = f.color.numpy(), f.depth.numpy(), f.present.numpy().copy()
+    present[1] = False
+    scales = [c.depth_scale for c in rec.rig.cameras]
+    enc = encode_views(color, depth, present, scales, ViewCodec("raw"))
+    c2, d2, p2 = decode_views(enc, scales, depth.shape[1:])
+    assert np.array_equal(c2, color) and np.array_equal(d2, depth) and np.array_equal(p2, present)
+    h, w = depth.shape[1:]
+    assert enc.nbytes == int(present.sum()) * h * w * (3 + 4)
+    with pytest.raises(ValidationError):
+        decode_views(enc, scales, (h + 1, w))
+
+
+def _residuals(cams, t, rate, slide):
+    """Stamp minus paired instant per camera at time t: the nearest frame of a camera whose
+    stamps run ``slide[cam]`` s/s off, so never more than half an interval (pairing wraps)."""
+    half = 0.5 / rate
+    out = {}
+    for c in cams:
+        r = slide.get(c, 0.0) * t + 0.0005 * np.sin(7 * t + len(c))
+        out[c] = (r + half) % (2 * half) - half
+    return out
+
+
+def test_stamp_drift_unwraps_a_sliding_camera_and_warns_once():
+    rate = 15.0
+    cams = [f"cam{i:02d}" for i in range(8)]
+    drift = StampDrift(1 / rate)
+    warned = []
+    for k in range(90):  # 6 s; cam06 and cam07 slide 20 ms a second
+        t = k / rate
+        got = drift.add(_residuals(cams, t, rate, {"cam06": 0.02, "cam07": 0.02}))
+        warned += [(c, d, t) for c, d in got]
+        assert max(abs(v) for v in _residuals(cams, t, rate, {"cam06": 0.02}).values()) <= 0.5 / rate + 1e-9
+    assert sorted(c for c, _, _ in warned) == ["cam06", "cam07"]  # once each, the others never
+    assert all(0.0333 < d < 0.045 for _, d, _ in warned)
+    assert all(2.0 < t < 3.5 for _, _, t in warned)  # past half an interval (1.7 s) plus half the window
+    assert drift.drift("cam06") == pytest.approx(0.02 * (89 - 15) / rate, abs=0.01)
+    assert abs(drift.drift("cam00")) < 0.002
+    steady = StampDrift(1 / rate)
+    assert not any(steady.add(_residuals(cams, k / rate, rate, {})) for k in range(300))
+    for _ in range(5):  # missing from a few frames: unwrapped across the gap
+        steady.add({**_residuals(cams, 0, rate, {}), "cam06": None})
+    assert steady.drift("cam06") is not None
+    steady.add({**_residuals(cams, 0, rate, {}), "cam06": None})  # missing longer: its track starts over
+    steady.add(_residuals(cams, 0, rate, {}))
+    assert steady.drift("cam06") is None
 
 
 def test_aligned_replays_show_the_same_frame(sim8):
@@ -133,7 +184,8 @@ def _run(loop, frames, timeout=60.0):
     return out["summary"]
 
 
-def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8):
+@pytest.mark.parametrize("wire", ["auto", "jpeg"])
+def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8, wire):
     from fuseflow.fuse import fuse_with_report
     from fuseflow.fuse.presets import preset_config
     from fuseflow.live.loop import LiveLoop, LiveSettings
@@ -141,7 +193,7 @@ def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8):
 
     c, _, _ = cluster
     rec = sim8[1]
-    src = RaySource(RayLiveOptions(address=c.address, nodes=3))
+    src = RaySource(RayLiveOptions(address=c.address, nodes=3, frame_codec=wire))
     keep = _Keep()
     loop = LiveLoop(src, src.rig, LiveSettings(preset="live"), sinks=[keep])
     summary = _run(loop, 12)
@@ -151,14 +203,22 @@ def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8):
     assert nodes["a"]["offset_ms"] == pytest.approx(0.0, abs=2.0)
     assert summary.capture["paired"]["mixed_index"] == 0
     assert src.rig.ids == rec.rig.ids and summary.frames_out >= 5
+    # the nodes run on other Ray nodes of this machine: auto ships them raw
+    assert {(n["link"], n["wire"]) for n in nodes.values()} == {("same machine", "raw" if wire == "auto" else "jpeg")}
+    assert not [m for _, m in src.events if "drifted" in m]
+    drifts = [v["drift_ms"] for v in summary.capture["skew"].values()]
+    assert all(d is not None and abs(d) < 5.0 for d in drifts)
     cfg = preset_config("live")
     full = [(i, cl) for i, cl, _ in keep.got if not i.missing]
     assert len(full) >= 3
-    for info, cloud in full[:4]:  # depth lossless: geometry bit-identical; colour within JPEG's error
+    for info, cloud in full[:4]:  # depth lossless: geometry bit-identical; colour raw or within JPEG's error
         one = fuse_with_report(rec[info.index], rec.rig, cfg).cloud
         assert torch.equal(cloud.xyz, one.xyz) and torch.equal(cloud.weight, one.weight)
         assert torch.equal(cloud.camera, one.camera)
-        assert (cloud.rgb.int() - one.rgb.int()).abs().float().mean() < 8.0
+        if wire == "auto":
+            assert torch.equal(cloud.rgb, one.rgb)
+        else:
+            assert (cloud.rgb.int() - one.rgb.int()).abs().float().mean() < 8.0
 
 
 def test_raw_stamps_of_offset_clocks_pair_wrong_frames(cluster):
@@ -225,3 +285,68 @@ def test_node_killed_mid_stream_is_missing_within_a_second_and_rejoins(cluster, 
     summary = out["summary"]
     assert summary.dropped_views.get(cams[0], 0) > 0, [m for _, m in src.events]
     assert any("joined" in m for _, m in src.events)
+
+
+def test_whole_ray_node_removed_mid_stream_is_missing_and_rejoins_when_added_back(cluster, sim8):
+    import ray
+
+    from fuseflow.live.loop import LiveLoop, LiveSettings
+    from fuseflow.live.sources.node import NodeOptions, spawn_node
+    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
+    from fuseflow.types import FusedCloud
+
+    c, machines, handles = cluster
+    v = 1
+    name, cams, off = SPLIT[v]
+
+    def stand_in(frame, rig):
+        m = int(frame.present.sum())
+        return FusedCloud(torch.zeros(m, 3), torch.zeros(m, 3, dtype=torch.uint8), torch.ones(m),
+                          torch.arange(m, dtype=torch.int16)), 1.0  # fmt: skip
+
+    src = RaySource(RayLiveOptions(address=c.address, nodes=3))
+    keep = _Keep()
+    loop = LiveLoop(src, src.rig, LiveSettings(warmup=False), sinks=[keep], fuse_fn=stand_in)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("summary", loop.run()), daemon=True)
+    t.start()
+    try:
+        time.sleep(1.5)
+        c.remove_node(machines[v])  # the capture machine's Ray node (raylet, its actors) goes away
+        removed = time.time()
+        while not any(m.startswith(f"capture node {name} ") for _, m in src.events):
+            assert time.time() < removed + 20
+            time.sleep(0.05)
+        warned = next(w for w, m in src.events if m.startswith(f"capture node {name} "))
+        assert warned - removed <= 1.0
+        time.sleep(1.0)
+        after = [i for i, _, w in keep.got if w > warned + 0.1]
+        assert after and all(set(i.missing) == set(cams) for i in after)
+        machines[v] = c.add_node(num_cpus=1, resources={f"cap{v}": 1})
+        handles[v] = spawn_node(
+            [str(sim8[0])], NodeOptions(name=name, cameras=cams, clock_offset_s=off, replay=REPLAY), {f"cap{v}": 1}
+        )
+        back = time.time()
+        while not any(w > back and not i.missing for i, _, w in keep.got):
+            assert time.time() < back + 30, [m for _, m in src.events]
+            time.sleep(0.1)
+        time.sleep(2.0)  # the added node stays up (Ray's health check keeps it)
+        assert src.status()["nodes"][name]["state"] == "ok"
+        alive = {n["NodeID"] for n in ray.nodes() if n["Alive"]}
+        assert machines[v].node_id in alive
+    finally:
+        loop.stop()
+        t.join(30)
+    assert out["summary"].dropped_views.get(cams[0], 0) > 0
+
+
+def test_bad_frame_codec_or_node_colour_says_so_in_one_line(sim8):
+    from typer.testing import CliRunner
+
+    from fuseflow.cli import app
+
+    res = CliRunner().invoke(app, ["live", "--ray", "127.0.0.1:1", "--frame-codec", "webp"])
+    assert res.exit_code == 2 and "--frame-codec must be one of auto, raw, jpeg, png" in res.output
+    res = CliRunner().invoke(app, ["node", str(sim8[0]), "--ray", "127.0.0.1:1", "--color", "raw"])
+    assert res.exit_code == 2 and "--color must be jpeg or png" in res.output
+    assert "Traceback" not in res.output

@@ -58,6 +58,7 @@ def _capture_rows(capture: dict) -> list[tuple[str, str]]:
     for name, n in (capture.get("nodes") or {}).items():
         clock = f"clock {n['offset_ms']:+.1f} ms +- {n['uncertainty_ms']:.1f}" if "offset_ms" in n else "clock unknown"
         size = f"{n['bytes_per_frame'] / 1e3:.0f} kB/frame" if n.get("bytes_per_frame") else "no frames"
+        size += f" {n['wire']} ({n['link']})" if n.get("wire") else ""
         rows.append((f"node {name}", f"{n['state']}, cameras {', '.join(n['cameras'])}; {clock}; {size}; "
                      f"encode {n['encode_ms']} ms, decode {n['decode_ms']} ms"))  # fmt: skip
     skew = {c: v for c, v in (capture.get("skew") or {}).items() if v}
@@ -65,6 +66,11 @@ def _capture_rows(capture: dict) -> list[tuple[str, str]]:
         worst = max(skew, key=lambda c: skew[c]["median_ms"])
         rows.append(("camera skew", f"median |skew| at most {skew[worst]['median_ms']:.1f} ms ({worst}), "
                      f"frame interval {capture['frame_interval_ms']:.1f} ms"))  # fmt: skip
+        drifts = {c: v["drift_ms"] for c, v in skew.items() if v.get("drift_ms") is not None}
+        if drifts:
+            far = max(drifts, key=lambda c: abs(drifts[c]))
+            rows.append(("camera drift", f"at most {drifts[far]:+.1f} ms from the other cameras ({far}); warned "
+                         f"above half the frame interval"))  # fmt: skip
     return rows
 
 
@@ -82,6 +88,17 @@ def _check_replay(source, calibration, settings) -> list[str]:
     rig = rig_for_live(source.rig, calibration)
     volume = resolve_crop(settings.crop, rig, calibration)
     return validate_inputs(rec[0], rig, preset_config(settings.preset, settings.points), volume)
+
+
+RAY_OPTION = typer.Option(
+    None, "--ray", help="HOST:PORT (or auto) of a Ray cluster: fuse the cameras of its capture nodes (fuseflow node)."
+)
+FRAME_CODEC_OPTION = typer.Option(
+    "auto",
+    "--frame-codec",
+    help="--ray: how frames travel: auto (raw from nodes on this machine, the node's JPEG/PNG from others), "
+    "raw, jpeg or png.",
+)
 
 
 def command(
@@ -124,13 +141,10 @@ def command(
         "auto", "--token", help="Viewer token: auto (random when the host is not loopback), none, or your own."
     ),
     max_viewers: int = typer.Option(16, "--max-viewers", help="WebSocket viewers at once (more get 503)."),
-    ray: str = typer.Option(
-        None,
-        "--ray",
-        help="HOST:PORT (or auto) of a Ray cluster: fuse the cameras of its capture nodes (fuseflow node).",
-    ),
+    ray: str = RAY_OPTION,
     nodes: int = typer.Option(None, "--nodes", help="--ray: wait for this many capture nodes (default: those there)."),
     wait: float = typer.Option(30.0, "--wait", help="--ray: seconds to wait for the capture nodes."),
+    frame_codec: str = FRAME_CODEC_OPTION,
 ) -> None:
     """Fuse cameras (or a recording replayed as cameras) live; serve, log or record the clouds.
 
@@ -148,7 +162,7 @@ def command(
     outputs = _outputs(serve, rerun, record, codec, grid_mm, _access(allow_origin, token, max_viewers), hold)
     calibration = read_calibration(calib) if calib is not None else None
     settings = LiveSettings(preset=preset, points=points, device=device, frames=frames, duration=duration, crop=crop)
-    opened = _open(source, (ray, nodes, wait), rate, loop, preload)
+    opened = _open(source, (ray, nodes, wait, frame_codec), rate, loop, preload)
     try:
         checked = _check_replay(getattr(opened, "source", opened), calibration, settings)
     except BaseException:
@@ -179,7 +193,7 @@ def _open(source, ray_options, rate, loop, preload):
     """SOURCE opened here, or (``--ray``) the frames of the capture nodes on a Ray cluster."""
     from fuseflow.live import ReplayOptions, open_source
 
-    ray, nodes, wait = ray_options
+    ray, nodes, wait, frame_codec = ray_options
     if ray is None:
         if not source:
             fail("give a SOURCE (realsense, orbbec, a recording, .bag/.mkv files), or --ray ADDRESS for capture nodes")
@@ -192,9 +206,11 @@ def _open(source, ray_options, rate, loop, preload):
         fail(f"--nodes must be a positive integer, got {nodes}")
     if not wait > 0:
         fail(f"--wait must be a positive number of seconds, got {wait}")
-    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
+    from fuseflow.live.sources.ray_source import FRAME_CODECS, RayLiveOptions, RaySource
 
-    options = RayLiveOptions(address=ray, nodes=nodes, wait_s=wait)
+    if frame_codec not in FRAME_CODECS:
+        fail(f"--frame-codec must be one of {', '.join(FRAME_CODECS)}, got {frame_codec!r}")
+    options = RayLiveOptions(address=ray, nodes=nodes, wait_s=wait, frame_codec=frame_codec)
     return RaySource(options, warn=lambda m: warn(m, stderr=True))
 
 

@@ -19,7 +19,10 @@ def command(
     name: str = typer.Option(None, "--name", help="This node's name in the cluster (default: the host name)."),
     cameras: str = typer.Option(None, "--cameras", help="CAM,CAM: ship only these cameras of SOURCE."),
     color: str = typer.Option(
-        "jpeg", "--color", help="Colour coder: jpeg (lossy) or png (lossless); depth is lossless PNG."
+        "jpeg",
+        "--color",
+        help="Colour coder of frames that cross a network: jpeg (lossy) or png (lossless); depth is lossless PNG. "
+        "A fusing host on this machine gets raw frames (fuseflow live --frame-codec).",
     ),
     quality: int = typer.Option(90, "--quality", help="JPEG quality 1..100."),
     rate: float = typer.Option(None, "--rate", help="Replay: frames per second (default: the recording's timestamps)."),
@@ -39,6 +42,8 @@ def command(
 
     if rate is not None and not rate > 0:
         fail(f"--rate must be a positive number of frames per second, got {rate}")
+    if color not in ("jpeg", "png"):
+        fail(f"--color must be jpeg or png, got {color!r}")
     codec = ViewCodec(color=color, quality=quality).check()
     ids = tuple(c.strip() for c in cameras.split(",") if c.strip()) if cameras else None
     if cameras is not None and not ids:

@@ -4,11 +4,12 @@ as Ray actors (``fuseflow node SOURCE --ray ADDRESS``; optional extra ``fuseflow
 A ``CaptureNode`` runs in a Ray actor on the capture machine. It opens its SOURCE there
 (``open_source``: RealSense, Orbbec, or a replay of a recording, optionally of some of its
 cameras, ``NodeOptions.cameras``), reads it in a thread, stamps each frame with the node's clock
-(``clock.NodeClock``: when the replay released it, or when the devices delivered it), encodes
-and keeps the newest ``buffer`` frames. The fusing host (``ray_source.RaySource``) asks for
+(``clock.NodeClock``: when the replay released it, or when the devices delivered it) and
+keeps the newest ``buffer`` frames. The fusing host (``ray_source.RaySource``) asks for
 the stamp of the newest one (``newest``), then every node for its frame nearest one instant
-(``frame_at``): the node encodes that frame (``frame_codec``: JPEG or PNG colour, lossless PNG
-depth) and the answer travels through Ray's object store. A node slower than its cameras thus
+(``frame_at``): the node encodes that frame in the wire format the host asks for
+(``frame_codec``: raw arrays, or JPEG or PNG colour with lossless PNG depth) and the answer
+travels through Ray's object store. A node slower than its cameras thus
 skips the same instants as the others, and the fused frames keep every view. The host probes
 ``clock`` to estimate the node's clock offset. The actor is threaded (``max_concurrency``), so
 a probe is answered while a ``newest`` waits for a frame.
@@ -72,6 +73,9 @@ class NodeOptions:
     start every node shares, so that nodes replaying other cameras of it stay in step."""
     clock_offset_s: float = 0.0
     """Added to the node's clock (tests: a node whose clock is off by a known amount)."""
+    stamp_drift: float = 0.0
+    """Seconds a second by which the capture stamps slide from the node's clock, from the first
+    frame on (tests: a camera whose timestamps drift while the node's clock answers right)."""
     buffer: int = 8
     """Frames kept (decoded) for the fusing host to ask for: the newest ``buffer``."""
     token: str | None = None
@@ -138,8 +142,9 @@ class CaptureNode:
         return DEFAULT_RATE  # what the replay paces a recording without timestamps at
 
     def info(self) -> dict[str, Any]:
-        """Name, machine, cameras (``rig``), frame rate, codec and this actor's token (new each start)."""
-        return {"name": self.name, "host": socket.gethostname(), "rig": self.rig, "rate": self._rate(),
+        """Name, machine (``host``; ``ray_node`` and ``ip``: its Ray node id and address, None
+        outside Ray), cameras (``rig``), frame rate, codec and this actor's token (new each start)."""
+        return {"name": self.name, "host": socket.gethostname(), **_ray_place(), "rig": self.rig, "rate": self._rate(),
                 "codec": self.options.codec, "token": self.token, "description": self._opened.description}  # fmt: skip
 
     def clock(self) -> float:
@@ -148,10 +153,13 @@ class CaptureNode:
 
     def _capture(self) -> None:
         src = self._opened.source
+        first = None
         try:
             for frame in self._opened.frames():
                 due = getattr(src, "due", None)  # a replay's capture time, on the wall clock
                 stamp = due + self._clock.offset_s if due is not None else self._clock()
+                first = stamp if first is None else first
+                stamp += self.options.stamp_drift * (stamp - first)
                 f = frame.subset(self._sel) if self._sel != list(range(frame.num_views)) else frame
                 raw = tuple(np.asarray(x) for x in (f.color, f.depth, f.present))
                 with self._cond:
@@ -181,17 +189,23 @@ class CaptureNode:
                 return None
             return self._frames[-1][0], self._frames[-1][2]
 
-    def frame_at(self, stamp: float, tolerance: float) -> NodeFrame | None:
+    def frame_at(self, stamp: float, tolerance: float, codec: str | None = None) -> NodeFrame | None:
         """The kept frame whose stamp is nearest ``stamp`` (node clock), if within ``tolerance``
-        seconds, encoded; None otherwise. Every node is asked for the same instant, so that the
-        frames a slow node encodes are the ones the others encode too."""
+        seconds, encoded with ``codec`` (raw, jpeg or png; None: the node's own, ``NodeOptions.codec``);
+        None otherwise. Every node is asked for the same instant, so that the frames a slow node
+        encodes are the ones the others encode too."""
+        wire = (
+            self.options.codec
+            if codec in (None, self.options.codec.color)
+            else replace(self.options.codec, color=codec)
+        )
         with self._cond:
             near = [f for f in self._frames if abs(f[2] - stamp) <= tolerance]
             pick = min(near, key=lambda f: abs(f[2] - stamp)) if near else None
         if pick is None:
             return None
         number, index, at, (color, depth, present) = pick
-        views = encode_views(color, depth, present, self._scales, self.options.codec)
+        views = encode_views(color, depth, present, self._scales, wire.check())
         with self._cond:
             self._encode_ms.append(views.encode_ms)
             self._bytes.append(views.nbytes)
@@ -211,6 +225,18 @@ class CaptureNode:
         self._closed = True
         self._opened.close()
         self._thread.join(timeout=5.0)
+
+
+def _ray_place() -> dict[str, str | None]:
+    """``ray_node`` (node id) and ``ip`` of the Ray node this process runs on; None outside Ray."""
+    try:
+        import ray
+
+        if not ray.is_initialized():
+            return {"ray_node": None, "ip": None}
+        return {"ray_node": ray.get_runtime_context().get_node_id(), "ip": ray.util.get_node_ip_address()}
+    except ImportError:
+        return {"ray_node": None, "ip": None}
 
 
 def connect_ray(address: str | None, what: str) -> bool:

@@ -7,8 +7,13 @@
   later (one restarted after it died) joins the stream when its cameras are among these.
 - **Transport**: per fused frame the source asks every node for the stamp of its newest frame
   (``newest``), chooses the instant T (below) and asks every node for its frame nearest T
-  (``frame_at``); each answer (a ``node.NodeFrame``, its views JPEG/PNG-encoded on the node)
-  travels through Ray's object store and is decoded here (``frame_codec.decode_views``).
+  (``frame_at``); the answers (``node.NodeFrame``) travel through Ray's object store and are
+  fetched with one ``ray.get``, then decoded here (``frame_codec.decode_views``).
+- **Wire format** (``RayLiveOptions.frame_codec``): ``auto`` ships a node's frames raw (the
+  arrays, bit for bit) when the node runs on this machine (its Ray node's address is this
+  one's: shared memory, or Ray's object transfer over loopback), and in the node's own codec
+  (JPEG or PNG colour, lossless PNG depth) when they cross a network; ``raw``, ``jpeg`` or ``png``
+  force one for every node.
 - **Clocks**: a thread probes every node's ``clock`` every ``probe_every_s`` and keeps a
   min-RTT estimate of its offset (``clock.OffsetEstimator``); each frame's stamp is moved onto
   this host's clock by it before pairing.
@@ -17,8 +22,10 @@
   A node that delivered no new frame for ``stall_s`` is stalled: it is not waited for and its
   cameras are missing from the fused frames (counted by the live loop, warned through ``warn``)
   until it delivers again.
-- **Skew report** (``status``): per node the offset, its uncertainty and round trip; per camera
-  how far its paired stamps were from T (median and max over the last frames).
+- **Skew report** (``status``): per node the offset, its uncertainty and round trip, the link and
+  wire format; per camera how far its paired stamps were from T (median and max over the last
+  frames) and its drift from the other cameras (``clock.StampDrift``), warned once per camera
+  when it exceeds half a frame interval.
 """
 
 from __future__ import annotations
@@ -33,13 +40,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from fuseflow.errors import FuseFlowError
-from fuseflow.live.sources.clock import OffsetEstimator, probe
+from fuseflow.errors import FuseFlowError, ValidationError
+from fuseflow.live.sources.clock import OffsetEstimator, StampDrift, probe
 from fuseflow.live.sources.frame_codec import decode_views
 from fuseflow.live.sources.node import NAMESPACE, PREFIX, connect_ray, node_name
 from fuseflow.types import Frame, Rig
 
-__all__ = ["RayLiveOptions", "RaySource"]
+__all__ = ["FRAME_CODECS", "RayLiveOptions", "RaySource"]
+
+FRAME_CODECS = ("auto", "raw", "jpeg", "png")
 
 
 @dataclass(frozen=True)
@@ -62,6 +71,9 @@ class RayLiveOptions:
     """Move node stamps onto this host's clock by the estimated offsets (False: pair the raw stamps)."""
     rate: float | None = None
     """Frames per second of the cameras (None: the nodes' own rate; 15 when they do not know it)."""
+    frame_codec: str = "auto"
+    """How frames travel (``FRAME_CODECS``): auto (raw from a node on this machine, the node's
+    codec from another), raw, jpeg or png."""
 
 
 @dataclass
@@ -83,6 +95,9 @@ class _Node:
     slots: list[int]
     scales: list[float]
     estimator: OffsetEstimator
+    wire: str | None = None  # the codec asked of it (None: the node's own)
+    link: str = "network"
+    codec: str = ""  # the wire format its frames come in
     buffer: deque = field(default_factory=lambda: deque(maxlen=8))
     pending: Any = None
     after: int = -1
@@ -102,6 +117,8 @@ class RaySource:
     stalls, dies, joins or comes back."""
 
     def __init__(self, options: RayLiveOptions = RayLiveOptions(), warn: Callable[[str], None] | None = None):
+        if options.frame_codec not in FRAME_CODECS:
+            raise ValidationError(f"frame codec must be one of {', '.join(FRAME_CODECS)}, got {options.frame_codec!r}")
         self.options = options
         self._warn = warn or (lambda m: None)
         self._lock = threading.Lock()
@@ -111,6 +128,7 @@ class RaySource:
         """The last error looking for nodes that joined (None: none)."""
         self._closed = threading.Event()
         self._started_ray = connect_ray(options.address, "fuseflow live --ray")
+        self._here = self._place()
         self.events: list[tuple[float, str]] = []
         """(time.time, message) of every warning given, in order."""
         try:
@@ -134,6 +152,7 @@ class RaySource:
         self.skipped = 0
         self._last_t = -np.inf
         self._skew: dict[str, deque] = {c: deque(maxlen=100) for c in self.rig.ids}
+        self._drift = StampDrift(1.0 / self.rate)
         self._paired = {"frames": 0, "mixed_index": 0}
         self._thread = threading.Thread(target=self._watch, name="fuseflow-ray-clock", daemon=True)
         self._thread.start()
@@ -192,10 +211,29 @@ class RaySource:
             )
         return rig
 
+    @staticmethod
+    def _place() -> tuple[str, str]:
+        import ray
+
+        return ray.get_runtime_context().get_node_id(), ray.util.get_node_ip_address()
+
+    def _link(self, info: dict) -> tuple[str, str | None]:
+        """(link, wire format asked of the node) for a node's ``info``."""
+        node_id, ip = self._here
+        link = ("same Ray node" if info.get("ray_node") == node_id
+                else "same machine" if info.get("ip") == ip else "network")  # fmt: skip
+        codec = self.options.frame_codec
+        if codec == "auto":
+            return link, "raw" if link != "network" else None
+        return link, codec
+
     def _add(self, handle: Any, info: dict) -> _Node:
         ids = tuple(info["rig"].ids)
+        link, wire = self._link(info)
         node = _Node(info["name"], handle, info["token"], ids, [self.rig.ids.index(c) for c in ids],
-                     [float(c.depth_scale) for c in info["rig"].cameras], OffsetEstimator(self.options.window))  # fmt: skip
+                     [float(c.depth_scale) for c in info["rig"].cameras], OffsetEstimator(self.options.window),
+                     wire, link)  # fmt: skip
+        node.codec = wire or info["codec"].color
         with self._lock:
             self._nodes[node.name] = node
         return node
@@ -290,6 +328,10 @@ class RaySource:
             except Exception as exc:  # noqa: BLE001 - Ray cannot find the actor any more
                 self._lost(n, exc)
         ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=timeout) if refs else ([], [])
+        try:
+            return {refs[ref].name: got for ref, got in zip(ready, ray.get(ready))}
+        except Exception:  # noqa: BLE001 - one failed: get them one by one to know which
+            pass
         out = {}
         for ref in ready:
             try:
@@ -319,7 +361,8 @@ class RaySource:
 
     def _fetch(self, T: float, nodes: list[_Node]) -> dict[str, _Arrived]:
         half = 0.5 / self.rate
-        got = self._call_all(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half), self.options.stall_s)
+        got = self._call_all(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire),
+                             self.options.stall_s)  # fmt: skip
         picks = {}
         for n in nodes:
             f = got.get(n.name)
@@ -352,6 +395,7 @@ class RaySource:
         depth = np.zeros((n, h, w), np.float32)
         present = np.zeros(n, bool)
         indices = set()
+        residuals: dict[str, float | None] = {c: None for c in self.rig.ids}
         for node in nodes:
             a = picks.get(node.name)
             if a is None:
@@ -361,6 +405,8 @@ class RaySource:
             for c, p in zip(node.cameras, a.present):
                 if p:
                     self._skew[c].append((a.t - T) * 1e3)
+                    residuals[c] = a.t - T
+        self._check_drift(residuals)
         self._paired["frames"] += 1
         self._paired["mixed_index"] += len(indices) > 1
         index = min(indices) if indices else -1
@@ -369,6 +415,15 @@ class RaySource:
         frame = Frame(index=index, camera_ids=self.rig.ids, color=torch.from_numpy(color), depth=torch.from_numpy(depth),
                       present=torch.from_numpy(present), timestamp=T)  # fmt: skip
         return frame
+
+    def _check_drift(self, residuals: dict[str, float | None]) -> None:
+        half = 500.0 / self.rate
+        for cam, drift in self._drift.add(residuals):
+            node = next((n.name for n in self._nodes.values() if cam in n.cameras), "?")
+            self._say(f"camera {cam} (capture node {node}): its capture stamps drifted {drift * 1e3:+.1f} ms from the "
+                      f"other cameras' (median over the last {self._drift.window} frames), more than half a frame "
+                      f"interval ({half:.1f} ms): its frames are paired by stamps that are off, or it does not run "
+                      "in step with the others; check its sync")  # fmt: skip
 
     def frames(self) -> Iterator[Frame]:
         """Paired frames as the nodes deliver them, until ``close``."""
@@ -392,6 +447,7 @@ class RaySource:
             nodes[node.name] = {
                 "state": "lost" if not node.alive else "stalled" if node.stalled else "ok",
                 "cameras": list(node.cameras), **(est.to_json() if est else {}), "frames": node.frames,
+                "link": node.link, "wire": node.codec,
                 "bytes_per_frame": int(np.median(node.bytes)) if node.bytes else None,
                 "encode_ms": round(float(np.median(node.encode_ms)), 2) if node.encode_ms else None,
                 "decode_ms": round(float(np.median(node.decode_ms)), 2) if node.decode_ms else None,
@@ -399,11 +455,13 @@ class RaySource:
         skew = {}
         for c, d in self._skew.items():
             v = np.abs(np.array(d)) if d else None
+            drift = self._drift.drift(c)
             skew[c] = (
-                {"median_ms": round(float(np.median(v)), 2), "max_ms": round(float(v.max()), 2)}
+                {"median_ms": round(float(np.median(v)), 2), "max_ms": round(float(v.max()), 2),
+                 "drift_ms": round(drift * 1e3, 2) if drift is not None else None}
                 if v is not None
                 else None
-            )
+            )  # fmt: skip
         return {
             "nodes": nodes,
             "skew": skew,
