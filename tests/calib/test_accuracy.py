@@ -113,3 +113,35 @@ def test_after_the_joint_refinement_the_pair_poses_scatter_is_theirs():
     assert camera_accuracy(res, fits)[0] > 2.0
     assert camera_accuracy(res, fits, refined=True)[0] < 0.3
     assert camera_accuracy(res, [], refined=True)[0] > 2.0
+
+
+def test_a_camera_the_joint_refinement_moved_reads_the_refinement_estimate():
+    """Two weak pair poses say 3.85 deg; the joint refinement moved the camera and its own
+    covariance says 0.3 deg: the pair poses measured the pose before it moved, so the
+    refinement's estimate is printed (at least the systematic floor), in the verdict too."""
+    fits = [(5.4, 73.0, "floor"), (5.4, 73.0, "sift3d")]
+    assert camera_accuracy([], fits, refined=True)[0] > 3.5
+    d, m, how = camera_accuracy([], fits, refined=True, refinement=(0.3, 5.1))
+    assert (d, m) == (0.3, 5.1) and "joint refinement" in how
+    assert camera_accuracy([], fits, refined=True, refinement=(0.001, 0.1))[:2] == (SYSTEMATIC_DEG, SYSTEMATIC_MM)
+
+    from types import SimpleNamespace
+
+    from fuseflow.calib.verdicts import camera_verdicts
+
+    T = {c: np.eye(4) for c in "abc"}
+    for k, c in enumerate("abc"):
+        T[c][:3, 3] = [k * 1.0, 0.0, 0.0]
+    exp = {"deg": 5.4, "mm": 73.0, "cells": 5}
+    pairs = [{"cameras": [x, y], "edge": {"T_ji": (T[y] @ invert_rigid(T[x])).tolist(), "route": "floor",
+                                          "expected": exp}} for x, y in ("ab", "ac", "bc")]  # fmt: skip
+    info = {"pairs": pairs, "cameras": {c: {"edges": [o for o in T if o != c]} for c in T}}
+    jr = {"accepted": True, "expected_deg_mm": {"b": [0.3, 5.1], "c": [0.4, 6.0]}}
+    rep = SimpleNamespace(backbone="rgbd", backbone_info=info, config={}, placed_by=dict.fromkeys(T, "rgbd"),
+                          depth_agreement=dict.fromkeys(T, 0.95), unplaced_reasons={}, unregistered_cameras=[],
+                          joint_refinement=jr)  # fmt: skip
+    v = camera_verdicts(rep, T, list(T))
+    assert (v["b"]["accuracy_deg"], v["b"]["accuracy_mm"]) == (0.3, 5.1) and v["b"]["verdict"] == "good", v["b"]
+    assert v["a"]["accuracy_deg"] > 2.0  # the world camera is held: its pair poses still say
+    rep.joint_refinement = {**jr, "accepted": False}
+    assert camera_verdicts(rep, T, list(T))["b"]["accuracy_deg"] > 2.0

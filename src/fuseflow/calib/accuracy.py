@@ -1,6 +1,7 @@
 """Expected accuracy of a placed camera: how far its pose probably is from the truth.
 
-Two estimates, the larger one printed (each sees an error the other cannot):
+Two estimates, the larger one printed (each sees an error the other cannot), or, for a camera the
+joint refinement moved, that refinement's own (3):
 
 1. **From the correspondences of its pair poses** (``pair_pose_accuracy``, stored per edge by
    the rgbd backbone): the 3-D correspondences a pair pose was fitted to are grouped into cells
@@ -18,6 +19,10 @@ Two estimates, the larger one printed (each sees an error the other cannot):
    the pose, so their scatter about the result shows errors of the individual pairs. After an
    accepted joint refinement that scatter is the pair poses' own error, not the refined
    result's, so it counts only where no pair pose has a fit covariance.
+3. **From the joint refinement** (``calib.joint_refine``, a camera it moved and kept): the
+   Gauss-Newton covariance s^2 H^-1 of the camera's refined pose over every dense depth pair and
+   keypoint track (s^2: the weighted squared residual per degree of freedom). It replaces 1 and
+   2, which measure the pose before the refinement moved it.
 
 Measured against the truth (simulated rings, ICL, HO-Cap's target calibration, the kinect3-room
 reference) in docs/gmac-trust.md, "Expected accuracy".
@@ -116,7 +121,10 @@ def _poses(n: int) -> str:
 
 
 def camera_accuracy(
-    residuals: Sequence[tuple[float, float]], pair_estimates: Sequence[tuple[float, float, str]], refined: bool = False
+    residuals: Sequence[tuple[float, float]],
+    pair_estimates: Sequence[tuple[float, float, str]],
+    refined: bool = False,
+    refinement: tuple[float, float] | None = None,
 ) -> tuple[float | None, float | None, str]:
     """(deg, mm, how) of a camera from its agreeing pair poses' ``residuals`` with the result and
     their correspondence-based ``pair_estimates`` (deg, mm, route) (module docstring): the
@@ -125,7 +133,13 @@ def camera_accuracy(
     a camera reuses its one track, so they are not independent); (None, None, why) when none
     applies. ``refined``: the depth-aware joint refinement moved the cameras after the pair
     poses were measured, so their disagreement with the result is theirs, not the result's: the
-    residual estimate then counts only where no pair pose has a fit covariance."""
+    residual estimate then counts only where no pair pose has a fit covariance. ``refinement``:
+    the joint refinement's own expected error of the camera's refined pose (deg, mm; module
+    docstring, 3): the pair poses measured the pose before it moved, so this alone counts, at
+    least ``SYSTEMATIC_DEG`` / ``SYSTEMATIC_MM``."""
+    if refinement is not None:
+        deg, mm = max(refinement[0], SYSTEMATIC_DEG), max(refinement[1], SYSTEMATIC_MM)
+        return round(deg, 3), round(mm, 1), "the joint refinement's covariance of its refined pose"
     res = None if refined and pair_estimates else residual_accuracy(residuals)
     track = [(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] in TRACK_ROUTES]
     indep = combine_pair_accuracies([(d, m) for d, m, r in pair_estimates if str(r).split("+")[0] not in TRACK_ROUTES])

@@ -20,6 +20,7 @@ from fuseflow.calib.correspondences import CameraData, prepare_cameras
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.report import CalibReport
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
+from fuseflow.calib.verdicts import drop_unconfirmed
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import depth_agreement
 from fuseflow.types import Frame, Rig, invert_rigid
@@ -29,6 +30,7 @@ __all__ = [
     "Placement",
     "place_with_backbone",
     "finish_report",
+    "keep_confirmed",
     "anchor_world",
     "run_backbone",
     "place_cameras",
@@ -141,6 +143,20 @@ def place_with_backbone(
         bb=bb, sr=sr, T=T, connected=connected, anchor=anchor, agreement=agreement, scale_check=scale_check,
         refinement=refinement, warnings=warnings, timings=timings,
     )  # fmt: skip
+
+
+def keep_confirmed(pl: Placement, frame: Frame, rig: Rig, min_agreement: float) -> None:
+    """One backbone's placement through the rule ``auto`` applies to its merged sources
+    (:func:`fuseflow.calib.verdicts.drop_unconfirmed`): a camera its neighbours' depth does not
+    confirm is left unplaced with the reason, whichever backbone placed it. Updates ``pl`` in
+    place (extrinsics, world anchor, agreement, ``unplaced_reasons``); unchanged when every
+    camera is confirmed."""
+    if not any(a is not None and a < min_agreement for a in pl.agreement.values()):
+        return
+    T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
+        pl.T, frame, rig, min_agreement, {pl.bb.name: pl.agreement}, merged=False
+    )
+    pl.T, pl.anchor = anchor_world(T, rig.ids)
 
 
 def metric_scale_check(
