@@ -207,10 +207,11 @@ def finish_report(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> C
     return report
 
 
-def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, config: CalibConfig) -> None:
+def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, min_agreement: float) -> None:
     """The depth-aware joint refinement of every placed camera (:mod:`fuseflow.calib.joint_refine`)
     on ``frames``, with the backbone's keypoint tracks; updates ``pl`` in place (poses and depth
-    agreement when the refinement is kept, its summary and timing always)."""
+    agreement, measured when ``min_agreement`` > 0, when the refinement is kept; its summary and
+    timing always)."""
     from fuseflow.calib.joint_refine import joint_refine
 
     t = time.perf_counter()
@@ -219,7 +220,7 @@ def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, config: CalibCo
     pl.joint_refinement = res.as_dict()
     if res.accepted:
         pl.T = res.T_cam_world
-        if config.min_depth_agreement > 0:
+        if min_agreement > 0:
             pl.agreement = depth_agreement(frames[0], rig, pl.T)
     pl.timings["joint_refine"] = time.perf_counter() - t
 
