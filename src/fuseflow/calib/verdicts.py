@@ -466,13 +466,13 @@ def drop_unconfirmed(
         if not merged:
             src = next(iter(under), "the backbone")
             reasons[c] = (
-                f"depth agreement {low[c]:.2f} with its neighbours under {src}'s poses, below {min_agreement:.2f}: "
+                f"depth agreement {low[c]:.3f} with its neighbours under {src}'s poses, below {min_agreement:.2f}: "
                 "its pose is not confirmed"
             )
         else:
             each = ", ".join(f"{n} {a[c]:.2f}" for n, a in under.items() if a.get(c) is not None)
             reasons[c] = (
-                f"depth agreement {low[c]:.2f} with its neighbours under the merged extrinsics "
+                f"depth agreement {low[c]:.3f} with its neighbours under the merged extrinsics "
                 f"(under each source: {each or 'none'}), below {min_agreement:.2f}: no source's pose is confirmed"
             )
         del T[c]
