@@ -218,7 +218,7 @@ def _residual_up_to_turns(T_ba: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, ro
     return best
 
 
-def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False, refinement=None) -> dict[str, Any]:
+def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False, refinement=None, moved=None) -> dict[str, Any]:
     """Pairs, agreeing pairs, cycles, routes and residual-based accuracy of an rgbd-placed camera."""
     mine = {(a, b): v for (a, b), v in edges.items() if c in (a, b) and a in T and b in T}
     res = {e: _residual_up_to_turns(v[0], T[e[0]], T[e[1]], room) for e, v in mine.items()}
@@ -238,7 +238,11 @@ def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False, refinemen
     # a disagreeing pair is an outlier (reported in "disagreeing"), not noise: calib.accuracy
     fits = [mine[e][2] for e in agree if mine[e][2] is not None]
     ev["accuracy_deg"], ev["accuracy_mm"], ev["accuracy_from"] = camera_accuracy(
-        [res[e] for e in agree], fits, refined, None if refinement is None else tuple(refinement)
+        [res[e] for e in agree],
+        fits,
+        refined,
+        None if refinement is None else tuple(refinement),
+        None if moved is None else tuple(moved),
     )
     return ev
 
@@ -331,7 +335,8 @@ def camera_verdicts(
             jr = getattr(report, "joint_refinement", None) or {}
             refined = bool(jr.get("accepted"))
             est = (jr.get("expected_deg_mm") or {}).get(c) if refined else None
-            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined, est), info, c)
+            moved = (jr.get("moved_deg_mm") or {}).get(c) if refined else None
+            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined, est, moved), info, c)
         elif report.backbone != "auto":  # no metric pair pose measures it (FALLBACK_ALONE)
             ev = {**_evidence_scale_free(c, report, T), "placed_alone": src}
         else:  # auto's fallback: the scale stage reported is another source's
