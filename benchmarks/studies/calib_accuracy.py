@@ -256,11 +256,11 @@ def perturbed_truth(ref, ids, seed, rot_deg, center_m):
 
 
 def shifted_step(edge: tuple[int, int], offset: float):
-    """GMAC's fixed-point step (``calib.scale_search.rc_step``) with ``edge``'s points in camera j
+    """GMAC's fixed-point step (``calib.scale_stage.rc_step``) with ``edge``'s points in camera j
     shifted by ``offset`` metres along the baseline (Y' = Y + offset t / |t|): the edge then
     implies a baseline that much too long, as wrong matches would (the robustness injection)."""
     from fuseflow.calib.scale import Correspondences, closed_form_scale
-    from fuseflow.calib.scale_search import rc_step
+    from fuseflow.calib.scale_stage import rc_step
 
     def step(geoms, cams_, s, config):
         _, corrs = rc_step(geoms, cams_, s, config)

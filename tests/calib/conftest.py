@@ -15,7 +15,7 @@ from tests.conftest import look_at
 from fuseflow import Camera, Frame, Rig
 from fuseflow.calib.backbones import BackboneResult
 from fuseflow.calib.scale import Correspondences, closed_form_scale
-from fuseflow.calib.scale_search import rc_step
+from fuseflow.calib.scale_stage import rc_step
 
 ROOM = (np.array([-3.0, -2.0, -3.0]), np.array([3.0, 1.0, 3.0]))  # y down: floor at y = 1
 OBJECTS = [

@@ -7,6 +7,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fuseflow.calib.accuracy import (
+    REFINED_SHARE,
     SYSTEMATIC_DEG,
     SYSTEMATIC_MM,
     camera_accuracy,
@@ -113,3 +114,45 @@ def test_after_the_joint_refinement_the_pair_poses_scatter_is_theirs():
     assert camera_accuracy(res, fits)[0] > 2.0
     assert camera_accuracy(res, fits, refined=True)[0] < 0.3
     assert camera_accuracy(res, [], refined=True)[0] > 2.0
+
+
+def test_a_refined_camera_reads_the_larger_of_the_covariance_and_half_the_disagreement():
+    """Two weak pair poses say 3.82 deg / 51.6 mm; the joint refinement moved the camera 3.2 deg /
+    48 mm and its covariance says 0.3 deg / 5.1 mm. The covariance sees depth noise only (on a
+    real rig it was 3-5x below the error against the reference), so the printed value is at least
+    half the larger of the pair poses' estimate and the motion; the covariance wins when it is
+    larger; the systematic floor holds; the verdict reads the same."""
+    fits = [(5.4, 73.0, "floor"), (5.4, 73.0, "sift3d")]
+    assert camera_accuracy([], fits, refined=True)[0] > 3.5
+    d, m, how = camera_accuracy([], fits, refined=True, refinement=(0.3, 5.1), moved=(3.2, 48.0))
+    assert np.isclose(d, REFINED_SHARE * 5.4 / np.sqrt(2), atol=1e-3), d
+    assert np.isclose(m, REFINED_SHARE * 73.0 / np.sqrt(2), atol=0.1) and "joint refinement" in how
+    d, m, _ = camera_accuracy([], fits, refined=True, refinement=(0.3, 5.1), moved=(9.0, 120.0))
+    assert (d, m) == (REFINED_SHARE * 9.0, REFINED_SHARE * 120.0)  # moved beyond the pair poses' estimate
+    d, m, _ = camera_accuracy([], [], refined=True, refinement=(0.3, 5.1), moved=(0.2, 4.0))
+    assert (d, m) == (0.3, 5.1)  # no pair pose estimate, a small motion: the covariance
+    low = camera_accuracy([], [(0.01, 0.1, "sift3d")], refined=True, refinement=(0.001, 0.1), moved=(0.0, 0.0))
+    assert low[:2] == (SYSTEMATIC_DEG, SYSTEMATIC_MM)
+
+    from types import SimpleNamespace
+
+    from fuseflow.calib.verdicts import camera_verdicts
+
+    T = {c: np.eye(4) for c in "abc"}
+    for k, c in enumerate("abc"):
+        T[c][:3, 3] = [k * 1.0, 0.0, 0.0]
+    exp = {"deg": 0.2, "mm": 3.0, "cells": 5}
+    pairs = [{"cameras": [x, y], "edge": {"T_ji": (T[y] @ invert_rigid(T[x])).tolist(), "route": "floor",
+                                          "expected": exp}} for x, y in ("ab", "ac", "bc")]  # fmt: skip
+    info = {"pairs": pairs, "cameras": {c: {"edges": [o for o in T if o != c]} for c in T}}
+    jr = {"accepted": True, "expected_deg_mm": {"b": [0.3, 5.1], "c": [0.4, 6.0]},
+          "moved_deg_mm": {"b": [0.1, 1.0], "c": [1.6, 30.0]}}  # fmt: skip
+    rep = SimpleNamespace(backbone="rgbd", backbone_info=info, config={}, placed_by=dict.fromkeys(T, "rgbd"),
+                          depth_agreement=dict.fromkeys(T, 0.95), unplaced_reasons={}, unregistered_cameras=[],
+                          joint_refinement=jr)  # fmt: skip
+    v = camera_verdicts(rep, T, list(T))
+    assert (v["b"]["accuracy_deg"], v["b"]["accuracy_mm"]) == (0.3, 5.1) and v["b"]["verdict"] == "good", v["b"]
+    assert (v["c"]["accuracy_deg"], v["c"]["accuracy_mm"]) == (0.8, 15.0), v["c"]  # half its motion
+    assert np.isclose(v["a"]["accuracy_deg"], 0.2 / np.sqrt(2), atol=1e-3)  # held: its pair poses still say
+    rep.joint_refinement = {**jr, "accepted": False}
+    assert camera_verdicts(rep, T, list(T))["c"]["accuracy_deg"] < 0.2

@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from fuseflow.calib import CalibConfig, calibrate
 from fuseflow.calib.api import Placement
-from fuseflow.calib.auto import align_sources, choose_sources, drop_unconfirmed
+from fuseflow.calib.auto import align_sources, choose_sources
+from fuseflow.calib.verdicts import drop_unconfirmed
 from fuseflow.eval.metrics import pose_errors
 from fuseflow.geometry import rigid_align
 from fuseflow.types import invert_rigid
@@ -78,7 +79,8 @@ def test_camera_no_source_confirms_is_unplaced_with_reason(scene5):
     Tm = {c: T[k] for k, c in enumerate(ids)}
     Tm["c2"] = _rotated(Tm["c2"], 40.0)
     runs = {"rgbd": _placement(Tm, {"c2": 0.3}), "colmap": _placement({}, {})}
-    kept, agreement, reasons = drop_unconfirmed(Tm, runs, frame, rig, 0.8)
+    under = {n: p.agreement for n, p in runs.items()}
+    kept, agreement, reasons = drop_unconfirmed(Tm, frame, rig, 0.8, under)
     assert "c2" not in kept and set(kept) == set(ids) - {"c2"}
     assert "below 0.80" in reasons["c2"] and "rgbd 0.30" in reasons["c2"]
     assert all(a is None or a >= 0.8 for a in agreement.values()), agreement

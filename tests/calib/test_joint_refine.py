@@ -158,3 +158,22 @@ def test_depth_fit_prefers_the_true_poses(scene):
     one, _ = depth_fit(frame, rig, _perturbed(T_true, ids, 1.0, 0.02), only=ids[0])
     assert 0 <= one <= 1
     assert np.isnan(depth_fit(frame, rig, {ids[0]: T_true[0]})[0])  # one camera: no pair
+
+
+def test_expected_error_of_each_refined_camera_follows_its_real_error(scene):
+    """The refinement's own covariance of each refined camera (keypoint tracks with 2 and 20 mm
+    of noise): within 3x of the camera's real rotation error either way, ten times larger for ten
+    times the noise; none for the held world camera."""
+    frame, rig, T_true = scene
+    ids = list(rig.ids)
+    est = {}
+    for noise in (0.002, 0.02):
+        res = joint_refine(_perturbed(T_true, ids, 0.5, 0.01), [frame], rig, tracks=_tracks(T_true, ids, noise_m=noise))
+        assert res.accepted and ids[0] not in res.expected and set(res.expected) == set(ids[1:]), res.expected
+        for k, c in enumerate(ids[1:], start=1):
+            D = res.T_cam_world[c] @ np.linalg.inv(T_true[k])  # world = camera 0's, held at the truth
+            err = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+            assert res.expected[c][0] / 3 < max(err, 0.005) < 3 * res.expected[c][0], (noise, c, err, res.expected[c])
+        est[noise] = np.mean([v[0] for v in res.expected.values()])
+        assert "expected_deg_mm" in res.as_dict()
+    assert 5 < est[0.02] / est[0.002] < 20, est

@@ -68,3 +68,39 @@ def test_api_on_a_recording_rejects_another_rig(ring4_rec):
     with pytest.raises(ValidationError, match="a rig is needed"):
         fuseflow.calibrate(rec[0])
     assert issubclass(CalibrationError, FuseFlowError)
+
+
+def test_a_backbone_that_reads_the_first_frame_only_is_not_pooled():
+    """``colmap`` (and the neural and precomputed backbones) place from the first frame: pooling
+    more frames would rerun them for the same poses, so one attempt is made, whatever its
+    verdicts; ``auto`` and ``rgbd`` pool."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib import CalibConfig
+    from fuseflow.calib.pooling import pooled_calibration
+
+    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+
+    class Rec:
+        rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ("a", "b")))
+        frame_numbers = list(range(12))
+
+        def __len__(self):
+            return 12
+
+        def __getitem__(self, t):
+            return t
+
+        def missing_views(self):
+            return {}
+
+    calls = []
+
+    def attempt(frames, rig, config, progress=None):
+        calls.append(len(frames))
+        return SimpleNamespace(T_cam_world={}, report=SimpleNamespace(camera_verdicts={"a": {"verdict": "check it"}}))
+
+    for backbone, attempts in (("colmap", 1), ("precomputed", 1), ("rgbd", 2), ("auto", 2)):
+        calls.clear()
+        pooled_calibration(Rec(), [0], CalibConfig(backbone=backbone, backbone_path="x.npz"), True, attempt)
+        assert len(calls) == attempts, (backbone, calls)

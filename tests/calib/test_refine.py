@@ -24,9 +24,12 @@ def test_refinement_lowers_rotation_error(scene5, backbone_builder):
     frame, rig, T = scene5
     ids = frame.camera_ids
     bb = backbone_builder(T, 3.7, rot_noise_deg=1.0, seed=3)
-    # the ICP stage against no refinement at all (the joint refinement would do the same job)
-    plain = calibrate(frame, rig, CalibConfig(joint_refine=False), backbone_result=bb)
-    refined = calibrate(frame, rig, CalibConfig.preset("refined", joint_refine=False), backbone_result=bb)
+    # the ICP stage against no refinement at all (the joint refinement would do the same job);
+    # no depth-agreement rule: it would leave the 1-deg-off cameras unplaced before the refinement
+    plain = calibrate(frame, rig, CalibConfig(joint_refine=False, min_depth_agreement=0.0), backbone_result=bb)
+    refined = calibrate(
+        frame, rig, CalibConfig.preset("refined", joint_refine=False, min_depth_agreement=0.0), backbone_result=bb
+    )
     e0, e1 = _rot_err_deg(plain.T_cam_world, T, ids), _rot_err_deg(refined.T_cam_world, T, ids)
     assert e0 > 1.0  # the scale stage leaves the backbone's rotations alone
     assert e1 < 0.5 * e0

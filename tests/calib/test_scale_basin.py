@@ -93,8 +93,9 @@ def test_refinement_rejected_when_matches_say_worse(scene5, backbone_builder):
     matches = {(i, j): _synthetic_matches(cams, T_bb, i, j, rng, 60, 0, 0.05) for i in range(n) for j in range(i + 1, n)
                if abs(i - j) in (1, n - 1)}  # fmt: skip
     bb = BackboneResult(bb0.T_cam_world, bb0.registered, name="truth", matches=matches)
-    plain = calibrate(frame, rig, CalibConfig(), backbone_result=bb)
-    ref = calibrate(frame, rig, CalibConfig.preset("refined"), backbone_result=bb)
+    # no depth-agreement rule: 1-deg-off poses would leave cameras unplaced; this is about the check
+    plain = calibrate(frame, rig, CalibConfig(min_depth_agreement=0.0), backbone_result=bb)
+    ref = calibrate(frame, rig, CalibConfig.preset("refined", min_depth_agreement=0.0), backbone_result=bb)
     rr = ref.report["refinement"]
     assert rr["edges_used"] > 0
     assert not rr["accepted"]

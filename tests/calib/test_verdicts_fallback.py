@@ -42,3 +42,15 @@ def test_metric_pair_poses_that_agree_still_check_a_fallback_camera():
     rep, T = _auto_report(rgbd_edges=True)
     v = camera_verdicts(rep, T, list(T))
     assert all(e["verdict"] == "good" and "placed_alone" not in e for e in v.values()), v
+
+
+def test_an_explicit_scale_free_backbone_is_judged_by_the_same_rule():
+    """``--backbone colmap`` (or a neural / precomputed backbone) chosen explicitly: its scale-stage
+    cycles are rebuilt from its own poses too, so they never make a camera "good"."""
+    rep, T = _auto_report(rgbd_edges=False)
+    for name in ("colmap", "precomputed", "vggt"):
+        rep.backbone, rep.backbone_info, rep.placed_by = name, {}, dict.fromkeys(T, name)
+        v = camera_verdicts(rep, T, list(T))
+        for c, e in v.items():
+            assert e["verdict"] == "check it" and e["placed_alone"] == name, (name, c, e)
+            assert f"placed by {name} alone" in e["reason"] and e["cycles"] == 1, e

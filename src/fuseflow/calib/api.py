@@ -27,6 +27,7 @@ from fuseflow.calib.placement import (
     as_frames,
     drop_answered_scale_warning,
     finish_report,
+    keep_confirmed,
     place_with_backbone,
     refine_jointly,
 )
@@ -177,8 +178,9 @@ def _calibrate(frame, rig: Rig, config: CalibConfig, backbone_result: BackboneRe
             pl = auto_place(frames, rig, depth, K, drange, config)
         else:
             pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
+            keep_confirmed(pl, frames[0], rig, config.min_depth_agreement)  # the rule auto applies too
         if config.joint_refine and len(pl.T) >= 2:
-            refine_jointly(pl, frames, rig, config)
+            refine_jointly(pl, frames, rig, config.min_depth_agreement)
         progress_events.report("report")
         t = time.perf_counter()
         report = finish_report(pl, frames[0].camera_ids, config)

@@ -15,9 +15,10 @@ placed by the source whose pose its neighbours' depth confirms best.
    cycles checks keeps rgbd's pose; another camera several sources place gets the pose with the
    higher depth agreement, each candidate measured against the same neighbours; ties go to rgbd
    (metric by construction).
-5. ``drop_unconfirmed``: the merged extrinsics' depth agreement; the lowest camera below
-   ``min_depth_agreement`` is removed and the rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the agreement it had under
-   every source): never placed wrong silently.
+5. ``verdicts.drop_unconfirmed`` (the rule every backbone's placement goes through): the merged
+   extrinsics' depth agreement; the lowest camera below ``min_depth_agreement`` is removed and the
+   rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the
+   agreement it had under every source): never placed wrong silently.
 """
 
 from __future__ import annotations
@@ -31,10 +32,11 @@ from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS
 from fuseflow.calib.config import CalibConfig
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.placement import Placement, anchor_world, place_with_backbone
+from fuseflow.calib.verdicts import drop_unconfirmed
 from fuseflow.geometry import depth_agreement, rigid_align
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["auto_place", "AUTO_SOURCES", "align_sources", "choose_sources"]
+__all__ = ["auto_place", "AUTO_SOURCES", "align_sources", "choose_sources", "drop_unconfirmed"]
 
 #: Sources in order of preference (a tie in depth agreement goes to the earlier one).
 AUTO_SOURCES = ("rgbd", "colmap")
@@ -67,7 +69,8 @@ def auto_place(
     poses = align_sources(runs, rig.ids, config.min_depth_agreement)
     placed_by = choose_sources(runs, poses, ids, frames[0], rig, _cycle_checked(runs))
     T = {c: poses[src][c] for c, src in placed_by.items()}
-    T, agreement, reasons = drop_unconfirmed(T, runs, frames[0], rig, config.min_depth_agreement)
+    under = {n: p.agreement for n, p in runs.items()}
+    T, agreement, reasons = drop_unconfirmed(T, frames[0], rig, config.min_depth_agreement, under)
     placed_by = {c: s for c, s in placed_by.items() if c in T}
     ambiguous = _repeating(runs["rgbd"]) if "rgbd" in runs else {}
     for c in ids:
@@ -201,32 +204,6 @@ def choose_sources(
 
 def _score(a: float | None) -> float:
     return -1.0 if a is None else a
-
-
-def drop_unconfirmed(
-    T: dict[str, np.ndarray], runs: dict[str, Placement], frame: Frame, rig: Rig, min_agreement: float
-) -> tuple[dict[str, np.ndarray], dict[str, float | None], dict[str, str]]:
-    """Remove, one at a time, the camera with the lowest depth agreement under the merged
-    extrinsics while it is below ``min_agreement`` (a wrong camera also lowers its neighbours'
-    agreement, so they are measured again without it). Returns (extrinsics, agreement of the
-    kept cameras, camera -> reason it is not placed)."""
-    if min_agreement <= 0 or not T:
-        return T, {}, {}
-    T = dict(T)
-    reasons = {}
-    agreement = depth_agreement(frame, rig, T)
-    while True:
-        low = {c: a for c, a in agreement.items() if a is not None and a < min_agreement}
-        if not low:
-            return T, agreement, reasons
-        c = min(low, key=lambda k: (low[k], k))
-        under = ", ".join(f"{n} {runs[n].agreement[c]:.2f}" for n in runs if runs[n].agreement.get(c) is not None)
-        reasons[c] = (
-            f"depth agreement {low[c]:.2f} with its neighbours under the merged extrinsics "
-            f"(under each source: {under or 'none'}), below {min_agreement:.2f}: no source's pose is confirmed"
-        )
-        del T[c]
-        agreement = depth_agreement(frame, rig, T) if T else {}
 
 
 def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, ids, t0) -> Placement:

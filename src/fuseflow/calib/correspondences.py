@@ -12,7 +12,7 @@ whose pixel in j is the matched keypoint, gated by reprojection distance and dep
 
 This module builds correspondences at a given s; the search for s (coarse 1-D search, then the
 fixed point that alternates these correspondences with :mod:`scale`'s closed form) lives in
-:mod:`fuseflow.calib.scale_search`.
+:mod:`fuseflow.calib.scale_stage`.
 """
 
 from __future__ import annotations

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuseflow.calib.accuracy import CELL_M
 from fuseflow.geometry.noise import SENSOR_NOISE, camera_noise, sigma
 from fuseflow.types import Frame, Rig, invert_rigid
 
@@ -101,6 +102,8 @@ class JointRefineResult:
         iterations: Gauss-Newton iterations run.
         reason: why the result was not accepted ("" when accepted).
         T_refined: the refined poses whether accepted or not (diagnostics).
+        expected: camera id -> (deg, mm) expected error of each refined (not held) camera's
+            refined pose (``_posterior``).
     """
 
     T_cam_world: dict[str, np.ndarray]
@@ -112,6 +115,7 @@ class JointRefineResult:
     iterations: int = 0
     reason: str = ""
     T_refined: dict[str, np.ndarray] = field(default_factory=dict)
+    expected: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """JSON-ready summary for the calibration report."""
@@ -123,6 +127,7 @@ class JointRefineResult:
             "inlier_1cm_before": {c: round(v, 4) for c, v in self.inlier_before.items()},
             "inlier_1cm_after": {c: round(v, 4) for c, v in self.inlier_after.items()},
             "moved_deg_mm": {c: [round(r, 4), round(t, 2)] for c, (r, t) in self.moved.items()},
+            "expected_deg_mm": {c: [round(r, 4), round(t, 2)] for c, (r, t) in self.expected.items()},
         }
 
 
@@ -311,9 +316,10 @@ def _inlier_shares(views, W, pairs, n: int) -> np.ndarray:
         return np.where(tot > 0, hit / np.maximum(tot, 1), np.nan)
 
 
-def _add_tracks(H: np.ndarray, g: np.ndarray, W, tracks) -> None:
+def _add_tracks(H: np.ndarray, g: np.ndarray, W, tracks, meat: np.ndarray | None = None) -> None:
     """Point-to-point terms of the keypoint tracks: r = W_i X_i - W_j X_j (world, 3 rows per
-    match), Huber-weighted in units of the match's sigma."""
+    match), Huber-weighted in units of the match's sigma. ``meat``: also add each cell's summed
+    gradient's outer product to it (``_add_cells``)."""
     for i, j, Xi, Xj, sig in tracks:
         A = Xi @ W[i][:3, :3].T + W[i][:3, 3]
         B = Xj @ W[j][:3, :3].T + W[j][:3, 3]
@@ -328,6 +334,10 @@ def _add_tracks(H: np.ndarray, g: np.ndarray, W, tracks) -> None:
         g[6 * i : 6 * i + 6] += gi
         gj = np.concatenate([np.sum(wgt[:, None] * np.cross(B, r), axis=0), np.sum(wgt[:, None] * r, axis=0)])
         g[6 * j : 6 * j + 6] -= gj
+        if meat is not None:
+            wr = wgt[:, None] * r
+            per = np.concatenate([np.cross(A, wr), wr, -np.cross(B, wr), -wr], axis=1)
+            _add_cells(meat, (i, j), A, per)
 
 
 def _point_block(P: np.ndarray, Q: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -343,13 +353,24 @@ def _point_block(P: np.ndarray, Q: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
-def _gauss_newton_step(views, W, W0, pairs, fixed: list[int], gate: float, tracks=()) -> np.ndarray:
-    """One robust Gauss-Newton step: (n, 6) twists (rotation vector, translation) in the world
-    frame, zero for the ``fixed`` cameras (the anchor and those without keypoint tracks)."""
+def _normal_equations(views, W, W0, pairs, gate: float, tracks=()) -> tuple[np.ndarray, np.ndarray]:
+    """The robust Gauss-Newton system (H (6n, 6n), g (6n,)) at the poses ``W``: keypoint tracks,
+    dense depth pairs and the prior toward ``W0``."""
     n = len(W)
     H = np.zeros((6 * n, 6 * n))
     g = np.zeros(6 * n)
     _add_tracks(H, g, W, tracks)
+    _add_dense(H, g, views, W, pairs, gate)
+    prior = np.tile(np.r_[[np.radians(PRIOR_DEG) ** -2] * 3, [PRIOR_M**-2] * 3], n)
+    drift = np.concatenate([_log_se3(W[k] @ invert_rigid(W0[k])) for k in range(n)])
+    H += np.diag(prior)
+    g += prior * drift
+    return H, g
+
+
+def _add_dense(H: np.ndarray, g: np.ndarray, views, W, pairs, gate: float, meat: np.ndarray | None = None) -> None:
+    """Point-to-plane terms of the dense depth pairs (module docstring), Huber-weighted.
+    ``meat``: also add each cell's summed gradient's outer product to it (``_add_cells``)."""
     for frame_views in views:
         for i, j in pairs:
             a = _associate(frame_views[i], frame_views[j], W[i], W[j], gate)
@@ -365,16 +386,69 @@ def _gauss_newton_step(views, W, W0, pairs, fixed: list[int], gate: float, track
                 H[6 * p : 6 * p + 6, 6 * q : 6 * q + 6] += (Jp * wgt[:, None]).T @ Jq
             g[6 * i : 6 * i + 6] += Ji.T @ (wgt * r)
             g[6 * j : 6 * j + 6] += Jj.T @ (wgt * r)
-    prior = np.tile(np.r_[[np.radians(PRIOR_DEG) ** -2] * 3, [PRIOR_M**-2] * 3], n)
-    drift = np.concatenate([_log_se3(W[k] @ invert_rigid(W0[k])) for k in range(n)])
-    H += np.diag(prior)
-    g += prior * drift
+            if meat is not None:
+                wr = (wgt * r)[:, None]
+                _add_cells(meat, (i, j), X, np.concatenate([Ji * wr, Jj * wr], axis=1))
+
+
+def _add_cells(meat: np.ndarray, cams: tuple[int, int], X: np.ndarray, per: np.ndarray) -> None:
+    """Add to ``meat`` (6n, 6n) the outer products of the gradient contributions ``per`` (m, 12:
+    camera i's 6, then j's) summed within cells of ``CELL_M`` of the world points ``X`` (m, 3):
+    samples of one patch share their error (depth bias, smoothing), so a cell is one measurement."""
+    _, cell = np.unique(np.floor(X / CELL_M).astype(np.int64), axis=0, return_inverse=True)
+    cell = cell.ravel()
+    n = int(cell.max()) + 1
+    G = np.stack([np.bincount(cell, per[:, k], n) for k in range(per.shape[1])], axis=1)
+    idx = np.r_[6 * cams[0] : 6 * cams[0] + 6, 6 * cams[1] : 6 * cams[1] + 6]
+    meat[np.ix_(idx, idx)] += G.T @ G
+
+
+def _free(n: int, fixed: list[int]) -> np.ndarray:
     free = np.ones(6 * n, bool)
     for k in fixed:
         free[6 * k : 6 * k + 6] = False
+    return free
+
+
+def _gauss_newton_step(views, W, W0, pairs, fixed: list[int], gate: float, tracks=()) -> np.ndarray:
+    """One robust Gauss-Newton step: (n, 6) twists (rotation vector, translation) in the world
+    frame, zero for the ``fixed`` cameras (the anchor and those without keypoint tracks)."""
+    n = len(W)
+    H, g = _normal_equations(views, W, W0, pairs, gate, tracks)
+    free = _free(n, fixed)
     xi = np.zeros(6 * n)
     xi[free] = -np.linalg.solve(H[np.ix_(free, free)] + 1e-9 * np.eye(int(free.sum())), g[free])
     return xi.reshape(n, 6)
+
+
+def _posterior(views, W, W0, pairs, fixed: list[int], tracks) -> dict[int, tuple[float, float]]:
+    """Camera index -> (expected rotation error deg, expected centre error mm) of each refined
+    camera at the refined poses ``W`` (the final gate's system, the ``fixed`` cameras held): the
+    cluster-robust covariance of the weighted least squares the refinement solves,
+    H^-1 (sum over cells of g_c g_c^T) H^-1, with H its normal matrix (prior included) and g_c a
+    cell's summed gradient of the keypoint and dense terms at the solution (``_add_cells``): the
+    residuals say how noisy each term is, the cells how many independent measurements it has.
+    The centre's error through its lever arm from the rig's centre."""
+    n = len(W)
+    free = _free(n, fixed)
+    if not free.any():
+        return {}
+    H, _ = _normal_equations(views, W, W0, pairs, GATES_M[-1], tracks)
+    meat = np.zeros((6 * n, 6 * n))
+    _add_tracks(np.zeros_like(meat), np.zeros(6 * n), W, tracks, meat)
+    _add_dense(np.zeros_like(meat), np.zeros(6 * n), views, W, pairs, GATES_M[-1], meat)
+    Hinv = np.linalg.inv(H[np.ix_(free, free)])
+    cov = np.zeros((6 * n, 6 * n))
+    cov[np.ix_(free, free)] = Hinv @ meat[np.ix_(free, free)] @ Hinv
+    out = {}
+    for k in range(n):
+        if k in fixed:
+            continue
+        C = cov[6 * k : 6 * k + 6, 6 * k : 6 * k + 6]
+        c = W[k][:3, 3]
+        J = np.hstack([-np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]]), np.eye(3)])
+        out[k] = (float(np.degrees(np.sqrt(np.trace(C[:3, :3])))), float(np.sqrt(np.trace(J @ C @ J.T)) * 1000))
+    return out
 
 
 def _log_se3(T: np.ndarray) -> np.ndarray:
@@ -439,6 +513,7 @@ def joint_refine(
         reason = f"no camera has {MIN_TRACKS} keypoint matches: dense depth alone slides sparse rigs (docs/gmac.md)"
         return JointRefineResult(dict(T_cam_world), False, reason=reason)
     W, iterations = _solve(views, W0, pairs, fixed, tr)
+    expected = {ids[k]: v for k, v in _posterior(views, W, W0, pairs, fixed, tr).items()}
     before = _inlier_shares(views, W0, pairs, len(ids))
     after = _inlier_shares(views, W, pairs, len(ids))
     Cinv = invert_rigid(C)
@@ -450,7 +525,7 @@ def joint_refine(
     out = {**T_cam_world, **T_new} if not reason else dict(T_cam_world)
     names = [(ids[i], ids[j]) for i, j in pairs]
     moved = {c: _motion(W0[k], W[k]) for k, c in enumerate(ids)}
-    return JointRefineResult(out, not reason, share_b, share_a, moved, names, iterations, reason, T_new)
+    return JointRefineResult(out, not reason, share_b, share_a, moved, names, iterations, reason, T_new, expected)
 
 
 def _frame_views(frames: Sequence[Frame], rig: Rig, ids: list[str], max_frames: int, samples: int):

@@ -20,6 +20,7 @@ from fuseflow.calib.correspondences import CameraData, prepare_cameras
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.report import CalibReport
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
+from fuseflow.calib.verdicts import drop_unconfirmed
 from fuseflow.errors import ValidationError
 from fuseflow.geometry import depth_agreement
 from fuseflow.types import Frame, Rig, invert_rigid
@@ -29,6 +30,7 @@ __all__ = [
     "Placement",
     "place_with_backbone",
     "finish_report",
+    "keep_confirmed",
     "anchor_world",
     "run_backbone",
     "place_cameras",
@@ -143,6 +145,20 @@ def place_with_backbone(
     )  # fmt: skip
 
 
+def keep_confirmed(pl: Placement, frame: Frame, rig: Rig, min_agreement: float) -> None:
+    """One backbone's placement through the rule ``auto`` applies to its merged sources
+    (:func:`fuseflow.calib.verdicts.drop_unconfirmed`): a camera its neighbours' depth does not
+    confirm is left unplaced with the reason, whichever backbone placed it. Updates ``pl`` in
+    place (extrinsics, world anchor, agreement, ``unplaced_reasons``); unchanged when every
+    camera is confirmed."""
+    if not any(a is not None and a < min_agreement for a in pl.agreement.values()):
+        return
+    T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
+        pl.T, frame, rig, min_agreement, {pl.bb.name: pl.agreement}, merged=False
+    )
+    pl.T, pl.anchor = anchor_world(T, rig.ids)
+
+
 def metric_scale_check(
     bb: BackboneResult, cams: list[CameraData], config: CalibConfig
 ) -> tuple[ScaleResult, float | None, list[str]]:
@@ -191,10 +207,11 @@ def finish_report(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> C
     return report
 
 
-def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, config: CalibConfig) -> None:
+def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, min_agreement: float) -> None:
     """The depth-aware joint refinement of every placed camera (:mod:`fuseflow.calib.joint_refine`)
     on ``frames``, with the backbone's keypoint tracks; updates ``pl`` in place (poses and depth
-    agreement when the refinement is kept, its summary and timing always)."""
+    agreement, measured when ``min_agreement`` > 0, when the refinement is kept; its summary and
+    timing always)."""
     from fuseflow.calib.joint_refine import joint_refine
 
     t = time.perf_counter()
@@ -203,7 +220,7 @@ def refine_jointly(pl: Placement, frames: list[Frame], rig: Rig, config: CalibCo
     pl.joint_refinement = res.as_dict()
     if res.accepted:
         pl.T = res.T_cam_world
-        if config.min_depth_agreement > 0:
+        if min_agreement > 0:
             pl.agreement = depth_agreement(frames[0], rig, pl.T)
     pl.timings["joint_refine"] = time.perf_counter() - t
 

@@ -6,7 +6,9 @@ frames; with ``pool`` (the caller chose no frame) and 3 or more frames in the re
 one frame raises ``CalibrationError`` or leaves a camera not "good", GMAC runs again on up to
 POOLED_FRAMES frames spread over the recording (a person or a ball moving through a static rig is
 then a target: the moving-subject and moving-sphere routes), and the result with more "good"
-cameras (then more placed) is kept; a tie keeps the one frame's. The attempts' own
+cameras (then more placed) is kept; a tie keeps the one frame's. A backbone that reads the first
+frame only (``colmap``, the neural ones, ``precomputed``: not ``auto`` or ``MULTI_FRAME_BACKBONES``)
+is not pooled: more frames would give it the same poses. The attempts' own
 ``CalibrationWarning``s are held back: the caller warns once, about the result it keeps
 (``warn_verdicts``)."""
 
@@ -19,6 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from fuseflow.calib.backbones import MULTI_FRAME_BACKBONES
 from fuseflow.calib.errors import CalibrationError, CalibrationWarning
 from fuseflow.types import Calibration, Frame, Rig
 
@@ -130,7 +133,8 @@ def pooled_calibration(
     them already. Raises CalibrationError when no attempt places two cameras (naming both
     attempts when pooling ran)."""
     rig = Rig(tuple(c.with_extrinsics(None) for c in rec.rig))
-    spread = spread_positions(rec, positions[0]) if pool and len(positions) == 1 else []
+    pools = config is None or config.backbone == "auto" or config.backbone in MULTI_FRAME_BACKBONES
+    spread = spread_positions(rec, positions[0]) if pool and pools and len(positions) == 1 else []
     frames = frames if frames is not None else [rec[t] for t in positions]
     try:
         single = _quiet(attempt, frames, rig, config, progress)

@@ -20,14 +20,19 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
   camera whose dominant plane is another surface (a table top) simply has no floor check.
 - **accuracy**: ``rgbd``: :func:`fuseflow.calib.accuracy.camera_accuracy`: the larger of the
   fit covariance of its agreeing pair poses (from their correspondences) and RMS / sqrt(n) of
-  their disagreement with the final extrinsics. Scale-free backbones: the position error the standard error of s* causes at the camera's distance from
+  their disagreement with the final extrinsics; for a camera an accepted joint refinement moved,
+  the larger of that refinement's covariance of its refined pose and half the larger of the
+  pair poses' estimate and its motion (``calib.accuracy``, 3). Scale-free backbones: the position error the standard error of s* causes at the camera's distance from
   the world camera (the scale part only; no angle).
 - **plausibility**: two camera centres closer than ``STACKED_M`` (a device's width) cannot both
   be right.
 
 The verdict: "unplaced" (not in the extrinsics; the reason the report gives), "check it" (the
-first failing reason: stacked, placed by ``auto``'s fallback alone (``FALLBACK_ALONE``: no metric
-pair pose measures it), depth agreement below the threshold, fewer than half of its pairs
+first failing reason: stacked, depth agreement below the threshold (after a joint refinement or
+a room turn moved it: ``drop_unconfirmed`` has left every camera below it unplaced before),
+placed by a backbone's own poses alone (``FALLBACK_ALONE``: no metric pair pose measures it;
+every camera of ``colmap``, ``vggt``, ``mapanything``, ``precomputed``, and ``auto``'s
+fallback), fewer than half of its pairs
 agree, no cycle through it (a floor check alone leaves its heading and horizontal position
 unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" unless the room
 repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
@@ -48,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from fuseflow.calib.accuracy import camera_accuracy
-from fuseflow.geometry import pair_agreement
+from fuseflow.geometry import depth_agreement, pair_agreement
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = [
@@ -57,6 +62,7 @@ __all__ = [
     "AMBIGUOUS_ACTION",
     "FALLBACK_ALONE",
     "camera_verdicts",
+    "drop_unconfirmed",
     "pair_agreements",
     "edge_residual",
     "AGREE_DEG",
@@ -81,13 +87,15 @@ STACKED_M = 0.10
 #: The subject's margin between a camera's chosen room turn and its runner-up below which the
 #: turn is "ambiguous" (``TurnEvidence.margin``; docs/gmac-trust.md, "Room turns").
 TURN_MIN_MARGIN = 0.05
-#: The verdict reason of a camera ``auto`` placed by its fallback source alone: the scale stage's
-#: cycles rebuild relative poses from that source's own poses, so they close by construction and
-#: check its scale, not its pose (symstudio at 320x240: COLMAP folded 5- and 7-camera rings onto
-#: one wall, 33-163 deg off, every cycle closed).
+#: The verdict reason of a camera no metric pair pose measures, whichever backbone placed it
+#: (``colmap``, ``vggt``, ``mapanything``, ``precomputed``, or ``auto``'s fallback): the scale
+#: stage's cycles rebuild relative poses from that backbone's own poses, so they close by
+#: construction and check its scale, not its pose (symstudio at 320x240: COLMAP folded 5- and
+#: 7-camera rings onto one wall, 33-163 deg off, every cycle closed).
 FALLBACK_ALONE = (
     "placed by {src} alone, as no metric pair pose measures it: its cycles check the scale, not the pose "
-    "(in a repeating room image matching folds cameras onto each other); record more frames or check it by eye"
+    "(in a repeating room image matching folds cameras onto each other); calibrate with the rgbd or auto "
+    "backbone, record more frames, or check it by eye"
 )
 #: What a user can do about an ambiguous room turn.
 AMBIGUOUS_ACTION = "put a person or one asymmetric object in the middle, or record a few frames of them moving"
@@ -211,7 +219,7 @@ def _residual_up_to_turns(T_ba: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, ro
     return best
 
 
-def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False) -> dict[str, Any]:
+def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False, refinement=None, moved=None) -> dict[str, Any]:
     """Pairs, agreeing pairs, cycles, routes and residual-based accuracy of an rgbd-placed camera."""
     mine = {(a, b): v for (a, b), v in edges.items() if c in (a, b) and a in T and b in T}
     res = {e: _residual_up_to_turns(v[0], T[e[0]], T[e[1]], room) for e, v in mine.items()}
@@ -230,7 +238,13 @@ def _evidence_rgbd(c: str, edges, T, room=None, refined: bool = False) -> dict[s
     }
     # a disagreeing pair is an outlier (reported in "disagreeing"), not noise: calib.accuracy
     fits = [mine[e][2] for e in agree if mine[e][2] is not None]
-    ev["accuracy_deg"], ev["accuracy_mm"], ev["accuracy_from"] = camera_accuracy([res[e] for e in agree], fits, refined)
+    ev["accuracy_deg"], ev["accuracy_mm"], ev["accuracy_from"] = camera_accuracy(
+        [res[e] for e in agree],
+        fits,
+        refined,
+        None if refinement is None else tuple(refinement),
+        None if moved is None else tuple(moved),
+    )
     return ev
 
 
@@ -319,11 +333,14 @@ def camera_verdicts(
             continue
         src = (report.placed_by or {}).get(c, report.backbone)
         if any(c in e for e in edges):  # rgbd's pair poses measure it, whichever source placed it
-            refined = bool((getattr(report, "joint_refinement", None) or {}).get("accepted"))
-            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined), info, c)
-        elif report.backbone != "auto":
-            ev = _evidence_scale_free(c, report, T)
-        else:  # auto's fallback: no metric pair pose measures it (FALLBACK_ALONE)
+            jr = getattr(report, "joint_refinement", None) or {}
+            refined = bool(jr.get("accepted"))
+            est = (jr.get("expected_deg_mm") or {}).get(c) if refined else None
+            moved = (jr.get("moved_deg_mm") or {}).get(c) if refined else None
+            ev = _subject_accuracy(_evidence_rgbd(c, edges, T, room, refined, est, moved), info, c)
+        elif report.backbone != "auto":  # no metric pair pose measures it (FALLBACK_ALONE)
+            ev = {**_evidence_scale_free(c, report, T), "placed_alone": src}
+        else:  # auto's fallback: the scale stage reported is another source's
             ev = {**_evidence_scale_free(c, report, {}), "accuracy_from": f"{src} records no pair poses for it"}
             ev["placed_alone"] = src
         fl = floor.get(c)
@@ -361,11 +378,11 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
             f"its centre is {stacked[1] * 100:.0f} cm from {stacked[0]}'s: two cameras cannot share a spot "
             "(a symmetric scene can fold cameras onto each other)"
         )
-    if e.get("placed_alone"):
-        return "check it", FALLBACK_ALONE.format(src=e["placed_alone"])
     a = e["depth_agreement"]
     if a is not None and a < limit:
         return "check it", f"its neighbours confirm only {a:.2f} of its depth (below {limit:.2f})"
+    if e.get("placed_alone"):
+        return "check it", FALLBACK_ALONE.format(src=e["placed_alone"])
     if e["disagreeing"] and 2 * e["pairs_agreeing"] < e["pairs"]:
         edge, (d, mm) = next(iter(e["disagreeing"].items()))
         return "check it", (
@@ -426,6 +443,46 @@ def _acc(deg: float | None, mm: float | None) -> str:
     d = "? deg" if deg is None else f"{deg:.2f} deg"
     m = "? mm" if mm is None else f"{mm:.0f} mm"
     return f"{d} / {m}"
+
+
+def drop_unconfirmed(
+    T: Mapping[str, np.ndarray],
+    frame: Frame,
+    rig: Rig,
+    min_agreement: float,
+    under: Mapping[str, Mapping[str, float | None]],
+    merged: bool = True,
+) -> tuple[dict[str, np.ndarray], dict[str, float | None], dict[str, str]]:
+    """The placement rule of every backbone: remove, one at a time, the camera with the lowest
+    depth agreement under the extrinsics ``T`` while it is below ``min_agreement`` (a wrong camera
+    also lowers its neighbours' agreement, so they are measured again without it). ``under``:
+    source -> camera -> the agreement it had under that source's own poses (for the reason);
+    ``merged`` False: ``T`` is the one source's own poses. Returns (extrinsics, agreement of the kept cameras,
+    camera -> reason it is not placed)."""
+    if min_agreement <= 0 or not T:
+        return dict(T), {}, {}
+    T = dict(T)
+    reasons = {}
+    agreement = depth_agreement(frame, rig, T)
+    while True:
+        low = {c: a for c, a in agreement.items() if a is not None and a < min_agreement}
+        if not low:
+            return T, agreement, reasons
+        c = min(low, key=lambda k: (low[k], k))
+        if not merged:
+            src = next(iter(under), "the backbone")
+            reasons[c] = (
+                f"depth agreement {low[c]:.3f} with its neighbours under {src}'s poses, below {min_agreement:.2f}: "
+                "its pose is not confirmed"
+            )
+        else:
+            each = ", ".join(f"{n} {a[c]:.2f}" for n, a in under.items() if a.get(c) is not None)
+            reasons[c] = (
+                f"depth agreement {low[c]:.3f} with its neighbours under the merged extrinsics "
+                f"(under each source: {each or 'none'}), below {min_agreement:.2f}: no source's pose is confirmed"
+            )
+        del T[c]
+        agreement = depth_agreement(frame, rig, T) if T else {}
 
 
 def pair_agreements(frame: Frame, rig: Rig, T_cam_world: Mapping[str, np.ndarray]) -> dict[str, float]:
