@@ -168,6 +168,16 @@ def test_the_period_is_the_smallest_turn_that_keeps_the_room():
     assert T_.room_period(_shares()) is None and T_.room_period(_shares(n8=0.3), hint=8) is None
 
 
+def test_the_period_is_a_multiple_of_the_hint_when_that_multiple_keeps_the_room():
+    # independent 6-sided studios (320x240, one frame, calibrated clouds): the pairs saw only
+    # 120-deg aliases (hint 3), yet 60-deg turns land nearly as many points; a camera 60 or 180 deg
+    # off is only refuted when the period is 6
+    assert T_.room_period(_shares(0.4, n3=0.817, n6=0.788), hint=3) == 6
+    assert T_.room_period(_shares(0.45, n3=0.817, n6=0.825), hint=3) == 6
+    assert T_.room_period(_shares(0.4, n3=0.817, n6=0.5), hint=3) == 3  # 6 lands too few: not a turn
+    assert T_.room_period(_shares(0.4, n3=0.817, n7=0.8), hint=3) == 3  # 7 is no multiple of 3
+
+
 def test_the_joint_choice_never_puts_two_cameras_on_one_spot():
     """Three cameras 90 deg apart in a 4-fold room: cameras turned onto each other's spots see the
     same surface and so see through none of each other's subject, a better score than the true

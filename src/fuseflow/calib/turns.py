@@ -14,11 +14,12 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    their texture is not). The axis position maximises it (grid around where the cameras' optical
    axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
    period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). ``room_period``: the
-   backbone's period when its share is at least ``SUB_PERIOD_SHARE`` of the best and
+   backbone's period is the base when its share is at least ``SUB_PERIOD_SHARE`` of the best and
    ``HINT_MIN_CONTRAST`` times the median over all N; else the room repeats when the best share
-   is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and N is the
-   largest multiple of the best period with at least ``SUB_PERIOD_SHARE`` of its share (a
-   12-fold room also repeats every 60 deg: the smallest turn is the one that matters).
+   is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and the best
+   period is the base. N is the largest multiple of the base with at least ``SUB_PERIOD_SHARE``
+   of the best share (a 12-fold room also repeats every 60 deg, and pairs that saw only 120-deg
+   aliases of a 6-fold room hint 3: the smallest turn is the one that matters).
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
    ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
    lowest heights; walls and ceiling are outside that volume).
@@ -250,17 +251,18 @@ def _axes_meet(T: Mapping[str, np.ndarray], B: np.ndarray) -> np.ndarray:
 
 def room_period(shares: Mapping[int, float], hint: int | None = None) -> int | None:
     """The room's period from each period's landing share (module docstring, step 1), None when
-    the room does not repeat: the backbone's ``hint`` when its share is at least SUB_PERIOD_SHARE
-    of the best and HINT_MIN_CONTRAST times the median; else, when the best share is at least
-    ROOM_MIN_SHARE and ROOM_MIN_CONTRAST times the median, the largest multiple of the best
-    period with at least SUB_PERIOD_SHARE of its share (the smallest turn that keeps the room)."""
+    the room does not repeat. The base period is the backbone's ``hint`` when its share is at least
+    SUB_PERIOD_SHARE of the best and HINT_MIN_CONTRAST times the median; else, when the best share
+    is at least ROOM_MIN_SHARE and ROOM_MIN_CONTRAST times the median, the best period. The room's
+    period is the largest multiple of the base with at least SUB_PERIOD_SHARE of the best share
+    (the smallest turn that keeps the room: pair aliases of 120 deg in a 6-sided room hint 3)."""
     best, median = max(shares.values()), float(np.median(list(shares.values())))
     near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
     hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
     if best < ROOM_MIN_SHARE or (not hinted and best < ROOM_MIN_CONTRAST * median):
         return None
-    top = max(shares, key=lambda k: shares[k])
-    return hint if hinted else max(k for k in near if k % top == 0)
+    base = hint if hinted else max(shares, key=lambda k: shares[k])
+    return max(k for k in near if k % base == 0)
 
 
 def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[str, np.ndarray], up: np.ndarray,
