@@ -192,3 +192,10 @@ def test_the_joint_choice_never_puts_two_cameras_on_one_spot():
     tab[:, :, 0, 2] = 10
     assert T_.joint_turns(tab, 4).any()  # left free, it folds the rig
     assert not T_.joint_turns(tab, 4, stacked).any()
+
+
+def test_a_noise_free_floor_gives_its_normal_instead_of_failing():
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(-3, 3, (5000, 2)), np.zeros(5000)]  # every point at one height
+    tilted_up = np.array([0.05, 0.0, 1.0]) / np.linalg.norm([0.05, 0.0, 1.0])
+    assert np.allclose(T_._floor_normal(floor, tilted_up, rng), [0.0, 0.0, 1.0], atol=1e-9)

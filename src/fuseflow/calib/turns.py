@@ -169,7 +169,9 @@ def _floor_normal(cloud: np.ndarray, up: np.ndarray, rng: np.random.Generator) -
     """``up`` refined to the normal of the floor: the plane within 10 deg of ``up`` holding the
     most of the lowest third of the points (RANSAC, 2 cm), least-squares refitted."""
     h = cloud @ up
-    low = cloud[h < np.percentile(h, 33)]
+    low = cloud[h <= np.percentile(h, 33)]  # <=: a noise-free floor holds the whole lowest third
+    if len(low) < 3:
+        return up
     low = low[rng.choice(len(low), min(len(low), 6000), replace=False)]
     best, best_n = None, 0
     for _ in range(200):
