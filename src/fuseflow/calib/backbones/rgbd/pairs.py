@@ -90,22 +90,29 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             cands += subject.pair(i, j) if subject is not None else []
             cands += spheres.pair(i, j) if spheres is not None else []
             judge = subject_judge(a, b, cands, cfg, subject, i, j)
-            rows, passing, verified = [], [], []
+            rows, passing, verified, seen = [], [], [], []
             for c in cands:
                 row, h, static_ok = judge_candidate(a, b, c, cands, cfg, judge, (i, j))
                 rows.append(row)
                 passing += [h] if h is not None else []
                 verified += [c] if static_ok and c["route"] in ORBIT_ROUTES else []
+                seen += [c] if c["route"] in ORBIT_ROUTES else []
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
-            work.append((i, j, cands, judge, passing, _distinct(verified), entry))
+            work.append((i, j, cands, judge, passing, (_distinct(verified), _distinct(seen)), entry))
             progress.report("rgbd: pairs", len(work), len(cams) * (len(cams) - 1) // 2)
-    ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
-    room = room_orbits({(w[0], w[1]): [c["T_ba"] for c in w[5]] for w in work}, ups)
-    for i, j, cands, judge, passing, verified, entry in work:
-        a, b = cams[i], cams[j]
+    room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work])
+    turned = 0
+    for i, j, cands, judge, passing, (verified, seen), entry in work:
         confirmed = any(r["ok"] and "subject_free_space" in r for r in entry["candidates"])
-        if room is not None and verified and not confirmed:
-            passing = passing + turned_candidates(a, b, room, (i, j), cands, judge, verified, entry, cfg)
+        sources = verified or seen[:1]
+        if room is not None and sources and not confirmed:
+            more = turned_candidates(cams[i], cams[j], room, (i, j), cands, judge, sources, entry, cfg)
+            passing.extend(more)
+            turned += len(more)
+    if unverified and not turned:  # the aliases' room confirmed no pose: no room was seen
+        room = None
+    for i, j, _, _, passing, _, entry in work:
+        a, b = cams[i], cams[j]
         kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
         if kept:
             hyps[(i, j)] = kept
@@ -113,6 +120,23 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             entry["hypotheses"] = len(kept)
         info.append(entry)
     return edges, info, hyps, (room.info() if room is not None else None)
+
+
+def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tuple[list, list]]]):
+    """(the room's ``RoomOrbits`` or None, whether it was found only from unverified poses).
+    ``poses``: pair -> (its distinct verified floor / image poses, all its distinct floor / image
+    poses). The room comes from the verified poses (``symmetry.room_orbits``); when they show
+    none, from every pose of those routes: where the image routes match the repeating walls
+    alone, every pose they find is an alias, a whole number of periods off (a 9-fold symstudio
+    at 320x240: 0 of 21 pairs verified, their poses 40-160 deg off in multiples of 40), and the
+    aliases of a pair show the room's turn as well as verified ones do. Such a room only
+    proposes turned poses; the caller drops it when none of them passes verification."""
+    ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
+    room = room_orbits({p: [c["T_ba"] for c in v] for p, (v, _) in poses}, ups)
+    if room is not None:
+        return room, False
+    room = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
+    return room, room is not None
 
 
 def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[dict], cfg: RGBDConfig, judge,
