@@ -103,6 +103,8 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
     room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work])
     turned = 0
     for i, j, cands, judge, passing, (verified, seen), entry in work:
+        if room is not None:
+            passing[:] = unstacked(cams[i], cams[j], passing, cands, entry, cfg)
         confirmed = any(r["ok"] and "subject_free_space" in r for r in entry["candidates"])
         sources = verified or seen[:1]
         if room is not None and sources and not confirmed:
@@ -137,6 +139,29 @@ def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tup
         return room, False
     room = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
     return room, room is not None
+
+
+def unstacked(a: CameraEvidence, b: CameraEvidence, passing: list[Hypothesis], cands: list[dict], entry: dict,
+              cfg: RGBDConfig) -> list[Hypothesis]:  # fmt: skip
+    """The passing hypotheses of a pair in a repeating room less those that put the two cameras
+    on one spot (their rows marked rejected). ``evidence.plausible`` lets such a pose pass when
+    the two views agree as one (a hand-held camera's frames taken as a rig), but in a room that
+    repeats, cameras mounted at whole periods see the same room, and a pose that stacks one on
+    the other agrees with it at 0.99 (polyroom, 12-fold, 10 cameras on its pillars: every pair
+    had a stacking pose that passed, its subject seen through at 0.00-0.06, as little as the
+    true pose's): the subject, small and far, cannot refute it, and the joint choice then folds
+    the ring onto one spot. The pair's turned poses (``turned_candidates``) bring the unstacked
+    members of the same orbit."""
+    near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(a, b))
+    out = []
+    for h in passing:
+        if not colocated(h.T_ji, near):
+            out.append(h)
+            continue
+        for c, row in zip(cands, entry["candidates"]):
+            if c is h.ref[0]:
+                row.update(ok=False, rejected="stacked in a repeating room")
+    return out
 
 
 def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[dict], cfg: RGBDConfig, judge,
