@@ -100,6 +100,7 @@ def symmetric_studio(b: Builder, rng: np.random.Generator, seed: int, dynamic: b
     yaw = rng.uniform(0, 2 * math.pi)
     place = transform(rot("z", yaw), (0.1, -0.05, 0.0))
     if dynamic:
+
         def pose(t: float) -> np.ndarray:
             k = t * fps  # frames since the first
             return place @ transform(rot("z", math.radians(SYM_TURN_DEG) * k), (SYM_STEP_M * k, 0.0, 0.0))
