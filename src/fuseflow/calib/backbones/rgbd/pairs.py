@@ -103,9 +103,11 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
     room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work])
     turned = 0
     for i, j, cands, judge, passing, (verified, seen), entry in work:
-        if room is not None:
-            passing[:] = unstacked(cams[i], cams[j], passing, cands, entry, cfg)
-        confirmed = any(r["ok"] and "subject_free_space" in r for r in entry["candidates"])
+        near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(cams[i], cams[j]))
+        confirmed = any(
+            r["ok"] and "subject_free_space" in r and not colocated(np.array(r["T_ji"]), near)
+            for r in entry["candidates"]
+        )
         sources = verified or seen[:1]
         if room is not None and sources and not confirmed:
             more = turned_candidates(cams[i], cams[j], room, (i, j), cands, judge, sources, entry, cfg)
@@ -113,7 +115,9 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             turned += len(more)
     if unverified and not turned:  # the aliases' room confirmed no pose: no room was seen
         room = None
-    for i, j, _, _, passing, _, entry in work:
+    for i, j, cands, _, passing, _, entry in work:
+        if room is not None:
+            passing[:] = unstacked(cams[i], cams[j], passing, cands, entry, cfg)
         a, b = cams[i], cams[j]
         kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
         if kept:
