@@ -73,9 +73,11 @@ def sphere_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[Cam
 def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None, spheres=None):
     """Candidates, verification and the accepted edge of every camera pair (canonical order);
     ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. In a room that
-    repeats (``symmetry.room_orbits`` on the verified floor and image poses), a pair with no
-    pose the subject confirms also gets its verified poses' turns about the room's axis
-    (``turned_candidates``). Returns (edges: the best plausible candidate of each pair, per-pair
+    repeats (``pair_room``: ``symmetry.room_orbits`` on the verified floor and image poses, else
+    on all of them), a pair with no pose the subject confirms also gets the turns of its best
+    verified pose (else of its best floor or image pose) about the room's axis
+    (``turned_candidates``), and poses that stack its two cameras are refused (``unstacked``).
+    Returns (edges: the best plausible candidate of each pair, per-pair
     info, hypotheses: pair -> its distinct plausible verified poses, best first, for the joint
     choice, the room's ``RoomOrbits`` info or None)."""
     edges: dict[tuple[int, int], Edge] = {}
