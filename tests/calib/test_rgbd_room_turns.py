@@ -81,3 +81,22 @@ def test_a_symmetric_studio_at_320x240_is_placed_from_one_frame():
         D = res.T_cam_world[k] @ W @ invert_rigid(T_true[k])
         deg = math.degrees(math.acos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
         assert deg < 1.0 and np.linalg.norm(invert_rigid(D)[:3, 3]) < 0.03, k
+
+
+def test_a_period_one_pair_shows_yields_to_the_period_every_pair_shows():
+    """One pair's two verified poses 360/11 deg apart in a 12-fold room (a near miss, within
+    tolerance of 11 sides) and every pair's aliases at multiples of 30 deg: the room has 12 sides."""
+    T = _cameras()
+    cams = [_cam(Tk) for Tk in T]
+    wrong = T[1] @ turn_about(np.array([0.0, 0.0, 1.0]), CENTRE, 360.0 / 11) @ invert_rigid(T[0])
+    verified = {(0, 1): [{"T_ba": T[1] @ invert_rigid(T[0])}, {"T_ba": wrong}]}
+    poses = []
+    for i in range(4):
+        for j in range(i + 1, 4):
+            seen = [{"T_ba": _alias(T, i, j, k, 12)} for k in (1, 2, 5)]
+            poses.append(((i, j), (verified.get((i, j), []), verified.get((i, j), []) + seen)))
+    room, unverified = pair_room(cams, poses)
+    assert room is not None and room.sides == 12 and not unverified
+    # with no other pair's poses, the one pair's period stands
+    room_1, _ = pair_room(cams, [((0, 1), (verified[(0, 1)], verified[(0, 1)]))])
+    assert room_1 is not None and room_1.sides == 11

@@ -130,6 +130,13 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
     return edges, info, hyps, (room.info() if room is not None else None)
 
 
+#: A room period that only this many pairs' verified poses show is checked against the period
+#: of all the pairs' floor and image poses (``pair_room``): one pair's two verified poses 32.7
+#: deg apart gave a 12-fold symstudio 11 sides (seed 5019 at 320x240), and every turned pose was
+#: then 2.7 deg per period off, yet verified at tau.
+MIN_ROOM_PAIRS = 2
+
+
 def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tuple[list, list]]]):
     """(the room's ``RoomOrbits`` or None, whether it was found only from unverified poses).
     ``poses``: pair -> (its distinct verified floor / image poses, all its distinct floor / image
@@ -138,13 +145,17 @@ def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tup
     alone, every pose they find is an alias, a whole number of periods off (a 9-fold symstudio
     at 320x240: 0 of 21 pairs verified, their poses 40-160 deg off in multiples of 40), and the
     aliases of a pair show the room's turn as well as verified ones do. Such a room only
-    proposes turned poses; the caller drops it when none of them passes verification."""
+    proposes turned poses; the caller drops it when none of them passes verification. A room
+    that fewer than MIN_ROOM_PAIRS pairs' verified poses show yields to the room of all poses
+    when more pairs show that one."""
     ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
     room = room_orbits({p: [c["T_ba"] for c in v] for p, (v, _) in poses}, ups)
-    if room is not None:
+    if room is not None and room.pairs >= MIN_ROOM_PAIRS:
         return room, False
-    room = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
-    return room, room is not None
+    wide = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
+    if room is not None and (wide is None or wide.pairs <= room.pairs):
+        return room, False
+    return wide, room is None and wide is not None
 
 
 def unstacked(a: CameraEvidence, b: CameraEvidence, passing: list[Hypothesis], cands: list[dict], entry: dict,
