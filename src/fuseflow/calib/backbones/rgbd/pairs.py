@@ -75,7 +75,8 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
     ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. In a room that
     repeats (``pair_room``: ``symmetry.room_orbits`` on the verified floor and image poses, else
     on all of them), a pair with no pose the subject confirms also gets the turns of its best
-    verified pose (else of its best floor or image pose) about the room's axis
+    verified pose (else, in a room only unverified poses show, of its best floor or image pose)
+    about the room's axis
     (``turned_candidates``), and poses that stack its two cameras are refused (``unstacked``).
     Returns (edges: the best plausible candidate of each pair, per-pair
     info, hypotheses: pair -> its distinct plausible verified poses, best first, for the joint
@@ -110,7 +111,7 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             r["ok"] and "subject_free_space" in r and not colocated(np.array(r["T_ji"]), near)
             for r in entry["candidates"]
         )
-        sources = verified or seen[:1]
+        sources = verified or (seen[:1] if unverified else [])
         if room is not None and sources and not confirmed:
             more = turned_candidates(cams[i], cams[j], room, (i, j), cands, judge, sources, entry, cfg)
             passing.extend(more)
