@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--families", default=",".join(FAMILIES))
     ap.add_argument("--seeds", default="1000-1004", help="e.g. 1000-1019 or 3,5,7")
     ap.add_argument("--resolution", default="320x240", help="WxH, or FAMILY=WxH,FAMILY=WxH")
-    ap.add_argument("--dynamic", action="store_true", help="polyroom: the figure moves between frames")
+    ap.add_argument("--dynamic", action="store_true", help="the figure moves between frames")
     ap.add_argument("--progress", type=Path, default=None, help="rewrite the rows here after each seed")
     ap.add_argument(
         "--planted",

@@ -6,8 +6,7 @@ Two separately written studio families of the simulator: ``symstudio`` (``synth.
 Kinect v2-class noise, 70 deg) and ``polyroom`` (``synth.studio_b``: a 6-12-sided room with its
 own textures, a seated figure of boxes and cylinders, Kinect v2 or Azure Kinect time-of-flight
 noise, 5-10 cameras on one or two rings 2.5-4 m out). Cameras: 5 + seed % 6. ``fuseflow.calibrate``
-with its defaults on the first ``frames`` frames (``dynamic``: the polyroom figure moves between
-frames).
+with its defaults on the first ``frames`` frames (``dynamic``: the figure moves between frames).
 
 Per camera: placed, verdict, rotation / centre error against the truth (the calibrated world tied
 to the true one through the placed camera that puts the most cameras within 1 deg / 3 cm; a lone
@@ -49,7 +48,7 @@ def sim_config(family: str, seed: int, resolution: tuple[int, int], frames: int,
     n = 5 + seed % 6
     if family == "symstudio":
         return SimConfig(cameras=n, frames=frames, scene="symstudio", rig="ring" if seed % 2 == 0 else "dome",
-                         resolution=resolution, hfov_deg=70.0, noise="kinect2", seed=seed)  # fmt: skip
+                         resolution=resolution, hfov_deg=70.0, noise="kinect2", seed=seed, dynamic=dynamic)  # fmt: skip
     return SimConfig(cameras=n, frames=frames, scene="polyroom", resolution=resolution, seed=seed, dynamic=dynamic)
 
 

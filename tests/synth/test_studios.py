@@ -65,3 +65,21 @@ def test_far_room_person_walks_and_walls_are_plain():
     assert plain.std() < 2 * PLAIN_CONTRAST * sim.textures[:2].astype(float).std()
     sf = sim.render(1)
     assert sf.frame.depth.shape == (3, 48, 64) and float((sf.frame.depth > 0).float().mean()) > 0.1
+
+
+def test_symmetric_studio_figure_moves_only_when_dynamic():
+    """With ``dynamic`` the figure turns and steps from frame to frame (the rest of the room and
+    its props stay); frame 0 and the still scene render the same images."""
+    cfg = dict(cameras=2, frames=3, scene="symstudio", rig="ring", resolution=(64, 48), noise="none", seed=5)
+    still, moving = Simulator(SimConfig(**cfg)), Simulator(SimConfig(**cfg, dynamic=True))
+    names = {p.name for p in moving.scene.parts if p.moving}
+    assert names and all(n.startswith("figure.") for n in names)
+    assert not any(p.moving for p in still.scene.parts)
+    s0, m0, s2, m2 = (sim.render(t).frame for sim, t in ((still, 0), (moving, 0), (still, 2), (moving, 2)))
+    assert np.array_equal(s0.depth.numpy(), m0.depth.numpy()) and np.array_equal(s0.color.numpy(), m0.color.numpy())
+    assert np.array_equal(s0.depth.numpy(), s2.depth.numpy())
+    changed = np.abs(m2.depth.numpy() - s2.depth.numpy()) > 0.01
+    assert 0 < changed.mean() < 0.2  # the figure, not the room
+    torso = [p for p in moving.scene.parts if p.name == "figure.torso"][0]
+    step = np.linalg.norm(torso.pose(2 / 30.0)[:3, 3] - torso.pose(0.0)[:3, 3])
+    assert 0.05 < step < 0.5

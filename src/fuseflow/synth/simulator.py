@@ -69,7 +69,7 @@ class Simulator:
         self.cfg = cfg
         self.textures = make_textures(cfg.seed)
         if cfg.scene in STUDIO_SCENES:
-            self.scene: Scene = build_studio(cfg.scene, cfg.seed, len(self.textures))
+            self.scene: Scene = build_studio(cfg.scene, cfg.seed, len(self.textures), cfg.dynamic, cfg.fps)
             if cfg.scene == "farroom":  # its plain walls: two textures after the normal ones
                 self.textures = np.concatenate([self.textures, plain_textures(self.textures)])
         else:

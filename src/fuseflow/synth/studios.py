@@ -3,7 +3,8 @@
 ``symstudio``: a regular N-gon room (N = 8..12 from the seed) whose wall panels, floor sectors and
 ceiling sectors repeat exactly (same texture, same texture offset, same tint, same geometry every
 360/N deg; a column at every corner), with a small asymmetric figure at the centre (a 1.75 m
-figure, a coloured bag beside it, a box at its feet). Only the figure tells the N rotations of the
+figure, a coloured bag beside it, a box at its feet), still, or with ``SimConfig.dynamic`` turning,
+stepping and swinging its limbs from frame to frame. Only the figure tells the N rotations of the
 room apart. Cameras: one ring (``SimConfig.rig`` 'ring') or two rings (otherwise), evenly spaced
 with the room's symmetry, looking at the figure (``studio_eyes``).
 
@@ -71,8 +72,16 @@ def _repeat(b: Builder, name: str, mesh: MeshData, local: np.ndarray, n: int, te
         b.parts[-1] = replace(b.parts[-1], uv_offset=np.zeros(2))
 
 
-def symmetric_studio(b: Builder, rng: np.random.Generator, seed: int) -> dict:
-    """The ``symstudio`` scene (module docstring); returns the Scene's layout hints."""
+#: ``symstudio`` with ``SimConfig.dynamic``: per frame the figure turns by this (deg) about its
+#: vertical axis, steps this far (metres) along where it faces, and its arms and legs swing by
+#: this phase (rad); frame 0 is the still scene's.
+SYM_TURN_DEG, SYM_STEP_M, SYM_SWING_RAD = 12.0, 0.06, 0.6
+
+
+def symmetric_studio(b: Builder, rng: np.random.Generator, seed: int, dynamic: bool = False, fps: float = 30.0) -> dict:
+    """The ``symstudio`` scene (module docstring); returns the Scene's layout hints. ``dynamic``:
+    the figure moves between frames (``SYM_TURN_DEG``, ``SYM_STEP_M``, ``SYM_SWING_RAD`` per frame
+    at ``fps``); the bag and the crate stay where the still scene has them."""
     n = sides_of(seed)
     a, H = SYM_APOTHEM, SYM_HEIGHT
     r = a / math.cos(math.pi / n)  # circumradius
@@ -90,7 +99,15 @@ def symmetric_studio(b: Builder, rng: np.random.Generator, seed: int) -> dict:
     # the asymmetric subject: a figure facing a seeded direction, a bag beside it, a box at its feet
     yaw = rng.uniform(0, 2 * math.pi)
     place = transform(rot("z", yaw), (0.1, -0.05, 0.0))
-    figure(b, "figure", static(place), lambda t: 0.5, False)
+    if dynamic:
+
+        def pose(t: float) -> np.ndarray:
+            k = t * fps  # frames since the first
+            return place @ transform(rot("z", math.radians(SYM_TURN_DEG) * k), (SYM_STEP_M * k, 0.0, 0.0))
+
+        figure(b, "figure", pose, lambda t: 0.5 + SYM_SWING_RAD * fps * t, True)
+    else:
+        figure(b, "figure", static(place), lambda t: 0.5, False)
     b.add("bag", box(0.3, 0.18, 0.4), place @ transform(t=(0.05, 0.42, 0.2)), tint=np.array([0.9, 0.3, 0.2]))
     b.add("crate", box(0.35, 0.3, 0.25), place @ transform(rot("z", 0.4), (0.45, -0.3, 0.125)),
           tint=np.array([0.2, 0.4, 0.9]))  # fmt: skip
@@ -177,12 +194,16 @@ def far_eyes(n_cameras: int, rng: np.random.Generator) -> list[tuple[np.ndarray,
     return out
 
 
-def build_studio(name: str, seed: int, n_textures: int) -> Scene:
+def build_studio(name: str, seed: int, n_textures: int, dynamic: bool = False, fps: float = 30.0) -> Scene:
     """The scene ``name`` ('symstudio' or 'farroom') laid out from ``seed``, with the same random
     stream as ``scene.build_scene``; 'farroom' uses the two plain textures at indices
-    ``n_textures`` and ``n_textures + 1`` (``plain_textures``). Moving parts are their own (the
-    far room's person walks whatever ``SimConfig.dynamic`` says)."""
+    ``n_textures`` and ``n_textures + 1`` (``plain_textures``). Moving parts are their own: the
+    far room's person walks whatever ``dynamic`` says; the symmetric studio's figure moves with
+    ``dynamic`` (``symmetric_studio``), the same layout and the same first frame either way."""
     rng = np.random.default_rng([seed, 0x5CE7E])
     b = Builder(rng, n_textures)
-    hints = symmetric_studio(b, rng, seed) if name == "symstudio" else far_room(b, rng, n_textures)
+    if name == "symstudio":
+        hints = symmetric_studio(b, rng, seed, dynamic, fps)
+    else:
+        hints = far_room(b, rng, n_textures)
     return Scene(name=name, parts=tuple(b.parts), **hints)

@@ -73,9 +73,12 @@ def sphere_route(frames: list[Frame], rig: Rig, order: list[int], cams: list[Cam
 def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject=None, spheres=None):
     """Candidates, verification and the accepted edge of every camera pair (canonical order);
     ``people``: a ``people.PersonRoute`` adding route (d)'s candidates, or None. In a room that
-    repeats (``symmetry.room_orbits`` on the verified floor and image poses), a pair with no
-    pose the subject confirms also gets its verified poses' turns about the room's axis
-    (``turned_candidates``). Returns (edges: the best plausible candidate of each pair, per-pair
+    repeats (``pair_room``: ``symmetry.room_orbits`` on the verified floor and image poses, else
+    on all of them), a pair with no pose the subject confirms also gets the turns of its best
+    verified pose (else, in a room only unverified poses show, of its best floor or image pose)
+    about the room's axis
+    (``turned_candidates``), and poses that stack its two cameras are refused (``unstacked``).
+    Returns (edges: the best plausible candidate of each pair, per-pair
     info, hypotheses: pair -> its distinct plausible verified poses, best first, for the joint
     choice, the room's ``RoomOrbits`` info or None)."""
     edges: dict[tuple[int, int], Edge] = {}
@@ -90,22 +93,35 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             cands += subject.pair(i, j) if subject is not None else []
             cands += spheres.pair(i, j) if spheres is not None else []
             judge = subject_judge(a, b, cands, cfg, subject, i, j)
-            rows, passing, verified = [], [], []
+            rows, passing, verified, seen = [], [], [], []
             for c in cands:
                 row, h, static_ok = judge_candidate(a, b, c, cands, cfg, judge, (i, j))
                 rows.append(row)
                 passing += [h] if h is not None else []
                 verified += [c] if static_ok and c["route"] in ORBIT_ROUTES else []
+                seen += [c] if c["route"] in ORBIT_ROUTES else []
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
-            work.append((i, j, cands, judge, passing, _distinct(verified), entry))
+            work.append((i, j, cands, judge, passing, (_distinct(verified), _distinct(seen)), entry))
             progress.report("rgbd: pairs", len(work), len(cams) * (len(cams) - 1) // 2)
-    ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
-    room = room_orbits({(w[0], w[1]): [c["T_ba"] for c in w[5]] for w in work}, ups)
-    for i, j, cands, judge, passing, verified, entry in work:
+    room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work])
+    turned = 0
+    for i, j, cands, judge, passing, (verified, seen), entry in work:
+        near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(cams[i], cams[j]))
+        confirmed = any(
+            r["ok"] and "subject_free_space" in r and not colocated(np.array(r["T_ji"]), near)
+            for r in entry["candidates"]
+        )
+        sources = verified or (seen[:1] if unverified else [])
+        if room is not None and sources and not confirmed:
+            more = turned_candidates(cams[i], cams[j], room, (i, j), cands, judge, sources, entry, cfg)
+            passing.extend(more)
+            turned += len(more)
+    if unverified and not turned:  # the aliases' room confirmed no pose: no room was seen
+        room = None
+    for i, j, cands, _, passing, _, entry in work:
+        if room is not None:
+            passing[:] = unstacked(cams[i], cams[j], passing, cands, entry, cfg)
         a, b = cams[i], cams[j]
-        confirmed = any(r["ok"] and "subject_free_space" in r for r in entry["candidates"])
-        if room is not None and verified and not confirmed:
-            passing = passing + turned_candidates(a, b, room, (i, j), cands, judge, verified, entry, cfg)
         kept = distinct_hypotheses(passing, JOINT_ROT_DEG, JOINT_TRANS_M, cfg.pair_hypotheses)
         if kept:
             hyps[(i, j)] = kept
@@ -113,6 +129,57 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             entry["hypotheses"] = len(kept)
         info.append(entry)
     return edges, info, hyps, (room.info() if room is not None else None)
+
+
+#: A room period that only this many pairs' verified poses show is checked against the period
+#: of all the pairs' floor and image poses (``pair_room``): one pair's two verified poses 32.7
+#: deg apart gave a 12-fold symstudio 11 sides (seed 5019 at 320x240), and every turned pose was
+#: then 2.7 deg per period off, yet verified at tau.
+MIN_ROOM_PAIRS = 2
+
+
+def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tuple[list, list]]]):
+    """(the room's ``RoomOrbits`` or None, whether it was found only from unverified poses).
+    ``poses``: pair -> (its distinct verified floor / image poses, all its distinct floor / image
+    poses). The room comes from the verified poses (``symmetry.room_orbits``); when they show
+    none, from every pose of those routes: where the image routes match the repeating walls
+    alone, every pose they find is an alias, a whole number of periods off (a 9-fold symstudio
+    at 320x240: 0 of 21 pairs verified, their poses 40-160 deg off in multiples of 40), and the
+    aliases of a pair show the room's turn as well as verified ones do. Such a room only
+    proposes turned poses; the caller drops it when none of them passes verification. A room
+    that fewer than MIN_ROOM_PAIRS pairs' verified poses show yields to the room of all poses
+    when more pairs show that one."""
+    ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
+    room = room_orbits({p: [c["T_ba"] for c in v] for p, (v, _) in poses}, ups)
+    if room is not None and room.pairs >= MIN_ROOM_PAIRS:
+        return room, False
+    wide = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
+    if room is not None and (wide is None or wide.pairs <= room.pairs):
+        return room, False
+    return wide, room is None and wide is not None
+
+
+def unstacked(a: CameraEvidence, b: CameraEvidence, passing: list[Hypothesis], cands: list[dict], entry: dict,
+              cfg: RGBDConfig) -> list[Hypothesis]:  # fmt: skip
+    """The passing hypotheses of a pair in a repeating room less those that put the two cameras
+    on one spot (their rows marked rejected). ``evidence.plausible`` lets such a pose pass when
+    the two views agree as one (a hand-held camera's frames taken as a rig), but in a room that
+    repeats, cameras mounted at whole periods see the same room, and a pose that stacks one on
+    the other agrees with it at 0.99 (polyroom, 12-fold, 10 cameras on its pillars: every pair
+    had a stacking pose that passed, its subject seen through at 0.00-0.06, as little as the
+    true pose's): the subject, small and far, cannot refute it, and the joint choice then folds
+    the ring onto one spot. The pair's turned poses (``turned_candidates``) bring the unstacked
+    members of the same orbit."""
+    near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(a, b))
+    out = []
+    for h in passing:
+        if not colocated(h.T_ji, near):
+            out.append(h)
+            continue
+        for c, row in zip(cands, entry["candidates"]):
+            if c is h.ref[0]:
+                row.update(ok=False, rejected="stacked in a repeating room")
+    return out
 
 
 def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[dict], cfg: RGBDConfig, judge,
