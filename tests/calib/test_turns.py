@@ -199,3 +199,48 @@ def test_a_noise_free_floor_gives_its_normal_instead_of_failing():
     floor = np.c_[rng.uniform(-3, 3, (5000, 2)), np.zeros(5000)]  # every point at one height
     tilted_up = np.array([0.05, 0.0, 1.0]) / np.linalg.norm([0.05, 0.0, 1.0])
     assert np.allclose(T_._floor_normal(floor, tilted_up, rng), [0.0, 0.0, 1.0], atol=1e-9)
+
+
+def _arc_room(sides: int | None, arc_deg: float = 120.0, floor_share: float = 0.5):
+    """One arc of a room seen by three cameras on the far side of its axis (at the origin, up z),
+    as when cameras placed whole periods off all see the same walls: ``sides`` panels whose stripes
+    repeat every panel (None: panels of random colours at random distances, a room that does not
+    repeat) and a plain floor that every turn keeps; camera -> (points, colours), poses."""
+    rng = np.random.default_rng(0)
+    half = math.radians(arc_deg) / 2
+    n = sides or 7
+    a = rng.uniform(-half, half, 20000)
+    panel = np.floor((a + math.pi) / (2 * math.pi / n))
+    s = (a + math.pi) / (2 * math.pi / n) - panel  # position along the panel, 0..1
+    if sides:
+        radius, col = np.full(len(a), 4.5), np.stack([128 + 90 * np.sin(2 * math.pi * k * s) for k in (1, 2, 3)], 1)
+    else:
+        radius = 4.0 + rng.uniform(0, 1, n)[panel.astype(int) % n] + 0.3 * s
+        col = rng.uniform(30, 220, (n, 3))[panel.astype(int) % n] + 60 * s[:, None]
+    wall = np.c_[radius * np.cos(a), radius * np.sin(a), rng.uniform(0, 2.7, len(a))]
+    m = int(len(a) * floor_share / (1 - floor_share))
+    fa, fr = rng.uniform(-half, half, m), 3.9 * np.sqrt(rng.uniform(0, 1, m))
+    floor = np.c_[fr * np.cos(fa), fr * np.sin(fa), np.zeros(m)]
+    X, C = np.r_[wall, floor], np.r_[col, np.full((m, 3), 128.0)]
+    T, pts = {}, {}
+    for k, yaw in enumerate((-0.15, 0.0, 0.15)):  # at azimuth 180 deg, 3 m out, looking through the axis
+        c = np.array([-3.0 * math.cos(yaw), -3.0 * math.sin(yaw), 1.5])
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        T[f"c{k}"] = np.eye(4)
+        T[f"c{k}"][:3, :3], T[f"c{k}"][:3, 3] = R, -R @ c
+        pts[f"c{k}"] = (X[k::3], C[k::3])
+    return pts, T
+
+
+def test_the_walls_alone_find_a_room_whose_floor_hides_its_period():
+    # a 6-sided room seen on a 120-deg arc, as when cameras placed whole periods off all see the
+    # same walls: the plain floor, which every turn keeps, lifts every period's share so the room
+    # points' contrast stays under ROOM_MIN_CONTRAST; the walls alone repeat at 60 deg
+    pts, T = _arc_room(6)
+    room = T_.room_axis(pts, T, np.array([0.0, 0.0, 1.0]))
+    assert room is not None and room.sides == 6 and np.linalg.norm(room.point[:2]) < 0.05
+    pts, T = _arc_room(None)  # the same arc of panels that do not repeat: no room
+    assert T_.room_axis(pts, T, np.array([0.0, 0.0, 1.0])) is None
