@@ -15,6 +15,7 @@ definitions of within / silently wrong / flagged / unplaced: benchmarks.studies.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from benchmarks.common import command, parser, save
@@ -30,6 +31,20 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
+def _reproducing(argv: list[str] | None) -> list[str]:
+    """The arguments without the ones that only say where files go (--work, --progress,
+    --json): the command stored with the results, free of absolute paths."""
+    args, out, skip = list(sys.argv[1:] if argv is None else argv), [], False
+    for x in args:
+        if skip:
+            skip = False
+        elif x in ("--work", "--progress", "--json"):
+            skip = True
+        elif not x.startswith(("--work=", "--progress=", "--json=")):
+            out.append(x)
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = parser(__doc__, num_frames=1)
     ap.add_argument("--seeds", default="100-104", help="e.g. 100-119 or 3,5,7")
@@ -42,7 +57,7 @@ def main(argv: list[str] | None = None) -> None:
     rows, totals = run_bench(_seeds(a.seeds), a.resolution, a.num_frames, a.moving, a.work, a.progress)
     name = a.name or f"calib_independent_{a.resolution}" + (f"_moving{a.num_frames}" if a.moving else "")
     meta = {"resolution": a.resolution, "frames": a.num_frames, "moving": a.moving, "totals": totals}
-    save(a, name, command("calib_independent", argv), rows, meta)
+    save(a, name, command("calib_independent", _reproducing(argv)), rows, meta)
 
 
 if __name__ == "__main__":
