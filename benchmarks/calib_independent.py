@@ -38,9 +38,9 @@ def _reproducing(argv: list[str] | None) -> list[str]:
     for x in args:
         if skip:
             skip = False
-        elif x in ("--work", "--progress", "--json"):
+        elif x in ("--work", "--progress", "--json"):  # (--rescore only re-reads them: dropped too)
             skip = True
-        elif not x.startswith(("--work=", "--progress=", "--json=")):
+        elif x != "--rescore" and not x.startswith(("--work=", "--progress=", "--json=")):
             out.append(x)
     return out
 
@@ -52,9 +52,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--moving", action="store_true", help="the figure moves between frames")
     ap.add_argument("--work", type=Path, default=Path("/tmp/calib-independent"), help="recordings and outputs")
     ap.add_argument("--progress", type=Path, default=None, help="rewrite the rows here after each seed")
+    ap.add_argument("--rescore", action="store_true", help="only score the outputs already under --work")
     ap.add_argument("--name", default=None, help="results name under --save (default: calib_independent_RES[_moving])")
     a = ap.parse_args(argv)
-    rows, totals = run_bench(_seeds(a.seeds), a.resolution, a.num_frames, a.moving, a.work, a.progress)
+    rows, totals = run_bench(_seeds(a.seeds), a.resolution, a.num_frames, a.moving, a.work, a.progress, a.rescore)
     name = a.name or f"calib_independent_{a.resolution}" + (f"_moving{a.num_frames}" if a.moving else "")
     meta = {"resolution": a.resolution, "frames": a.num_frames, "moving": a.moving, "totals": totals}
     save(a, name, command("calib_independent", _reproducing(argv)), rows, meta)

@@ -53,15 +53,21 @@ def errors_through(anchor: str, est: dict, true: dict) -> dict[str, tuple[float,
     return out
 
 
-def score(est: dict, true: dict) -> tuple[str | None, dict[str, tuple[float, float]], bool]:
+def score(
+    est: dict, true: dict, good: set[str] | frozenset = frozenset()
+) -> tuple[str | None, dict[str, tuple[float, float]], bool]:
     """The anchor, every placed camera's (deg, cm) through it, and whether at least two cameras
-    are within 1 deg / 3 cm under it (else none counts as within)."""
+    are within 1 deg / 3 cm under it (else none counts as within). Ties in the count of cameras
+    within go to the anchor that leaves the fewest cameras of ``good`` (verdict "good") more than
+    2 deg / 5 cm off, then to the smaller median error: the count of silently wrong cameras is a
+    lower bound."""
     best, best_key = None, None
     for a in sorted(est):
         errs = errors_through(a, est, true)
         n = sum(r <= WITHIN[0] and p <= WITHIN[1] for r, p in errs.values())
+        wrong = sum(c in good and (r > WRONG[0] or p > WRONG[1]) for c, (r, p) in errs.items())
         med = float(np.median([r + p for r, p in errs.values()]))
-        key = (-n, med)
+        key = (-n, wrong, med)
         if best_key is None or key < best_key:
             best, best_key = a, key
     if best is None:
@@ -83,7 +89,7 @@ def camera_rows(calib: dict | None, truth: dict, period: float) -> list[dict]:
     """One row per camera of the truth: placed, verdict, reason, errors, counted classes."""
     est = {c: np.asarray(v["T_cam_world"], float) for c, v in (calib or {}).get("cameras", {}).items()}
     verdicts = (calib or {}).get("report", {}).get("camera_verdicts", {}) or {}
-    anchor, errs, enough = score(est, truth)
+    anchor, errs, enough = score(est, truth, {c for c, v in verdicts.items() if v.get("verdict") == "good"})
     rows = []
     for c in truth:
         v = verdicts.get(c, {})
@@ -110,23 +116,48 @@ def run_seed(seed: int, resolution: str, frames: int, moving: bool, work: Path) 
     rec = work / f"{resolution}-f{frames}{'m' if moving else ''}-{seed}"
     out = rec.with_name(rec.name + "-out")
     out.mkdir(parents=True, exist_ok=True)
-    info = write_studio(rec, studio)
+    write_studio(rec, studio)
     code, secs, tail = _calibrate(rec, out)
-    calib = json.loads((out / "calib.json").read_text()) if code == 0 and (out / "calib.json").exists() else None
-    truth = {c.id: c.T_cam_world for c in studio.cams}
-    cams = camera_rows(calib, truth, studio.room.period)
-    row = {**info, "moving": moving, "exit_code": code, "time_s": round(secs, 1),
+    error = tail.strip().splitlines()[-1] if code != 0 and tail.strip() else ""
+    (out / "run.json").write_text(json.dumps({"exit_code": code, "time_s": round(secs, 1), "error": error}))
+    return score_outputs(rec, out, moving)
+
+
+def score_outputs(rec: Path, out: Path, moving: bool) -> dict:
+    """The result row of one calibrated studio from its files: REC/scene.json, REC/reference.json
+    (the truth), OUT/calib.json and OUT/run.json (exit code, time)."""
+    info = json.loads((rec / "scene.json").read_text())
+    run = json.loads((out / "run.json").read_text())
+    truth = {
+        c: np.asarray(v["T_cam_world"], float)
+        for c, v in json.loads((rec / "reference.json").read_text())["cameras"].items()
+    }
+    calib_path = out / "calib.json"
+    calib = json.loads(calib_path.read_text()) if run["exit_code"] == 0 and calib_path.exists() else None
+    cams = camera_rows(calib, truth, 360.0 / info["sides"])
+    room = (calib or {}).get("report", {}).get("room") or {}
+    row = {**info, "moving": moving, "exit_code": run["exit_code"], "time_s": run["time_s"],
+           "room_detected": room.get("sides") if isinstance(room, dict) else None,
            "placed": sum(c["placed"] for c in cams), "within": sum(c["within"] for c in cams),
            "silently_wrong": sum(c["silently_wrong"] for c in cams), "flagged": sum(c["flagged"] for c in cams),
            "unplaced": sum(not c["placed"] for c in cams), "cameras_rows": cams}  # fmt: skip
-    if code != 0:
-        row["error"] = tail.strip().splitlines()[-1] if tail.strip() else ""
+    if run["exit_code"] != 0:
+        row["error"] = run.get("error", "")
     return row
+
+
+def rescore(work: Path, seeds: list[int], resolution: str, frames: int, moving: bool) -> list[dict]:
+    """The rows of seeds already calibrated under ``work`` (scoring only)."""
+    rows = []
+    for s in seeds:
+        rec = work / f"{resolution}-f{frames}{'m' if moving else ''}-{s}"
+        rows.append(score_outputs(rec, rec.with_name(rec.name + "-out"), moving))
+    return rows
 
 
 def seed_line(r: dict) -> str:
     """One report line of a seed, then its failing cameras."""
-    head = (f"seed {r['seed']} {r['sensor']} N={r['sides']} cams={r['cameras']}: within {r['within']}, "
+    head = (f"seed {r['seed']} {r['sensor']} N={r['sides']} (found {r.get('room_detected')}) cams={r['cameras']}: within {r['within']}, "
             f"silently wrong {r['silently_wrong']}, flagged {r['flagged']}, unplaced {r['unplaced']}, "
             f"{r['time_s']} s" + (f", exit {r['exit_code']}: {r.get('error', '')}" if r["exit_code"] else ""))  # fmt: skip
     bad = [c for c in r["cameras_rows"] if not c["within"]]
@@ -150,11 +181,18 @@ def totals(rows: list[dict]) -> dict:
             "median_time_s": float(np.median([r["time_s"] for r in rows])) if rows else 0.0}  # fmt: skip
 
 
-def run_bench(seeds: list[int], resolution: str, frames: int, moving: bool, work: Path, progress: Path | None):
-    """Every seed in order; logs each seed and the totals; returns (rows, totals)."""
+def run_bench(
+    seeds: list[int], resolution: str, frames: int, moving: bool, work: Path, progress: Path | None, again: bool = False
+):
+    """Every seed in order (``again``: only score the outputs already under ``work``); logs each
+    seed and the totals; returns (rows, totals)."""
     rows = []
     for s in seeds:
-        rows.append(run_seed(s, resolution, frames, moving, work))
+        rows.append(
+            rescore(work, [s], resolution, frames, moving)[0]
+            if again
+            else run_seed(s, resolution, frames, moving, work)
+        )
         log(seed_line(rows[-1]))
         if progress is not None:
             progress.write_text(json.dumps(rows, indent=1))
