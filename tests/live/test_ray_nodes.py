@@ -234,29 +234,37 @@ def test_raw_stamps_of_offset_clocks_pair_wrong_frames(cluster):
     assert src.status()["paired"]["mixed_index"] > 0  # +40 ms vs -25 ms is about one frame at 15 fps
 
 
-def test_node_killed_mid_stream_is_missing_within_a_second_and_rejoins(cluster, sim8):
-    import ray
-
+def _stand_in_loop(address):
+    """A RaySource on ``address`` running in a LiveLoop on a thread, FUSE replaced by a stand-in
+    that returns one point a present view: (source, kept frames, loop, thread, {"summary": ...})."""
     from fuseflow.live.loop import LiveLoop, LiveSettings
-    from fuseflow.live.sources.node import NodeOptions, spawn_node
     from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
     from fuseflow.types import FusedCloud
-
-    c, _, handles = cluster
-    v = 2
-    name, cams, off = SPLIT[v]
 
     def stand_in(frame, rig):
         m = int(frame.present.sum())
         return FusedCloud(torch.zeros(m, 3), torch.zeros(m, 3, dtype=torch.uint8), torch.ones(m),
                           torch.arange(m, dtype=torch.int16)), 1.0  # fmt: skip
 
-    src = RaySource(RayLiveOptions(address=c.address, nodes=3))
+    src = RaySource(RayLiveOptions(address=address, nodes=3))
     keep = _Keep()
     loop = LiveLoop(src, src.rig, LiveSettings(warmup=False), sinks=[keep], fuse_fn=stand_in)
     out = {}
     t = threading.Thread(target=lambda: out.setdefault("summary", loop.run()), daemon=True)
     t.start()
+    return src, keep, loop, t, out
+
+
+def test_node_killed_mid_stream_is_missing_within_a_second_and_rejoins(cluster, sim8):
+    import ray
+
+    from fuseflow.live.sources.node import NodeOptions, spawn_node
+
+    c, _, handles = cluster
+    v = 2
+    name, cams, off = SPLIT[v]
+
+    src, keep, loop, t, out = _stand_in_loop(c.address)
     try:
         time.sleep(1.5)
         ray.kill(handles[v])  # the capture node's process dies (its machine and Ray stay up)
@@ -290,26 +298,13 @@ def test_node_killed_mid_stream_is_missing_within_a_second_and_rejoins(cluster, 
 def test_whole_ray_node_removed_mid_stream_is_missing_and_rejoins_when_added_back(cluster, sim8):
     import ray
 
-    from fuseflow.live.loop import LiveLoop, LiveSettings
     from fuseflow.live.sources.node import NodeOptions, spawn_node
-    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
-    from fuseflow.types import FusedCloud
 
     c, machines, handles = cluster
     v = 1
     name, cams, off = SPLIT[v]
 
-    def stand_in(frame, rig):
-        m = int(frame.present.sum())
-        return FusedCloud(torch.zeros(m, 3), torch.zeros(m, 3, dtype=torch.uint8), torch.ones(m),
-                          torch.arange(m, dtype=torch.int16)), 1.0  # fmt: skip
-
-    src = RaySource(RayLiveOptions(address=c.address, nodes=3))
-    keep = _Keep()
-    loop = LiveLoop(src, src.rig, LiveSettings(warmup=False), sinks=[keep], fuse_fn=stand_in)
-    out = {}
-    t = threading.Thread(target=lambda: out.setdefault("summary", loop.run()), daemon=True)
-    t.start()
+    src, keep, loop, t, out = _stand_in_loop(c.address)
     try:
         time.sleep(1.5)
         c.remove_node(machines[v])  # the capture machine's Ray node (raylet, its actors) goes away
