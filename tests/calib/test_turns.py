@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fuseflow.calib import turns as T_
-from fuseflow.calib.verdicts import AMBIGUOUS_ACTION, TURN_MIN_MARGIN, TurnEvidence, camera_verdicts
+from fuseflow.calib.verdicts import AMBIGUOUS_ACTION, TURN_AXIS_MM, TURN_MIN_MARGIN, TurnEvidence, camera_verdicts
 from fuseflow.synth import SimConfig
 from fuseflow.synth.studio_b import PolyroomSimulator
 from fuseflow.types import invert_rigid
@@ -100,6 +100,17 @@ def test_in_a_repeating_room_cycles_do_not_vouch_for_the_turn():
     none = camera_verdicts(rep, T, ids, {}, room)  # a repeating room and no subject evidence
     assert {x["verdict"] for x in none.values()} == {"ambiguous"}
     assert v["a"]["turn"]["margin"] == 0.6 and v["a"]["turn"]["period_deg"] == 45.0
+
+
+def test_a_camera_the_subject_turned_is_as_precise_as_the_room_axis_at_best():
+    rep, T = _report()
+    room = _room(8)
+    turns = {"a": _ev(0, 0.6), "b": _ev(0, 0.6, moved=1), "c": _ev(0, 0.6)}
+    v = camera_verdicts(rep, T, list(T), turns, room)
+    assert v["a"]["verdict"] == "good" and v["c"]["verdict"] == "good"
+    lever_mm = 2 * math.sin(math.pi / 8) * TURN_AXIS_MM  # a 45-deg turn about an axis known to TURN_AXIS_MM
+    assert v["b"]["accuracy_mm"] == pytest.approx(lever_mm, abs=0.1) and v["b"]["verdict"] == "check it"
+    assert "+45 deg about the room's axis" in v["b"]["accuracy_from"]
 
 
 @pytest.fixture(scope="module")

@@ -45,6 +45,7 @@ that decides (docs/gmac-trust.md, "Verdict policy").
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from itertools import combinations
@@ -99,6 +100,14 @@ FALLBACK_ALONE = (
 )
 #: What a user can do about an ambiguous room turn.
 AMBIGUOUS_ACTION = "put a person or one asymmetric object in the middle, or record a few frames of them moving"
+#: How well a repeating room's axis is known (mm). A camera the subject turned by an angle a about
+#: that axis moves with the axis' error, so its position is known to no better than 2 sin(a / 2)
+#: times this, whatever its pair poses say: more than ``GOOD_MM`` for every turn of 30 deg or more,
+#: so a turned camera is never "good". Measured on independently rendered 6-12-sided studios
+#: (``python -m benchmarks.calib_independent --seeds 300-307 --resolution 320x240``): cameras turned
+#: by 30-180 deg ended 3.3-7 cm from the truth while their pair poses' estimate printed 3-26 mm
+#: (a 30-deg turn 7 cm off: an axis about 13 cm off).
+TURN_AXIS_MM = 100.0
 
 
 @dataclass(frozen=True)
@@ -356,6 +365,11 @@ def camera_verdicts(
         entry["floor_ok"] = floor_ok
         turn = (turns or {}).get(c)
         entry["turn"] = None if turn is None else turn.to_json()
+        if turn is not None and turn.moved:  # turned about an axis known to TURN_AXIS_MM
+            lever = 2.0 * abs(math.sin(math.pi * turn.moved / turn.sides))
+            if (entry["accuracy_mm"] or 0.0) < lever * TURN_AXIS_MM:
+                entry["accuracy_mm"] = round(lever * TURN_AXIS_MM, 1)
+                entry["accuracy_from"] = f"its turn by {turn.moved * 360.0 / turn.sides:+.0f} deg about the room's axis"
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
         if room is not None and entry["verdict"] == "good":
             entry["verdict"], entry["reason"] = _judge_turn(turn, room.sides, entry["reason"])
