@@ -19,7 +19,9 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and the best
    period is the base. N is the largest multiple of the base with at least ``SUB_PERIOD_SHARE``
    of the best share (a 12-fold room also repeats every 60 deg, and pairs that saw only 120-deg
-   aliases of a 6-fold room hint 3: the smallest turn is the one that matters).
+   aliases of a 6-fold room hint 3: the smallest turn is the one that matters). When no period
+   passes, the walls alone are searched again (``WALL_*``: floor and ceiling, which every turn
+   keeps, lift every period's share and so the median).
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
    ``SUBJECT_FLOOR_M`` above the floor and below ``SUBJECT_TOP_M`` (the floor is the mode of the
    lowest heights; walls and ceiling are outside that volume).
@@ -92,8 +94,8 @@ SUB_PERIOD_SHARE = 0.75
 #: land WALL_MIN_SHARE or more at their period, WALL_MIN_CONTRAST times the median and WALL_MIN_PEAK
 #: times the neighbouring periods N - 1 and N + 1 (a round wall keeps every small turn). Measured on
 #: calibrated clouds: independently rendered 6-sided studios whose cameras were placed whole turns
-#: off (the merged cloud's contrast 1.30-1.55) gave best wall shares 0.48-0.61 at contrast
-#: 3.9-5.5; rooms that do not repeat (kinect3-room, icl-noisy5, simulated rings and studios) gave
+#: off (the merged cloud's contrast 1.30-1.77) gave best wall shares 0.48-0.61 at contrast
+#: 3.6-5.7; rooms that do not repeat (kinect3-room, icl-noisy5, simulated rings and studios) gave
 #: best wall shares 0.03-0.11.
 WALL_BAND_M, WALL_MIN_SHARE, WALL_MIN_CONTRAST, WALL_MIN_PEAK = 0.25, 0.25, 3.0, 1.5
 #: Depth agreement tolerance of subject points: TAU_M + TAU_REL * depth (metres).
@@ -267,8 +269,9 @@ def room_period(shares: Mapping[int, float], hint: int | None = None, min_share:
     SUB_PERIOD_SHARE of the best and HINT_MIN_CONTRAST times the median; else, when the best share
     is at least ``min_share`` and ``min_contrast`` times the median (and ``min_peak`` times the
     shares of its neighbouring periods N - 1 and N + 1: a round wall keeps every small turn), the
-    best period. The room's period is the largest multiple of the base with at least SUB_PERIOD_SHARE of the best share
-    (the smallest turn that keeps the room: pair aliases of 120 deg in a 6-sided room hint 3)."""
+    best period. The room's period is the largest multiple of the base with at least
+    SUB_PERIOD_SHARE of the best share (the smallest turn that keeps the room: pair aliases of 120
+    deg in a 6-sided room hint 3)."""
     best, median = max(shares.values()), float(np.median(list(shares.values())))
     near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
     hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
