@@ -353,14 +353,15 @@ def _point_block(P: np.ndarray, Q: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
-def _normal_equations(views, W, W0, pairs, gate: float, tracks=()) -> tuple[np.ndarray, np.ndarray]:
+def _normal_equations(views, W, W0, pairs, gate: float, tracks=(), meat: np.ndarray | None = None):
     """The robust Gauss-Newton system (H (6n, 6n), g (6n,)) at the poses ``W``: keypoint tracks,
-    dense depth pairs and the prior toward ``W0``."""
+    dense depth pairs and the prior toward ``W0``. ``meat``: also add each cell's summed
+    gradient's outer product to it (``_add_cells``), from the same associations."""
     n = len(W)
     H = np.zeros((6 * n, 6 * n))
     g = np.zeros(6 * n)
-    _add_tracks(H, g, W, tracks)
-    _add_dense(H, g, views, W, pairs, gate)
+    _add_tracks(H, g, W, tracks, meat)
+    _add_dense(H, g, views, W, pairs, gate, meat)
     prior = np.tile(np.r_[[np.radians(PRIOR_DEG) ** -2] * 3, [PRIOR_M**-2] * 3], n)
     drift = np.concatenate([_log_se3(W[k] @ invert_rigid(W0[k])) for k in range(n)])
     H += np.diag(prior)
@@ -433,10 +434,8 @@ def _posterior(views, W, W0, pairs, fixed: list[int], tracks) -> dict[int, tuple
     free = _free(n, fixed)
     if not free.any():
         return {}
-    H, _ = _normal_equations(views, W, W0, pairs, GATES_M[-1], tracks)
     meat = np.zeros((6 * n, 6 * n))
-    _add_tracks(np.zeros_like(meat), np.zeros(6 * n), W, tracks, meat)
-    _add_dense(np.zeros_like(meat), np.zeros(6 * n), views, W, pairs, GATES_M[-1], meat)
+    H, _ = _normal_equations(views, W, W0, pairs, GATES_M[-1], tracks, meat)
     Hinv = np.linalg.inv(H[np.ix_(free, free)])
     cov = np.zeros((6 * n, 6 * n))
     cov[np.ix_(free, free)] = Hinv @ meat[np.ix_(free, free)] @ Hinv
