@@ -36,7 +36,7 @@ from fuseflow.calib.verdicts import drop_unconfirmed
 from fuseflow.geometry import depth_agreement, rigid_align
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["auto_place", "AUTO_SOURCES", "align_sources", "choose_sources", "drop_unconfirmed"]
+__all__ = ["auto_place", "AUTO_SOURCES", "align_sources", "choose_sources"]
 
 #: Sources in order of preference (a tie in depth agreement goes to the earlier one).
 AUTO_SOURCES = ("rgbd", "colmap")

@@ -154,7 +154,7 @@ def keep_confirmed(pl: Placement, frame: Frame, rig: Rig, min_agreement: float) 
     if not any(a is not None and a < min_agreement for a in pl.agreement.values()):
         return
     T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
-        pl.T, frame, rig, min_agreement, {pl.bb.name: pl.agreement}, merged=False
+        pl.T, frame, rig, min_agreement, {pl.bb.name: pl.agreement}, merged=False, agreement=pl.agreement
     )
     pl.T, pl.anchor = anchor_world(T, rig.ids)
 

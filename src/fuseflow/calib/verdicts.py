@@ -466,18 +466,20 @@ def drop_unconfirmed(
     min_agreement: float,
     under: Mapping[str, Mapping[str, float | None]],
     merged: bool = True,
+    agreement: Mapping[str, float | None] | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, float | None], dict[str, str]]:
     """The placement rule of every backbone: remove, one at a time, the camera with the lowest
     depth agreement under the extrinsics ``T`` while it is below ``min_agreement`` (a wrong camera
     also lowers its neighbours' agreement, so they are measured again without it). ``under``:
     source -> camera -> the agreement it had under that source's own poses (for the reason);
-    ``merged`` False: ``T`` is the one source's own poses. Returns (extrinsics, agreement of the kept cameras,
+    ``merged`` False: ``T`` is the one source's own poses. ``agreement``: the depth agreement of
+    ``T`` when already measured on ``frame``. Returns (extrinsics, agreement of the kept cameras,
     camera -> reason it is not placed)."""
     if min_agreement <= 0 or not T:
         return dict(T), {}, {}
     T = dict(T)
     reasons = {}
-    agreement = depth_agreement(frame, rig, T)
+    agreement = dict(agreement) if agreement is not None else depth_agreement(frame, rig, T)
     while True:
         low = {c: a for c, a in agreement.items() if a is not None and a < min_agreement}
         if not low:
