@@ -48,7 +48,8 @@ def clouds(data_dir: Path, work: Path) -> dict[str, Any]:
     }
 
 
-def _cpu_ms(fn, repeats: int) -> tuple[Any, float]:
+def cpu_ms(fn, repeats: int) -> tuple[Any, float]:
+    """(the last result of ``fn()``, the median CPU time of ``repeats`` calls after a first one, ms)."""
     out, times = fn(), []
     for _ in range(repeats):
         t = time.thread_time()
@@ -84,10 +85,10 @@ def measure(name: str, cloud: Any, params: list[CompactParams], repeats: int = 5
     settings: list[tuple[str, CompactParams | None]] = [("raw", None)] + [("compact", p) for p in params]
     for codec, p in settings:
         if p is None:
-            data, enc = _cpu_ms(lambda: encode_frame(cloud, 0, 0.0, 0.0, "raw"), repeats)
+            data, enc = cpu_ms(lambda: encode_frame(cloud, 0, 0.0, 0.0, "raw"), repeats)
         else:
-            data, enc = _cpu_ms(lambda p=p: encode_compact(xyz, rgb, 0, 0.0, 0.0, p), repeats)
-        _, dec = _cpu_ms(lambda data=data: decode_frame(data), max(1, repeats // 2))
+            data, enc = cpu_ms(lambda p=p: encode_compact(xyz, rgb, 0, 0.0, 0.0, p), repeats)
+        _, dec = cpu_ms(lambda data=data: decode_frame(data), max(1, repeats // 2))
         row = {"cloud": name, "points": len(xyz), "codec": codec, "grid_mm": p.step_mm if p else None,
                "luma_step": p.luma_step if p else None, "chroma_step": p.chroma_step if p else None,
                "chroma_block": p.chroma_block if p else None, "bytes": len(data),

@@ -15,11 +15,11 @@ import os
 import shutil
 import subprocess
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.studies.live_codec import cpu_ms
 from benchmarks.studies.live_codec_versions import DECODE_JS, fused_clouds
 from fuseflow.live import codec_kernels as K
 from fuseflow.live.codec import CompactParams
@@ -64,15 +64,6 @@ def decision_bits(ctx: np.ndarray, bits: np.ndarray, n_contexts: int) -> np.ndar
     return run(ctx, bits, n_contexts)
 
 
-def _cpu(fn, repeats: int) -> tuple[object, float]:
-    out, times = fn(), []
-    for _ in range(repeats):
-        t = time.thread_time()
-        out = fn()
-        times.append((time.thread_time() - t) * 1e3)
-    return out, float(np.median(times))
-
-
 def _geometry_parts(ctx: np.ndarray, cost: np.ndarray, n: int) -> dict:
     """Bits a point of child bits, single-child flags and index bits, at the last depth and above
     (the context ranges of ``codec_kernels.geo_contexts``: child bit contexts hold the last-depth
@@ -107,12 +98,12 @@ def split_row(name: str, xyz: np.ndarray, rgb: np.ndarray, repeats: int, p: Comp
     cctx, cbits = K.colour_decisions(qy, qc, p.chroma_block, no_leaf, no_rq, flags, True)
     ccost = decision_bits(cctx, cbits, K.COL_CONTEXTS)
     group = cctx // K.RES
-    (geo, _), enc_geo = _cpu(lambda: K.geometry_stream(leaves, levels, no_occ, no_first), repeats)
-    (col, _), enc_col = _cpu(
+    (geo, _), enc_geo = cpu_ms(lambda: K.geometry_stream(leaves, levels, no_occ, no_first), repeats)
+    (col, _), enc_col = cpu_ms(
         lambda: K.colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block, no_leaf, no_rq, p.split), repeats
     )
-    _, dec_geo = _cpu(lambda: K.decode_geometry(geo, levels, m, no_occ, no_first), repeats)
-    _, dec_col = _cpu(
+    _, dec_geo = cpu_ms(lambda: K.decode_geometry(geo, levels, m, no_occ, no_first), repeats)
+    _, dec_col = cpu_ms(
         lambda: K.decode_colour(col, m, p.luma_step, p.chroma_step, p.chroma_block, no_leaf, no_rq, True), repeats
     )
     return {"cloud": name, "points": n, "points_sent": m, "levels": levels,
