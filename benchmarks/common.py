@@ -116,6 +116,15 @@ def ints(text: str, option: str) -> list[int]:
         raise SystemExit(f"error: {option}: expected a comma list of integers, got {text!r}") from None
 
 
+def seeds(text: str) -> list[int]:
+    """Seeds written as ranges and lists: ``"100-119"``, ``"3,5,7"``, ``"1-4,9"``."""
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
 def names(text: str) -> list[str]:
     """A comma list of names."""
     return [v.strip() for v in text.split(",") if v.strip()]
