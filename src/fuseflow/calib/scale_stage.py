@@ -53,11 +53,14 @@ from fuseflow.calib.scale import (
     naive_median_scale,
     residuals,
 )
+from fuseflow.calib.verdicts import SCALE_CHECK_WARNING
 from fuseflow.types import invert_rigid
 
 __all__ = [
     "ScaleResult",
     "metric_scale",
+    "placement_scale",
+    "METRIC_SCALE_TOLERANCE",
     "CoarseSearch",
     "FixedPointResult",
     "StepFunction",
@@ -400,6 +403,42 @@ def metric_scale(
         warnings=tuple(warnings),
         scale_edges=tuple(global_edges),
     )
+
+
+#: A metric backbone's poses are trusted at s* = 1; GMAC's own s* further than this from 1 warns.
+#: On correct poses of simulated rings it reads 0.90-0.99 (docs/gmac-rgbd.md), so a tighter bound
+#: warns on correct calibrations; wrong depth units (mm vs 0.1 mm, 1/8 mm) move it by 2-10x.
+METRIC_SCALE_TOLERANCE = 0.15
+
+
+def placement_scale(
+    bb: BackboneResult, cams: list[CameraData], config: CalibConfig
+) -> tuple[ScaleResult, float | None, list[str]]:
+    """The scale the cameras are placed at: (the stage's result, the check's s* or None, warnings).
+    A scale-free backbone gets ``metric_scale``'s s* (no check, no warning). A metric one
+    (``bb.metric``) is placed at s = 1 and the stage runs on its poses as a check: the s* it
+    found (None when it could not run); s* far from 1 means the backbone's metric poses and the
+    sensor depth disagree (wrong pose, depth scale, intrinsics)."""
+    if not bb.metric:
+        return metric_scale(bb, cams, config), None, []
+    try:
+        sr = metric_scale(bb, cams, config)
+    except CalibrationError as e:
+        empty = ScaleResult(
+            s=1.0, s_initial=1.0, s_coarse=1.0, s_naive=None, edge_scales={}, edge_counts={}, edges=(), kept=(),
+            pruned=(), cycle_mode="off", cycle_residuals={}, cycle_residuals_before={}, cycle_residuals_mm={},
+            std_error=0.0, iterations=0, converged=True, peak_spread=0.0, warnings=(),
+        )  # fmt: skip
+        return empty, None, [f"the scale check on the metric backbone's poses could not run: {e}"]
+    check = sr.s
+    warnings = []
+    if abs(check - 1.0) > METRIC_SCALE_TOLERANCE:
+        warnings.append(
+            f"{SCALE_CHECK_WARNING} {check:.4f}, more than "
+            f"{METRIC_SCALE_TOLERANCE:.0%} from 1 (correct poses read 0.90-0.99): check the depth units "
+            "(rig.json depth_scale) and the intrinsics; the poses are used at scale 1"
+        )
+    return replace(sr, s=1.0, s_initial=1.0), check, warnings
 
 
 def scale_search_centre(bb: BackboneResult, cams: list[CameraData]) -> float:
