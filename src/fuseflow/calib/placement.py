@@ -125,7 +125,8 @@ def place_and_judge(
     (N, 3, 3), ``drange`` (N, 2) m): the stages in order (module docstring). Returns the
     calibration with its report and every camera's verdict."""
     t_start = time.perf_counter()
-    ids, limit = frames[0].camera_ids, config.min_depth_agreement
+    ids = frames[0].camera_ids
+    limit = config.min_depth_agreement
     with one_blas_thread():  # thin (M, 3) / (M, 6) products: BLAS threads only cost (calib.blas)
         pl = place_sources(frames, rig, depth, K, drange, config, backbone_result)
         if config.joint_refine and len(pl.T) >= 2:
@@ -173,7 +174,8 @@ def place_sources(
     confirm is left unplaced, with the reason), or, for ``auto``, the sources of
     ``auto.AUTO_SOURCES`` until one settles, merged (``auto.merge_sources``, the same rule)."""
     t0 = time.perf_counter()
-    ids, limit = frames[0].camera_ids, config.min_depth_agreement
+    ids = frames[0].camera_ids
+    limit = config.min_depth_agreement
     cams = prepare_cameras(depth, K, drange, config.samples_per_camera, config.seed)
     is_auto = config.backbone == "auto" and backbone_result is None
     runs: dict[str, Placement] = {}

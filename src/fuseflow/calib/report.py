@@ -90,7 +90,7 @@ class CalibReport(Mapping[str, Any]):
     """Wall-clock seconds per stage: "backbone", "scale", "refine" (when on), "total"."""
     world_anchor: str | None = None
     """The camera whose frame is the world (its extrinsic is the identity): the first placed
-    camera in rig order (``api.anchor_world``). None in reports written before it existed."""
+    camera in rig order (``posegraph.anchor_world``). None in reports written before it existed."""
     scale_check: float | None = None
     """Metric backbones (``rgbd``): GMAC's closed-form s* on their poses, a check (``scale`` is
     then 1; a warning when this is more than ``METRIC_SCALE_TOLERANCE`` (15 %) from 1). None for scale-free backbones, when the
