@@ -1,7 +1,7 @@
 """The ``auto`` backbone's sources merged: the metric RGB-D route first, COLMAP where it falls
 short, each camera placed by the source whose pose its neighbours' depth confirms best.
 
-The placement engine (:func:`fuseflow.calib.placement.place_sources`) places the cameras with each
+The placement engine (:func:`fuseflow.calib.placement.place_and_judge`) places the cameras with each
 source of ``AUTO_SOURCES`` in turn, and this module decides, in named steps:
 
 1. ``settled``: after ``rgbd`` (metric poses from depth and the floor, pooled over frames), no

@@ -2,8 +2,8 @@
 
 ``place_and_judge`` is the one path every backbone takes:
 
-1. ``place_sources``: the sampled depth of every camera (``correspondences.prepare_cameras``,
-   once), then ``place_with_backbone`` for the backbone (``auto``: each source of
+1. the sampled depth of every camera (``correspondences.prepare_cameras``, once), then
+   ``place_with_backbone`` for the backbone (``auto``: each source of
    ``auto.AUTO_SOURCES`` until ``auto.settled``): backbone (:mod:`backbones`) -> metric scale,
    or for a metric backbone its check (``scale_stage.placement_scale``, eq. 5-13) ->
    T_i = [R_i | s* t_i] (eq. 14) -> optional rigid refinement (:mod:`refine`) -> world anchor
@@ -54,7 +54,6 @@ __all__ = [
     "as_frames",
     "Placement",
     "place_and_judge",
-    "place_sources",
     "place_with_backbone",
     "anchor_world",
     "run_backbone",
@@ -122,13 +121,35 @@ def place_and_judge(
     backbone_result: BackboneResult | None = None,
 ) -> Calibration:
     """GMAC on checked ``frames`` (the first frame's ``depth`` (N, H, W) float32 m, ``K``
-    (N, 3, 3), ``drange`` (N, 2) m): the stages in order (module docstring). Returns the
-    calibration with its report and every camera's verdict."""
+    (N, 3, 3), ``drange`` (N, 2) m): the stages in order (module docstring). The cameras are
+    placed by ``config.backbone`` (or ``backbone_result``), that placement going through
+    ``verdicts.drop_unconfirmed`` (a camera its neighbours' depth does not confirm is left
+    unplaced, with the reason), or, for ``auto``, by the sources of ``auto.AUTO_SOURCES`` until
+    one settles, merged (``auto.merge_sources``, the same rule). Returns the calibration with
+    its report and every camera's verdict."""
     t_start = time.perf_counter()
     ids = frames[0].camera_ids
     limit = config.min_depth_agreement
     with one_blas_thread():  # thin (M, 3) / (M, 6) products: BLAS threads only cost (calib.blas)
-        pl = place_sources(frames, rig, depth, K, drange, config, backbone_result)
+        cams = prepare_cameras(depth, K, drange, config.samples_per_camera, config.seed)
+        is_auto = config.backbone == "auto" and backbone_result is None
+        runs: dict[str, Placement] = {}
+        failures: dict[str, str] = {}
+        for name in AUTO_SOURCES if is_auto else (config.backbone,):
+            try:
+                runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, cams, config, backbone_result)
+            except CalibrationError as e:
+                if not is_auto:
+                    raise
+                failures[name] = str(e)
+            if is_auto and settled(runs, ids, limit):
+                break
+        pl = merge_sources(runs, failures, frames[0], rig, limit, t_start) if is_auto else runs[config.backbone]
+        if not is_auto and any(a is not None and a < limit for a in pl.agreement.values()):
+            T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
+                pl.T, frames[0], rig, limit, {pl.bb.name: pl.agreement}, merged=False, agreement=pl.agreement
+            )
+            pl.T, pl.anchor = anchor_world(T, rig.ids)
         if config.joint_refine and len(pl.T) >= 2:
             from fuseflow.calib.joint_refine import joint_refine
 
@@ -158,46 +179,6 @@ def place_and_judge(
         pl.timings["report"] = time.perf_counter() - t
     pl.timings["total"] = time.perf_counter() - t_start
     return Calibration(pl.T, report)
-
-
-def place_sources(
-    frames: list[Frame],
-    rig: Rig,
-    depth: np.ndarray,
-    K: np.ndarray,
-    drange: np.ndarray,
-    config: CalibConfig,
-    backbone_result: BackboneResult | None = None,
-) -> Placement:
-    """The cameras placed by ``config.backbone`` (or ``backbone_result``): one backbone's
-    placement through ``verdicts.drop_unconfirmed`` (a camera its neighbours' depth does not
-    confirm is left unplaced, with the reason), or, for ``auto``, the sources of
-    ``auto.AUTO_SOURCES`` until one settles, merged (``auto.merge_sources``, the same rule)."""
-    t0 = time.perf_counter()
-    ids = frames[0].camera_ids
-    limit = config.min_depth_agreement
-    cams = prepare_cameras(depth, K, drange, config.samples_per_camera, config.seed)
-    is_auto = config.backbone == "auto" and backbone_result is None
-    runs: dict[str, Placement] = {}
-    failures: dict[str, str] = {}
-    for name in AUTO_SOURCES if is_auto else (config.backbone,):
-        try:
-            runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, cams, config, backbone_result)
-        except CalibrationError as e:
-            if not is_auto:
-                raise
-            failures[name] = str(e)
-        if is_auto and settled(runs, ids, limit):
-            break
-    if is_auto:
-        return merge_sources(runs, failures, frames[0], rig, limit, t0)
-    pl = runs[config.backbone]
-    if any(a is not None and a < limit for a in pl.agreement.values()):
-        T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
-            pl.T, frames[0], rig, limit, {pl.bb.name: pl.agreement}, merged=False, agreement=pl.agreement
-        )
-        pl.T, pl.anchor = anchor_world(T, rig.ids)
-    return pl
 
 
 def place_with_backbone(
