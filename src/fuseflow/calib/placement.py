@@ -144,12 +144,15 @@ def place_and_judge(
                 failures[name] = str(e)
             if is_auto and settled(runs, ids, limit):
                 break
-        pl = merge_sources(runs, failures, frames[0], rig, limit, t_start) if is_auto else runs[config.backbone]
-        if not is_auto and any(a is not None and a < limit for a in pl.agreement.values()):
-            T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
-                pl.T, frames[0], rig, limit, {pl.bb.name: pl.agreement}, merged=False, agreement=pl.agreement
-            )
-            pl.T, pl.anchor = anchor_world(T, rig.ids)
+        if is_auto:
+            pl = merge_sources(runs, failures, frames[0], rig, limit, t_start)
+        else:
+            pl = runs[config.backbone]
+            if any(a is not None and a < limit for a in pl.agreement.values()):
+                T, pl.agreement, pl.unplaced_reasons = drop_unconfirmed(
+                    pl.T, frames[0], rig, limit, {pl.bb.name: pl.agreement}, merged=False, agreement=pl.agreement
+                )
+                pl.T, pl.anchor = anchor_world(T, rig.ids)
         if config.joint_refine and len(pl.T) >= 2:
             from fuseflow.calib.joint_refine import joint_refine
 
@@ -173,8 +176,8 @@ def place_and_judge(
                 pl.agreement = depth_agreement(frames[0], rig, pl.T) if limit > 0 else {}
                 report = finish_report(pl, ids, settings, config.closed_form, limit)
             report.room = room.to_json()
-        report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
         report.camera_verdicts = camera_verdicts(report, pl.T, ids, turns, room, limit)
+        report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
         drop_answered_scale_warning(report)
         pl.timings["report"] = time.perf_counter() - t
     pl.timings["total"] = time.perf_counter() - t_start
