@@ -3,6 +3,7 @@
 Cameras and edges are named by camera id ("cam00", edge "cam00-cam03", triangle
 "cam00-cam03-cam05"), scales are metres per backbone unit, and every value is plain JSON data,
 so ``to_json()`` is exactly the ``"report"`` object of calib.json and ``from_json`` reads it back.
+``finish_report`` builds it from the placement engine's record (``calib.placement.Placement``).
 
 Read access by key (``report["scale"]``, ``report.get("warnings", [])``, ``"scale" in report``)
 is kept for code written against the dict report of earlier releases; it is deprecated in favour
