@@ -9,18 +9,20 @@ source of ``AUTO_SOURCES`` in turn, and this module decides, in named steps:
    when it finds the room repeating (``_repeating``: aliased pair poses): its ambiguous cameras
    stay unplaced, each with its reason. Otherwise ``colmap`` + GMAC's scale on the first frame
    runs too.
-2. ``merge_sources``, the rest:
-3. ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both placed
-   (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such cameras;
-   with 1-2 the first one's pose), using only cameras neither source flags as suspect.
-4. ``choose_sources``: where rgbd saw an aliased pair, a camera that it places and one of its
-   cycles checks keeps rgbd's pose; another camera several sources place gets the pose with the
-   higher depth agreement, each candidate measured against the same neighbours; ties go to rgbd
-   (metric by construction).
-5. ``verdicts.drop_unconfirmed`` (the rule every backbone's placement goes through): the merged
-   extrinsics' depth agreement; the lowest camera below ``min_depth_agreement`` is removed and the
-   rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the
-   agreement it had under every source): never placed wrong silently.
+2. ``merge_sources``, in three steps:
+
+   - ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both
+     placed (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such
+     cameras; with 1-2 the first one's pose), using only cameras neither source flags as suspect.
+   - ``choose_sources``: where rgbd saw an aliased pair, a camera that it places and one of its
+     cycles checks keeps rgbd's pose; another camera several sources place gets the pose with
+     the higher depth agreement, each candidate measured against the same neighbours; ties go to
+     rgbd (metric by construction).
+   - ``verdicts.drop_unconfirmed`` (the rule every backbone's placement goes through): the
+     merged extrinsics' depth agreement; the lowest camera below ``min_depth_agreement`` is
+     removed and the rest measured again, until none is below: it is not placed
+     (``unplaced_reasons`` says the agreement it had under every source): never placed wrong
+     silently.
 
 A source's placement here is a ``calib.placement.Placement`` (``T``, ``agreement``, ``bb``,
 ``sr``, ``warnings``, ``timings``, ``scale_check``).
@@ -60,7 +62,7 @@ def settled(runs: Mapping[str, Placement], ids: tuple[str, ...], min_agreement: 
 def merge_sources(
     runs: dict[str, Placement], failures: dict[str, str], frame: Frame, rig: Rig, min_agreement: float, t0: float
 ) -> Placement:
-    """One placement from the sources' (module docstring, steps 3-5); ``failures``: source -> why
+    """One placement from the sources' (module docstring, step 2); ``failures``: source -> why
     it raised; ``t0``: when the sources started (``time.perf_counter``).
 
     Raises:
