@@ -118,7 +118,7 @@ def test_scale_check_warning_is_dropped_only_when_every_verdict_is_good():
     it goes (the value stays in scale_check); one camera "check it" keeps it, as do other warnings."""
     from types import SimpleNamespace
 
-    from fuseflow.calib.placement import SCALE_CHECK_WARNING, drop_answered_scale_warning
+    from fuseflow.calib.verdicts import SCALE_CHECK_WARNING, drop_answered_scale_warning
 
     scale = f"{SCALE_CHECK_WARNING} 0.7584, more than 15% from 1"
     for verdicts, kept in (

@@ -143,11 +143,11 @@ def test_wrong_backbone_pose_is_never_placed_silently(scene_builder, backbone_bu
 
 
 def test_scale_warnings_name_edges_by_camera_id():
-    from fuseflow.calib.placement import _edge_names
+    from fuseflow.calib.report import edge_names
 
     ids = ("left", "mid", "right", "top", "cam4")
     assert (
-        _edge_names("edges [(0, 4), (2, 3)] have fewer than 50", ids)
+        edge_names("edges [(0, 4), (2, 3)] have fewer than 50", ids)
         == "edges [left-cam4, right-top] have fewer than 50"
     )
-    assert _edge_names("no edge here (scale 1.5)", ids) == "no edge here (scale 1.5)"
+    assert edge_names("no edge here (scale 1.5)", ids) == "no edge here (scale 1.5)"

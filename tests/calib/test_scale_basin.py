@@ -108,7 +108,8 @@ def test_consistent_counts_equal_one_count_per_scale(studio8):
     """The coarse search's batched count (``consistent_counts``) against its slow reference, one
     ``reproject`` and depth test per scale, on every directed pair of the ring: the same
     integers, also with the informative mask and with points behind camera j (tiny scales)."""
-    from fuseflow.calib.correspondences import consistent_counts, informative_mask, reproject
+    from fuseflow.calib.correspondences import reproject
+    from fuseflow.calib.scale_stage import consistent_counts, informative_mask
 
     def consistent_count(g, cam_i, cam_j, s, tau, mask):
         X = cam_i.X if mask is None else cam_i.X[mask]

@@ -71,7 +71,7 @@ def test_low_depth_agreement_is_check_it(run):
     report = copy.deepcopy(cal.report)
     c = rig.ids[3]
     report.depth_agreement = {**report.depth_agreement, c: 0.41}
-    v = camera_verdicts(report, cal.T_cam_world, rig.ids)
+    v = camera_verdicts(report, cal.T_cam_world, rig.ids, min_agreement=CalibConfig().min_depth_agreement)
     assert v[c]["verdict"] == "check it" and "0.41" in v[c]["reason"]
 
 

@@ -54,3 +54,14 @@ def test_an_explicit_scale_free_backbone_is_judged_by_the_same_rule():
         for c, e in v.items():
             assert e["verdict"] == "check it" and e["placed_alone"] == name, (name, c, e)
             assert f"placed by {name} alone" in e["reason"] and e["cycles"] == 1, e
+
+
+def test_the_depth_agreement_threshold_is_an_argument_not_read_from_the_report():
+    """The verdicts apply the threshold they are given; the report's copy of the config (calib.json
+    data) is never read back for it."""
+    rep, T = _auto_report(rgbd_edges=True)
+    rep.config = {"min_depth_agreement": 0.99}  # would flag every camera (0.95) if it were read
+    assert all(e["verdict"] == "good" for e in camera_verdicts(rep, T, list(T), min_agreement=0.8).values())
+    v = camera_verdicts(rep, T, list(T), min_agreement=0.97)
+    for e in v.values():
+        assert e["verdict"] == "check it" and "confirm only 0.95 of its depth (below 0.97)" in e["reason"], e

@@ -1,23 +1,23 @@
 """``calibrate(frame, rig, config) -> Calibration``: GMAC end to end (paper III-B, docs/design.md 3).
 
-``calibrate`` is the method's outline, one named step each: check the inputs -> backbone
-(scale-ambiguous poses, eq. 3, :mod:`backbones`) -> metric scale (RC correspondences, the scale
-fixed point and cycle pruning, eq. 5-13, :mod:`scale_stage`) -> place the cameras
-T_i = [R_i | s* t_i] (eq. 14) -> optional rigid refinement (:mod:`refine`) -> depth-agreement
-check (:func:`fuseflow.geometry.depth_agreement`) -> depth-aware joint refinement of all cameras
-(:mod:`joint_refine`, beyond the paper) -> the report (:class:`CalibReport`).
+``calibrate`` checks the inputs and hands them to the placement engine,
+:func:`fuseflow.calib.placement.place_and_judge`: backbone (scale-ambiguous poses, eq. 3,
+:mod:`backbones`) -> metric scale (RC correspondences, the scale fixed point and cycle pruning,
+eq. 5-13, :mod:`scale_stage`) -> place the cameras T_i = [R_i | s* t_i] (eq. 14) -> optional
+rigid refinement (:mod:`refine`) -> depth-agreement check -> depth-aware joint refinement of all
+cameras (:mod:`joint_refine`, beyond the paper) -> the report (:class:`CalibReport`) -> the
+room's turns (:mod:`turns`) -> every camera's verdict (:mod:`verdicts`). A recording goes through
+:mod:`pooling` first, which runs that path on one frame and, when needed, on pooled frames.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
 
 from fuseflow.calib import progress as progress_events
 from fuseflow.calib.backbones import BackboneResult
-from fuseflow.calib.blas import one_blas_thread
 from fuseflow.calib.config import CalibConfig
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.placement import (
@@ -25,18 +25,12 @@ from fuseflow.calib.placement import (
     Placement,
     anchor_world,
     as_frames,
-    drop_answered_scale_warning,
-    finish_report,
-    keep_confirmed,
+    place_and_judge,
     place_with_backbone,
-    refine_jointly,
 )
 from fuseflow.calib.pooling import RecordingLike, first_complete, pooled_calibration, warn_verdicts
 from fuseflow.calib.scale_stage import ScaleResult, metric_scale
-from fuseflow.calib.turns import camera_turns, settle_turns
-from fuseflow.calib.verdicts import TURN_MIN_MARGIN, camera_verdicts, pair_agreements
 from fuseflow.errors import ValidationError
-from fuseflow.geometry import depth_agreement
 from fuseflow.types import Calibration, Frame, Rig
 
 # ScaleResult and metric_scale live in scale_stage; re-exported here, where they used to be.
@@ -138,7 +132,11 @@ def calibrate(
     Warns:
         CalibrationWarning: one per camera left unplaced or not "good", with its verdict's reason.
     """
-    if not isinstance(frame, (Frame, Sequence)) and isinstance(frame, RecordingLike):
+    if isinstance(frame, (Frame, Sequence)) or not isinstance(frame, RecordingLike):
+        if rig is None:
+            raise ValidationError("calibrate: a rig is needed with frames (only a Recording carries its own)")
+        cal, ids = _calibrate_reporting(frame, rig, config, progress, backbone_result), rig.ids
+    else:
         if backbone_result is not None:
             raise ValidationError("calibrate: backbone_result applies to given frames, not to a recording")
         if rig is not None and rig.ids != frame.rig.ids:
@@ -147,10 +145,6 @@ def calibrate(
             )
         done = pooled_calibration(frame, [first_complete(frame)], config, True, _calibrate_reporting, progress)
         cal, ids = done.calibration, frame.rig.ids
-    else:
-        if rig is None:
-            raise ValidationError("calibrate: a rig is needed with frames (only a Recording carries its own)")
-        cal, ids = _calibrate_reporting(frame, rig, config, progress, backbone_result), rig.ids
     warn_verdicts(cal, ids)
     return cal
 
@@ -164,39 +158,13 @@ def _calibrate_reporting(
 
 
 def _calibrate(frame, rig: Rig, config: CalibConfig, backbone_result: BackboneResult | None) -> Calibration:
-    """``calibrate`` with its progress callback set."""
-    t_start = time.perf_counter()
+    """``calibrate`` on checked frames, its progress callback set: the placement engine."""
     frames = as_frames(frame)
     for f in frames:
         depth, K, drange = check_inputs(f, rig)
         check_depth_coverage(f, depth, drange)
     depth, K, drange = check_inputs(frames[0], rig)
-    with one_blas_thread():  # thin (M, 3) / (M, 6) products: BLAS threads only cost (calib.blas)
-        if config.backbone == "auto" and backbone_result is None:
-            from fuseflow.calib.auto import auto_place
-
-            pl = auto_place(frames, rig, depth, K, drange, config)
-        else:
-            pl = place_with_backbone(config.backbone, frames, rig, depth, K, drange, config, backbone_result)
-            keep_confirmed(pl, frames[0], rig, config.min_depth_agreement)  # the rule auto applies too
-        if config.joint_refine and len(pl.T) >= 2:
-            refine_jointly(pl, frames, rig, config.min_depth_agreement)
-        progress_events.report("report")
-        t = time.perf_counter()
-        report = finish_report(pl, frames[0].camera_ids, config)
-        room, turns = camera_turns(frames, rig, pl.T, report)  # a repeating room: the subject decides turns
-        if room is not None:
-            pl.T, turns = settle_turns(pl.T, room, turns, TURN_MIN_MARGIN)
-            if any(t.moved for t in turns.values()):
-                pl.agreement = depth_agreement(frames[0], rig, pl.T) if config.min_depth_agreement > 0 else {}
-                report = finish_report(pl, frames[0].camera_ids, config)
-            report.room = room.to_json()
-        report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
-        report.camera_verdicts = camera_verdicts(report, pl.T, frames[0].camera_ids, turns, room)
-        drop_answered_scale_warning(report)
-        pl.timings["report"] = time.perf_counter() - t
-    pl.timings["total"] = time.perf_counter() - t_start
-    return Calibration(pl.T, report)
+    return place_and_judge(frames, rig, depth, K, drange, config, backbone_result)
 
 
 def check_depth_coverage(frame: Frame, depth: np.ndarray, drange: np.ndarray) -> None:

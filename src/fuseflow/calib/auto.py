@@ -1,76 +1,83 @@
-"""The ``auto`` backbone: the metric RGB-D route first, COLMAP where it falls short, each camera
-placed by the source whose pose its neighbours' depth confirms best.
+"""The ``auto`` backbone's sources merged: the metric RGB-D route first, COLMAP where it falls
+short, each camera placed by the source whose pose its neighbours' depth confirms best.
 
-``auto_place`` in named steps:
+The placement engine (:func:`fuseflow.calib.placement.place_and_judge`) places the cameras with each
+source of ``AUTO_SOURCES`` in turn, and this module decides, in named steps:
 
-1. ``rgbd`` (``place_with_backbone``): metric poses from depth and the floor, pooled over frames.
-   When it places every camera and none is below ``min_depth_agreement``, that is the result;
-   when it finds the room repeating (``_repeating``: aliased pair poses), too: its ambiguous
-   cameras stay unplaced, each with its reason.
-2. Otherwise ``colmap`` + GMAC's scale on the first frame.
-3. ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both placed
-   (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such cameras;
-   with 1-2 the first one's pose), using only cameras neither source flags as suspect.
-4. ``choose_sources``: where rgbd saw an aliased pair, a camera that it places and one of its
-   cycles checks keeps rgbd's pose; another camera several sources place gets the pose with the
-   higher depth agreement, each candidate measured against the same neighbours; ties go to rgbd
-   (metric by construction).
-5. ``verdicts.drop_unconfirmed`` (the rule every backbone's placement goes through): the merged
-   extrinsics' depth agreement; the lowest camera below ``min_depth_agreement`` is removed and the
-   rest measured again, until none is below: it is not placed (``unplaced_reasons`` says the
-   agreement it had under every source): never placed wrong silently.
+1. ``settled``: after ``rgbd`` (metric poses from depth and the floor, pooled over frames), no
+   other source runs when it places every camera and none is below ``min_depth_agreement``, or
+   when it finds the room repeating (``_repeating``: aliased pair poses): its ambiguous cameras
+   stay unplaced, each with its reason. Otherwise ``colmap`` + GMAC's scale on the first frame
+   runs too.
+2. ``merge_sources``, in three steps:
+
+   - ``align_sources``: COLMAP's world into rgbd's by a rigid alignment on the cameras both
+     placed (Kabsch on camera centres, :func:`fuseflow.geometry.rigid_align`, with >= 3 such
+     cameras; with 1-2 the first one's pose), using only cameras neither source flags as suspect.
+   - ``choose_sources``: where rgbd saw an aliased pair, a camera that it places and one of its
+     cycles checks keeps rgbd's pose; another camera several sources place gets the pose with
+     the higher depth agreement, each candidate measured against the same neighbours; ties go to
+     rgbd (metric by construction).
+   - ``verdicts.drop_unconfirmed`` (the rule every backbone's placement goes through): the
+     merged extrinsics' depth agreement; the lowest camera below ``min_depth_agreement`` is
+     removed and the rest measured again, until none is below: it is not placed
+     (``unplaced_reasons`` says the agreement it had under every source): never placed wrong
+     silently.
+
+A source's placement here is a ``calib.placement.Placement`` (``T``, ``agreement``, ``bb``,
+``sr``, ``warnings``, ``timings``, ``scale_check``).
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
 from fuseflow.calib.backbones import BackboneResult
-from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS
-from fuseflow.calib.config import CalibConfig
 from fuseflow.calib.errors import CalibrationError
-from fuseflow.calib.placement import Placement, anchor_world, place_with_backbone
+from fuseflow.calib.posegraph import anchor_world
 from fuseflow.calib.verdicts import drop_unconfirmed
 from fuseflow.geometry import depth_agreement, rigid_align
 from fuseflow.types import Frame, Rig, invert_rigid
 
-__all__ = ["auto_place", "AUTO_SOURCES", "align_sources", "choose_sources"]
+__all__ = ["AUTO_SOURCES", "settled", "merge_sources", "align_sources", "choose_sources"]
 
 #: Sources in order of preference (a tie in depth agreement goes to the earlier one).
 AUTO_SOURCES = ("rgbd", "colmap")
 
+Placement = Any  # calib.placement.Placement (the engine's record; that module imports this one)
 
-def auto_place(
-    frames: list[Frame], rig: Rig, depth: np.ndarray, K: np.ndarray, drange: np.ndarray, config: CalibConfig
+
+def settled(runs: Mapping[str, Placement], ids: tuple[str, ...], min_agreement: float) -> bool:
+    """Whether the first source's placement ends the search: every camera placed and none below
+    ``min_agreement``, or the room repeats (``_repeating``)."""
+    first = runs.get(AUTO_SOURCES[0])
+    return first is not None and (_complete(first, ids, min_agreement) or bool(_repeating(first)))
+
+
+def merge_sources(
+    runs: dict[str, Placement], failures: dict[str, str], frame: Frame, rig: Rig, min_agreement: float, t0: float
 ) -> Placement:
-    """GMAC's placement with the ``auto`` backbone (module docstring). Arguments as
-    :func:`fuseflow.calib.api.place_with_backbone`.
+    """One placement from the sources' (module docstring, step 2); ``failures``: source -> why
+    it raised; ``t0``: when the sources started (``time.perf_counter``).
 
     Raises:
         CalibrationError: no source placed two cameras (the message gives each source's reason).
     """
-    t0 = time.perf_counter()
-    ids = frames[0].camera_ids
-    runs: dict[str, Placement] = {}
-    failures: dict[str, str] = {}
-    for name in AUTO_SOURCES:
-        if runs and (_complete(runs[AUTO_SOURCES[0]], ids, config) or _repeating(runs[AUTO_SOURCES[0]])):
-            break
-        try:
-            runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, config)
-        except CalibrationError as e:
-            failures[name] = str(e)
+    ids = frame.camera_ids
     if not runs:
         raise CalibrationError(
             "auto backbone: no source placed two cameras: " + "; ".join(f"{k}: {v}" for k, v in failures.items())
         )
-    poses = align_sources(runs, rig.ids, config.min_depth_agreement)
-    placed_by = choose_sources(runs, poses, ids, frames[0], rig, _cycle_checked(runs))
+    poses = align_sources(runs, rig.ids, min_agreement)
+    placed_by = choose_sources(runs, poses, ids, frame, rig, _cycle_checked(runs))
     T = {c: poses[src][c] for c, src in placed_by.items()}
     under = {n: p.agreement for n, p in runs.items()}
-    T, agreement, reasons = drop_unconfirmed(T, frames[0], rig, config.min_depth_agreement, under)
+    T, agreement, reasons = drop_unconfirmed(T, frame, rig, min_agreement, under)
     placed_by = {c: s for c, s in placed_by.items() if c in T}
     ambiguous = _repeating(runs["rgbd"]) if "rgbd" in runs else {}
     for c in ids:
@@ -95,6 +102,8 @@ def _repeating(pl: Placement) -> dict[str, str]:
     image matching aliases in such a room as badly (one repeating studio: COLMAP put 4 of 7
     cameras 45-90 deg off and took 170 s; another, 1 of 7, 94 deg off), and a camera left
     unplaced with its reason is better than one placed wrong."""
+    from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS  # loads the rgbd route (torch): not at import
+
     jc = pl.bb.info.get("joint_choice") or {}
     seen_through, refuted = _aliases(pl)
     if jc.get("ambiguous") or refuted >= ALIASED_PAIRS or seen_through >= ALIASED_PAIRS:
@@ -127,9 +136,9 @@ def _cycle_checked(runs: dict[str, Placement]) -> set[str]:
     return {c for c, v in cams.items() if c in runs["rgbd"].T and v.get("placed") and v.get("cycle_checked")}
 
 
-def _complete(pl: Placement, ids: tuple[str, ...], config: CalibConfig) -> bool:
+def _complete(pl: Placement, ids: tuple[str, ...], min_agreement: float) -> bool:
     """Every camera placed and none below the agreement threshold."""
-    low = [c for c, a in pl.agreement.items() if a is not None and a < config.min_depth_agreement]
+    low = [c for c, a in pl.agreement.items() if a is not None and a < min_agreement]
     return len(pl.T) == len(ids) and not low
 
 
@@ -232,7 +241,8 @@ def _merged_placement(runs, failures, T, anchor, agreement, placed_by, reasons, 
     timings["auto"] = time.perf_counter() - t0
     scale_check = runs["rgbd"].scale_check if "rgbd" in runs else None
     connected = [k for k, c in enumerate(ids) if c in T]
-    return Placement(
-        bb=bb, sr=first.sr, T=T, connected=connected, anchor=anchor, agreement=agreement, scale_check=scale_check,
-        refinement=None, warnings=warnings, timings=timings, placed_by=placed_by, unplaced_reasons=reasons,
+    return replace(
+        first, bb=bb, sr=first.sr, T=T, connected=connected, anchor=anchor, agreement=agreement,
+        scale_check=scale_check, refinement=None, warnings=warnings, timings=timings, placed_by=placed_by,
+        unplaced_reasons=reasons, joint_refinement=None,
     )  # fmt: skip

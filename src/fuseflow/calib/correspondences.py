@@ -10,8 +10,9 @@ overlap_ij * cos(F_i, F_j) * validity_i(u) * validity_j(pi(X_ij)).
 Keypoint matches from the backbone (when present, ``use_matches``) enter as correspondences
 whose pixel in j is the matched keypoint, gated by reprojection distance and depth consistency.
 
-This module builds correspondences at a given s; the search for s (coarse 1-D search, then the
-fixed point that alternates these correspondences with :mod:`scale`'s closed form) lives in
+This module builds correspondences at a given s; the search for s (the candidate edges' weights,
+the coarse 1-D search's count of depth-consistent reprojections over informative samples, then
+the fixed point that alternates these correspondences with :mod:`scale`'s closed form) lives in
 :mod:`fuseflow.calib.scale_stage`.
 """
 
@@ -33,10 +34,6 @@ __all__ = [
     "reproject",
     "build_correspondences",
     "match_correspondences",
-    "consistent_count",
-    "consistent_counts",
-    "informative_mask",
-    "edge_weight",
     "match_lookup",
     "match_only",
     "MIN_MATCHES",
@@ -273,84 +270,6 @@ def _corr_point(Xj: np.ndarray, pix: np.ndarray, d: np.ndarray, K: np.ndarray, f
     if form == "plane":
         return _backproject(pix, d, K)
     return Xj * (d / Xj[:, 2])[:, None]
-
-
-def informative_mask(g: EdgeGeometry, cam_i: CameraData, min_cos: float) -> np.ndarray:
-    """(M,) bool: camera-i samples whose surface normal (rotated into j) has |cos| >= min_cos
-    with the baseline t_ji. Only such points say anything about s: a surface parallel to the
-    baseline (the floor under a level camera ring) maps onto itself at every scale, so its
-    reprojections are depth-consistent whatever s is."""
-    tn = float(np.linalg.norm(g.t))
-    if min_cos <= 0 or tn == 0:
-        return np.ones(len(cam_i.X), bool)
-    ui = cam_i.uv[:, 0].astype(np.int64)
-    vi = cam_i.uv[:, 1].astype(np.int64)
-    n = cam_i.normals[vi, ui].astype(np.float64) @ g.R.T
-    return np.abs(n @ (g.t / tn)) >= min_cos
-
-
-def consistent_count(
-    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, tau: float, mask: np.ndarray | None = None
-) -> int:
-    """Number of camera-i samples (those in ``mask`` when given) whose reprojection at scale s is
-    depth-consistent in j (``consistent_counts`` at one scale)."""
-    return int(consistent_counts(g, cam_i, cam_j, np.array([s], dtype=np.float64), tau, mask)[0])
-
-
-def consistent_counts(
-    g: EdgeGeometry,
-    cam_i: CameraData,
-    cam_j: CameraData,
-    scales: np.ndarray,
-    tau: float,
-    mask: np.ndarray | None = None,
-) -> np.ndarray:
-    """Camera-i samples (those in ``mask`` when given) whose reprojection is depth-consistent in
-    j, at every scale of ``scales`` (G,) at once: (G,) int64.
-
-    ``reproject``'s test per point and scale (X_ij = R X + s t, projection, nearest pixel, depth
-    gate) on (G, M) arrays, without what the count does not use (validity, normals), and with the
-    projection written out instead of a (G M, 3) x (3, 3) matrix product (OpenBLAS threads that
-    product, 15-20x slower than one thread on a loaded 2-core machine). The coarse scale search
-    evaluates ~220 scales per edge; one ``consistent_count`` call per scale would be the largest
-    part of the metric scale check."""
-    X = cam_i.X if mask is None else cam_i.X[mask]
-    scales = np.asarray(scales, dtype=np.float64)
-    if len(X) == 0 or len(scales) == 0:
-        return np.zeros(len(scales), dtype=np.int64)
-    RX = X @ g.R.T
-    st = scales[:, None] * g.t[None]  # (G, 3): s * t, as in ``reproject``
-    x = RX[None, :, 0] + st[:, 0:1]
-    y = RX[None, :, 1] + st[:, 1:2]
-    z = RX[None, :, 2] + st[:, 2:3]
-    K = cam_j.K
-    front = z > 1e-3
-    zs = np.where(front, z, 1.0)
-    H, W = cam_j.shape
-    with np.errstate(invalid="ignore"):
-        ui = np.floor((x * K[0, 0] + y * K[0, 1] + z * K[0, 2]) / zs + 0.5)
-        vi = np.floor((x * K[1, 0] + y * K[1, 1] + z * K[1, 2]) / zs + 0.5)
-    ok = front & (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
-    d = np.zeros(z.shape)
-    d[ok] = cam_j.depth[vi[ok].astype(np.int64), ui[ok].astype(np.int64)]
-    hit = ok & (d > 0) & (np.abs(d - z) < tau * np.maximum(z, 1e-6))
-    return np.count_nonzero(hit, axis=1).astype(np.int64)
-
-
-def edge_weight(
-    i: int,
-    j: int,
-    overlap: np.ndarray | None,
-    features: np.ndarray | None,
-    use_features: bool,
-) -> float:
-    """eq. (8)'s edge factor overlap_ij * cos(F_i, F_j) (cos clipped to [0, 1])."""
-    w = 1.0 if overlap is None else float(overlap[i, j])
-    if use_features and features is not None:
-        fi, fj = features[i], features[j]
-        den = float(np.linalg.norm(fi) * np.linalg.norm(fj))
-        w *= max(0.0, float(fi @ fj) / den) if den > 0 else 0.0
-    return w
 
 
 def match_lookup(matches: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None, i: int, j: int):

@@ -25,7 +25,7 @@ import numpy as np
 
 from fuseflow.types import invert_rigid
 
-__all__ = ["Edge", "prune_cycles", "spanning_tree", "refine_poses", "rotation_angle_deg"]
+__all__ = ["Edge", "prune_cycles", "spanning_tree", "refine_poses", "rotation_angle_deg", "anchor_world"]
 
 
 @dataclass
@@ -189,3 +189,19 @@ def refine_poses(
     r0 = residuals(p0)
     return T, {"cost_before": float(np.mean(np.abs(r0))), "cost_after": float(np.mean(np.abs(sol.fun))),
                "residuals": int(sol.fun.size)}  # fmt: skip
+
+
+def anchor_world(
+    T_cam_world: dict[str, np.ndarray], order: tuple[str, ...]
+) -> tuple[dict[str, np.ndarray], str | None]:
+    """Re-express the extrinsics in the frame of the first placed camera in ``order`` (rig order),
+    whose extrinsic becomes the identity: the backbone's own world frame depends on which image
+    it happened to start from, so two calibrations of one rig would otherwise differ by a rigid
+    motion. Returns (camera id -> camera-from-world, the anchor's id or None when none is placed)."""
+    anchor = next((c for c in order if c in T_cam_world), None)
+    if anchor is None:
+        return T_cam_world, None
+    world_from_anchor = invert_rigid(T_cam_world[anchor])
+    out = {c: T @ world_from_anchor for c, T in T_cam_world.items()}
+    out[anchor] = np.eye(4)
+    return out, anchor

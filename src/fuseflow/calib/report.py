@@ -3,6 +3,7 @@
 Cameras and edges are named by camera id ("cam00", edge "cam00-cam03", triangle
 "cam00-cam03-cam05"), scales are metres per backbone unit, and every value is plain JSON data,
 so ``to_json()`` is exactly the ``"report"`` object of calib.json and ``from_json`` reads it back.
+``finish_report`` builds it from the placement engine's record (``calib.placement.Placement``).
 
 Read access by key (``report["scale"]``, ``report.get("warnings", [])``, ``"scale" in report``)
 is kept for code written against the dict report of earlier releases; it is deprecated in favour
@@ -11,13 +12,16 @@ of the attributes (``report.scale``) and will be removed after one release.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator, Mapping
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
+import numpy as np
+
 from fuseflow.errors import ValidationError
 
-__all__ = ["CalibReport"]
+__all__ = ["CalibReport", "finish_report", "build_report"]
 
 
 @dataclass(eq=False)
@@ -87,7 +91,7 @@ class CalibReport(Mapping[str, Any]):
     """Wall-clock seconds per stage: "backbone", "scale", "refine" (when on), "total"."""
     world_anchor: str | None = None
     """The camera whose frame is the world (its extrinsic is the identity): the first placed
-    camera in rig order (``api.anchor_world``). None in reports written before it existed."""
+    camera in rig order (``posegraph.anchor_world``). None in reports written before it existed."""
     scale_check: float | None = None
     """Metric backbones (``rgbd``): GMAC's closed-form s* on their poses, a check (``scale`` is
     then 1; a warning when this is more than ``METRIC_SCALE_TOLERANCE`` (15 %) from 1). None for scale-free backbones, when the
@@ -171,3 +175,105 @@ class CalibReport(Mapping[str, Any]):
     @classmethod
     def _keys(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
+
+
+def finish_report(
+    pl, ids: tuple[str, ...], settings: dict[str, Any], closed_form: str, min_agreement: float
+) -> CalibReport:
+    """The report of a placement (``calib.placement.Placement``), cameras named by id (frame order
+    ``ids``). ``settings``: ``CalibConfig.as_dict()``; ``closed_form`` and ``min_agreement`` (the
+    depth agreement below which a camera is suspect) are that config's values."""
+    report = build_report(
+        ids, pl.bb, pl.sr, settings, closed_form, min_agreement, pl.connected, pl.agreement, pl.refinement, pl.timings
+    )
+    report.world_anchor = pl.anchor
+    report.scale_check = pl.scale_check
+    report.warnings = pl.warnings + report.warnings
+    report.placed_by = pl.placed_by if pl.placed_by is not None else dict.fromkeys(pl.T, pl.bb.name)
+    report.unplaced_reasons = pl.unplaced_reasons or {}
+    report.joint_refinement = pl.joint_refinement
+    return report
+
+
+def build_report(
+    ids: tuple[str, ...],
+    bb,
+    sr,
+    settings: dict[str, Any],
+    closed_form: str,
+    min_agreement: float,
+    connected: list[int],
+    agreement: dict[str, float | None],
+    refinement: dict[str, Any] | None,
+    timings: dict[str, float],
+) -> CalibReport:
+    """The report of one run (``bb``: the ``BackboneResult``, ``sr``: the scale stage's
+    ``ScaleResult``), cameras and edges named by id (camera index k -> ``ids[k]``)."""
+    suspect = [c for c, a in agreement.items() if a is not None and a < min_agreement]
+    unconnected = [ids[k] for k in range(len(ids)) if k not in connected]
+    unregistered = [ids[k] for k in np.flatnonzero(~bb.registered)]
+    name = lambda e: f"{ids[e[0]]}-{ids[e[1]]}"  # noqa: E731
+    return CalibReport(
+        method="GMAC",
+        backbone=bb.name,
+        backbone_info=bb.info,
+        config=settings,
+        scale=sr.s,
+        scale_before_pruning=sr.s_initial,
+        scale_coarse=sr.s_coarse,
+        scale_naive_median_depth_ratio=sr.s_naive,
+        scale_std_error=sr.std_error,
+        closed_form=closed_form,
+        fixed_point={"iterations": sr.iterations, "converged": sr.converged},
+        coarse_peak_spread=sr.peak_spread,
+        edge_scales={name(e): v for e, v in sr.edge_scales.items()},
+        correspondence_counts={name(e): v for e, v in sr.edge_counts.items()},
+        edges=[name(e) for e in sr.edges],
+        kept_edges=[name(e) for e in sr.kept],
+        scale_edges=[name(e) for e in sr.scale_edges],
+        pruned_edges=[name(e) for e in sr.pruned],
+        cycle_mode=sr.cycle_mode,
+        cycle_residuals_relative=_rename(sr.cycle_residuals, ids),
+        cycle_residuals_relative_before_pruning=_rename(sr.cycle_residuals_before, ids),
+        cycle_residuals_mm=_rename(sr.cycle_residuals_mm, ids),
+        unconnected_cameras=unconnected,
+        unregistered_cameras=unregistered,
+        depth_agreement=agreement,
+        suspect_cameras=suspect,
+        warnings=[edge_names(w, ids) for w in sr.warnings]
+        + _placement_warnings(unconnected, unregistered)
+        + _agreement_warnings(suspect, agreement, min_agreement),
+        ill_conditioned=any("ill-conditioned" in w for w in sr.warnings),
+        refinement=refinement,
+        timings_s=timings,
+    )
+
+
+def _agreement_warnings(suspect: list[str], agreement: dict[str, float | None], limit: float) -> list[str]:
+    if not suspect:
+        return []
+    vals = ", ".join(f"{c} {agreement[c]:.2f}" for c in suspect)
+    return [
+        f"cameras {suspect} disagree with their neighbours' depth under these extrinsics ({vals}; below "
+        f"{limit:.2f}): the backbone's poses are probably wrong (wrong matches between similar views); "
+        "check the images for overlap and texture, or calibrate on another frame (--frame)"
+    ]
+
+
+def edge_names(text: str, ids) -> str:
+    """The scale stage's warnings name edges by index, "(0, 4)"; users know camera ids."""
+    return re.sub(r"\((\d+), (\d+)\)", lambda m: f"{ids[int(m[1])]}-{ids[int(m[2])]}", text)
+
+
+def _placement_warnings(unconnected: list[str], unregistered: list[str]) -> list[str]:
+    out = []
+    if unregistered:
+        out.append(f"the backbone could not register cameras {unregistered}; they are not placed")
+    rest = [c for c in unconnected if c not in unregistered]
+    if rest:
+        out.append(f"cameras {rest} share no usable depth overlap with the others and are not placed")
+    return out
+
+
+def _rename(d: dict[str, float], ids) -> dict[str, float]:
+    return {"-".join(ids[int(x)] for x in k.split("-")): v for k, v in d.items()}

@@ -35,11 +35,7 @@ from fuseflow.calib.correspondences import (
     CameraData,
     EdgeGeometry,
     build_correspondences,
-    consistent_count,
-    consistent_counts,
     edge_geometry,
-    edge_weight,
-    informative_mask,
     match_lookup,
     match_only,
 )
@@ -53,11 +49,14 @@ from fuseflow.calib.scale import (
     naive_median_scale,
     residuals,
 )
+from fuseflow.calib.verdicts import SCALE_CHECK_WARNING
 from fuseflow.types import invert_rigid
 
 __all__ = [
     "ScaleResult",
     "metric_scale",
+    "placement_scale",
+    "METRIC_SCALE_TOLERANCE",
     "CoarseSearch",
     "FixedPointResult",
     "StepFunction",
@@ -71,6 +70,10 @@ __all__ = [
     "gate_edges",
     "per_edge_scales",
     "naive_scale",
+    "edge_weight",
+    "informative_mask",
+    "consistent_count",
+    "consistent_counts",
 ]
 
 Edge = tuple[int, int]
@@ -402,6 +405,42 @@ def metric_scale(
     )
 
 
+#: A metric backbone's poses are trusted at s* = 1; GMAC's own s* further than this from 1 warns.
+#: On correct poses of simulated rings it reads 0.90-0.99 (docs/gmac-rgbd.md), so a tighter bound
+#: warns on correct calibrations; wrong depth units (mm vs 0.1 mm, 1/8 mm) move it by 2-10x.
+METRIC_SCALE_TOLERANCE = 0.15
+
+
+def placement_scale(
+    bb: BackboneResult, cams: list[CameraData], config: CalibConfig
+) -> tuple[ScaleResult, float | None, list[str]]:
+    """The scale the cameras are placed at: (the stage's result, the check's s* or None, warnings).
+    A scale-free backbone gets ``metric_scale``'s s* (no check, no warning). A metric one
+    (``bb.metric``) is placed at s = 1 and the stage runs on its poses as a check: the s* it
+    found (None when it could not run); s* far from 1 means the backbone's metric poses and the
+    sensor depth disagree (wrong pose, depth scale, intrinsics)."""
+    if not bb.metric:
+        return metric_scale(bb, cams, config), None, []
+    try:
+        sr = metric_scale(bb, cams, config)
+    except CalibrationError as e:
+        empty = ScaleResult(
+            s=1.0, s_initial=1.0, s_coarse=1.0, s_naive=None, edge_scales={}, edge_counts={}, edges=(), kept=(),
+            pruned=(), cycle_mode="off", cycle_residuals={}, cycle_residuals_before={}, cycle_residuals_mm={},
+            std_error=0.0, iterations=0, converged=True, peak_spread=0.0, warnings=(),
+        )  # fmt: skip
+        return empty, None, [f"the scale check on the metric backbone's poses could not run: {e}"]
+    check = sr.s
+    warnings = []
+    if abs(check - 1.0) > METRIC_SCALE_TOLERANCE:
+        warnings.append(
+            f"{SCALE_CHECK_WARNING} {check:.4f}, more than "
+            f"{METRIC_SCALE_TOLERANCE:.0%} from 1 (correct poses read 0.90-0.99): check the depth units "
+            "(rig.json depth_scale) and the intrinsics; the poses are used at scale 1"
+        )
+    return replace(sr, s=1.0, s_initial=1.0), check, warnings
+
+
 def scale_search_centre(bb: BackboneResult, cams: list[CameraData]) -> float:
     """s0, the centre of the coarse search: median sensor depth (m) of the registered cameras'
     samples over the median distance between registered backbone camera centres (backbone units).
@@ -569,6 +608,84 @@ def _conditioning_warnings(
     if relative_std_error > 0.01:
         out.append(f"ill-conditioned: relative standard error of s* is {relative_std_error:.1%}")
     return out
+
+
+def edge_weight(
+    i: int,
+    j: int,
+    overlap: np.ndarray | None,
+    features: np.ndarray | None,
+    use_features: bool,
+) -> float:
+    """eq. (8)'s edge factor overlap_ij * cos(F_i, F_j) (cos clipped to [0, 1])."""
+    w = 1.0 if overlap is None else float(overlap[i, j])
+    if use_features and features is not None:
+        fi, fj = features[i], features[j]
+        den = float(np.linalg.norm(fi) * np.linalg.norm(fj))
+        w *= max(0.0, float(fi @ fj) / den) if den > 0 else 0.0
+    return w
+
+
+def informative_mask(g: EdgeGeometry, cam_i: CameraData, min_cos: float) -> np.ndarray:
+    """(M,) bool: camera-i samples whose surface normal (rotated into j) has |cos| >= min_cos
+    with the baseline t_ji. Only such points say anything about s: a surface parallel to the
+    baseline (the floor under a level camera ring) maps onto itself at every scale, so its
+    reprojections are depth-consistent whatever s is."""
+    tn = float(np.linalg.norm(g.t))
+    if min_cos <= 0 or tn == 0:
+        return np.ones(len(cam_i.X), bool)
+    ui = cam_i.uv[:, 0].astype(np.int64)
+    vi = cam_i.uv[:, 1].astype(np.int64)
+    n = cam_i.normals[vi, ui].astype(np.float64) @ g.R.T
+    return np.abs(n @ (g.t / tn)) >= min_cos
+
+
+def consistent_count(
+    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, tau: float, mask: np.ndarray | None = None
+) -> int:
+    """Number of camera-i samples (those in ``mask`` when given) whose reprojection at scale s is
+    depth-consistent in j (``consistent_counts`` at one scale)."""
+    return int(consistent_counts(g, cam_i, cam_j, np.array([s], dtype=np.float64), tau, mask)[0])
+
+
+def consistent_counts(
+    g: EdgeGeometry,
+    cam_i: CameraData,
+    cam_j: CameraData,
+    scales: np.ndarray,
+    tau: float,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """Camera-i samples (those in ``mask`` when given) whose reprojection is depth-consistent in
+    j, at every scale of ``scales`` (G,) at once: (G,) int64.
+
+    ``reproject``'s test per point and scale (X_ij = R X + s t, projection, nearest pixel, depth
+    gate) on (G, M) arrays, without what the count does not use (validity, normals), and with the
+    projection written out instead of a (G M, 3) x (3, 3) matrix product (OpenBLAS threads that
+    product, 15-20x slower than one thread on a loaded 2-core machine). The coarse scale search
+    evaluates ~220 scales per edge; one ``consistent_count`` call per scale would be the largest
+    part of the metric scale check."""
+    X = cam_i.X if mask is None else cam_i.X[mask]
+    scales = np.asarray(scales, dtype=np.float64)
+    if len(X) == 0 or len(scales) == 0:
+        return np.zeros(len(scales), dtype=np.int64)
+    RX = X @ g.R.T
+    st = scales[:, None] * g.t[None]  # (G, 3): s * t, as in ``reproject``
+    x = RX[None, :, 0] + st[:, 0:1]
+    y = RX[None, :, 1] + st[:, 1:2]
+    z = RX[None, :, 2] + st[:, 2:3]
+    K = cam_j.K
+    front = z > 1e-3
+    zs = np.where(front, z, 1.0)
+    H, W = cam_j.shape
+    with np.errstate(invalid="ignore"):
+        ui = np.floor((x * K[0, 0] + y * K[0, 1] + z * K[0, 2]) / zs + 0.5)
+        vi = np.floor((x * K[1, 0] + y * K[1, 1] + z * K[1, 2]) / zs + 0.5)
+    ok = front & (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
+    d = np.zeros(z.shape)
+    d[ok] = cam_j.depth[vi[ok].astype(np.int64), ui[ok].astype(np.int64)]
+    hit = ok & (d > 0) & (np.abs(d - z) < tau * np.maximum(z, 1e-6))
+    return np.count_nonzero(hit, axis=1).astype(np.int64)
 
 
 def naive_scale(bb: BackboneResult, cams: list[CameraData]) -> float | None:
