@@ -61,7 +61,12 @@ def _codec_row(color: np.ndarray, depth: np.ndarray, scales: list[float], reps: 
 
     out = {}
     n = len(color)
-    for codec in (ViewCodec("jpeg", 90), ViewCodec("png"), ViewCodec("raw", depth_raw=False)):
+    for codec in (
+        ViewCodec("jpeg", 90),
+        ViewCodec("jpeg", 90, depth="png"),
+        ViewCodec("png"),
+        ViewCodec("raw", depth_raw=False),
+    ):
         enc_t, dec_t = [], []
         for _ in range(reps):
             t0 = time.perf_counter()
@@ -81,8 +86,8 @@ def _codec_row(color: np.ndarray, depth: np.ndarray, scales: list[float], reps: 
 
 
 def codec_costs(rec: Any, data_dir: Path | None) -> dict[str, Any]:
-    """Bytes, encode / decode ms per view and the 8 x 15 fps bandwidth of the node codec (JPEG 90
-    and PNG colour, PNG depth) on frame 3 of the simulated recording and on hocap-8rs's 8 real
+    """Bytes, encode / decode ms per view and the 8 x 15 fps bandwidth of the node codecs (JPEG 90
+    colour with LZ4 or PNG depth, PNG colour, raw colour with LZ4 depth) on frame 3 of the simulated recording and on hocap-8rs's 8 real
     RealSense views (when ``data_dir`` has it)."""
     import cv2
 

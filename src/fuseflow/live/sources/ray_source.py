@@ -441,9 +441,9 @@ class RaySource:
         fetching: deque[tuple[float, list[_Node], dict[Any, _Node]]] = deque()
         while not self._closed.is_set():
             if len(fetching) + self._backlog() >= self.options.in_flight:  # pull: the consumer is busy
-                if fetching and self._arrived(fetching[0][2]):
+                if fetching and self._arrived(fetching[0][2], 0.02):  # waits for it, no busy loop
                     yield self._finish(fetching.popleft())
-                else:
+                elif not fetching:
                     self._closed.wait(0.002)
                 continue
             nodes = [n for n in self._nodes.values() if n.alive and n.slots]
@@ -469,10 +469,11 @@ class RaySource:
         self._backlog = backlog
 
     @staticmethod
-    def _arrived(asked: dict[Any, _Node]) -> bool:
+    def _arrived(asked: dict[Any, _Node], timeout: float = 0.0) -> bool:
+        """Whether every answer of ``asked`` is here, waiting up to ``timeout`` s for them."""
         import ray
 
-        ready, _ = ray.wait(list(asked), num_returns=len(asked), timeout=0) if asked else ([], [])
+        ready, _ = ray.wait(list(asked), num_returns=len(asked), timeout=timeout) if asked else ([], [])
         return len(ready) == len(asked)
 
     def _finish(self, fetching: tuple[float, list[_Node], dict[Any, _Node]]) -> Frame:
