@@ -8,7 +8,7 @@ cameras, ``NodeOptions.cameras``), reads it in a thread, stamps each frame with 
 keeps the newest ``buffer`` frames. The fusing host (``ray_source.RaySource``) asks for
 the stamp of the newest one (``newest``), then every node for its frame nearest one instant
 (``frame_at``): the node encodes that frame in the wire format the host asks for
-(``frame_codec``: raw arrays, or JPEG or PNG colour with lossless PNG depth) and the answer
+(``frame_codec``: raw arrays, raw colour with LZ4 depth, or JPEG or PNG colour with lossless LZ4 or PNG depth) and the answer
 travels through Ray's object store. A node slower than its cameras thus
 skips the same instants as the others, and the fused frames keep every view. The host probes
 ``clock`` to estimate the node's clock offset. The actor is threaded (``max_concurrency``), so
