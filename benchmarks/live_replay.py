@@ -1,5 +1,5 @@
 """Live replay benchmark: recordings replayed as cameras through `fuseflow live --serve` with one
-WebSocket viewer (benchmarks.studies.live).
+WebSocket viewer (fuseflow.eval.bench.live, also ``fuseflow bench live``).
 
     python -m benchmarks.live_replay [--cases sim4,hocap8,hocap8-200k] [--duration 20]
         [--data-dir ../shared/data] [--json benchmarks/results/live_replay.json] [--stand-in-ms 56]
@@ -7,7 +7,7 @@ WebSocket viewer (benchmarks.studies.live).
 
 --nodes N: N capture nodes on a local Ray cluster, each replaying some cameras of a simulated
 8-camera 640x480 dynamic recording, against the one-host rate measured in the same run
-(benchmarks.studies.live_nodes), per wire format (auto: raw on this machine; jpeg: what crosses
+(fuseflow.eval.bench.live_nodes, also ``fuseflow bench live --nodes 3``), per wire format (auto: raw on this machine; jpeg: what crosses
 a network); saved as live_nodes.json.
 
 Prints per case: sustained fused frames/s, drop rate, latency (capture to sent) p50/p95, FUSE ms,
@@ -17,7 +17,7 @@ points per frame and the viewer's Mbit/s, with the target (docs/live.md) and whe
 from __future__ import annotations
 
 from benchmarks import common
-from benchmarks.studies.live import run_live_bench
+from fuseflow.eval.bench.live import run_live_bench
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     command = common.command("live_replay", argv)
     if a.nodes is not None:
-        from benchmarks.studies.live_nodes import run_nodes_bench
+        from fuseflow.eval.bench.live_nodes import run_nodes_bench
 
         wires = tuple(common.names(a.wires))
         rows = run_nodes_bench(a.nodes, a.duration, log=common.log, data_dir=common.data_dir(a.data_dir), runs=a.runs,

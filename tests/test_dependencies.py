@@ -37,6 +37,8 @@ ALLOWED: dict[str, set[str]] = {
     "fuseflow.eval.baselines": {"open3d"},
     "fuseflow.eval.bench.fuse_ratio": {"numba"},
     "fuseflow.eval.bench.fuse_speed": {"torch"},
+    "fuseflow.eval.bench.live": {"torch", "websockets"},
+    "fuseflow.eval.bench.live_nodes": {"cv2", "ray", "torch"},
     "fuseflow.eval.metrics": {"open3d", "scipy"},
     "fuseflow.eval.reference": {"open3d"},
     "fuseflow.fuse.api": {"numba", "torch"},

@@ -23,7 +23,8 @@ def local_nodes(tmp_path_factory):
     path = tmp_path_factory.mktemp("sim6") / "rec"
     simulate_recording(path, SimConfig(cameras=6, frames=8, scene="studio", dynamic=True, resolution=(96, 72),
                                        seed=1, fps=15.0))  # fmt: skip
-    ray.init(num_cpus=1, namespace=NAMESPACE, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    ray.init(address="local", num_cpus=1, namespace=NAMESPACE, include_dashboard=False, logging_level="ERROR",
+             log_to_driver=False)  # fmt: skip
     here = ray.get_runtime_context().get_node_id()
     split = [("a", ("cam00", "cam01"), 0.0), ("b", ("cam02", "cam03"), 0.0), ("c", ("cam04", "cam05"), SLIDE)]
     try:
@@ -61,3 +62,34 @@ def test_node_on_this_ray_node_ships_raw_and_a_sliding_camera_is_warned(local_no
     assert all(abs(skew[c]["drift_ms"]) < 5.0 for c in ("cam00", "cam01", "cam02", "cam03"))
     assert skew["cam04"]["drift_ms"] > half
     assert all(skew[c]["median_ms"] <= half + 1.0 for c in skew)  # paired stamps alone never show it
+
+
+def test_live_loop_fetches_only_the_frames_it_fuses(local_nodes):
+    """Nodes capture at 15 fps, fusion takes 0.2 s a frame: frames are asked of the nodes only when
+    fusion is ready for one, so the nodes ship about as many frames as are fused, not 15 a second."""
+    from fuseflow.live.loop import LiveLoop, LiveSettings
+    from fuseflow.live.sources.ray_source import RayLiveOptions, RaySource
+
+    rec, _ = local_nodes
+    src = RaySource(RayLiveOptions(address=None, nodes=3, in_flight=1))
+    fused = []
+
+    def slow(frame, rig):
+        time.sleep(0.2)
+        fused.append(frame.index)
+        return _empty_cloud(), 200.0
+
+    summary = LiveLoop(src, src.rig, LiveSettings(preset="live", duration=3.0), fuse_fn=slow).run()
+    shipped = [n["frames"] for n in summary.capture["nodes"].values()]
+    assert summary.frames_out >= 8
+    assert all(s <= summary.frames_out + 2 for s in shipped), (shipped, summary.frames_out)
+    assert summary.frames_in <= summary.frames_out + 2
+
+
+def _empty_cloud():
+    import torch
+
+    from fuseflow.types import FusedCloud
+
+    return FusedCloud(xyz=torch.zeros((0, 3)), rgb=torch.zeros((0, 3), dtype=torch.uint8), weight=torch.zeros(0),
+                      camera=torch.zeros(0, dtype=torch.int16))  # fmt: skip

@@ -39,7 +39,7 @@ def test_view_codec_depth_lossless_colour_jpeg_bounded(tmp_path, sim8):
     color, depth, present = f.color.numpy(), f.depth.numpy(), f.present.numpy()
     scales = [c.depth_scale for c in rec.rig.cameras]
     h, w = depth.shape[1:]
-    for codec in (ViewCodec("jpeg", 90), ViewCodec("png")):
+    for codec in (ViewCodec("jpeg", 90), ViewCodec("png"), ViewCodec("jpeg", 90, depth="png")):
         enc = encode_views(color, depth, present, scales, codec)
         c2, d2, p2 = decode_views(enc, scales, (h, w))
         assert np.array_equal(d2, depth) and np.array_equal(p2, present)
@@ -49,6 +49,30 @@ def test_view_codec_depth_lossless_colour_jpeg_bounded(tmp_path, sim8):
         )  # the simulator's colour is noisy: about 6 levels
     with pytest.raises(ValidationError):
         ViewCodec("webp").check()
+    with pytest.raises(ValidationError):
+        ViewCodec("jpeg", depth="zip").check()
+
+
+def test_lz4_wire_is_bit_for_bit_at_about_half_the_bytes_of_raw(sim8):
+    from fuseflow.live.sources.node import wire_codec
+
+    rec = sim8[1]
+    f = rec[3]
+    color, depth, present = f.color.numpy(), f.depth.numpy(), f.present.numpy().copy()
+    present[2] = False
+    scales = [c.depth_scale for c in rec.rig.cameras]
+    h, w = depth.shape[1:]
+    codec = wire_codec(ViewCodec(), "lz4")
+    assert codec.name == "raw+lz4" and wire_codec(ViewCodec(), "raw").name == "raw"
+    assert wire_codec(ViewCodec(), "jpeg").name == "jpeg+lz4"
+    enc = encode_views(color, depth, present, scales, codec)
+    c2, d2, p2 = decode_views(enc, scales, (h, w))
+    assert np.array_equal(c2, color * present[:, None, None, None]) and np.array_equal(p2, present)
+    assert np.array_equal(d2[present], depth[present])
+    assert enc.nbytes < 0.6 * int(present.sum()) * h * w * (3 + 4)
+    enc.depth[0] = enc.depth[0][:-10]  # a truncated view: a clear error, not garbage
+    with pytest.raises(ValidationError):
+        decode_views(enc, scales, (h, w))
 
 
 def test_raw_views_travel_bit_for_bit(sim8):
@@ -203,8 +227,10 @@ def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8, wire)
     assert nodes["a"]["offset_ms"] == pytest.approx(0.0, abs=2.0)
     assert summary.capture["paired"]["mixed_index"] == 0
     assert src.rig.ids == rec.rig.ids and summary.frames_out >= 5
-    # the nodes run on other Ray nodes of this machine: auto ships them raw
-    assert {(n["link"], n["wire"]) for n in nodes.values()} == {("same machine", "raw" if wire == "auto" else "jpeg")}
+    # the nodes run on other Ray nodes of this machine: auto ships raw colour and LZ4 depth
+    assert {(n["link"], n["wire"]) for n in nodes.values()} == {
+        ("same machine", "raw+lz4" if wire == "auto" else "jpeg+lz4")
+    }
     assert not [m for _, m in src.events if "drifted" in m]
     drifts = [v["drift_ms"] for v in summary.capture["skew"].values()]
     assert all(d is not None and abs(d) < 5.0 for d in drifts)
@@ -341,7 +367,7 @@ def test_bad_frame_codec_or_node_colour_says_so_in_one_line(sim8):
     from fuseflow.cli import app
 
     res = CliRunner().invoke(app, ["live", "--ray", "127.0.0.1:1", "--frame-codec", "webp"])
-    assert res.exit_code == 2 and "--frame-codec must be one of auto, raw, jpeg, png" in res.output
+    assert res.exit_code == 2 and "--frame-codec must be one of auto, raw, lz4, jpeg, png" in res.output
     res = CliRunner().invoke(app, ["node", str(sim8[0]), "--ray", "127.0.0.1:1", "--color", "raw"])
     assert res.exit_code == 2 and "--color must be jpeg or png" in res.output
     assert "Traceback" not in res.output

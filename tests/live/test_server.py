@@ -175,9 +175,8 @@ def test_addresses():
 
 
 def test_bench_live_rejects_unknown_cases_and_judges_targets():
-    from benchmarks.studies.live import CASES, TARGETS, run_live_bench
-
     from fuseflow.errors import ValidationError
+    from fuseflow.eval.bench.live import CASES, TARGETS, run_live_bench
 
     with pytest.raises(ValidationError, match="unknown cases"):
         run_live_bench(["sim9"])

@@ -21,8 +21,11 @@ def command(
     color: str = typer.Option(
         "jpeg",
         "--color",
-        help="Colour coder of frames that cross a network: jpeg (lossy) or png (lossless); depth is lossless PNG. "
-        "A fusing host on this machine gets raw frames (fuseflow live --frame-codec).",
+        help="Colour coder of frames that cross a network: jpeg (lossy) or png (lossless). "
+        "A fusing host on this machine gets raw or lz4 frames (fuseflow live --frame-codec).",
+    ),
+    depth: str = typer.Option(
+        "lz4", "--depth", help="Lossless depth coder of frames that cross a network: lz4 (fast) or png (smaller)."
     ),
     quality: int = typer.Option(90, "--quality", help="JPEG quality 1..100."),
     rate: float = typer.Option(None, "--rate", help="Replay: frames per second (default: the recording's timestamps)."),
@@ -44,7 +47,9 @@ def command(
         fail(f"--rate must be a positive number of frames per second, got {rate}")
     if color not in ("jpeg", "png"):
         fail(f"--color must be jpeg or png, got {color!r}")
-    codec = ViewCodec(color=color, quality=quality).check()
+    if depth not in ("lz4", "png"):
+        fail(f"--depth must be lz4 or png, got {depth!r}")
+    codec = ViewCodec(color=color, quality=quality, depth=depth).check()
     ids = tuple(c.strip() for c in cameras.split(",") if c.strip()) if cameras else None
     if cameras is not None and not ids:
         fail("--cameras expects camera ids separated by commas, e.g. cam00,cam01")

@@ -95,6 +95,10 @@ class LatestFrame:
             self._item = item
             self._cond.notify_all()
 
+    def waiting(self) -> int:
+        """1 while a frame waits to be taken, else 0."""
+        return int(self._item is not None)
+
     def take(self, timeout: float) -> Captured | None:
         """The newest frame, or None after ``timeout`` seconds or once closed and empty."""
         with self._cond:
@@ -338,6 +342,9 @@ class LiveLoop:
     def _capture(self) -> None:
         limit = self.settings.frames
         n = 0
+        paced_by = getattr(self.source, "paced_by", None)  # a source that fetches only what is fused
+        if callable(paced_by):
+            paced_by(self._slot.waiting)
         try:
             for frame in self.source.frames():
                 if self._stop.is_set():

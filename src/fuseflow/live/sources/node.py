@@ -8,7 +8,7 @@ cameras, ``NodeOptions.cameras``), reads it in a thread, stamps each frame with 
 keeps the newest ``buffer`` frames. The fusing host (``ray_source.RaySource``) asks for
 the stamp of the newest one (``newest``), then every node for its frame nearest one instant
 (``frame_at``): the node encodes that frame in the wire format the host asks for
-(``frame_codec``: raw arrays, or JPEG or PNG colour with lossless PNG depth) and the answer
+(``frame_codec``: raw arrays, raw colour with LZ4 depth, or JPEG or PNG colour with lossless LZ4 or PNG depth) and the answer
 travels through Ray's object store. A node slower than its cameras thus
 skips the same instants as the others, and the fused frames keep every view. The host probes
 ``clock`` to estimate the node's clock offset. The actor is threaded (``max_concurrency``), so
@@ -39,7 +39,7 @@ from fuseflow.live.sources.clock import NodeClock
 from fuseflow.live.sources.frame_codec import EncodedViews, ViewCodec, encode_views
 from fuseflow.live.sources.replay import DEFAULT_RATE
 
-__all__ = ["NAMESPACE", "CaptureNode", "NodeFrame", "NodeOptions", "actor_name", "connect_ray", "node_name", "spawn_node",
+__all__ = ["NAMESPACE", "CaptureNode", "NodeFrame", "NodeOptions", "actor_name", "connect_ray", "node_name", "spawn_node", "wire_codec",
            "start_node"]  # fmt: skip
 
 NAMESPACE = "fuseflow-live"
@@ -191,14 +191,10 @@ class CaptureNode:
 
     def frame_at(self, stamp: float, tolerance: float, codec: str | None = None) -> NodeFrame | None:
         """The kept frame whose stamp is nearest ``stamp`` (node clock), if within ``tolerance``
-        seconds, encoded with ``codec`` (raw, jpeg or png; None: the node's own, ``NodeOptions.codec``);
+        seconds, encoded with ``codec`` (``wire_codec``: raw, lz4, jpeg or png; None: the node's own);
         None otherwise. Every node is asked for the same instant, so that the frames a slow node
         encodes are the ones the others encode too."""
-        wire = (
-            self.options.codec
-            if codec in (None, self.options.codec.color)
-            else replace(self.options.codec, color=codec)
-        )
+        wire = wire_codec(self.options.codec, codec)
         with self._cond:
             near = [f for f in self._frames if abs(f[2] - stamp) <= tolerance]
             pick = min(near, key=lambda f: abs(f[2] - stamp)) if near else None
@@ -225,6 +221,19 @@ class CaptureNode:
         self._closed = True
         self._opened.close()
         self._thread.join(timeout=5.0)
+
+
+def wire_codec(own: ViewCodec, wire: str | None) -> ViewCodec:
+    """The codec of a frame asked for as ``wire``: None, the node's own (``NodeOptions.codec``);
+    raw, the arrays; lz4, raw colour bytes and LZ4 depth (both lossless); jpeg or png, that colour
+    coder with the node's depth coder."""
+    if wire is None:
+        return own
+    if wire == "raw":
+        return replace(own, color="raw", depth_raw=True)
+    if wire == "lz4":
+        return replace(own, color="raw", depth="lz4", depth_raw=False)
+    return replace(own, color=wire, depth_raw=True)
 
 
 def _ray_place() -> dict[str, str | None]:

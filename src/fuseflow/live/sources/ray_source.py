@@ -5,15 +5,19 @@
   ``RayLiveOptions.nodes`` nodes registered (or, without a count, until one did and no other
   joined for a second); its cameras are theirs, ordered by camera id. A node that registers
   later (one restarted after it died) joins the stream when its cameras are among these.
-- **Transport**: per fused frame the source asks every node for the stamp of its newest frame
-  (``newest``), chooses the instant T (below) and asks every node for its frame nearest T
-  (``frame_at``); the answers (``node.NodeFrame``) travel through Ray's object store and are
-  fetched with one ``ray.get``, then decoded here (``frame_codec.decode_views``).
+- **Transport**: the source asks every node for the stamp of its newest frame (``newest``),
+  chooses the instant T (below) and asks every node for its frame nearest T (``frame_at``); the
+  answers (``node.NodeFrame``) travel through Ray's object store and are decoded here
+  (``frame_codec.decode_views``). Up to ``RayLiveOptions.in_flight`` instants are in transfer at
+  once, and the next ``newest`` round trip overlaps them. In the live loop (``paced_by``) frames
+  are asked for only while fusion is ready for them: a node encodes and ships the frames that
+  are fused, not every frame it captures.
 - **Wire format** (``RayLiveOptions.frame_codec``): ``auto`` ships a node's frames raw (the
-  arrays, bit for bit) when the node runs on this machine (its Ray node's address is this
-  one's: shared memory, or Ray's object transfer over loopback), and in the node's own codec
-  (JPEG or PNG colour, lossless PNG depth) when they cross a network; ``raw``, ``jpeg`` or ``png``
-  force one for every node.
+  arrays, bit for bit, through shared memory) when the node runs on this process's Ray node;
+  as ``lz4`` (raw colour bytes, LZ4 depth: bit for bit, half the bytes of raw) when it runs on
+  another Ray node of this machine (Ray copies objects between its nodes' stores); and in the
+  node's own codec (JPEG or PNG colour, lossless LZ4 or PNG depth) when they cross a network;
+  ``raw``, ``lz4``, ``jpeg`` or ``png`` force one for every node.
 - **Clocks**: a thread probes every node's ``clock`` every ``probe_every_s`` and keeps a
   min-RTT estimate of its offset (``clock.OffsetEstimator``); each frame's stamp is moved onto
   this host's clock by it before pairing.
@@ -43,12 +47,12 @@ import torch
 from fuseflow.errors import FuseFlowError, ValidationError
 from fuseflow.live.sources.clock import OffsetEstimator, StampDrift, probe
 from fuseflow.live.sources.frame_codec import decode_views
-from fuseflow.live.sources.node import NAMESPACE, PREFIX, connect_ray, node_name
+from fuseflow.live.sources.node import NAMESPACE, PREFIX, connect_ray, node_name, wire_codec
 from fuseflow.types import Frame, Rig
 
 __all__ = ["FRAME_CODECS", "RayLiveOptions", "RaySource"]
 
-FRAME_CODECS = ("auto", "raw", "jpeg", "png")
+FRAME_CODECS = ("auto", "raw", "lz4", "jpeg", "png")
 
 
 @dataclass(frozen=True)
@@ -71,6 +75,8 @@ class RayLiveOptions:
     """Move node stamps onto this host's clock by the estimated offsets (False: pair the raw stamps)."""
     rate: float | None = None
     """Frames per second of the cameras (None: the nodes' own rate; 15 when they do not know it)."""
+    in_flight: int = 2
+    """Instants whose frames may be in transfer at once (1: fetch one frame after the other)."""
     frame_codec: str = "auto"
     """How frames travel (``FRAME_CODECS``): auto (raw from a node on this machine, the node's
     codec from another), raw, jpeg or png."""
@@ -117,6 +123,8 @@ class RaySource:
     stalls, dies, joins or comes back."""
 
     def __init__(self, options: RayLiveOptions = RayLiveOptions(), warn: Callable[[str], None] | None = None):
+        if not int(options.in_flight) >= 1:
+            raise ValidationError(f"in_flight must be at least 1, got {options.in_flight}")
         if options.frame_codec not in FRAME_CODECS:
             raise ValidationError(f"frame codec must be one of {', '.join(FRAME_CODECS)}, got {options.frame_codec!r}")
         self.options = options
@@ -154,6 +162,7 @@ class RaySource:
         self._skew: dict[str, deque] = {c: deque(maxlen=100) for c in self.rig.ids}
         self._drift = StampDrift(1.0 / self.rate)
         self._paired = {"frames": 0, "mixed_index": 0}
+        self._backlog: Callable[[], int] = lambda: 0
         self._thread = threading.Thread(target=self._watch, name="fuseflow-ray-clock", daemon=True)
         self._thread.start()
 
@@ -224,7 +233,7 @@ class RaySource:
                 else "same machine" if info.get("ip") == ip else "network")  # fmt: skip
         codec = self.options.frame_codec
         if codec == "auto":
-            return link, "raw" if link != "network" else None
+            return link, {"same Ray node": "raw", "same machine": "lz4"}.get(link)
         return link, codec
 
     def _add(self, handle: Any, info: dict) -> _Node:
@@ -233,7 +242,7 @@ class RaySource:
         node = _Node(info["name"], handle, info["token"], ids, [self.rig.ids.index(c) for c in ids],
                      [float(c.depth_scale) for c in info["rig"].cameras], OffsetEstimator(self.options.window),
                      wire, link)  # fmt: skip
-        node.codec = wire or info["codec"].color
+        node.codec = wire_codec(info["codec"], wire).name
         with self._lock:
             self._nodes[node.name] = node
         return node
@@ -316,17 +325,21 @@ class RaySource:
         return est.offset_s if est is not None and self.options.correct_clocks else 0.0
 
     # -- frames ------------------------------------------------------------------------------
-    def _call_all(self, nodes: list[_Node], call, timeout: float) -> dict[str, Any]:
-        """``call(node)`` (a remote call) on every node at once; name -> answer of those that
-        answered within ``timeout``. A node whose actor is gone is marked lost."""
-        import ray
-
+    def _issue(self, nodes: list[_Node], call) -> dict[Any, _Node]:
+        """``call(node)`` (a remote call) on every node at once; its object ref -> node. A node
+        whose actor is gone is marked lost."""
         refs = {}
         for n in nodes:
             try:
                 refs[call(n)] = n
             except Exception as exc:  # noqa: BLE001 - Ray cannot find the actor any more
                 self._lost(n, exc)
+        return refs
+
+    def _collect(self, refs: dict[Any, _Node], timeout: float) -> dict[str, Any]:
+        """Node name -> answer of the calls ``refs`` that answered within ``timeout``."""
+        import ray
+
         ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=timeout) if refs else ([], [])
         try:
             return {refs[ref].name: got for ref, got in zip(ready, ray.get(ready))}
@@ -340,11 +353,15 @@ class RaySource:
                 self._lost(refs[ref], exc)
         return out
 
-    def _instant(self, nodes: list[_Node]) -> float | None:
+    def _ask_newest(self, nodes: list[_Node]) -> dict[Any, _Node]:
+        return self._issue(nodes, lambda n: n.handle.newest.remote(n.after, 0.05))
+
+    def _instant(self, nodes: list[_Node], asked: dict[Any, _Node]) -> float | None:
         """The instant to fuse next: the oldest of the nodes' newest stamps (host clock), once
-        every node that is not stalled has a frame past the last one fused."""
+        every node that is not stalled has a frame past the last one fused; ``asked``: the
+        nodes' ``newest`` calls (``_ask_newest``)."""
         half = 0.5 / self.rate
-        news = self._call_all(nodes, lambda n: n.handle.newest.remote(n.after, 0.05), self.options.stall_s)
+        news = self._collect(asked, self.options.stall_s)
         now = time.time()
         for n in nodes:
             got = news.get(n.name)
@@ -359,12 +376,15 @@ class RaySource:
             return None
         return min(n.newest for n in active)
 
-    def _fetch(self, T: float, nodes: list[_Node]) -> dict[str, _Arrived]:
+    def _ask_frames(self, T: float, nodes: list[_Node]) -> dict[Any, _Node]:
         half = 0.5 / self.rate
-        got = self._call_all(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire),
-                             self.options.stall_s)  # fmt: skip
+        return self._issue(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire))
+
+    def _picks(self, asked: dict[Any, _Node]) -> dict[str, _Arrived]:
+        """The frames of the ``frame_at`` calls ``asked`` (``_ask_frames``), decoded."""
+        got = self._collect(asked, self.options.stall_s)
         picks = {}
-        for n in nodes:
+        for n in asked.values():
             f = got.get(n.name)
             if f is None:
                 continue
@@ -376,18 +396,6 @@ class RaySource:
             n.frames += 1
             picks[n.name] = _Arrived(f.stamp - self.offset(n), f.index, f.stamp, color, depth, present)
         return picks
-
-    def _next_frame(self) -> Frame | None:
-        nodes = [n for n in self._nodes.values() if n.alive and n.slots]
-        T = self._instant(nodes) if nodes else None
-        if T is None:
-            self._closed.wait(0.005)
-            return None
-        active = [n for n in nodes if n.alive and not n.stalled]
-        picks = self._fetch(T, active)
-        self._last_t = T
-        self.last_t = T
-        return self._assemble(T, nodes, picks)
 
     def _assemble(self, T: float, nodes: list[_Node], picks: dict[str, _Arrived]) -> Frame:
         n, (w, h) = len(self.rig), self.resolution
@@ -426,11 +434,51 @@ class RaySource:
                       "in step with the others; check its sync")  # fmt: skip
 
     def frames(self) -> Iterator[Frame]:
-        """Paired frames as the nodes deliver them, until ``close``."""
+        """Paired frames as the nodes deliver them, until ``close``. Pipelined: up to
+        ``RayLiveOptions.in_flight`` instants are in transfer at once, and the nodes are asked for
+        their next newest stamps while they are, so that one frame's round trips and transfer
+        overlap the next one's; a frame is handed on as soon as all its views arrived."""
+        fetching: deque[tuple[float, list[_Node], dict[Any, _Node]]] = deque()
         while not self._closed.is_set():
-            frame = self._next_frame()
-            if frame is not None:
-                yield frame
+            if len(fetching) + self._backlog() >= self.options.in_flight:  # pull: the consumer is busy
+                if fetching and self._arrived(fetching[0][2], 0.02):  # waits for it, no busy loop
+                    yield self._finish(fetching.popleft())
+                elif not fetching:
+                    self._closed.wait(0.002)
+                continue
+            nodes = [n for n in self._nodes.values() if n.alive and n.slots]
+            asked = self._ask_newest(nodes)
+            while fetching and (len(fetching) >= self.options.in_flight or self._arrived(fetching[0][2])):
+                yield self._finish(fetching.popleft())
+            T = self._instant(nodes, asked) if nodes else None
+            if T is None:
+                if fetching:
+                    yield self._finish(fetching.popleft())
+                else:
+                    self._closed.wait(0.005)
+                continue
+            fetching.append((T, nodes, self._ask_frames(T, [n for n in nodes if n.alive and not n.stalled])))
+            self._last_t = T
+            self.last_t = T
+
+    def paced_by(self, backlog: Callable[[], int]) -> None:
+        """Fetch frames only as fast as they are consumed: ``backlog()`` is the number of frames
+        handed on and not yet taken (the live loop's mailbox); with it, frames are asked of the
+        nodes only while that plus those in transfer is below ``in_flight``, so that no frame is
+        encoded, copied and decoded only to be replaced before fusion takes it."""
+        self._backlog = backlog
+
+    @staticmethod
+    def _arrived(asked: dict[Any, _Node], timeout: float = 0.0) -> bool:
+        """Whether every answer of ``asked`` is here, waiting up to ``timeout`` s for them."""
+        import ray
+
+        ready, _ = ray.wait(list(asked), num_returns=len(asked), timeout=timeout) if asked else ([], [])
+        return len(ready) == len(asked)
+
+    def _finish(self, fetching: tuple[float, list[_Node], dict[Any, _Node]]) -> Frame:
+        T, nodes, asked = fetching
+        return self._assemble(T, nodes, self._picks(asked))
 
     # -- report ------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:

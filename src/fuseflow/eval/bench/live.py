@@ -1,4 +1,4 @@
-"""``python -m benchmarks.live_replay``: recordings replayed as cameras through ``fuseflow live --serve`` with
+"""``fuseflow bench live`` (and ``python -m benchmarks.live_replay``): recordings replayed as cameras through ``fuseflow live --serve`` with
 one WebSocket viewer attached: sustained fused frames per second, drop rate, latency (capture to
 sent) p50 / p95, and the viewer's bandwidth.
 
