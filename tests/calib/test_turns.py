@@ -153,6 +153,25 @@ def test_in_a_repeating_room_cycles_do_not_vouch_for_the_turn():
     assert v["a"]["turn"]["margin"] == 0.6 and v["a"]["turn"]["period_deg"] == 45.0
 
 
+def test_two_cameras_on_one_spot_leave_no_camera_good_when_no_room_axis_was_found():
+    """A placement that folds two cameras onto one spot shows the scene repeats; with no room
+    axis found, nothing checks any camera's turn (cycles and the floor cannot)."""
+    rep, T = _report()
+    ids = list(T)
+    pairs = rep.backbone_info["pairs"]
+    T["d"] = T["c"].copy()
+    T["d"][:3, 3] += [0.05, 0, 0]  # 5 cm from c
+    for x in ("a", "b", "c"):
+        pairs.append({"cameras": [x, "d"], "edge": {"T_ji": (T["d"] @ invert_rigid(T[x])).tolist(), "route": "floor"}})
+        rep.backbone_info["cameras"][x]["edges"].append("d")
+    rep.backbone_info["cameras"]["d"] = {"edges": ["a", "b", "c"]}
+    v = camera_verdicts(rep, T, ids + ["d"])
+    assert v["c"]["verdict"] == "check it" and v["d"]["verdict"] == "check it"
+    assert v["a"]["verdict"] == v["b"]["verdict"] == "ambiguous", v
+    assert "c and d share a spot" in v["a"]["reason"] and AMBIGUOUS_ACTION in v["a"]["reason"]
+    assert all(x["verdict"] == "good" for x in camera_verdicts(*_report(), ids).values())  # no fold: good
+
+
 def test_a_camera_the_subject_turned_is_as_precise_as_the_room_axis_at_best():
     rep, T = _report()
     room = _room(8)
