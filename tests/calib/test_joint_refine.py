@@ -177,3 +177,20 @@ def test_expected_error_of_each_refined_camera_follows_its_real_error(scene):
         est[noise] = np.mean([v[0] for v in res.expected.values()])
         assert "expected_deg_mm" in res.as_dict()
     assert 5 < est[0.02] / est[0.002] < 20, est
+
+
+def test_only_refines_the_named_cameras_on_depth_alone_and_holds_the_rest(scene):
+    """A camera turned by whole room periods after the refinement: its tracks are aliases, so it
+    is refined on the dense depth alone while every other camera is held bit for bit."""
+    frame, rig, T_true = scene
+    ids = list(rig.ids)
+    truth = dict(zip(ids, T_true))
+    T0 = dict(truth)
+    T0[ids[2]] = T_true[2] @ _exp_se3(np.r_[np.radians([0.2, -0.3, 0.2]), 0.02, -0.015, 0.01])
+    res = joint_refine(T0, [frame], rig, only={ids[2]})
+    assert res.accepted, res.reason
+    before = pose_errors({c: T0[c] for c in ids[:3]}, truth)
+    after = pose_errors({c: res.T_cam_world[c] for c in ids[:3]}, truth)
+    assert after.translation_mm < before.translation_mm / 2 and after.rotation_deg < before.rotation_deg / 2
+    assert all(np.array_equal(res.T_cam_world[c], T0[c]) for c in ids if c != ids[2])
+    assert not joint_refine(T0, [frame], rig, only=set()).accepted  # nothing to refine

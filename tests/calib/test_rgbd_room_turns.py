@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from fuseflow.calib.backbones.rgbd import RGBDConfig, rgbd_backbone
-from fuseflow.calib.backbones.rgbd.pairs import pair_room, unstacked
+from fuseflow.calib.backbones.rgbd.pairs import pair_room, unstacked, upside_down
 from fuseflow.calib.symmetry import Hypothesis, turn_about
 from fuseflow.synth.rigs import look_at
 from fuseflow.types import Rig, invert_rigid
@@ -100,3 +100,18 @@ def test_a_period_one_pair_shows_yields_to_the_period_every_pair_shows():
     # with no other pair's poses, the one pair's period stands
     room_1, _ = pair_room(cams, [((0, 1), (verified[(0, 1)], verified[(0, 1)]))])
     assert room_1 is not None and room_1.sides == 11
+
+
+def test_a_pose_that_puts_one_camera_upside_down_is_refused():
+    """A room whose ceiling matches its floor gives poses that turn one camera's floor into the
+    other's ceiling: the two fitted floor normals then point opposite ways."""
+    T = _cameras(2)
+    a, b = _cam(T[0]), _cam(T[1])
+    true = T[1] @ invert_rigid(T[0])
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])  # a half turn about a horizontal axis of the world
+    flipped = T[1] @ turn_about(np.array([1.0, 0.0, 0.0]), CENTRE + [0, 0, 1.4], 180.0) @ invert_rigid(T[0])
+    assert not upside_down(a, b, true)
+    assert not upside_down(a, b, _alias(T, 0, 1, 2, 6))  # a room turn keeps the floor
+    assert upside_down(a, b, flipped)
+    assert upside_down(a, b, true @ T[0] @ flip @ invert_rigid(T[0]))
+    assert not upside_down(SimpleNamespace(plane=None), b, flipped)  # no floor fitted: no check

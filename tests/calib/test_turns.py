@@ -3,6 +3,7 @@ in a repeating room (calib.verdicts): cycles and the floor never vouch for a tur
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -71,6 +72,56 @@ def test_settle_turns_moves_only_confident_cameras():
     assert ev2["b"].turn == 0 and ev2["b"].moved == 3 and ev2["c"].turn == 2 and ev2["c"].moved == 0
 
 
+def _ring(n: int, radius: float = 2.8) -> dict[str, np.ndarray]:
+    """Camera-from-world poses on a ring about the z axis, looking at the centre."""
+    out = {}
+    for k in range(n):
+        a = 2 * math.pi * k / n
+        c = np.array([radius * math.cos(a), radius * math.sin(a), 2.0])
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        out[f"c{k}"] = np.r_[np.c_[R, -R @ c], [[0, 0, 0, 1]]]
+    return out
+
+
+def test_turned_cameras_turn_about_the_axis_their_refined_centres_show(monkeypatch):
+    """The room's cloud finds the axis 4 cm off; the dense refinement of the turned cameras (faked
+    here: each lands 4 mm and 0.5 deg from where the true axis puts it) moves the axis, and every turned camera
+    comes out within a few mm of its true pose, the unturned ones untouched."""
+    from fuseflow.calib import joint_refine as JR
+
+    true_room = T_.RoomAxis(8, np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.8, 0.0)
+    found = T_.RoomAxis(8, np.array([0.03, -0.027, 0.0]), true_room.up, 0.8, 0.0)
+    truth = _ring(5)
+    turns = {"c0": 0, "c1": 0, "c2": 3, "c3": -2, "c4": 1}
+    T = {c: truth[c] @ true_room.turn(k) for c, k in turns.items()}  # placed at their aliases
+    ev = {c: _ev(k, TURN_MIN_MARGIN + 0.1) for c, k in turns.items()}
+    rng = np.random.default_rng(0)
+
+    def fake(T_in, frames, rig, only=None, **kw):
+        out = dict(T_in)
+        for c in only:
+            out[c] = truth[c].copy()
+            out[c][:3, 3] -= out[c][:3, :3] @ rng.normal(0, 0.004, 3)  # its centre 4 mm off
+            axis = rng.normal(0, 1, 3)
+            wobble = T_.RoomAxis(8, np.zeros(3), axis / np.linalg.norm(axis), 0, 0).turn(0.01)  # 0.45 deg
+            out[c] = wobble @ out[c]
+        return SimpleNamespace(accepted=True, T_cam_world=out)
+
+    monkeypatch.setattr(JR, "joint_refine", fake)
+    settled = T_.refine_turned([], None, T, found, ev, TURN_MIN_MARGIN)
+    assert set(settled) == {"c2", "c3", "c4"}
+    for c, P in settled.items():
+        assert np.linalg.norm(invert_rigid(P)[:3, 3] - invert_rigid(truth[c])[:3, 3]) < 0.01, c
+        assert np.allclose(P[:3, :3], truth[c][:3, :3], atol=1e-9)  # a turn about a parallel axis: same rotation
+    plain = T["c2"] @ invert_rigid(found.turn(3))
+    assert np.linalg.norm(invert_rigid(plain)[:3, 3] - invert_rigid(truth["c2"])[:3, 3]) > 0.05
+    T2, _ = T_.settle_turns(T, dataclasses.replace(found, settled=settled), ev, TURN_MIN_MARGIN)
+    assert all(np.array_equal(T2[c], settled[c]) for c in settled) and np.array_equal(T2["c1"], T["c1"])
+
+
 def _report():
     """A report whose cameras pass every other check: an rgbd backbone whose three pair poses
     close one cycle and agree with the extrinsics."""
@@ -100,6 +151,25 @@ def test_in_a_repeating_room_cycles_do_not_vouch_for_the_turn():
     none = camera_verdicts(rep, T, ids, {}, room)  # a repeating room and no subject evidence
     assert {x["verdict"] for x in none.values()} == {"ambiguous"}
     assert v["a"]["turn"]["margin"] == 0.6 and v["a"]["turn"]["period_deg"] == 45.0
+
+
+def test_two_cameras_on_one_spot_leave_no_camera_good_when_no_room_axis_was_found():
+    """A placement that folds two cameras onto one spot shows the scene repeats; with no room
+    axis found, nothing checks any camera's turn (cycles and the floor cannot)."""
+    rep, T = _report()
+    ids = list(T)
+    pairs = rep.backbone_info["pairs"]
+    T["d"] = T["c"].copy()
+    T["d"][:3, 3] += [0.05, 0, 0]  # 5 cm from c
+    for x in ("a", "b", "c"):
+        pairs.append({"cameras": [x, "d"], "edge": {"T_ji": (T["d"] @ invert_rigid(T[x])).tolist(), "route": "floor"}})
+        rep.backbone_info["cameras"][x]["edges"].append("d")
+    rep.backbone_info["cameras"]["d"] = {"edges": ["a", "b", "c"]}
+    v = camera_verdicts(rep, T, ids + ["d"])
+    assert v["c"]["verdict"] == "check it" and v["d"]["verdict"] == "check it"
+    assert v["a"]["verdict"] == v["b"]["verdict"] == "ambiguous", v
+    assert "c and d share a spot" in v["a"]["reason"] and AMBIGUOUS_ACTION in v["a"]["reason"]
+    assert all(x["verdict"] == "good" for x in camera_verdicts(*_report(), ids).values())  # no fold: good
 
 
 def test_a_camera_the_subject_turned_is_as_precise_as_the_room_axis_at_best():

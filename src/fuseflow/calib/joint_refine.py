@@ -38,7 +38,7 @@ after, not the shrinking one.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -468,6 +468,7 @@ def joint_refine(
     max_frames: int = 3,
     samples: int = SAMPLES,
     tracks: Sequence[tuple[str, str, np.ndarray, np.ndarray, np.ndarray]] = (),
+    only: Collection[str] | None = None,
 ) -> JointRefineResult:
     """Refine every placed camera at once on the dense depth of ``frames`` (module docstring).
 
@@ -482,6 +483,10 @@ def joint_refine(
             the same points in each camera's frame, metres, sigma (m,) metres), e.g. the
             verified 3-D matches of the ``rgbd`` backbone's edges; pairs with an unplaced
             camera are ignored.
+        only: when given, exactly these cameras are refined, on the dense depth alone where they
+            have no tracks, and every other camera is held (a camera turned by whole room periods
+            after the refinement: its tracks are the aliased matches the turn left behind, and
+            its neighbours were already refined).
 
     Returns:
         :class:`JointRefineResult` (the input poses when fewer than two cameras overlap or the
@@ -507,7 +512,12 @@ def joint_refine(
     counts = np.zeros(len(ids), int)
     for i, j, Xa, _, _ in tr:
         counts[[i, j]] += len(Xa)
-    fixed = sorted({ids.index(anchor)} | {k for k in range(len(ids)) if counts[k] < MIN_TRACKS})
+    if only is not None:
+        fixed = [k for k, c in enumerate(ids) if c not in only or c == anchor]
+    else:
+        fixed = sorted({ids.index(anchor)} | {k for k in range(len(ids)) if counts[k] < MIN_TRACKS})
+    if len(fixed) == len(ids) and only is not None:
+        return JointRefineResult(dict(T_cam_world), False, reason="no camera to refine")
     if len(fixed) == len(ids):
         reason = f"no camera has {MIN_TRACKS} keypoint matches: dense depth alone slides sparse rigs (docs/gmac.md)"
         return JointRefineResult(dict(T_cam_world), False, reason=reason)
@@ -517,7 +527,8 @@ def joint_refine(
     after = _inlier_shares(views, W, pairs, len(ids))
     Cinv = invert_rigid(C)
     T_new = {c: invert_rigid(Cinv @ W[k]) for k, c in enumerate(ids)}
-    T_new[anchor] = np.asarray(T_cam_world[anchor], dtype=np.float64)  # held fixed, bit for bit
+    for k in fixed:  # held fixed (the anchor, cameras without tracks or not in ``only``), bit for bit
+        T_new[ids[k]] = np.asarray(T_cam_world[ids[k]], dtype=np.float64)
     share_b = {c: float(before[k]) for k, c in enumerate(ids) if np.isfinite(before[k])}
     share_a = {c: float(after[k]) for k, c in enumerate(ids) if np.isfinite(after[k])}
     reason = _verdict(share_b, share_a)

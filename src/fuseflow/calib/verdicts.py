@@ -385,8 +385,19 @@ def camera_verdicts(
                     "was not found in the calibrated cloud, so nothing checks its turn; " + AMBIGUOUS_ACTION
                 ),
             )
+        elif room is None and stacked and entry["verdict"] == "good":  # a fold: the scene repeats
+            entry["verdict"], entry["reason"] = "ambiguous", _folded(stacked)
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
+
+
+def _folded(stacked: Mapping[str, tuple[str, float]]) -> str:
+    """Why a camera is "ambiguous" when two cameras share a spot and no room axis was found."""
+    first = min(stacked)
+    return (
+        f"{first} and {stacked[first][0]} share a spot: the scene repeats and folded them onto each other, "
+        "but no room axis was found, so nothing checks this camera's turn; " + AMBIGUOUS_ACTION
+    )
 
 
 def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: float) -> tuple[str, str]:

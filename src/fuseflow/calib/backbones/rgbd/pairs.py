@@ -137,6 +137,21 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
 #: then 2.7 deg per period off, yet verified at tau.
 MIN_ROOM_PAIRS = 2
 
+#: A pose that turns one camera's floor normal more than this from the other's (cosine) is refused
+#: when both cameras fit a floor: it puts one camera upside down, looking at the ceiling as a
+#: floor. A repeating room whose floor and ceiling match alike gives such poses 6 sift3d inliers
+#: and an agreement of 1.00 (only the far ceiling overlaps). 120 deg, not a few: a camera whose
+#: floor fit took a wall is 90 deg off on a true pose.
+FLOOR_FLIP_COS = -0.5
+
+
+def upside_down(a: CameraEvidence, b: CameraEvidence, T_ba: np.ndarray) -> bool:
+    """Whether ``T_ba`` maps a's floor normal more than acos(FLOOR_FLIP_COS) from b's (both
+    floors fitted)."""
+    if a.plane is None or b.plane is None:
+        return False
+    return float((T_ba[:3, :3] @ a.plane.normal) @ b.plane.normal) < FLOOR_FLIP_COS
+
 
 def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tuple[list, list]]]):
     """(the room's ``RoomOrbits`` or None, whether it was found only from unverified poses).
@@ -196,6 +211,9 @@ def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[d
         if ok and verdict > judge.limit:  # the person says no (calib.subject)
             row.update(ok=False, rejected="subject")
             ok = False
+    if ok and upside_down(a, b, c["T_ba"]):
+        row.update(ok=False, rejected="upside down")
+        ok = False
     if ok and not plausible(c["T_ba"], chk, cfg, median_depth(a, b)):
         # stacked on the other camera: rejected, not scored (calib.symmetry)
         row.update(ok=False, rejected="co-located")
@@ -208,7 +226,7 @@ def judge_candidate(a: CameraEvidence, b: CameraEvidence, c: dict, cands: list[d
     # 0.5-deg pose from a 2.3-deg one (at tau the 2.3-deg one agreed on more samples than the
     # true pose: docs/gmac.md)
     if not ok:
-        return row, None, chk.passes(cfg)
+        return row, None, chk.passes(cfg) and row.get("rejected") != "upside down"
     fine = verify_pose(a, b, c["T_ba"], cfg.tau * RANK_TAU_SHARE).agree
     row["agree_fine"] = fine
     return row, Hypothesis(pair[0], pair[1], c["T_ba"], float(fine), (c, chk, cands)), chk.passes(cfg)
