@@ -13,9 +13,11 @@ nodes' object stores), ``jpeg`` (JPEG quality 90 colour, lossless PNG depth: wha
 network) and ``auto@head`` (the same capture actors placed on this process's own Ray node: raw
 through shared memory, the layout of a capture node on the fusing machine). Per run the one-host
 rate is measured four times: without Ray before and after, and in this process with the cluster
-up before and after the nodes' runs (FUSE ran about twice as fast in a process with a Ray
-cluster up on this loaded machine, cause not found); the ratio uses the mean of the two with
-the cluster up, ``ratio_to_one_host_without_ray`` the other two. ``runs`` repeats the whole. Per fused frame with every view, the cloud is compared with the one-host FUSE
+up before and after the nodes' runs; the ratio uses the mean of the two with the cluster up,
+``ratio_to_one_host_without_ray`` the other two. On a machine shared with other jobs the two
+differ: FUSE does the same CPU work a frame in both, and the difference is time its threads wait
+for a CPU, which other jobs' load decides (``benchmarks/investigations/live_autogroup_share.py``). The baseline with the cluster up runs in
+the state of the nodes' runs and right before and after them, so the ratio is read against it. ``runs`` repeats the whole. Per fused frame with every view, the cloud is compared with the one-host FUSE
 of the same recording frame: positions, weights and cameras bit for bit, colour bit for bit or as
 the mean absolute difference. The rates compared are fused frames with all 8 views per second (a
 frame a node did not deliver in time is fused from the others and not counted).
@@ -169,9 +171,9 @@ def _nodes_run(path: Path, rec: Any, nodes: int, duration: float, wires: tuple[s
                                None if on_head else {f"cap{k}": 1}, node_id=here if on_head else None)
                     for k, (cams, off) in enumerate(splits)]  # fmt: skip
 
-        # one host again with the cluster up: FUSE in this process ran 2-2.5x faster while a
-        # Ray cluster was up on this loaded machine (cause not found), so the baseline is taken
-        # in the same state as the nodes' runs, before and after them
+        # one host again with the cluster up: on a machine shared with other jobs FUSE's share of
+        # the CPU differs with the cluster up (same CPU work, less waiting for a CPU), so the
+        # baseline is taken in the same state as the nodes' runs, before and after them
         handles = spawn(False)
         out = {"one_host_ray_up_before": _one_host(rec, duration)}
         out.update({w: _gather(rec, cluster.address, nodes, duration, w) for w in wires if not w.endswith("@head")})
