@@ -18,17 +18,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from benchmarks.common import command, parser, save
+from benchmarks.common import command, parser, save, seeds
 from benchmarks.studies.independent_run import run_bench
 from benchmarks.studies.independent_scene import SENSORS
-
-
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return out
 
 
 def _reproducing(argv: list[str] | None) -> list[str]:
@@ -55,7 +47,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rescore", action="store_true", help="only score the outputs already under --work")
     ap.add_argument("--name", default=None, help="results name under --save (default: calib_independent_RES[_moving])")
     a = ap.parse_args(argv)
-    rows, totals = run_bench(_seeds(a.seeds), a.resolution, a.num_frames, a.moving, a.work, a.progress, a.rescore)
+    rows, totals = run_bench(seeds(a.seeds), a.resolution, a.num_frames, a.moving, a.work, a.progress, a.rescore)
     name = a.name or f"calib_independent_{a.resolution}" + (f"_moving{a.num_frames}" if a.moving else "")
     meta = {"resolution": a.resolution, "frames": a.num_frames, "moving": a.moving, "totals": totals}
     save(a, name, command("calib_independent", _reproducing(argv)), rows, meta)

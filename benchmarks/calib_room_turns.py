@@ -26,8 +26,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmarks.common import command, parser, save
-from benchmarks.studies.calib_turns import FAMILIES, parse_seeds, run_planted_bench, run_turn_bench
+from benchmarks.common import command, parser, save, seeds
+from benchmarks.studies.calib_turns import FAMILIES, run_planted_bench, run_turn_bench
 
 
 def _resolutions(spec: str, fams: list[str]) -> dict[str, tuple[int, int]]:
@@ -59,9 +59,9 @@ def main(argv: list[str] | None = None) -> None:
         ap.error(f"--families: choose from {', '.join(FAMILIES)}")
     res = _resolutions(a.resolution, fams)
     if a.planted:
-        rows = run_planted_bench(fams, parse_seeds(a.seeds), res[fams[0]], a.planted, a.progress)
+        rows = run_planted_bench(fams, seeds(a.seeds), res[fams[0]], a.planted, a.progress)
     else:
-        rows = run_turn_bench(fams, parse_seeds(a.seeds), res, a.num_frames, a.dynamic, a.progress)
+        rows = run_turn_bench(fams, seeds(a.seeds), res, a.num_frames, a.dynamic, a.progress)
     save(a, "calib_room_turns", command("calib_room_turns", argv), rows,
          {"resolution": {f: f"{w}x{h}" for f, (w, h) in res.items()}, "frames": a.num_frames})  # fmt: skip
 

@@ -28,7 +28,6 @@ import numpy as np
 
 __all__ = [
     "FAMILIES",
-    "parse_seeds",
     "run_seed",
     "seed_line",
     "summary",
@@ -114,14 +113,6 @@ def run_seed(family: str, seed: int, resolution, frames: int, dynamic: bool) -> 
                    "within": bool(placed and not lone and r <= GOOD_DEG and t <= GOOD_M)}  # fmt: skip
     return {"family": family, "seed": seed, "cameras": len(T_true), "sides": sides, "frames": frames,
             "seconds": round(secs, 1), "error": error, "room": room, "per_camera": cams}  # fmt: skip
-
-
-def parse_seeds(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b or a) + 1))
-    return out
 
 
 def seed_line(row: dict) -> str:
