@@ -156,3 +156,20 @@ def test_a_refined_camera_reads_the_larger_of_the_covariance_and_half_the_disagr
     assert np.isclose(v["a"]["accuracy_deg"], 0.2 / np.sqrt(2), atol=1e-3)  # held: its pair poses still say
     rep.joint_refinement = {**jr, "accepted": False}
     assert camera_verdicts(rep, T, list(T))["c"]["accuracy_deg"] < 0.2
+
+
+def test_in_a_repeating_room_the_pair_poses_scatter_still_counts_after_the_refinement():
+    """Four pair poses turned back by whole periods of a repeating room scatter 20 mm about the
+    refined result while their fits and the refinement's covariance say 3 mm: the refinement saw
+    the same repeating walls (an independent 10-sided studio: cameras 17-32 mm off printed
+    2-5 mm), so the position reads RMS / sqrt(4) = 10 mm; the rotation keeps its estimate.
+    Unturned pair poses after the refinement: the scatter is theirs, as before."""
+    res = [(0.2, 20.0)] * 4
+    fits = [(0.1, 3.0, "sift4+turn+refit")] * 4
+    d, m, how = camera_accuracy(res, fits, refined=True, refinement=(0.05, 3.0), moved=(0.05, 3.0))
+    assert m == 10.0 and "repeating room" in how
+    assert d == SYSTEMATIC_DEG
+    assert camera_accuracy(res, fits)[1] == 10.0  # not refined: the residual estimate, as before
+    plain = [(0.1, 3.0, "sift4+refit")] * 4
+    assert camera_accuracy(res, plain, refined=True, refinement=(0.05, 3.0), moved=(0.05, 3.0))[1] == 3.0
+    assert camera_accuracy([(0.2, 120.0)] * 2, fits[:2], refined=True, refinement=(0.05, 3.0))[1] > GOOD_MM
