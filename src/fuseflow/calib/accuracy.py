@@ -31,12 +31,11 @@ joint refinement moved, the rule of 3; in a repeating room the position is at le
    two sources the refined pose lies between: what the pair poses could be off by, and what depth
    says they were off by; half of it tracked the error on HO-Cap, ICL and the rings
    (docs/gmac-trust.md, "Expected accuracy"). 1-2 alone would describe the pose before it moved.
-
 4. **In a repeating room, whatever applies above** (``turned_position_floor``, where a pair pose
    of the camera was measured against another period of the room and turned back, route
    ``+turn``): the position is at least 2's RMS / sqrt(n), also after the joint refinement. There
    the refinement sees the same repeating walls as the pair poses and does not correct what they
-   share: on an independently rendered 10-sided studio it moved the cameras 1-8 mm while they were
+   share: on an independently rendered 10-sided studio it moved the cameras 0.7-7.8 mm while they were
    17-32 mm off, and the refinement's covariance with the pair poses' combined fit printed 2-5 mm;
    the pair poses' scatter about the result printed 6-18 mm. Rotations were not affected (printed /
    actual 0.26-8.7, median 1.2, over 144 cameras of 6-12-sided studios), so only the position is

@@ -22,7 +22,8 @@ Evidence read from the report and the final extrinsics (nothing is re-measured b
   fit covariance of its agreeing pair poses (from their correspondences) and RMS / sqrt(n) of
   their disagreement with the final extrinsics; for a camera an accepted joint refinement moved,
   the larger of that refinement's covariance of its refined pose and half the larger of the
-  pair poses' estimate and its motion (``calib.accuracy``, 3). Scale-free backbones: the position error the standard error of s* causes at the camera's distance from
+  pair poses' estimate and its motion (``calib.accuracy``, 3); in a repeating room the position at
+  least their RMS / sqrt(n) (``calib.accuracy``, 4). Scale-free backbones: the position error the standard error of s* causes at the camera's distance from
   the world camera (the scale part only; no angle).
 - **plausibility**: two camera centres closer than ``STACKED_M`` (a device's width) cannot both
   be right.
