@@ -3,7 +3,6 @@ in a repeating room (calib.verdicts): cycles and the floor never vouch for a tur
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -118,7 +117,7 @@ def test_turned_cameras_turn_about_the_axis_their_refined_centres_show(monkeypat
         assert np.allclose(P[:3, :3], truth[c][:3, :3], atol=1e-9)  # a turn about a parallel axis: same rotation
     plain = T["c2"] @ invert_rigid(found.turn(3))
     assert np.linalg.norm(invert_rigid(plain)[:3, 3] - invert_rigid(truth["c2"])[:3, 3]) > 0.05
-    T2, _ = T_.settle_turns(T, dataclasses.replace(found, settled=settled), ev, TURN_MIN_MARGIN)
+    T2, _ = T_.settle_turns(T, found, ev, TURN_MIN_MARGIN, settled)
     assert all(np.array_equal(T2[c], settled[c]) for c in settled) and np.array_equal(T2["c1"], T["c1"])
 
 

@@ -49,11 +49,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fuseflow.calib.verdicts import TURN_MIN_MARGIN, TurnEvidence
+from fuseflow.calib.verdicts import TurnEvidence
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = [
@@ -122,9 +122,6 @@ class RoomAxis:
     up: np.ndarray
     share: float
     floor: float
-    #: camera -> camera-from-world after its turn (:func:`settle_turns`) and a dense refinement
-    #: of the turned cameras on their neighbours' depth (:func:`refine_turned`); empty when none.
-    settled: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {"sides": self.sides, "point": [round(float(x), 4) for x in self.point],
@@ -476,8 +473,7 @@ def camera_turns(
         fine = _world_points(f, rig, T, max(1, round(w / 160)))
         tab = tab + _tables({c: _subject(fine[c], room, radius) for c in ids}, f, rig, T, room, ids)
     k = joint_turns(tab, room.sides, stacking(room, np.stack([centres[c] for c in ids])))
-    evidence = _evidence(tab, k, room, ids, centres, radius)
-    return replace(room, settled=refine_turned(frames, rig, T, room, evidence, TURN_MIN_MARGIN)), evidence
+    return room, _evidence(tab, k, room, ids, centres, radius)
 
 
 def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvidence]:
@@ -533,10 +529,10 @@ def refine_turned(frames, rig: Rig, T: Mapping[str, np.ndarray], room: RoomAxis,
     when the refinement fits the depth worse."""
     from fuseflow.calib.joint_refine import joint_refine
 
-    turned = {c: e.turn for c, e in evidence.items() if c in T and _turn_pose(T[c], room, e, min_margin) is not None}
-    if not turned:
+    plain = {c: P for c, e in evidence.items() if c in T and (P := _turn_pose(T[c], room, e, min_margin)) is not None}
+    if not plain:
         return {}
-    plain = {c: T[c] @ invert_rigid(room.turn(k)) for c, k in turned.items()}
+    turned = {c: evidence[c].turn for c in plain}
     res = joint_refine({**T, **plain}, frames if not isinstance(frames, Frame) else [frames], rig, only=set(turned))
     if not res.accepted:
         return plain
@@ -548,15 +544,16 @@ def refine_turned(frames, rig: Rig, T: Mapping[str, np.ndarray], room: RoomAxis,
 
 
 def settle_turns(T: Mapping[str, np.ndarray], room: RoomAxis, evidence: Mapping[str, TurnEvidence],
-                 min_margin: float) -> tuple[dict[str, np.ndarray], dict[str, TurnEvidence]]:  # fmt: skip
+                 min_margin: float, settled: Mapping[str, np.ndarray] | None = None,
+                 ) -> tuple[dict[str, np.ndarray], dict[str, TurnEvidence]]:  # fmt: skip
     """Cameras whose chosen turn is not 0 with a margin of at least ``min_margin`` turned by it
     about the room's axis (the background keeps agreeing, the subject then agrees too), at the
-    refined pose ``room.settled`` holds for them when it does (:func:`refine_turned`); their evidence
+    pose ``settled`` holds for them when it does (:func:`refine_turned`); their evidence
     then reads turn 0 with ``moved`` set to the turn applied. Others unchanged."""
     T_out, ev_out = dict(T), dict(evidence)
     for c, e in evidence.items():
         if (P := _turn_pose(T[c], room, e, min_margin)) is not None:
-            T_out[c] = room.settled.get(c, P)
+            T_out[c] = (settled or {}).get(c, P)
             ev_out[c] = replace(e, turn=0, moved=e.turn,
                                 runner_up=None if e.runner_up is None else e.runner_up - e.turn)  # fmt: skip
     return T_out, ev_out
