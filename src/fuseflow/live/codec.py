@@ -95,7 +95,7 @@ __all__ = [
 
 COMPACT_VERSION = 3
 """``CompactParams.version`` by default: the range-coded format (messages of version 5, or 3)."""
-COMPACT_VERSIONS = (2, 3, 4, 5, 6)
+COMPACT_VERSIONS = (2, 3, 4, 5, 6, 7)
 """The compact versions ``decode_compact`` reads."""
 _HEAD = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 2
 _HEAD3 = struct.Struct("<4sHHIII3ffffBBBBIII")
@@ -142,8 +142,10 @@ class CompactParams:
             )
         if not (0.0 <= self.split <= 64.0):
             raise ValidationError(f"compact chroma split must be between 0 and 64 chroma steps, got {self.split}")
-        if self.version not in (2, 3):
-            raise ValidationError(f"compact version must be 2 or 3, got {self.version}")
+        if self.version not in (2, 3, 7):
+            raise ValidationError(f"compact version must be 2, 3 or 7, got {self.version}")
+        if self.version == 7 and not self.split > 0:
+            raise ValidationError("compact version 7 codes split chroma blocks: give a split above 0")
         return self
 
 
@@ -195,13 +197,23 @@ class _Reference:
 
 def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rleaf) -> tuple[bytes, bytes, np.ndarray]:
     """(geometry stream, colour stream, quantised colour) of a frame's leaves, against ``ref``
-    (None: version 3); the geometry is coded in a worker thread (the kernels release the GIL)."""
-    from fuseflow.live.codec_kernels import colour_stream, geometry_stream
+    (None: a key frame, its geometry as one symbol a node when ``p.version`` is 7); the geometry
+    is coded in a worker thread (the kernels release the GIL)."""
+    from fuseflow.live.codec_kernels import colour_stream, geometry_stream, geometry_symbols_stream, symmetry_tables
 
     rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
-    geo = _pool().submit(geometry_stream, leaves, levels, rocc, rfirst)
+    if ref is None and p.version == 7:
+        cls, fwd, _ = symmetry_tables()
+        geo = _pool().submit(lambda: (geometry_symbols_stream(leaves, levels, cls, fwd),))
+    else:
+        geo = _pool().submit(geometry_stream, leaves, levels, rocc, rfirst)
     col, q = colour_stream(mean, p.luma_step, p.chroma_step, p.chroma_block, rleaf, rq, float(p.split))
     return geo.result()[0].tobytes(), col.tobytes(), q
+
+
+def _key_version(p: CompactParams) -> int:
+    """The message version of a key frame written with ``p``."""
+    return {2: 2, 7: 7}.get(p.version, _KEY[p.split > 0])
 
 
 def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParams) -> tuple[bytes, bytes, int]:
@@ -253,10 +265,10 @@ def encode_compact(
     cells, top = grid_cells(xyz, origin.astype(np.float64), 1.0 / step)
     levels = _levels(top, params.step_mm)
     p = params
-    version = _KEY[p.split > 0] if p.version == 3 else 2
-    fixed = (b"FFLV", version, COMPACT_HEADER if p.version == 3 else _HEAD.size, number & 0xFFFFFFFF)
+    version = _key_version(p)
+    fixed = (b"FFLV", version, _HEAD.size if p.version == 2 else COMPACT_HEADER, number & 0xFFFFFFFF)
     tail = (*origin.tolist(), step, latency_ms, fuse_ms, levels, p.luma_step, p.chroma_step, p.chroma_block)
-    if p.version == 3:
+    if p.version != 2:
         geo, col, m = _streams_v3(cells, levels, rgb, p) if n_in else (b"", b"", 0)
         body = geo + col
         return _HEAD3.pack(*fixed, int(m), n_in, *tail, zlib.crc32(body), len(geo), len(col)) + body
@@ -279,8 +291,8 @@ class InterEncoder:
     as from a key frame of the same grid: a delta changes the bytes, not the picture."""
 
     def __init__(self, params: CompactParams = CompactParams()):
-        if params.check().version != 3:
-            raise ValidationError("inter-frame coding needs the range-coded compact format (version 3, not 2)")
+        if params.check().version == 2:
+            raise ValidationError("inter-frame coding needs the range-coded compact format (version 3 or 7, not 2)")
         self.params = params
         self._grid: tuple[np.ndarray, int] | None = None
         self._ref: _Reference | None = None
@@ -340,7 +352,7 @@ class InterEncoder:
         if key or out[1] is None:
             geo, col, q = _streams(leaves, mean, levels, p, None, np.full(len(leaves), -1, np.int64))
             out[0] = _HEAD3.pack(
-                b"FFLV", _KEY[p.split > 0], COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col)
+                b"FFLV", _key_version(p), COMPACT_HEADER, *counts, *head, zlib.crc32(geo + col), len(geo), len(col)
             )
             out[0] += geo + col
         self._ref = _Reference(number & 0xFFFFFFFF, _grid_of(out[0] or out[1]), levels, q, leaves)
@@ -386,7 +398,7 @@ def _read_header(data: bytes) -> CompactHeader:
     version = struct.unpack_from("<H", data, 4)[0] if len(data) >= 6 else 0
     if version not in COMPACT_VERSIONS:
         raise FormatError(f"live frame: compact version {version}, expected one of {COMPACT_VERSIONS}")
-    head = {2: _HEAD, 3: _HEAD3, 4: _HEAD4, 5: _HEAD3, 6: _HEAD4}[version]
+    head = {2: _HEAD, 3: _HEAD3, 4: _HEAD4, 5: _HEAD3, 6: _HEAD4, 7: _HEAD3}[version]
     if len(data) < head.size:
         raise FormatError(f"live frame: {len(data)} bytes, shorter than the {head.size}-byte header")
     f = head.unpack_from(data)
@@ -444,7 +456,13 @@ def _decode_v3(
 ) -> tuple[np.ndarray, np.ndarray, _Reference]:
     """(positions, colours, the frame as a reference) of a version 3 or 5 message, or of a
     version 4 or 6 message against ``ref``."""
-    from fuseflow.live.codec_kernels import decode_colour, decode_geometry, morton_cells
+    from fuseflow.live.codec_kernels import (
+        decode_colour,
+        decode_geometry,
+        decode_geometry_symbols,
+        morton_cells,
+        symmetry_tables,
+    )
 
     hsize = _HEAD4.size if h.version in (4, 6) else COMPACT_HEADER
     if zlib.crc32(memoryview(data)[hsize:]) != h.occupancy_bytes:
@@ -457,7 +475,11 @@ def _decode_v3(
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), None
     raw = np.frombuffer(data, np.uint8, offset=hsize)
     geo, col = raw[: h.sizes[0]], raw[h.sizes[0] :]
-    keys, used, err, rleaf, occ = decode_geometry(geo, h.levels, m, rocc, rfirst)
+    if h.version == 7:
+        cls, _, inv = symmetry_tables()
+        keys, used, err, rleaf, occ = decode_geometry_symbols(geo, h.levels, m, cls, inv)
+    else:
+        keys, used, err, rleaf, occ = decode_geometry(geo, h.levels, m, rocc, rfirst)
     if err or len(keys) != m or used > len(geo):
         raise FormatError(f"live frame: the geometry stream gives {len(keys)} points, the header says {m}")
     rgb, used, err, q = decode_colour(col, m, h.luma_step, h.chroma_step, h.chroma_block, rleaf, rq, h.version >= 5)
@@ -496,7 +518,7 @@ def decode_compact(data: bytes) -> tuple[CompactHeader, np.ndarray, np.ndarray]:
     h = _read_header(data)
     if h.version in (4, 6):
         raise FormatError(f"live frame: a delta against frame {h.reference}: decode the stream with CompactDecoder")
-    if h.version in (3, 5):
+    if h.version in (3, 5, 7):
         return (h, *_decode_v3(data, h)[:2])
     a = _HEAD.size
     b, c = a + h.sizes[0], a + h.sizes[0] + h.sizes[1]

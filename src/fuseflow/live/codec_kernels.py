@@ -28,6 +28,11 @@ __all__ = [
     "decode_geometry",
     "decode_colour",
     "morton_cells",
+    "symmetry_tables",
+    "symbol_decisions",
+    "symbol_code",
+    "geometry_symbols_stream",
+    "decode_geometry_symbols",
 ]
 
 
@@ -880,3 +885,234 @@ def morton_cells(keys):  # pragma: no cover - compiled
             b += 1
         out[i, 0], out[i, 1], out[i, 2] = x, y, z
     return out
+
+
+# Version 7: the geometry as one symbol per node, its occupancy byte, from an adaptive frequency
+# table per context, multi-symbol range coded (same range, carry and flush as above). The context
+# is the node's face-neighbour pattern up to the cube's 48 symmetries (10 classes) x last depth;
+# the byte is coded in the pattern's canonical frame (its children permuted by the symmetry that
+# takes the pattern to its class's representative), so the 6 mirror images of a flat surface's
+# pattern share one table.
+
+SYM_CLASSES = 10
+"""Face-neighbour patterns up to the cube's symmetries."""
+SYM_CONTEXTS = 2 * SYM_CLASSES
+"""Symbol contexts: last depth or not x neighbour class."""
+SYM_INC = 32
+"""A coded byte's count grows by this."""
+SYM_LIMIT = 1 << 16
+"""When a table's total passes this, every count halves (rounding up; the empty byte stays 0)."""
+_SYM_TABLES: list = []
+
+
+def _perms3() -> list[tuple[int, int, int]]:
+    return [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
+
+
+def symmetry_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cls, fwd, inv): ``cls[nb]`` the class (0-9) of face-neighbour bits nb; ``fwd[nb, byte]``
+    the occupancy byte in the class's canonical frame, ``inv`` its inverse. The 48 symmetries are
+    tried in order (axis permutation p lexicographic, then flips f = 0..7, f's bit 2 - a flipping
+    axis a); the first that gives the smallest pattern maps nb to its canonical pattern (axis a's
+    neighbour bit 2a + side goes to 2 p[a] + (side ^ flip a); child bit a, k's bit 2 - a, to
+    p[a]'s, flipped); classes number the canonical patterns in increasing order."""
+    if _SYM_TABLES:
+        return _SYM_TABLES[0]
+    moves = [(p, [(f >> (2 - a)) & 1 for a in range(3)]) for p in _perms3() for f in range(8)]
+
+    def move_nb(nb: int, p, f) -> int:
+        return sum(1 << (2 * p[a] + (side ^ f[a])) for a in range(3) for side in range(2) if nb >> (2 * a + side) & 1)
+
+    def move_k(k: int, p, f) -> int:
+        return sum((((k >> (2 - a)) & 1) ^ f[a]) << (2 - p[a]) for a in range(3))
+
+    best = [min(moves, key=lambda m, nb=nb: move_nb(nb, *m)) for nb in range(64)]
+    canon = [move_nb(nb, *best[nb]) for nb in range(64)]
+    reps = sorted(set(canon))
+    cls = np.array([reps.index(c) for c in canon], np.int64)
+    fwd = np.zeros((64, 256), np.int64)
+    inv = np.zeros((64, 256), np.int64)
+    for nb in range(64):
+        kmap = [move_k(k, *best[nb]) for k in range(8)]
+        for b in range(256):
+            s = sum(1 << kmap[k] for k in range(8) if b >> k & 1)
+            fwd[nb, b], inv[nb, s] = s, b
+    _SYM_TABLES.append((cls, fwd, inv))
+    return cls, fwd, inv
+
+
+@njit(cache=True, nogil=True)
+def symbol_decisions(leaves, levels, cls, fwd):  # pragma: no cover - compiled
+    """(contexts, symbols) of the octree of sorted unique Morton keys of depth ``levels``: every
+    node from the root down, depth by depth in Morton order, its occupancy byte in its canonical
+    frame (``symmetry_tables``), in context ``last * SYM_CLASSES + cls[nb]``."""
+    keys, start = _node_levels(leaves, levels)
+    ctx = np.empty(start[levels], np.int32)
+    sym = np.empty(start[levels], np.int32)
+    pbyte = np.ones(1, np.int64)
+    pstart = np.zeros(1, np.int64)
+    pup = np.full((3, 1), -1, np.int64)
+    for d in range(levels):
+        lo, hi = start[d], start[d + 1]
+        nbs, up = child_neighbours(pbyte, pstart, pup, hi - lo)
+        last = 1 if d == levels - 1 else 0
+        byte_d = np.zeros(hi - lo, np.int64)
+        cstart = np.zeros(hi - lo, np.int64)
+        j = hi
+        for i in range(hi - lo):
+            cstart[i] = j - hi
+            byte = 0
+            while j < start[d + 2] and (keys[j] >> np.uint64(3)) == keys[lo + i]:
+                byte |= 1 << np.int64(keys[j] & np.uint64(7))
+                j += 1
+            byte_d[i] = byte
+            nb = np.int64(nbs[i])
+            ctx[lo + i] = last * SYM_CLASSES + cls[nb]
+            sym[lo + i] = fwd[nb, byte]
+        pbyte, pstart, pup = byte_d, cstart, up
+    return ctx, sym
+
+
+@njit(cache=True, nogil=True)
+def _sym_tables():  # pragma: no cover - compiled
+    """(counts, block sums of 16, totals) of every context at the start: a byte of c children
+    counts max(1, 16 >> (c - 1)) (fewer children are likelier), the empty byte 0."""
+    freq = np.zeros((SYM_CONTEXTS, 256), np.int64)
+    blk = np.zeros((SYM_CONTEXTS, 16), np.int64)
+    total = np.zeros(SYM_CONTEXTS, np.int64)
+    for c in range(SYM_CONTEXTS):
+        for s in range(1, 256):
+            freq[c, s] = max(1, 16 >> (_popcount(s) - 1))
+            blk[c, s >> 4] += freq[c, s]
+            total[c] += freq[c, s]
+    return freq, blk, total
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sym_update(freq, blk, total, c, s):  # pragma: no cover - compiled
+    freq[c, s] += SYM_INC
+    blk[c, s >> 4] += SYM_INC
+    total[c] += SYM_INC
+    if total[c] > SYM_LIMIT:
+        total[c] = 0
+        for b in range(16):
+            blk[c, b] = 0
+        for q in range(1, 256):
+            freq[c, q] = (freq[c, q] + 1) >> 1
+            blk[c, q >> 4] += freq[c, q]
+            total[c] += freq[c, q]
+
+
+@njit(cache=True, nogil=True)
+def symbol_code(ctx, sym):  # pragma: no cover - compiled
+    """The range-coded bytes of symbols ``sym[i]`` (1-255) each with the adaptive frequency table
+    of its context ``ctx[i]``: a symbol of count f after counts summing to cum in a table of total
+    T takes r = range // T, low += r cum, range = r f."""
+    n = sym.shape[0]
+    buf = np.empty(2 * n + 64, np.uint8)  # a symbol costs at most 16 bits
+    freq, blk, total = _sym_tables()
+    low = np.int64(0)
+    rng = np.int64(0xFFFFFFFF)
+    cache = np.int64(0)
+    csize = np.int64(1)
+    pos = 0
+    for i in range(n + 1):
+        shifts = 5  # at the end: the flush
+        if i < n:
+            c, s = ctx[i], sym[i]
+            cum = 0
+            for b in range(s >> 4):
+                cum += blk[c, b]
+            for q in range((s >> 4) << 4, s):
+                cum += freq[c, q]
+            r = rng // total[c]
+            low += r * cum
+            rng = r * freq[c, s]
+            _sym_update(freq, blk, total, c, s)
+            shifts = 0
+            while rng < (1 << 24):
+                rng <<= 8
+                shifts += 1
+        for _ in range(shifts):
+            if low < 0xFF000000 or low >= (1 << 32):
+                carry = low >> 32
+                temp = cache
+                while True:
+                    buf[pos] = (temp + carry) & 0xFF
+                    pos += 1
+                    temp = 0xFF
+                    csize -= 1
+                    if csize == 0:
+                        break
+                cache = (low >> 24) & 0xFF
+            csize += 1
+            low = (low & 0x00FFFFFF) << 8
+    return buf[:pos].copy()
+
+
+@njit(cache=True, nogil=True)
+def geometry_symbols_stream(leaves, levels, cls, fwd):  # pragma: no cover - compiled
+    """The version 7 geometry stream of sorted unique leaf keys (``symbol_decisions``)."""
+    ctx, sym = symbol_decisions(leaves, levels, cls, fwd)
+    return symbol_code(ctx, sym)
+
+
+@njit(cache=True, nogil=True)
+def decode_geometry_symbols(data, levels, points, cls, inv):  # pragma: no cover - compiled
+    """As ``decode_geometry`` (no reference: every leaf's reference index is -1) for a version 7
+    geometry stream; error 1 also for a value past a table's total or an empty byte."""
+    st = _reader(data)
+    freq, blk, total = _sym_tables()
+    keys = np.zeros(1, np.uint64)
+    pbyte = np.ones(1, np.int64)
+    pstart = np.zeros(1, np.int64)
+    pup = np.full((3, 1), -1, np.int64)
+    occ = np.empty(0, np.uint8)
+    for d in range(levels):
+        n = keys.shape[0]
+        nbs, up = child_neighbours(pbyte, pstart, pup, n)
+        last = 1 if d == levels - 1 else 0
+        nxt = np.empty(min(8 * n, points + 8), np.uint64)
+        byte_d = np.zeros(n, np.int64)
+        cstart = np.zeros(n, np.int64)
+        m = 0
+        for i in range(n):
+            cstart[i] = m
+            nb = np.int64(nbs[i])
+            c = last * SYM_CLASSES + cls[nb]
+            r = st[0] // total[c]
+            v = st[1] // r
+            if v >= total[c]:
+                return keys[:0], st[2], 1, np.full(0, -1, np.int64), occ
+            cum = 0
+            b = 0
+            while cum + blk[c, b] <= v:
+                cum += blk[c, b]
+                b += 1
+            s = b << 4
+            while cum + freq[c, s] <= v:
+                cum += freq[c, s]
+                s += 1
+            st[1] -= r * cum
+            st[0] = r * freq[c, s]
+            _sym_update(freq, blk, total, c, s)
+            while st[0] < (1 << 24):
+                st[0] <<= 8
+                byte_in = data[st[2]] if st[2] < data.shape[0] else 0
+                st[2] += 1
+                st[1] = ((st[1] << 8) | byte_in) & 0xFFFFFFFF
+            byte = inv[nb, s]
+            for k in range(8):
+                if (byte >> k) & 1:
+                    if m >= points:
+                        return keys[:0], st[2], 1, np.full(0, -1, np.int64), occ
+                    nxt[m] = (keys[i] << np.uint64(3)) | np.uint64(k)
+                    m += 1
+            byte_d[i] = byte
+        keys = nxt[:m]
+        grown = np.empty(occ.shape[0] + n, np.uint8)
+        grown[: occ.shape[0]] = occ
+        grown[occ.shape[0] :] = byte_d
+        occ = grown
+        pbyte, pstart, pup = byte_d, cstart, up
+    return keys, st[2], 0, np.full(keys.shape[0], -1, np.int64), occ

@@ -1,5 +1,5 @@
-// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3-6 and 2
-// "compact"; docs/live.md has them byte by byte). No dependencies: versions 3-6 are range coded
+// FuseFlow live frame decoder: the binary frame formats of /ws (version 1 "raw", versions 3-7 and 2
+// "compact"; docs/live.md has them byte by byte). No dependencies: versions 3-7 are range coded
 // (the decoder below mirrors fuseflow/live/codec_kernels.py decision for decision); version 2's zlib
 // streams are inflated by the browser's DecompressionStream("deflate") (Chromium, Firefox,
 // Safari 16.4+, Node 18+). decodeFrame(arrayBuffer) -> Promise of {version, number, m, pointsIn,
@@ -226,6 +226,89 @@
     for (const part of occParts) { occ.set(part, o); o += part.length; }
     return [xs, ys, zs, rref, occ];
   }
+  // ---- version 7: the geometry as one symbol per node (codec_kernels.decode_geometry_symbols) ----
+  // the node's occupancy byte in the canonical frame of its face-neighbour pattern (the cube's 48
+  // symmetries, tried in order: axis permutation lexicographic, then flips 0..7; the first giving
+  // the smallest pattern wins), from an adaptive frequency table per (last depth, pattern class)
+  const SYM_CLASSES = 10, SYM_CONTEXTS = 20, SYM_INC = 32, SYM_LIMIT = 65536;
+  const [SYM_CLS, SYM_INV] = (() => {
+    const perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]], moves = [];
+    for (const p of perms) for (let f = 0; f < 8; f++) moves.push([p, [(f >> 2) & 1, (f >> 1) & 1, f & 1]]);
+    const moveNb = (nb, [p, f]) => {
+      let out = 0;
+      for (let a = 0; a < 3; a++) for (let side = 0; side < 2; side++) if ((nb >> (2 * a + side)) & 1) out |= 1 << (2 * p[a] + (side ^ f[a]));
+      return out;
+    };
+    const moveK = (k, [p, f]) => { let out = 0; for (let a = 0; a < 3; a++) out |= (((k >> (2 - a)) & 1) ^ f[a]) << (2 - p[a]); return out; };
+    const best = [], canon = [];
+    for (let nb = 0; nb < 64; nb++) {
+      let b = moves[0], c = moveNb(nb, b);
+      for (const m of moves) { const v = moveNb(nb, m); if (v < c) { c = v; b = m; } }
+      best.push(b); canon.push(c);
+    }
+    const reps = Array.from(new Set(canon)).sort((x, y) => x - y), cls = new Int32Array(64), inv = new Uint8Array(64 * 256);
+    for (let nb = 0; nb < 64; nb++) {
+      cls[nb] = reps.indexOf(canon[nb]);
+      const kmap = [0, 1, 2, 3, 4, 5, 6, 7].map((k) => moveK(k, best[nb]));
+      for (let byte = 0; byte < 256; byte++) {
+        let s = 0;
+        for (let k = 0; k < 8; k++) if ((byte >> k) & 1) s |= 1 << kmap[k];
+        inv[nb * 256 + s] = byte;
+      }
+    }
+    return [cls, inv];
+  })();
+  function geometrySymbols(bytes, levels, m) {
+    // a byte of c children starts at count max(1, 16 >> (c - 1)), the empty byte at 0
+    const freq = new Int32Array(SYM_CONTEXTS * 256), blk = new Int32Array(SYM_CONTEXTS * 16);
+    const total = new Int32Array(SYM_CONTEXTS), nbytes = bytes.length;
+    for (let c = 0; c < SYM_CONTEXTS; c++)
+      for (let s = 1; s < 256; s++) { const f = Math.max(1, 16 >> (POP[s] - 1)); freq[c * 256 + s] = f; blk[c * 16 + (s >> 4)] += f; total[c] += f; }
+    let range = 0xFFFFFFFF, code = 0, pos = 5;
+    for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
+    let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1);
+    let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = [new Int32Array([-1]), new Int32Array([-1]), new Int32Array([-1])];
+    const occParts = [];
+    for (let d = 0; d < levels; d++) {
+      const n = xs.length, [nb, up] = childNeighbours(pbyte, pstart, pup, n), last = d === levels - 1 ? SYM_CLASSES : 0;
+      const cap = Math.min(8 * n, m + 8), nx = new Uint32Array(cap), ny = new Uint32Array(cap), nz = new Uint32Array(cap);
+      const cbyte = new Uint8Array(n), cstart = new Int32Array(n);
+      let t = 0;
+      for (let i = 0; i < n; i++) {
+        const c = last + SYM_CLS[nb[i]], f0 = c * 256, b0 = c * 16, tot = total[c];
+        const r = Math.floor(range / tot), v = Math.floor(code / r);
+        if (v >= tot) throw new Error("live frame: the geometry stream is corrupt");
+        let cum = 0, b = 0;
+        while (cum + blk[b0 + b] <= v) cum += blk[b0 + b++];
+        let s = b << 4;
+        while (cum + freq[f0 + s] <= v) cum += freq[f0 + s++];
+        code -= r * cum; range = r * freq[f0 + s];
+        freq[f0 + s] += SYM_INC; blk[b0 + (s >> 4)] += SYM_INC; total[c] = tot + SYM_INC;
+        if (tot + SYM_INC > SYM_LIMIT) {
+          let sum = 0;
+          blk.fill(0, b0, b0 + 16);
+          for (let q = 1; q < 256; q++) { const h = (freq[f0 + q] + 1) >> 1; freq[f0 + q] = h; blk[b0 + (q >> 4)] += h; sum += h; }
+          total[c] = sum;
+        }
+        while (range < 16777216) { range *= 256; code = ((code << 8) | (pos < nbytes ? bytes[pos] : 0)) >>> 0; pos++; }
+        const byte = SYM_INV[nb[i] * 256 + s];
+        cstart[i] = t;
+        if (t + POP[byte] > m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
+        const x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
+        for (let q = 0; q < 8; q++) if ((byte >> q) & 1) { nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1); t++; }
+        cbyte[i] = byte;
+      }
+      occParts.push(cbyte);
+      xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t);
+      pbyte = cbyte; pstart = cstart; pup = up;
+    }
+    if (xs.length !== m || pos > nbytes)
+      throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
+    const occ = new Uint8Array(occParts.reduce((a, o) => a + o.length, 0));
+    let o = 0;
+    for (const part of occParts) { occ.set(part, o); o += part.length; }
+    return [xs, ys, zs, new Int32Array(m).fill(-1), occ];
+  }
   function residual(rc, bytes, P, base) {
     // a signed residual: nonzero, sign, unary magnitude up to ESCAPE, Exp-Golomb of the rest
     if (bit(rc, bytes, P, base) === 0) return 0;
@@ -300,7 +383,8 @@
     const xyz = new Float32Array(3 * m);
     let rgb = new Uint8ClampedArray(0);
     if (m > 0) {
-      const [xs, ys, zs, rleaf, occ] = geometry(new Uint8Array(buf, H, s1), levels, m, ref);
+      const geo = new Uint8Array(buf, H, s1);
+      const [xs, ys, zs, rleaf, occ] = version === 7 ? geometrySymbols(geo, levels, m) : geometry(geo, levels, m, ref);
       for (let i = 0; i < m; i++) {
         xyz[3 * i] = origin[0] + (xs[i] + 0.5) * step;
         xyz[3 * i + 1] = origin[1] + (ys[i] + 0.5) * step;
@@ -319,7 +403,7 @@
     const version = magic === "FFLV" ? dv.getUint16(4, true) : 0;
     let frame;
     if (version === 1) frame = decodeRaw(buf, dv);
-    else if (version >= 3 && version <= 6) frame = decodeV3(buf, dv, holder);
+    else if (version >= 3 && version <= 7) frame = decodeV3(buf, dv, holder);
     else if (version === 2) { if (holder) holder.ref = null; frame = await decodeCompact(buf, dv); }
     else throw new Error("unknown frame format");
     return Object.assign(frame, { version, number: dv.getUint32(8, true) });
