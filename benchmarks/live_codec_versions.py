@@ -1,5 +1,5 @@
-"""Bits a point of the live stream's compact codec, versions 5 and 3 (chroma blocks that split or
-never do) against version 2 and raw, in one run on the hocap-8rs frame, a simulated 8-camera
+"""Bits a point of the live stream's compact codec, versions 7, 5 and 3 (the octree as one symbol
+a node or as bits; chroma blocks that split or never do) against version 2 and raw, in one run on the hocap-8rs frame, a simulated 8-camera
 studio and a simulated polyroom studio (the parameters were not chosen on it) fused at 200 k
 points, then key frames against deltas (version 6) on two moving sequences (kinect3-room, a
 simulated dynamic studio): bits (and geometry bits) a point, points sent, position and colour

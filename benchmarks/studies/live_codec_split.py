@@ -1,4 +1,4 @@
-"""Where the compact codec's bits and time go (version 5, ``CompactParams()``), per fused cloud:
+"""Where the compact codec's bits and time go (version 5, ``CompactParams(version=3)``), per fused cloud:
 the bits a point of each kind of decision (the ideal cost, -log2 p, of every decision under the
 coder's adaptive model, which the range coder's output matches to a few bytes): in the geometry,
 the child bits, the single-child flags and a single child's index bits, each at the last depth
@@ -78,7 +78,9 @@ def _geometry_parts(ctx: np.ndarray, cost: np.ndarray, n: int) -> dict:
     return out
 
 
-def split_row(name: str, xyz: np.ndarray, rgb: np.ndarray, repeats: int, p: CompactParams = CompactParams()) -> dict:
+def split_row(
+    name: str, xyz: np.ndarray, rgb: np.ndarray, repeats: int, p: CompactParams = CompactParams(version=3)
+) -> dict:
     """One row of a cloud (``run_codec_split``), with the streams for decode.js in ``_data``."""
     step = p.step_mm / 1000.0
     xyz = np.ascontiguousarray(xyz, np.float32)

@@ -1,5 +1,6 @@
-"""Bits a point of the live stream's compact codec, versions 5 and 3 (range coded, with and
-without split chroma blocks) against version 2 (deflated) and raw, in one run on the same fused clouds: the hocap-8rs frame, a simulated
+"""Bits a point of the live stream's compact codec, versions 7, 5 and 3 (range coded: the octree
+as one symbol a node or as bits, with and without split chroma blocks) against version 2
+(deflated) and raw, in one run on the same fused clouds: the hocap-8rs frame, a simulated
 8-camera 640x480 studio and a simulated 8-camera polyroom studio, each fused with ``--preset live`` at 200 k points (the live path's
 budget). Per codec setting: bits a point (of the fused cloud; and of its geometry stream, bytes
 52-55 of both compact headers), points sent, position error (largest per-axis offset of a fused
@@ -43,15 +44,17 @@ SETTINGS: list[tuple[str, CompactParams | None]] = [
     ("v2, 3 mm / 4, 8, 4 (version 2 default)", CompactParams(3.0, 4, 8, 4, version=2)),
     ("v3, 3 mm / 8, 16, 4", CompactParams(3.0, 8, 16, 4, split=0.0)),
     ("v3, 3 mm / 8, 16, 1", CompactParams(3.0, 8, 16, 1, split=0.0)),
-    ("v5, 3 mm / 8, 16, 4, split 1.5", CompactParams(3.0, 8, 16, 4)),
-    ("v5, 3 mm / 12, 16, 4, split 1.5 (default)", CompactParams(3.0, 12, 16, 4)),
-    ("v5, 3 mm / 14, 16, 4, split 1.5", CompactParams(3.0, 14, 16, 4)),
-    ("v5, 3 mm / 12, 16, 4, split 1.75", CompactParams(3.0, 12, 16, 4, split=1.75)),
-    ("v5, 5 mm / 12, 16, 4, split 1.5", CompactParams(5.0, 12, 16, 4)),
-    ("v5, 8 mm / 12, 16, 4, split 1.5", CompactParams(8.0, 12, 16, 4)),
+    ("v5, 3 mm / 8, 16, 4, split 1.5", CompactParams(3.0, 8, 16, 4, version=3)),
+    ("v5, 3 mm / 12, 16, 4, split 1.5", CompactParams(3.0, 12, 16, 4, version=3)),
+    ("v7, 3 mm / 12, 16, 4, split 1.5 (default)", CompactParams(3.0, 12, 16, 4)),
+    ("v7, 3 mm / 14, 16, 4, split 1.5", CompactParams(3.0, 14, 16, 4)),
+    ("v7, 3 mm / 12, 16, 4, split 1.75", CompactParams(3.0, 12, 16, 4, split=1.75)),
+    ("v7, 5 mm / 12, 16, 4, split 1.5", CompactParams(5.0, 12, 16, 4)),
+    ("v7, 8 mm / 12, 16, 4, split 1.5", CompactParams(8.0, 12, 16, 4)),
 ]
 """(label, parameters) of every row: v3 and v4 are the range-coded messages with chroma blocks
-that never split (``split=0``), v5 and v6 those where they may (the default)."""
+that never split (``split=0``), v5 and v6 those where they may (``version=3``), v7 (the default)
+version 5 with the octree coded as one symbol a node."""
 NODE_SCRIPT = """
 const fs = require("fs"); const { decodeFrame } = require(process.argv[2]); const repeats = +process.argv[3];
 (async () => {
@@ -206,7 +209,7 @@ def fused_sequences(data_dir: Path, work: Path, sim_frames: int = 10) -> dict[st
 
 def _sequence_pass(clouds, delta: bool) -> tuple[list[bytes], list[float]]:
     """Every frame in order (the first a key frame; then deltas, or key frames when not ``delta``;
-    the default parameters: versions 5 and 6) and the process CPU ms of each."""
+    the default parameters: versions 7 and 6) and the process CPU ms of each."""
     enc, frames, cpu = InterEncoder(CompactParams()), [], []
     for n, (xyz, rgb) in enumerate(clouds):
         c = time.process_time()
@@ -217,7 +220,7 @@ def _sequence_pass(clouds, delta: bool) -> tuple[list[bytes], list[float]]:
 
 
 def measure_sequence(name: str, clouds: list, repeats: int, work: Path | None = None) -> list[dict]:
-    """Two rows: every frame a key frame (version 5), and a key frame then deltas (version 6):
+    """Two rows: every frame a key frame (version 7), and a key frame then deltas (version 6):
     bits a point over all frames (fused points), of the deltas alone, encode CPU (median over
     frames of the median over ``repeats`` passes), errors over every frame, decode.js in node."""
     from scipy.spatial import cKDTree

@@ -89,7 +89,7 @@ def test_page_draws_live_frames(dynamic_rec, tmp_path):
         assert first >= 1 and later > first, (first, later)  # frames arrive and the counter advances
         assert int(driver.find_element("id", "cameras").text) == 4
         # after a key frame the page holds the previous frame and is sent deltas (version 6); a frame
-        # dropped for a slow page is followed by a key frame (version 5), so wait for a delta
+        # dropped for a slow page is followed by a key frame (version 7), so wait for a delta
         _wait_for(lambda: driver.execute_script("return window.fuseflowStats.version") == 6, 30)
         stats = driver.execute_script("return window.fuseflowStats")  # decode.js decoded them
         assert stats["version"] == 6 and driver.find_element("id", "codec").text == "compact", stats

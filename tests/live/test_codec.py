@@ -51,7 +51,7 @@ def test_round_trip_positions_within_half_a_step_and_one_point_per_cell():
     p = CompactParams(step_mm=2.0)
     data = encode_compact(xyz, rgb, 7, 12.5, 40.0, p)
     d = decode_frame(data)
-    assert (d.version, d.number, d.latency_ms, d.fuse_ms, d.points_in) == (5, 7, 12.5, 40.0, len(xyz))
+    assert (d.version, d.number, d.latency_ms, d.fuse_ms, d.points_in) == (7, 7, 12.5, 40.0, len(xyz))
     origin = xyz.min(0).astype(np.float64)
     cells = np.unique(_cells(xyz, 0.002, origin), axis=0)
     assert len(d.xyz) == len(cells) < len(xyz)  # points sharing a cell are merged
@@ -61,7 +61,7 @@ def test_round_trip_positions_within_half_a_step_and_one_point_per_cell():
     assert np.median(dist) > 1e-4  # and that is a real quantisation, not a copy
 
 
-@pytest.mark.parametrize("version", [3, 2])
+@pytest.mark.parametrize("version", [7, 3, 2])
 def test_colour_error_bounds(version):
     xyz, grey = _surface(grey=True)
     for luma_step in (1, 4, 8):
@@ -72,8 +72,8 @@ def test_colour_error_bounds(version):
         assert err.max() <= luma_step / 2 + 2, (luma_step, err.max())  # grey: luma only (+ rounding)
     xyz, rgb = _surface()
     p = (
-        CompactParams(step_mm=0.5)
-        if version == 3
+        CompactParams(step_mm=0.5, version=version)
+        if version != 2
         else CompactParams(step_mm=0.5, luma_step=4, chroma_step=8, version=2)
     )
     h, dx, dc = decode_compact(encode_compact(xyz, rgb, 0, 0.0, 0.0, p))
@@ -109,11 +109,11 @@ def test_too_fine_a_grid_for_the_extent_is_a_clear_error():
         CompactParams(step_mm=0.0).check()
 
 
-@pytest.mark.parametrize("version", [3, 2])
+@pytest.mark.parametrize("version", [7, 3, 2])
 def test_truncated_corrupt_and_inconsistent_frames_are_rejected(version):
     xyz, rgb = _surface(3000)
     data = encode_compact(xyz, rgb, 3, 0.0, 0.0, CompactParams(version=version))
-    head = COMPACT_HEADER if version == 3 else 64
+    head = COMPACT_HEADER if version != 2 else 64
     for n in range(0, len(data), 7):  # every truncation
         with pytest.raises(FormatError):
             decode_frame(data[:n])
@@ -206,7 +206,7 @@ def test_clients_choose_their_codec_and_the_sink_encodes_off_the_fusion_thread()
             cloud = _fused(xyz, rgb)
             sink.send(cloud, LiveFrame(5, 5, time.perf_counter(), 10.0, ()))
             fa, fb = decode_frame(a.recv(timeout=10)), decode_frame(b.recv(timeout=10))
-            assert (fa.version, fa.number, fa.step) == (5, 5, pytest.approx(0.003))
+            assert (fa.version, fa.number, fa.step) == (7, 5, pytest.approx(0.003))
             assert (fb.version, fb.number, len(fb.xyz)) == (1, 5, 4000)
             assert sink.encoded == 1 and len(sink.encode_ms) == 1
             assert extra["encoded"] == 1 and extra["encoder_skipped"] == 0 and extra["encode_ms"] >= 0

@@ -75,7 +75,7 @@ def test_a_cloud_that_leaves_the_grid_starts_a_new_one_with_a_key_frame_only():
     enc = InterEncoder(CompactParams())
     enc.encode(x0, c0, 0)
     key, delta = enc.encode(x1 + np.float32(50.0), c1, 1, key=False)  # 50 m away
-    assert delta is None and key is not None and decode_compact(key)[0].version == 5
+    assert delta is None and key is not None and decode_compact(key)[0].version == 7
     _, delta = enc.encode(x1 + np.float32(50.0), c1, 2, key=False)
     assert delta is not None  # on the new grid
 
@@ -114,7 +114,7 @@ const fs = require("fs"); const { decodeFrame, createDecoder } = require(process
     import base64
 
     for n, (o, (h, xyz, rgb)) in enumerate(zip(got["out"], expect)):
-        assert o["version"] == h.version == (3 if n == 0 else 4) + (2 if split else 0) and o["held"] == n
+        assert o["version"] == h.version == ((7 if split else 3) if n == 0 else (6 if split else 4)) and o["held"] == n
         assert np.allclose(o["xyz"], xyz.reshape(-1)[:30], atol=0) and o["sum"] == pytest.approx(
             float(xyz.sum()), rel=1e-6
         )
@@ -155,14 +155,14 @@ def test_the_server_sends_deltas_to_viewers_that_hold_the_reference_and_key_fram
                 sink.send(_fused(xyz, rgb), LiveFrame(n, n, time.perf_counter(), 1.0, ()))
                 got_a.append(_frame(a, True, da))
                 got_b.append(_frame(b, False, db))
-            assert got_a == [(5, 0), (6, 1), (6, 2), (6, 3)] and got_b == [(5, n) for n in range(4)]
+            assert got_a == [(7, 0), (6, 1), (6, 2), (6, 3)] and got_b == [(7, n) for n in range(4)]
             with ws_client.connect(url + "?inter=1&ack=1", max_size=None) as c:  # a late viewer: a key frame first
                 c.recv(timeout=5)
                 dc = CompactDecoder()
-                assert _frame(c, True, dc) == (5, 3)
+                assert _frame(c, True, dc) == (7, 3)
                 sink.send(_fused(*seq[4]), LiveFrame(4, 4, time.perf_counter(), 1.0, ()))
                 assert (
-                    _frame(c, True, dc) == (6, 4) and _frame(a, True, da) == (6, 4) and _frame(b, False, db) == (5, 4)
+                    _frame(c, True, dc) == (6, 4) and _frame(a, True, da) == (6, 4) and _frame(b, False, db) == (7, 4)
                 )
     finally:
         sink.close()

@@ -16,10 +16,11 @@ from tests.live.test_codec_v3 import DECODE_JS, _garbage_frames
 
 from fuseflow.errors import FormatError, ValidationError
 from fuseflow.live.codec import COMPACT_HEADER, CompactDecoder, CompactParams, InterEncoder, encode_compact
-from fuseflow.live.codec_kernels import symmetry_tables
+from fuseflow.live.codec_kernels import SYM_LAST, symmetry_tables
 from fuseflow.live.wire import decode_frame
 
-V7 = CompactParams(version=7)
+V7 = CompactParams()
+"""The default: version 7 key frames."""
 needs_node = pytest.mark.skipif(shutil.which("node") is None, reason="needs node to run the viewer's decoder")
 
 
@@ -37,11 +38,12 @@ def _clouds():
 def test_version_7_decodes_to_the_points_and_colours_of_version_5():
     for name, (xyz, rgb) in _clouds().items():
         d7 = decode_frame(encode_compact(xyz, rgb, 1, 0.0, 0.0, V7))
-        d5 = decode_frame(encode_compact(xyz, rgb, 1, 0.0, 0.0, CompactParams()))
+        d5 = decode_frame(encode_compact(xyz, rgb, 1, 0.0, 0.0, CompactParams(version=3)))
         assert (d7.version, d5.version) == (7, 5), name
         assert np.array_equal(d7.xyz, d5.xyz) and np.array_equal(d7.rgb, d5.rgb), name
-    with pytest.raises(ValidationError, match="split"):
-        encode_compact(xyz, rgb, 1, 0.0, 0.0, CompactParams(version=7, split=0.0))
+    assert decode_frame(encode_compact(xyz, rgb, 1, 0.0, 0.0, CompactParams(split=0.0))).version == 3  # never split
+    with pytest.raises(ValidationError, match="version"):
+        CompactParams(version=5).check()
 
 
 def test_deltas_follow_a_version_7_key_frame():
@@ -60,7 +62,8 @@ def test_the_symmetry_tables_share_one_model_between_mirror_images():
     assert sorted(set(cls.tolist())) == list(range(10))
     for nb in range(64):
         assert np.array_equal(inv[nb, fwd[nb]], np.arange(256)) and fwd[nb, 0] == 0
-        assert all(bin(fwd[nb, b]).count("1") == bin(b).count("1") for b in range(256))
+        children = np.searchsorted(SYM_LAST, fwd[nb, 1:]) + 1  # symbols number bytes by their children
+        assert np.array_equal(children, [bin(b).count("1") for b in range(1, 256)])
     lower_x, upper_x, upper_z = 1 << 0, 1 << 1, 1 << 5  # one face neighbour: below / above along x, above along z
     assert cls[lower_x] == cls[upper_x] == cls[upper_z] != cls[0]
     # a child beside the neighbour, in each mirror image, is one symbol: k = 0 (x = 0) under a
@@ -159,3 +162,20 @@ const fs = require("fs"); const dec = require(process.argv[2]).createDecoder();
         js, m = (tmp_path / f"{name}.out").read_bytes(), len(xyz)
         assert np.array_equal(np.frombuffer(js[: 12 * m], np.float32).reshape(m, 3), xyz)
         assert np.array_equal(np.frombuffer(js[12 * m :], np.uint8).reshape(m, 3), rgb)
+
+
+def test_the_model_study_counts_the_coded_streams():
+    from benchmarks.studies.live_codec_symbols import VARIANTS, symbol_rows
+
+    xyz, rgb = _surface(20000, seed=5)
+    rows = {r["model"]: r for r in symbol_rows("surface", xyz, rgb)}
+    v5 = rows["v5"]
+    assert v5["geometry_bits_per_point"] == pytest.approx(v5["coded_geometry_bits_per_point"], rel=0.01)
+    v7 = next(r for name, r in rows.items() if name.startswith("v7"))
+    data = encode_compact(xyz, rgb, 0, 0.0, 0.0, V7)
+    assert v7["geometry_bits_per_point"] == pytest.approx(
+        int.from_bytes(data[52:56], "little") * 8 / len(xyz), abs=1e-3
+    )
+    assert v7["decisions_per_point"] < v5["decisions_per_point"] / 3  # one symbol a node against its bits
+    direct = [rows[label]["direct_nodes"] for label, _, mode in VARIANTS if mode]
+    assert min(direct) > 0 and v5["spacing_bound_bits_per_point"] > 0

@@ -42,7 +42,7 @@ def test_positions_exact_to_the_cell_and_colour_within_the_bound():
     origin = xyz.min(0).astype(np.float64)
     cells = np.unique(np.floor((xyz - origin) / 0.002).astype(np.int64), axis=0)
     got = np.floor((d.xyz.astype(np.float64) - origin) / 0.002).astype(np.int64)
-    assert d.version == 5 and len(got) == len(cells) and np.array_equal(np.unique(got, axis=0), cells)
+    assert d.version == 7 and len(got) == len(cells) and np.array_equal(np.unique(got, axis=0), cells)
     cheb, idx = cKDTree(d.xyz).query(xyz, p=np.inf)
     assert cheb.max() <= 0.001 + 1e-5  # half the 2 mm step per axis
     err = np.abs(d.rgb[idx].astype(int) - rgb.astype(int))
@@ -115,7 +115,7 @@ def test_browser_decoder_is_bit_identical_and_rejects_malformed_messages(tmp_pat
         "default.bin": encode_compact(xyz, rgb, 1, 2.0, 3.0, CompactParams()),
         "fine.bin": encode_compact(xyz, rgb, 2, 2.0, 3.0, CompactParams(1.0, 2, 4, 1)),
         "escape.bin": encode_compact(nx, nrgb, 3, 2.0, 3.0, CompactParams(0.5, 1, 2, 1)),
-        "split.bin": encode_compact(nx, nrgb, 5, 2.0, 3.0, CompactParams(0.5)),  # noisy colours: split blocks
+        "split.bin": encode_compact(nx, nrgb, 5, 2.0, 3.0, CompactParams(0.5, version=3)),  # split blocks, version 5
         "unsplit.bin": encode_compact(nx, nrgb, 6, 2.0, 3.0, CompactParams(0.5, split=0.0)),  # version 3
         "empty.bin": encode_compact(
             np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), 4, 0.0, 0.0, CompactParams()
@@ -194,7 +194,7 @@ def test_split_chroma_blocks_bound_the_colour_error_at_hard_colour_edges():
         h, dx, dc = decode_compact(encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams(step_mm=0.5, split=split)))
         _, idx = cKDTree(dx).query(xyz)
         err[h.version] = np.percentile(np.abs(dc[idx].astype(int) - rgb.astype(int)), 95)
-    assert err[5] <= 12 < err[3], err
+    assert err[7] <= 12 < err[3], err
 
 
 def test_version_3_and_4_bytes_are_those_of_the_unsplit_format():
@@ -234,7 +234,7 @@ def test_the_split_of_bits_adds_up_to_the_coded_streams(tmp_path):
     assert len(parts) == 6 and sum(parts) == pytest.approx(row["geometry_bits_per_point"], rel=0.01)
     colour = row["luma_bits"] + row["chroma_bits"] + row["split_flag_bits"]
     assert colour == pytest.approx(row["colour_bits_per_point"], rel=0.01) and row["luma_bits"] > 0
-    data = encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams())
+    data = encode_compact(xyz, rgb, 0, 0.0, 0.0, CompactParams(version=3))
     assert row["bits_per_point"] == pytest.approx((len(data) - 60) * 8 / len(xyz), abs=1e-3)  # the same streams
     if shutil.which("node"):
         node_split_ms([row], 1, tmp_path)

@@ -2,8 +2,10 @@
 as an octree, colour as quantised luma / chroma residuals. Version 3 range-codes both with
 adaptive context models; version 4 is a delta: the same, coded against the previous frame of the
 stream (``InterEncoder`` writes both, ``CompactDecoder`` reads a stream in order); versions 5
-(written by default) and 6 are 3 and 4 with chroma blocks that split; version 2 deflates byte
-streams. ``decode_compact`` reads versions 2, 3 and 5.
+and 6 (the deltas written by default) are 3 and 4 with chroma blocks that split; version 2
+deflates byte streams; version 7 (the key frames written by default) is version 5 with the
+octree coded as one symbol a node, its occupancy byte, from adaptive frequency tables. ``decode_compact`` reads
+versions 2, 3, 5 and 7.
 docs/live.md has them byte by byte with the decoding steps.
 
 Version 3, little-endian::
@@ -53,6 +55,13 @@ luma), predicted from the previous point's. The encoder splits a block when a po
 more than ``CompactParams.split`` chroma steps off the block's mean. Decoding: ``R = Y + Co/2 - Cg/2``, ``G = Y + Cg/2``,
 ``B = Y - Co/2 - Cg/2``, rounded half to even and clamped to 0-255.
 
+Version 7: version 5's header (version 7) and colour stream; the geometry stream holds, for every
+node in version 3's order, one symbol: its occupancy byte in the canonical frame of its face
+neighbour pattern (the cube's 48 symmetries take the 64 patterns to 10 classes; the byte's
+children move with the pattern), numbered by its number of children, from an adaptive frequency
+table per class and last depth or not, multi-symbol range coded
+(``codec_kernels.symmetry_tables``, ``symbol_code``).
+
 Version 2 (deflated byte streams; read, and written with ``CompactParams(version=2)``)::
 
     offset  size  type        field
@@ -93,8 +102,9 @@ __all__ = [
     "MAX_POINTS",
 ]
 
-COMPACT_VERSION = 3
-"""``CompactParams.version`` by default: the range-coded format (messages of version 5, or 3)."""
+COMPACT_VERSION = 7
+"""``CompactParams.version`` by default: the range-coded format with the octree as one symbol a
+node (key frames of version 7, deltas of version 6; with ``split=0``: versions 3 and 4)."""
 COMPACT_VERSIONS = (2, 3, 4, 5, 6, 7)
 """The compact versions ``decode_compact`` reads."""
 _HEAD = struct.Struct("<4sHHIII3ffffBBBBIIII")  # version 2
@@ -126,8 +136,10 @@ class CompactParams:
     chroma_block: int = 4
     """Consecutive points (in Morton order: neighbours) that share one chroma pair."""
     version: int = COMPACT_VERSION
-    """Format version written: 3 (range coded; with ``split`` its messages are versions 5 and 6)
-    or 2 (deflated; its rows in docs/live.md use luma step 4, chroma step 8)."""
+    """Format version written: 7 (range coded, the octree's nodes as one symbol each in key
+    frames: messages of version 7, deltas of version 6; with ``split=0`` versions 3 and 4), 3
+    (range coded, the octree's nodes as bits: with ``split`` versions 5 and 6, else 3 and 4) or 2
+    (deflated; its rows in docs/live.md use luma step 4, chroma step 8)."""
     split: float = 1.5
     """A chroma block where a point's Co or Cg is more than this many chroma steps off the
     block's mean sends every point's own (versions 5 and 6); 0: never (versions 3 and 4)."""
@@ -144,8 +156,6 @@ class CompactParams:
             raise ValidationError(f"compact chroma split must be between 0 and 64 chroma steps, got {self.split}")
         if self.version not in (2, 3, 7):
             raise ValidationError(f"compact version must be 2, 3 or 7, got {self.version}")
-        if self.version == 7 and not self.split > 0:
-            raise ValidationError("compact version 7 codes split chroma blocks: give a split above 0")
         return self
 
 
@@ -202,7 +212,7 @@ def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rle
     from fuseflow.live.codec_kernels import colour_stream, geometry_stream, geometry_symbols_stream, symmetry_tables
 
     rocc, rfirst, rq = _NO_REF if ref is None else ref.octree()
-    if ref is None and p.version == 7:
+    if ref is None and _key_version(p) == 7:
         cls, fwd, _ = symmetry_tables()
         geo = _pool().submit(lambda: (geometry_symbols_stream(leaves, levels, cls, fwd),))
     else:
@@ -213,7 +223,7 @@ def _streams(leaves, mean, levels, p: CompactParams, ref: _Reference | None, rle
 
 def _key_version(p: CompactParams) -> int:
     """The message version of a key frame written with ``p``."""
-    return {2: 2, 7: 7}.get(p.version, _KEY[p.split > 0])
+    return 2 if p.version == 2 else 7 if p.version == 7 and p.split > 0 else _KEY[p.split > 0]
 
 
 def _streams_v3(cells: np.ndarray, levels: int, rgb: np.ndarray, p: CompactParams) -> tuple[bytes, bytes, int]:
@@ -253,8 +263,8 @@ def _levels(top: int, step_mm: float) -> int:
 def encode_compact(
     xyz: np.ndarray, rgb: np.ndarray, number: int, latency_ms: float, fuse_ms: float, params: CompactParams
 ) -> bytes:
-    """The compact message (``params.version`` 3: version 5, or 3 with ``split=0``; or 2) for
-    (M, 3) float32 positions and (M, 3) uint8 colours."""
+    """The compact message (``params.version`` 7: version 7; 3: version 5; either with
+    ``split=0``: version 3; or 2) for (M, 3) float32 positions and (M, 3) uint8 colours."""
     from fuseflow.live.codec_kernels import compact_streams, grid_cells
 
     params.check()
@@ -283,8 +293,8 @@ def encode_compact(
 
 
 class InterEncoder:
-    """The compact frames of one stream: each frame as a key frame (version 5, or 3 with
-    ``split=0``; decodes alone) and / or as a delta (version 6 or 4: coded against the previous frame this encoder coded, which
+    """The compact frames of one stream: each frame as a key frame (version 7 by default, 5 with
+    ``CompactParams(version=3)``, 3 with ``split=0``; decodes alone) and / or as a delta (version 6 or 4: coded against the previous frame this encoder coded, which
     the receiver must hold; ``CompactDecoder``). Frames share one grid (origin and depth, with a
     margin of a quarter of the extent, at least 32 cells, around the cloud that opened it) until a
     cloud leaves it; the first frame on a new grid has no delta. Geometry and colour decode exactly

@@ -902,6 +902,8 @@ SYM_INC = 32
 """A coded byte's count grows by this."""
 SYM_LIMIT = 1 << 16
 """When a table's total passes this, every count halves (rounding up; the empty byte stays 0)."""
+SYM_LAST = (8, 36, 92, 162, 218, 246, 254, 255)
+"""The last symbol of the bytes of 1, 2, ... 8 children (symbols number bytes by their children)."""
 _SYM_TABLES: list = []
 
 
@@ -911,7 +913,9 @@ def _perms3() -> list[tuple[int, int, int]]:
 
 def symmetry_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(cls, fwd, inv): ``cls[nb]`` the class (0-9) of face-neighbour bits nb; ``fwd[nb, byte]``
-    the occupancy byte in the class's canonical frame, ``inv`` its inverse. The 48 symmetries are
+    the symbol of an occupancy byte: the byte in the class's canonical frame, numbered 1-255 in
+    order of its number of children, then its value (the likeliest bytes first, where the
+    decoder's search starts); ``inv`` its inverse. The 48 symmetries are
     tried in order (axis permutation p lexicographic, then flips f = 0..7, f's bit 2 - a flipping
     axis a); the first that gives the smallest pattern maps nb to its canonical pattern (axis a's
     neighbour bit 2a + side goes to 2 p[a] + (side ^ flip a); child bit a, k's bit 2 - a, to
@@ -930,12 +934,14 @@ def symmetry_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     canon = [move_nb(nb, *best[nb]) for nb in range(64)]
     reps = sorted(set(canon))
     cls = np.array([reps.index(c) for c in canon], np.int64)
+    rank = np.zeros(256, np.int64)  # symbols number the bytes by their children, then value
+    rank[sorted(range(1, 256), key=lambda b: (bin(b).count("1"), b))] = np.arange(1, 256)
     fwd = np.zeros((64, 256), np.int64)
     inv = np.zeros((64, 256), np.int64)
     for nb in range(64):
         kmap = [move_k(k, *best[nb]) for k in range(8)]
         for b in range(256):
-            s = sum(1 << kmap[k] for k in range(8) if b >> k & 1)
+            s = rank[sum(1 << kmap[k] for k in range(8) if b >> k & 1)]
             fwd[nb, b], inv[nb, s] = s, b
     _SYM_TABLES.append((cls, fwd, inv))
     return cls, fwd, inv
@@ -975,14 +981,17 @@ def symbol_decisions(leaves, levels, cls, fwd):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def _sym_tables():  # pragma: no cover - compiled
-    """(counts, block sums of 16, totals) of every context at the start: a byte of c children
-    counts max(1, 16 >> (c - 1)) (fewer children are likelier), the empty byte 0."""
+    """(counts, block sums of 16, totals) of every context at the start: the symbol of a byte of c
+    children counts max(1, 16 >> (c - 1)) (fewer children are likelier), the empty byte 0."""
     freq = np.zeros((SYM_CONTEXTS, 256), np.int64)
     blk = np.zeros((SYM_CONTEXTS, 16), np.int64)
     total = np.zeros(SYM_CONTEXTS, np.int64)
-    for c in range(SYM_CONTEXTS):
-        for s in range(1, 256):
-            freq[c, s] = max(1, 16 >> (_popcount(s) - 1))
+    children = 1
+    for s in range(1, 256):
+        while s > SYM_LAST[children - 1]:
+            children += 1
+        for c in range(SYM_CONTEXTS):
+            freq[c, s] = max(1, 16 >> (children - 1))
             blk[c, s >> 4] += freq[c, s]
             total[c] += freq[c, s]
     return freq, blk, total

@@ -74,7 +74,7 @@ class WebSink:
         self._closed = False
         self._error: BaseException | None = None
         self._last: tuple[FusedCloud, LiveFrame] | None = None
-        self.inter = InterEncoder(params) if params.version == 3 else None
+        self.inter = InterEncoder(params) if params.version != 2 else None
         """Codes compact frames as deltas for the viewers that take them (``LiveServer.compact_needs``)."""
         self._keyless = False
         self._closing_key: tuple[int, bytes] | None = None

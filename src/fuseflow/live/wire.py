@@ -1,6 +1,6 @@
 """The binary frame formats of the live stream (``/ws``), one WebSocket binary message per fused
 frame, little-endian (docs/live.md has them byte by byte). Two codecs (``CODECS``): ``compact``
-(``fuseflow.live.codec``: key frames version 5, deltas version 6; 3, 4 and 2 when asked for;
+(``fuseflow.live.codec``: key frames version 7, deltas version 6; 5, 3, 4 and 2 when asked for;
 0.9-1.8 bytes a point, docs/live.md) and ``raw`` (version 1, below: 9 bytes a point, no
 decompression). ``encode_frame`` writes either; ``decode_frame`` reads raw and every compact key
 frame (deltas need the stream's ``codec.CompactDecoder``).

@@ -230,7 +230,7 @@
   // the node's occupancy byte in the canonical frame of its face-neighbour pattern (the cube's 48
   // symmetries, tried in order: axis permutation lexicographic, then flips 0..7; the first giving
   // the smallest pattern wins), from an adaptive frequency table per (last depth, pattern class)
-  const SYM_CLASSES = 10, SYM_CONTEXTS = 20, SYM_INC = 32, SYM_LIMIT = 65536;
+  const SYM_CLASSES = 10, SYM_CONTEXTS = 20, SYM_INC = 32, SYM_LIMIT = 65536, SYM_LAST = [8, 36, 92, 162, 218, 246, 254, 255];
   const [SYM_CLS, SYM_INV] = (() => {
     const perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]], moves = [];
     for (const p of perms) for (let f = 0; f < 8; f++) moves.push([p, [(f >> 2) & 1, (f >> 1) & 1, f & 1]]);
@@ -247,23 +247,29 @@
       best.push(b); canon.push(c);
     }
     const reps = Array.from(new Set(canon)).sort((x, y) => x - y), cls = new Int32Array(64), inv = new Uint8Array(64 * 256);
+    // symbols number the bytes by their number of children, then their value
+    const order = Array.from({ length: 255 }, (_, i) => i + 1).sort((x, y) => POP[x] - POP[y] || x - y), rank = new Int32Array(256);
+    order.forEach((b, i) => { rank[b] = i + 1; });
     for (let nb = 0; nb < 64; nb++) {
       cls[nb] = reps.indexOf(canon[nb]);
       const kmap = [0, 1, 2, 3, 4, 5, 6, 7].map((k) => moveK(k, best[nb]));
       for (let byte = 0; byte < 256; byte++) {
         let s = 0;
         for (let k = 0; k < 8; k++) if ((byte >> k) & 1) s |= 1 << kmap[k];
-        inv[nb * 256 + s] = byte;
+        inv[nb * 256 + rank[s]] = byte;
       }
     }
     return [cls, inv];
   })();
   function geometrySymbols(bytes, levels, m) {
-    // a byte of c children starts at count max(1, 16 >> (c - 1)), the empty byte at 0
+    // the symbol of a byte of c children starts at count max(1, 16 >> (c - 1)), the empty byte at 0
     const freq = new Int32Array(SYM_CONTEXTS * 256), blk = new Int32Array(SYM_CONTEXTS * 16);
     const total = new Int32Array(SYM_CONTEXTS), nbytes = bytes.length;
-    for (let c = 0; c < SYM_CONTEXTS; c++)
-      for (let s = 1; s < 256; s++) { const f = Math.max(1, 16 >> (POP[s] - 1)); freq[c * 256 + s] = f; blk[c * 16 + (s >> 4)] += f; total[c] += f; }
+    for (let s = 1, children = 1; s < 256; s++) {
+      while (s > SYM_LAST[children - 1]) children++;
+      const f = Math.max(1, 16 >> (children - 1));
+      for (let c = 0; c < SYM_CONTEXTS; c++) { freq[c * 256 + s] = f; blk[c * 16 + (s >> 4)] += f; total[c] += f; }
+    }
     let range = 0xFFFFFFFF, code = 0, pos = 5;
     for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
     let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1);
