@@ -1,7 +1,7 @@
 """The compact codec's octree geometry under other models, against version 5's coded stream of
 the same cells: one symbol per occupancy byte (binarised as a 255-node tree, or from adaptive
-frequency counts), a hybrid, and a direct mode for isolated nodes, on the hocap-8rs frame and two
-simulated 8-camera studios fused at 200 k points; with the random-occupancy estimate of what any
+frequency counts), a hybrid, and a direct mode for isolated nodes, on the hocap-8rs frame, two
+simulated 8-camera studios and kinect3-room's first frame fused at 200 k points; with the random-occupancy estimate of what any
 coder of those cells needs (benchmarks.studies.live_codec_symbols; docs/live.md, "Bandwidth").
 
     python -m benchmarks.live_codec_symbols [--data-dir ../shared/data] [--json PATH | --save]

@@ -291,14 +291,29 @@ def symbol_rows(name: str, xyz: np.ndarray, rgb: np.ndarray, step_mm: float = 3.
     return rows
 
 
+def _kinect3_frame(data_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """kinect3-room's first frame fused at 200 k points with its reference extrinsics (a real
+    3-camera rig, sparse at 3 mm)."""
+    from fuseflow.fuse import fuse
+    from fuseflow.fuse.presets import preset_config
+    from fuseflow.io import open_recording, read_calibration
+
+    rec = open_recording(data_dir / "kinect3-room")
+    rig = rec.rig.with_extrinsics(read_calibration(data_dir / "kinect3-room" / "reference_calib.json").T_cam_world)
+    c = fuse(rec[0], rig, preset_config("live", 200_000))
+    return c.xyz.numpy().astype(np.float32), c.rgb.numpy().astype(np.uint8)
+
+
 def run_codec_symbols(data_dir: Path, log=print) -> dict:
-    """Rows for the hocap8, sim8 and polyroom8 200 k-point clouds (``live_codec_versions``)."""
+    """Rows for the hocap8, sim8 and polyroom8 200 k-point clouds (``live_codec_versions``) and
+    kinect3-room's first frame."""
     from benchmarks.studies.live_codec_versions import fused_clouds
 
     rows = []
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory(prefix="fuseflow-codec-") as tmp:
         clouds = fused_clouds(Path(data_dir), Path(tmp))
+    clouds["kinect3-room-frame0"] = _kinect3_frame(Path(data_dir))
     for name, (xyz, rgb) in clouds.items():
         rows += symbol_rows(name, xyz, rgb)
         for r in rows[-len(VARIANTS) - len(SYMBOL_MODELS) - 1 :]:
