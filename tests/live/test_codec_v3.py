@@ -175,7 +175,7 @@ def test_codec_benchmark_rows(tmp_path):
     rows = measure("surface", xyz, rgb, repeats=1)
     by = {r["codec"]: r for r in rows}
     assert len(rows) == len(SETTINGS) and by["raw"]["bits_per_point"] == pytest.approx(72.0, abs=0.1)
-    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v5, 3 mm / 12, 16, 4, split 1.5 (default)"]
+    v2, v3 = by["v2, 3 mm / 4, 8, 4 (version 2 default)"], by["v7, 3 mm / 12, 16, 4, split 1.5 (default)"]
     assert v3["bits_per_point"] < v2["bits_per_point"] and 0 < v3["geometry_bits_per_point"] < v3["bits_per_point"]
     assert all(r["pos_err_over_half_step"] <= 1.0 + 1e-3 for r in rows if r["pos_err_over_half_step"] is not None)
     if shutil.which("node"):
