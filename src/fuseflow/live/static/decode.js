@@ -136,25 +136,47 @@
     }
     return first;
   }
+  // within one parent (byte), child k's face neighbours among its siblings: SIB_NB[8 byte + k]
+  // the neighbour bits, SIB_UP[3 (8 byte + k) + a] the upper sibling's rank along axis a (-1: none)
+  const SIB_NB = new Uint8Array(2048), SIB_UP = new Int8Array(6144).fill(-1);
+  for (let byte = 0; byte < 256; byte++) for (let k = 0; k < 8; k++) {
+    if (!((byte >> k) & 1)) continue;
+    for (let a = 0; a < 3; a++) {
+      const bp = 2 - a, kk = k ^ (1 << bp);
+      if (!((byte >> kk) & 1)) continue;
+      if ((k >> bp) & 1) SIB_NB[8 * byte + k] |= 1 << (2 * a);
+      else { SIB_NB[8 * byte + k] |= 1 << (2 * a + 1); SIB_UP[3 * (8 * byte + k) + a] = POP[byte & ((1 << kk) - 1)]; }
+    }
+  }
   function childNeighbours(pbyte, pstart, pup, n) {
     // face neighbours of the n nodes one depth below parents (bytes pbyte, first children at
-    // pstart, upper neighbours pup[a], -1 none; all in Morton order): nb bit 2a = lower neighbour
-    // along axis a (x, y, z) exists, bit 2a + 1 = upper; up[a] = the upper neighbours. A child's
-    // upper neighbour is its sibling when its own bit a is 0, else a child of the parent's.
-    const nb = new Uint8Array(n), up = [new Int32Array(n).fill(-1), new Int32Array(n).fill(-1), new Int32Array(n).fill(-1)];
+    // pstart, upper neighbours pup[a np + p], -1 none; all in Morton order): nb bit 2a = lower
+    // neighbour along axis a (x, y, z) exists, bit 2a + 1 = upper; up[a n + q] = the upper
+    // neighbours. A child's upper neighbour is its sibling when its own bit a is 0 (SIB_UP),
+    // else a child of the parent's upper neighbour, which also gets this child as its lower one.
+    const np = pbyte.length, nb = new Uint8Array(n), up = new Int32Array(3 * n).fill(-1);
     let q = 0;
-    for (let p = 0; p < pbyte.length; p++) {
-      const byte = pbyte[p];
-      for (let k = 0; k < 8; k++) {
-        if (!((byte >> k) & 1)) continue;
+    for (let p = 0; p < np; p++) {
+      const byte = pbyte[p], q0 = q;
+      for (let bb = byte; bb; bb &= bb - 1, q++) {
+        const k = 31 - Math.clz32(bb & -bb), t = 8 * byte + k;
+        let bits = SIB_NB[t];
         for (let a = 0; a < 3; a++) {
-          const bp = 2 - a, high = (k >> bp) & 1, kk = high ? k & ~(1 << bp) : k | (1 << bp), par = high ? pup[a][p] : p;
-          if (par >= 0 && (pbyte[par] >> kk) & 1) {
-            const j = pstart[par] + POP[pbyte[par] & ((1 << kk) - 1)];
-            up[a][q] = j; nb[q] |= 1 << (2 * a + 1); nb[j] |= 1 << (2 * a);
+          const bp = 2 - a;
+          if ((k >> bp) & 1) {
+            const par = pup[a * np + p];
+            if (par < 0) continue;
+            const kk = k ^ (1 << bp), pb = pbyte[par];
+            if ((pb >> kk) & 1) {
+              const j = pstart[par] + POP[pb & ((1 << kk) - 1)];
+              up[a * n + q] = j; bits |= 1 << (2 * a + 1); nb[j] |= 1 << (2 * a);
+            }
+          } else {
+            const o = SIB_UP[3 * t + a];
+            if (o >= 0) up[a * n + q] = q0 + o;
           }
         }
-        q++;
+        nb[q] |= bits;
       }
     }
     return [nb, up];
@@ -167,7 +189,7 @@
     let range = 0xFFFFFFFF, code = 0, pos = 5;
     for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
     let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1), rref = new Int32Array([rocc.length ? 0 : -1]);
-    let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = [new Int32Array([-1]), new Int32Array([-1]), new Int32Array([-1])];
+    let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = new Int32Array(3).fill(-1);
     const occParts = [];
     for (let d = 0; d < levels; d++) {
       const n = xs.length, [nb, up] = childNeighbours(pbyte, pstart, pup, n), last = d === levels - 1 ? 1 : 0;
@@ -273,7 +295,7 @@
     let range = 0xFFFFFFFF, code = 0, pos = 5;
     for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
     let xs = new Uint32Array(1), ys = new Uint32Array(1), zs = new Uint32Array(1);
-    let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = [new Int32Array([-1]), new Int32Array([-1]), new Int32Array([-1])];
+    let pbyte = new Uint8Array([1]), pstart = new Int32Array(1), pup = new Int32Array(3).fill(-1);
     const occParts = [];
     for (let d = 0; d < levels; d++) {
       const n = xs.length, [nb, up] = childNeighbours(pbyte, pstart, pup, n), last = d === levels - 1 ? SYM_CLASSES : 0;
@@ -301,7 +323,10 @@
         cstart[i] = t;
         if (t + POP[byte] > m) throw new Error("live frame: the geometry stream holds more points than the header's " + m);
         const x = 2 * xs[i], y = 2 * ys[i], z = 2 * zs[i];
-        for (let q = 0; q < 8; q++) if ((byte >> q) & 1) { nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1); t++; }
+        for (let bb = byte; bb; bb &= bb - 1, t++) {
+          const q = 31 - Math.clz32(bb & -bb);
+          nx[t] = x + (q >> 2); ny[t] = y + ((q >> 1) & 1); nz[t] = z + (q & 1);
+        }
         cbyte[i] = byte;
       }
       occParts.push(cbyte);
@@ -315,53 +340,70 @@
     for (const part of occParts) { occ.set(part, o); o += part.length; }
     return [xs, ys, zs, new Int32Array(m).fill(-1), occ];
   }
-  function residual(rc, bytes, P, base) {
-    // a signed residual: nonzero, sign, unary magnitude up to ESCAPE, Exp-Golomb of the rest
-    if (bit(rc, bytes, P, base) === 0) return 0;
-    const neg = bit(rc, bytes, P, base + 1);
-    let a = 1;
-    while (a < ESCAPE && bit(rc, bytes, P, base + 1 + a) === 1) a++;
-    if (a === ESCAPE) {
-      let n = 0;
-      while (bit(rc, bytes, P, base + 15 + Math.min(n, 8)) === 1)
-        if (++n > MAX_PREFIX) throw new Error("live frame: the colour stream is corrupt");
-      let e = 1;
-      for (let i = n - 1; i >= 0; i--) e = (e << 1) | bit(rc, bytes, P, base + 24 + Math.min(i, 7));
-      a = e + ESCAPE - 1;
-    }
-    return neg ? -a : a;
-  }
   const size = (r) => (r === 0 ? 0 : r === 1 || r === -1 ? 1 : 2);
   function colours(bytes, m, ls, cs, blk, rleaf, rq, adaptive) {
     // a point with a reference point (rleaf[i] >= 0; rq: the reference's quantised Y, Co, Cg,
     // 3 per point) predicts from it, in contexts of its own; adaptive (versions 5 and 6): a block
     // starts with its split flag, and every point of a split block has its own chroma; returns
-    // [rgb, this frame's q]
-    const rc = rangeDecoder(bytes), P = new Uint16Array(COL_CONTEXTS).fill(1024);
+    // [rgb, this frame's q]. The range decoder is inlined (its state in local variables, one
+    // decision site): per point up to four tasks (luma, split flag, Co, Cg), each a small state
+    // machine over residual()'s decisions
+    const P = new Uint16Array(COL_CONTEXTS).fill(1024), nbytes = bytes.length;
     const rgb = new Uint8ClampedArray(3 * m), q = new Int32Array(3 * m);  // clamps, and rounds half to even as numpy's rint
-    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0, sry = 0, src = 0, split = 0;
+    let range = 0xFFFFFFFF, code = 0, pos = 5;
+    for (let i = 1; i < 5; i++) code = code * 256 + (i < nbytes ? bytes[i] : 0);  // byte 0: always 0
+    let py = 0, pco = 0, pcg = 0, sy = 0, sco = 0, scg = 0, sry = 0, src = 0, split = 0, r1 = 0, s1 = 0;
     for (let i = 0; i < m; i++) {
-      const j = rleaf ? rleaf[i] : -1;
-      if (j >= 0) { const r = residual(rc, bytes, P, (21 + sry) * RES); sry = size(r); py = rq[3 * j] + r; }
-      else { const r = residual(rc, bytes, P, sy * RES); sy = size(r); py += r; }
-      const first = i % blk === 0;
-      if (first && adaptive) split = bit(rc, bytes, P, SPLIT + split);
-      if (first || split) {
-        if (j >= 0) {
-          const r1 = residual(rc, bytes, P, (24 + src) * RES), s1 = size(r1);
-          const r2 = residual(rc, bytes, P, (27 + s1) * RES);
-          src = Math.max(s1, size(r2)); pco = rq[3 * j + 1] + r1; pcg = rq[3 * j + 2] + r2;
-        } else {
-          const r1 = residual(rc, bytes, P, (3 + sco * 3 + sy) * RES), s1 = size(r1);
-          const r2 = residual(rc, bytes, P, (12 + scg * 3 + s1) * RES);
-          sco = s1; scg = size(r2); pco += r1; pcg += r2;
+      const j = rleaf ? rleaf[i] : -1, first = i % blk === 0;
+      for (let task = 0; task < 4; task++) {
+        let base;
+        if (task === 0) base = j >= 0 ? (21 + sry) * RES : sy * RES;
+        else if (task === 1) { if (!(first && adaptive)) continue; base = SPLIT + split; }
+        else if (!(first || split)) break;
+        else if (task === 2) base = j >= 0 ? (24 + src) * RES : (3 + sco * 3 + sy) * RES;
+        else base = j >= 0 ? (27 + s1) * RES : (12 + scg * 3 + s1) * RES;
+        // phase 0: nonzero flag, 1: sign, 2: unary magnitude, 3: Exp-Golomb prefix, 4: its suffix, 5: a split flag
+        let c = base, phase = task === 1 ? 5 : 0, a = 0, neg = 0, n = 0, e = 1, r = 0;
+        for (;;) {
+          const p = P[c], bound = (range >>> 11) * p;
+          let b = 0;
+          if (code < bound) { range = bound; P[c] = p + ((2048 - p) >> 5); }
+          else { code -= bound; range -= bound; P[c] = p - (p >> 5); b = 1; }
+          while (range < 16777216) { range *= 256; code = ((code << 8) | (pos < nbytes ? bytes[pos] : 0)) >>> 0; pos++; }
+          if (phase === 2) {
+            if (!b) { r = neg ? -a : a; break; }
+            if (++a < ESCAPE) c = base + 1 + a;
+            else { phase = 3; c = base + 15; }
+          } else if (phase === 0) {
+            if (!b) break;
+            phase = 1; c = base + 1;
+          } else if (phase === 1) { neg = b; a = 1; phase = 2; c = base + 2; }
+          else if (phase === 5) { split = b; break; }
+          else if (phase === 3) {
+            if (b) {
+              if (++n > MAX_PREFIX) throw new Error("live frame: the colour stream is corrupt");
+              c = base + 15 + Math.min(n, 8);
+            } else if (n === 0) { r = neg ? -ESCAPE : ESCAPE; break; }
+            else { phase = 4; n--; c = base + 24 + Math.min(n, 7); }
+          } else {
+            e = (e << 1) | b;
+            if (--n < 0) { r = neg ? -(e + ESCAPE - 1) : e + ESCAPE - 1; break; }
+            c = base + 24 + Math.min(n, 7);
+          }
+        }
+        if (task === 0) {
+          if (j >= 0) { sry = size(r); py = rq[3 * j] + r; } else { sy = size(r); py += r; }
+        } else if (task === 2) { r1 = r; s1 = size(r); }
+        else if (task === 3) {
+          if (j >= 0) { src = Math.max(s1, size(r)); pco = rq[3 * j + 1] + r1; pcg = rq[3 * j + 2] + r; }
+          else { sco = s1; scg = size(r); pco += r1; pcg += r; }
         }
       }
       q[3 * i] = py; q[3 * i + 1] = pco; q[3 * i + 2] = pcg;
       const Y = py * ls, Co = pco * cs, Cg = pcg * cs;
       rgb[3 * i] = (Y + Co * 0.5) - Cg * 0.5; rgb[3 * i + 1] = Y + Cg * 0.5; rgb[3 * i + 2] = (Y - Co * 0.5) - Cg * 0.5;
     }
-    if (rc[2] > bytes.length) throw new Error("live frame: the colour stream ends early");
+    if (pos > nbytes) throw new Error("live frame: the colour stream ends early");
     return [rgb, q];
   }
   const gridOf = (buf) => Array.from(new Uint8Array(buf, 20, 16)).concat(Array.from(new Uint8Array(buf, 44, 4))).join(",");
