@@ -22,6 +22,7 @@ __all__ = [
     "leaves_v3",
     "geometry_stream",
     "colour_stream",
+    "colour_code",
     "occupancy",
     "ref_first",
     "match_leaves",
@@ -317,6 +318,61 @@ def range_code(ctx, bits, n_contexts):  # pragma: no cover - compiled
             if rng >= (1 << 24):
                 break
     return buf[:pos].copy()
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put(es, buf, probs, c, bit):  # pragma: no cover - compiled
+    """Code one decision as ``range_code`` does, directly into ``buf``: es = (low, range, cache,
+    cache size, bytes written) in, the new state out (a tuple: it stays in registers)."""
+    low, rng, cache, csize, pos = es
+    p = probs[c]
+    bound = (rng >> 11) * p
+    if bit == 0:
+        rng = bound
+        probs[c] = p + ((2048 - p) >> 5)
+    else:
+        low += bound
+        rng -= bound
+        probs[c] = p - (p >> 5)
+    while rng < (1 << 24):
+        rng <<= 8
+        if low < 0xFF000000 or low >= (1 << 32):
+            carry = low >> 32
+            temp = cache
+            while True:
+                buf[pos] = (temp + carry) & 0xFF
+                pos += 1
+                temp = 0xFF
+                csize -= 1
+                if csize == 0:
+                    break
+            cache = (low >> 24) & 0xFF
+        csize += 1
+        low = (low & 0x00FFFFFF) << 8
+    return low, rng, cache, csize, pos
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_residual(es, buf, probs, base, r):  # pragma: no cover - compiled
+    """Code residual r as ``_residual`` lists its decisions; the new state."""
+    a = abs(r)
+    es = _put(es, buf, probs, base, 1 if a else 0)
+    if a == 0:
+        return es
+    es = _put(es, buf, probs, base + 1, 1 if r < 0 else 0)
+    for j in range(1, ESCAPE):
+        es = _put(es, buf, probs, base + 1 + j, 1 if a > j else 0)
+        if a <= j:
+            return es
+    e = a - ESCAPE + 1
+    n = 0
+    while (e >> (n + 1)) != 0:
+        n += 1
+    for i in range(n + 1):
+        es = _put(es, buf, probs, base + 15 + min(i, 8), 1 if i < n else 0)
+    for i in range(n - 1, -1, -1):
+        es = _put(es, buf, probs, base + 24 + min(i, 7), (e >> i) & 1)
+    return es
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -750,6 +806,73 @@ def colour_decisions(qy, qc, block, rleaf, rq, flags, adaptive):  # pragma: no c
     return ctx[:t], bits[:t]
 
 
+@njit(cache=True, nogil=True)
+def colour_code(qy, qc, block, rleaf, rq, flags, adaptive):  # pragma: no cover - compiled
+    """The range-coded bytes of ``colour_decisions(qy, qc, block, rleaf, rq, flags, adaptive)``,
+    coded as they are made (the same bytes as ``range_code`` of the listed decisions)."""
+    m = qy.shape[0]
+    buf = np.empty(m + 256, np.uint8)
+    probs = np.full(COL_CONTEXTS, 1024, np.int64)
+    # the coder's state: low, range, cache, cache size, bytes written
+    es = (np.int64(0), np.int64(0xFFFFFFFF), np.int64(0), np.int64(1), np.int64(0))
+    py = pco = pcg = 0
+    sy = sco = scg = sry = src = 0
+    split = 0
+    for i in range(m):
+        if es[4] + 128 > buf.shape[0]:  # a point: at most 1 + 3 x 37 decisions of at most 6.1 bits
+            bigger = np.empty(2 * buf.shape[0], np.uint8)
+            bigger[: es[4]] = buf[: es[4]]
+            buf = bigger
+        j = rleaf[i]
+        if j >= 0:
+            r = qy[i] - rq[j, 0]
+            es = _put_residual(es, buf, probs, (21 + sry) * RES, r)
+            sry = _size(r)
+        else:
+            r = qy[i] - py
+            es = _put_residual(es, buf, probs, sy * RES, r)
+            sy = _size(r)
+        py = qy[i]
+        first = i % block == 0
+        if first and adaptive:
+            es = _put(es, buf, probs, SPLIT + split, np.int64(flags[i // block]))
+            split = np.int64(flags[i // block])
+        if first or split:
+            if j >= 0:
+                r1, r2 = qc[i, 0] - rq[j, 1], qc[i, 1] - rq[j, 2]
+                es = _put_residual(es, buf, probs, (24 + src) * RES, r1)
+                s1 = _size(r1)
+                es = _put_residual(es, buf, probs, (27 + s1) * RES, r2)
+                src = max(s1, _size(r2))
+            else:
+                r1, r2 = qc[i, 0] - pco, qc[i, 1] - pcg
+                es = _put_residual(es, buf, probs, (3 + sco * 3 + sy) * RES, r1)
+                s1 = _size(r1)
+                es = _put_residual(es, buf, probs, (12 + scg * 3 + s1) * RES, r2)
+                sco, scg = s1, _size(r2)
+            pco, pcg = qc[i, 0], qc[i, 1]
+    if es[4] + 16 > buf.shape[0]:
+        bigger = np.empty(buf.shape[0] + 16, np.uint8)
+        bigger[: es[4]] = buf[: es[4]]
+        buf = bigger
+    low, rng, cache, csize, pos = es
+    for _ in range(5):  # the flush
+        if low < 0xFF000000 or low >= (1 << 32):
+            carry = low >> 32
+            temp = cache
+            while True:
+                buf[pos] = (temp + carry) & 0xFF
+                pos += 1
+                temp = 0xFF
+                csize -= 1
+                if csize == 0:
+                    break
+            cache = (low >> 24) & 0xFF
+        csize += 1
+        low = (low & 0x00FFFFFF) << 8
+    return buf[:pos].copy()
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _get_residual(st, data, probs, base):  # pragma: no cover - compiled
     """(residual, error) read as ``_residual`` lists it; error 1 for an over-long prefix."""
@@ -841,12 +964,11 @@ def colour_stream(mean, luma_step, chroma_step, block, rleaf, rq, split):  # pra
     Y, Co, Cg of every point); ``rleaf``, ``rq``: the reference (``colour_decisions``); ``split``
     > 0: adaptive chroma blocks (``colour_values``)."""
     qy, qc, flags = colour_values(mean, luma_step, chroma_step, block, split)
-    ctx, bits = colour_decisions(qy, qc, block, rleaf, rq, flags, split > 0)
     m = qy.shape[0]
     q = np.empty((m, 3), np.int64)
     for i in range(m):
         q[i, 0], q[i, 1], q[i, 2] = qy[i], qc[i, 0], qc[i, 1]
-    return range_code(ctx, bits, COL_CONTEXTS), q
+    return colour_code(qy, qc, block, rleaf, rq, flags, split > 0), q
 
 
 @njit(cache=True, nogil=True)
@@ -952,30 +1074,30 @@ def symbol_decisions(leaves, levels, cls, fwd):  # pragma: no cover - compiled
     """(contexts, symbols) of the octree of sorted unique Morton keys of depth ``levels``: every
     node from the root down, depth by depth in Morton order, its occupancy byte in its canonical
     frame (``symmetry_tables``), in context ``last * SYM_CLASSES + cls[nb]``."""
-    keys, start = _node_levels(leaves, levels)
-    ctx = np.empty(start[levels], np.int32)
-    sym = np.empty(start[levels], np.int32)
+    occ = _occupancy(leaves, levels)
+    ctx = np.empty(occ.shape[0], np.int32)
+    sym = np.empty(occ.shape[0], np.int32)
     pbyte = np.ones(1, np.int64)
     pstart = np.zeros(1, np.int64)
     pup = np.full((3, 1), -1, np.int64)
+    lo, n = 0, 1
     for d in range(levels):
-        lo, hi = start[d], start[d + 1]
-        nbs, up = child_neighbours(pbyte, pstart, pup, hi - lo)
-        last = 1 if d == levels - 1 else 0
-        byte_d = np.zeros(hi - lo, np.int64)
-        cstart = np.zeros(hi - lo, np.int64)
-        j = hi
-        for i in range(hi - lo):
-            cstart[i] = j - hi
-            byte = 0
-            while j < start[d + 2] and (keys[j] >> np.uint64(3)) == keys[lo + i]:
-                byte |= 1 << np.int64(keys[j] & np.uint64(7))
-                j += 1
+        nbs, up = child_neighbours(pbyte, pstart, pup, n)
+        last = SYM_CLASSES if d == levels - 1 else 0
+        byte_d = np.empty(n, np.int64)
+        cstart = np.empty(n, np.int64)
+        children = 0
+        for i in range(n):
+            byte = np.int64(occ[lo + i])
             byte_d[i] = byte
+            cstart[i] = children
+            children += _popcount(byte)
             nb = np.int64(nbs[i])
-            ctx[lo + i] = last * SYM_CLASSES + cls[nb]
+            ctx[lo + i] = last + cls[nb]
             sym[lo + i] = fwd[nb, byte]
         pbyte, pstart, pup = byte_d, cstart, up
+        lo += n
+        n = children
     return ctx, sym
 
 
