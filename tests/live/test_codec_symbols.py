@@ -179,3 +179,38 @@ def test_the_model_study_counts_the_coded_streams():
     assert v7["decisions_per_point"] < v5["decisions_per_point"] / 3  # one symbol a node against its bits
     direct = [rows[label]["direct_nodes"] for label, _, mode in VARIANTS if mode]
     assert min(direct) > 0 and v5["spacing_bound_bits_per_point"] > 0
+
+
+KEY_AND_DELTA_SHA256 = "5c3a521d3d3744e5d0d214434e18b51394e7b35babcdfc8868db692c6fa52e53"
+"""The bytes of every cloud of ``_clouds`` in four settings, then a 3-frame sequence's key frames
+and deltas: what the format's readers (Python, decode.js) were checked against; an encoder made
+faster must write them unchanged."""
+
+
+def test_the_encoder_writes_the_same_bytes_for_fixed_clouds():
+    import hashlib
+
+    h = hashlib.sha256()
+    for xyz, rgb in _clouds().values():
+        for p in (V7, CompactParams(version=3), CompactParams(split=0.0), CompactParams(luma_step=1, chroma_step=2)):
+            h.update(encode_compact(xyz, rgb, 1, 0.0, 0.0, p))
+    enc = InterEncoder(V7)
+    for n, (xyz, rgb) in enumerate(_sequence(3, patchy=True)):
+        for message in enc.encode(xyz, rgb, n):
+            h.update(message or b"")
+    assert h.hexdigest() == KEY_AND_DELTA_SHA256
+
+
+def test_colour_coded_as_made_equals_the_listed_decisions_range_coded():
+    from fuseflow.live.codec_kernels import COL_CONTEXTS, colour_code, colour_decisions, colour_values, range_code
+
+    rng = np.random.default_rng(7)
+    mean = rng.uniform(0, 255, (5000, 3))
+    mean[:2000] = np.round(mean[:2000] / 40) * 40  # long runs of zero residuals, then large ones (escapes)
+    for luma, chroma, split in ((12, 16, 1.5), (1, 2, 1.5), (8, 16, 0.0)):
+        qy, qc, flags = colour_values(mean, luma, chroma, 4, split)
+        for rleaf, rq in ((np.full(5000, -1, np.int64), np.zeros((0, 3), np.int64)),
+                          (np.where(np.arange(5000) % 3 == 0, rng.integers(0, 4000, 5000), -1),
+                           rng.integers(-30, 30, (4000, 3)))):  # fmt: skip
+            listed = range_code(*colour_decisions(qy, qc, 4, rleaf, rq, flags, split > 0), COL_CONTEXTS)
+            assert np.array_equal(colour_code(qy, qc, 4, rleaf, rq, flags, split > 0), listed)
