@@ -7,8 +7,9 @@
   later (one restarted after it died) joins the stream when its cameras are among these.
 - **Transport**: the source asks every node for the stamp of its newest frame (``newest``),
   chooses the instant T (below) and asks every node for its frame nearest T (``frame_at``); the
-  answers (``node.NodeFrame``) travel through Ray's object store and are decoded here
-  (``frame_codec.decode_views``). Up to ``RayLiveOptions.in_flight`` instants are in transfer at
+  answers (``node.NodeFrame``) travel inline in Ray's replies (``node.INLINE_BYTES``: one copy
+  from the node's process to this one), or, from a node on this process's own Ray node, through
+  that node's object store (shared memory), and are decoded here (``frame_codec.decode_views``). Up to ``RayLiveOptions.in_flight`` instants are in transfer at
   once, and the next ``newest`` round trip overlaps them. In the live loop (``paced_by``) frames
   are asked for only while fusion is ready for them: a node encodes and ships the frames that
   are fused, not every frame it captures.
@@ -378,14 +379,16 @@ class RaySource:
 
     def _ask_frames(self, T: float, nodes: list[_Node]) -> dict[Any, _Node]:
         half = 0.5 / self.rate
-        return self._issue(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire))
+        return self._issue(
+            nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire, n.link == "same Ray node")
+        )
 
     def _picks(self, asked: dict[Any, _Node]) -> dict[str, _Arrived]:
         """The frames of the ``frame_at`` calls ``asked`` (``_ask_frames``), decoded."""
         got = self._collect(asked, self.options.stall_s)
         picks = {}
         for n in asked.values():
-            f = got.get(n.name)
+            f = self._shared(n, got.get(n.name))
             if f is None:
                 continue
             t0 = time.perf_counter()
@@ -396,6 +399,21 @@ class RaySource:
             n.frames += 1
             picks[n.name] = _Arrived(f.stamp - self.offset(n), f.index, f.stamp, color, depth, present)
         return picks
+
+    def _shared(self, node: _Node, answer: Any) -> Any:
+        """A ``frame_at`` answer: the frame itself (it came in the reply), or ``[ref]`` of one the
+        node put into this Ray node's object store (read from shared memory)."""
+        import ray
+
+        if not isinstance(answer, list):
+            return answer
+        try:
+            return ray.get(answer[0], timeout=self.options.stall_s)
+        except ray.exceptions.GetTimeoutError:
+            return None  # late: the frame is fused without this node's views
+        except Exception as exc:  # noqa: BLE001 - RayError: the node's object is gone with it
+            self._lost(node, exc)
+            return None
 
     def _assemble(self, T: float, nodes: list[_Node], picks: dict[str, _Arrived]) -> Frame:
         n, (w, h) = len(self.rig), self.resolution
