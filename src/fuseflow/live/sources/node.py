@@ -53,7 +53,10 @@ from the node's process to the caller's, instead of through the object stores (R
 puts anything over 100 kB in the node's object store, from which the fusing host's Ray node
 pulls it: a frame then costs about twice the CPU)."""
 
-INLINE_ENV = {"RAY_max_direct_call_object_size": str(INLINE_BYTES), "RAY_task_rpc_inlined_bytes_limit": str(INLINE_BYTES)}
+INLINE_ENV = {
+    "RAY_max_direct_call_object_size": str(INLINE_BYTES),
+    "RAY_task_rpc_inlined_bytes_limit": str(INLINE_BYTES),
+}
 """Ray settings (environment of the capture node's actor process) for ``INLINE_BYTES``."""
 
 
@@ -257,8 +260,8 @@ def wire_codec(own: ViewCodec, wire: str | None) -> ViewCodec:
     coder with the node's depth coder."""
     if wire is None:
         return own
-    if wire == "raw":
-        return replace(own, color="raw", depth_raw=True)
+    if wire in ("raw", "raw16"):
+        return replace(own, color="raw", depth_raw=True, depth_units=wire == "raw16")
     if wire == "lz4":
         return replace(own, color="raw", depth="lz4", depth_raw=False)
     return replace(own, color=wire, depth_raw=True)

@@ -14,11 +14,12 @@
   are asked for only while fusion is ready for them: a node encodes and ships the frames that
   are fused, not every frame it captures.
 - **Wire format** (``RayLiveOptions.frame_codec``): ``auto`` ships a node's frames raw (the
-  arrays, bit for bit, through shared memory) when the node runs on this process's Ray node;
-  as ``lz4`` (raw colour bytes, LZ4 depth: bit for bit, half the bytes of raw) when it runs on
-  another Ray node of this machine (Ray copies objects between its nodes' stores); and in the
-  node's own codec (JPEG or PNG colour, lossless LZ4 or PNG depth) when they cross a network;
-  ``raw``, ``lz4``, ``jpeg`` or ``png`` force one for every node.
+  arrays, bit for bit) when the node runs on this machine: through shared memory from this
+  process's own Ray node, inline in the reply from another Ray node (smaller formats, ``raw16``
+  with depth as uint16 depth units or ``lz4``, cost the node more to encode than the smaller
+  copy saves); and in the node's own codec (JPEG or PNG colour, lossless LZ4 or PNG depth) when
+  they cross a network; ``raw``, ``raw16``, ``lz4``, ``jpeg`` or ``png`` force one for every
+  node.
 - **Clocks**: a thread probes every node's ``clock`` every ``probe_every_s`` and keeps a
   min-RTT estimate of its offset (``clock.OffsetEstimator``); each frame's stamp is moved onto
   this host's clock by it before pairing.
@@ -53,7 +54,7 @@ from fuseflow.types import Frame, Rig
 
 __all__ = ["FRAME_CODECS", "RayLiveOptions", "RaySource"]
 
-FRAME_CODECS = ("auto", "raw", "lz4", "jpeg", "png")
+FRAME_CODECS = ("auto", "raw", "raw16", "lz4", "jpeg", "png")
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,7 @@ class RayLiveOptions:
     """Instants whose frames may be in transfer at once (1: fetch one frame after the other)."""
     frame_codec: str = "auto"
     """How frames travel (``FRAME_CODECS``): auto (raw from a node on this machine, the node's
-    codec from another), raw, jpeg or png."""
+    codec from another machine), raw, raw16 (depth as 16-bit depth units), lz4, jpeg or png."""
 
 
 @dataclass
@@ -234,7 +235,7 @@ class RaySource:
                 else "same machine" if info.get("ip") == ip else "network")  # fmt: skip
         codec = self.options.frame_codec
         if codec == "auto":
-            return link, {"same Ray node": "raw", "same machine": "lz4"}.get(link)
+            return link, {"same Ray node": "raw", "same machine": "raw"}.get(link)
         return link, codec
 
     def _add(self, handle: Any, info: dict) -> _Node:
