@@ -6,8 +6,9 @@ depth_scale, the uint16 a depth camera delivers) compressed with LZ4 (``lz4`` pa
 0.6 ms a 640x480 view) or PNG (OpenCV, about 11 ms a view at level 1, a fifth smaller).
 
 Raw: colour uint8 and depth float32 metres travel unchanged; decoded they are the node's arrays
-bit for bit (3 bytes + 4 bytes a pixel: 2.15 MB a 640x480 view). ``lz4`` colour raw and depth
-LZ4: bit for bit as well, at about half the bytes.
+bit for bit (3 bytes + 4 bytes a pixel: 2.15 MB a 640x480 view). ``raw16`` (``depth_units``):
+colour raw and depth as the uint16 arrays of depth units, uncoded (3 + 2 bytes a pixel). ``lz4``
+colour raw and depth LZ4. Both bit for bit as well.
 
 Depth round trip: ``encode_views`` writes ``round(depth x depth_scale)``, ``decode_views`` gives
 ``uint16 / depth_scale`` as float32, exactly what ``io`` reads from a recording's depth PNGs and

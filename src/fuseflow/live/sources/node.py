@@ -51,7 +51,7 @@ INLINE_BYTES = 64 << 20
 """A capture node's answers up to this size travel inline in Ray's reply to the call, straight
 from the node's process to the caller's, instead of through the object stores (Ray's default
 puts anything over 100 kB in the node's object store, from which the fusing host's Ray node
-pulls it: a frame then costs about twice the CPU)."""
+pulls it: two raylets copy every frame on top of the two processes)."""
 
 INLINE_ENV = {
     "RAY_max_direct_call_object_size": str(INLINE_BYTES),
