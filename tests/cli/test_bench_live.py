@@ -23,8 +23,8 @@ def test_bench_live_nodes_tiny_reports_ratio_target_and_identical_clouds(tmp_pat
     assert row["ratio"] > 0 and row["one_host_before"]["complete_fps"] > 0
     run = row["nodes_run"]
     assert run["clouds_compared"] >= 1 and run["geometry_bit_identical"] == run["clouds_compared"]
-    assert run["rgb_mean_abs_diff"] == 0.0  # lz4 between Ray nodes of one machine: bit for bit
-    assert {n["wire"] for n in run["nodes"].values()} == {"raw+lz4"}
+    assert run["rgb_mean_abs_diff"] == 0.0  # raw between Ray nodes of one machine: bit for bit
+    assert {n["wire"] for n in run["nodes"].values()} == {"raw"}
     offsets = {k: n["offset_ms"] for k, n in run["nodes"].items()}
     assert offsets["n1"] == pytest.approx(40.0, abs=2.0) and offsets["n2"] == pytest.approx(-25.0, abs=2.0)
     assert "raw+lz4" in rows[0]["codec"]["sim8"] and row["bytes_per_frame_all_cameras"] > 0
@@ -33,7 +33,7 @@ def test_bench_live_nodes_tiny_reports_ratio_target_and_identical_clouds(tmp_pat
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--nodes", "3", "--wires", "webp"], "--wires takes auto, raw, lz4, jpeg, png"),
+        (["--nodes", "3", "--wires", "webp"], "--wires takes auto, raw, raw16, lz4, jpeg, png"),
         (["--nodes", "0"], "--nodes must be 1..8"),
         (["--nodes", "3", "--resolution", "big"], "--resolution must be WIDTHxHEIGHT"),
         (["--duration", "0"], "--duration must be a positive number"),

@@ -90,6 +90,26 @@ def test_raw_views_travel_bit_for_bit(sim8):
         decode_views(enc, scales, (h + 1, w))
 
 
+def test_raw16_wire_is_bit_for_bit_at_five_sevenths_of_raw(sim8):
+    from fuseflow.live.sources.node import wire_codec
+
+    rec = sim8[1]
+    f = rec[3]
+    color, depth, present = f.color.numpy(), f.depth.numpy(), f.present.numpy().copy()
+    present[4] = False
+    scales = [c.depth_scale for c in rec.rig.cameras]
+    h, w = depth.shape[1:]
+    codec = wire_codec(ViewCodec(), "raw16")
+    assert codec.name == "raw16" and codec.arrays
+    enc = encode_views(color, depth, present, scales, codec)
+    assert enc.raw[1].dtype == np.uint16 and enc.nbytes == int(present.sum()) * h * w * (3 + 2)
+    c2, d2, p2 = decode_views(enc, scales, (h, w))
+    assert np.array_equal(c2, color) and np.array_equal(p2, present) and d2.dtype == np.float32
+    assert np.array_equal(d2, depth)  # depth units / scale: what the recording's depth PNGs give
+    with pytest.raises(ValidationError):
+        decode_views(enc, scales, (h + 1, w))
+
+
 def _residuals(cams, t, rate, slide):
     """Stamp minus paired instant per camera at time t: the nearest frame of a camera whose
     stamps run ``slide[cam]`` s/s off, so never more than half an interval (pairing wraps)."""
@@ -227,9 +247,9 @@ def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8, wire)
     assert nodes["a"]["offset_ms"] == pytest.approx(0.0, abs=2.0)
     assert summary.capture["paired"]["mixed_index"] == 0
     assert src.rig.ids == rec.rig.ids and summary.frames_out >= 5
-    # the nodes run on other Ray nodes of this machine: auto ships raw colour and LZ4 depth
+    # the nodes run on other Ray nodes of this machine: auto ships the raw arrays
     assert {(n["link"], n["wire"]) for n in nodes.values()} == {
-        ("same machine", "raw+lz4" if wire == "auto" else "jpeg+lz4")
+        ("same machine", "raw" if wire == "auto" else "jpeg+lz4")
     }
     assert not [m for _, m in src.events if "drifted" in m]
     drifts = [v["drift_ms"] for v in summary.capture["skew"].values()]
@@ -245,6 +265,24 @@ def test_offsets_found_frames_paired_and_clouds_as_one_host(cluster, sim8, wire)
             assert torch.equal(cloud.rgb, one.rgb)
         else:
             assert (cloud.rgb.int() - one.rgb.int()).abs().float().mean() < 8.0
+
+
+def test_frames_come_in_the_reply_from_another_ray_node_and_through_the_store_from_this_one(cluster):
+    import ray
+
+    _, _, handles = cluster
+    node = handles[1]
+    _, stamp = ray.get(node.newest.remote(-1, 5.0))
+    ref = node.frame_at.remote(stamp, 0.01, "raw16")
+    frame = ray.get(ref)
+    assert frame.views.codec.name == "raw16" and frame.views.raw[0].shape[0] == 3
+    # inline in the reply: held by this process, in no Ray node's object store (Ray's default
+    # would have put the frame, over 100 kB, into the node's store for this Ray node to pull)
+    assert ray.experimental.get_object_locations([ref])[ref]["node_ids"] == []
+    answer = ray.get(node.frame_at.remote(stamp, 0.01, "raw", True))  # shared: put into the node's store
+    assert isinstance(answer, list) and len(answer) == 1
+    assert ray.experimental.get_object_locations(answer)[answer[0]]["node_ids"] != []
+    assert np.array_equal(ray.get(answer[0]).views.raw[0], frame.views.raw[0])
 
 
 def test_raw_stamps_of_offset_clocks_pair_wrong_frames(cluster):
@@ -367,7 +405,7 @@ def test_bad_frame_codec_or_node_colour_says_so_in_one_line(sim8):
     from fuseflow.cli import app
 
     res = CliRunner().invoke(app, ["live", "--ray", "127.0.0.1:1", "--frame-codec", "webp"])
-    assert res.exit_code == 2 and "--frame-codec must be one of auto, raw, lz4, jpeg, png" in res.output
+    assert res.exit_code == 2 and "--frame-codec must be one of auto, raw, raw16, lz4, jpeg, png" in res.output
     res = CliRunner().invoke(app, ["node", str(sim8[0]), "--ray", "127.0.0.1:1", "--color", "raw"])
     assert res.exit_code == 2 and "--color must be jpeg or png" in res.output
     assert "Traceback" not in res.output

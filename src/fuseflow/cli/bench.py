@@ -93,7 +93,7 @@ def bench_live(
     wires: str = typer.Option(
         "auto,jpeg,auto@head",
         "--wires",
-        help="--nodes: frame codecs (auto, raw, lz4, jpeg, png; @head: the capture actors on the fusing process's "
+        help="--nodes: frame codecs (auto, raw, raw16, lz4, jpeg, png; @head: the capture actors on the fusing process's "
         "own Ray node).",
     ),
     resolution: str = typer.Option("640x480", "--resolution", help="--nodes: WxH of the simulated 8 cameras."),

@@ -96,8 +96,8 @@ RAY_OPTION = typer.Option(
 FRAME_CODEC_OPTION = typer.Option(
     "auto",
     "--frame-codec",
-    help="--ray: how frames travel: auto (raw from nodes on this Ray node, lz4 from other Ray nodes of this machine, "
-    "the node's JPEG/PNG colour with lossless depth from others), raw, lz4 (raw colour, LZ4 depth), jpeg or png.",
+    help="--ray: how frames travel: auto (raw from nodes on this machine, the node's JPEG/PNG colour with lossless "
+    "depth from others), raw, raw16 (raw colour, 16-bit depth units), lz4 (raw colour, LZ4 depth), jpeg or png.",
 )
 
 

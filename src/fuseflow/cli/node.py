@@ -22,7 +22,7 @@ def command(
         "jpeg",
         "--color",
         help="Colour coder of frames that cross a network: jpeg (lossy) or png (lossless). "
-        "A fusing host on this machine gets raw or lz4 frames (fuseflow live --frame-codec).",
+        "A fusing host on this machine gets raw frames (fuseflow live --frame-codec).",
     ),
     depth: str = typer.Option(
         "lz4", "--depth", help="Lossless depth coder of frames that cross a network: lz4 (fast) or png (smaller)."

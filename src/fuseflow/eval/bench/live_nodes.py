@@ -8,8 +8,8 @@ no sinks). Nodes: a local Ray cluster (``ray.cluster_utils.Cluster``: a head and
 nodes, each with a custom resource ``capK``) with one capture node actor per node replaying
 cameras 0-2, 3-5 and 6-7 (``fuseflow node --cameras``), clocks off by 0, +40 and -25 ms; the
 fusing host (this process) gathers them with ``RaySource`` into the same live loop, once per wire
-format in ``wires``: ``auto`` (the nodes run on this machine: raw arrays, copied between the Ray
-nodes' object stores), ``jpeg`` (JPEG quality 90 colour, lossless PNG depth: what crosses a
+format in ``wires``: ``auto`` (the nodes run on other Ray nodes of this machine: raw arrays, inline
+in Ray's replies), ``raw16`` (colour arrays and 16-bit depth units), ``jpeg`` (JPEG quality 90 colour, lossless PNG depth: what crosses a
 network) and ``auto@head`` (the same capture actors placed on this process's own Ray node: raw
 through shared memory, the layout of a capture node on the fusing machine). Per run the one-host
 rate is measured four times: without Ray before and after, and in this process with the cluster
@@ -34,7 +34,7 @@ import numpy as np
 
 __all__ = ["SPLITS", "WIRES", "codec_costs", "run_nodes_bench"]
 
-WIRES = ("auto", "raw", "lz4", "jpeg", "png")
+WIRES = ("auto", "raw", "raw16", "lz4", "jpeg", "png")
 """Frame codecs a run compares (``RayLiveOptions.frame_codec``)."""
 
 SPLITS = [(("cam00", "cam01", "cam02"), 0.0), (("cam03", "cam04", "cam05"), 0.040), (("cam06", "cam07"), -0.025)]
@@ -68,6 +68,7 @@ def _codec_row(color: np.ndarray, depth: np.ndarray, scales: list[float], reps: 
         ViewCodec("jpeg", 90, depth="png"),
         ViewCodec("png"),
         ViewCodec("raw", depth_raw=False),
+        ViewCodec("raw", depth_units=True),
     ):
         enc_t, dec_t = [], []
         for _ in range(reps):
@@ -77,7 +78,10 @@ def _codec_row(color: np.ndarray, depth: np.ndarray, scales: list[float], reps: 
             t0 = time.perf_counter()
             c2, d2, _ = decode_views(e, scales, depth.shape[1:])
             dec_t.append(time.perf_counter() - t0)
-        cb, db = sum(len(b) for b in e.color) / n, sum(len(b) for b in e.depth) / n
+        if e.raw is not None:  # raw16: the arrays
+            cb, db = e.raw[0].nbytes / n, e.raw[1].nbytes / n
+        else:
+            cb, db = sum(len(b) for b in e.color) / n, sum(len(b) for b in e.depth) / n
         err = np.abs(c2.astype(int) - color.astype(int))
         out[codec.name] = {"color_bytes_per_view": int(cb), "depth_bytes_per_view": int(db),
                             "encode_ms_per_view": round(float(np.median(enc_t)) * 1e3 / n, 2),
@@ -89,7 +93,7 @@ def _codec_row(color: np.ndarray, depth: np.ndarray, scales: list[float], reps: 
 
 def codec_costs(rec: Any, data_dir: Path | None) -> dict[str, Any]:
     """Bytes, encode / decode ms per view and the 8 x 15 fps bandwidth of the node codecs (JPEG 90
-    colour with LZ4 or PNG depth, PNG colour, raw colour with LZ4 depth) on frame 3 of the simulated recording and on hocap-8rs's 8 real
+    colour with LZ4 or PNG depth, PNG colour, raw colour with LZ4 depth or 16-bit depth units) on frame 3 of the simulated recording and on hocap-8rs's 8 real
     RealSense views (when ``data_dir`` has it)."""
     import cv2
 

@@ -6,8 +6,9 @@ depth_scale, the uint16 a depth camera delivers) compressed with LZ4 (``lz4`` pa
 0.6 ms a 640x480 view) or PNG (OpenCV, about 11 ms a view at level 1, a fifth smaller).
 
 Raw: colour uint8 and depth float32 metres travel unchanged; decoded they are the node's arrays
-bit for bit (3 bytes + 4 bytes a pixel: 2.15 MB a 640x480 view). ``lz4`` colour raw and depth
-LZ4: bit for bit as well, at about half the bytes.
+bit for bit (3 bytes + 4 bytes a pixel: 2.15 MB a 640x480 view). ``raw16`` (``depth_units``):
+colour raw and depth as the uint16 arrays of depth units, uncoded (3 + 2 bytes a pixel). ``lz4``
+colour raw and depth LZ4. Both bit for bit as well.
 
 Depth round trip: ``encode_views`` writes ``round(depth x depth_scale)``, ``decode_views`` gives
 ``uint16 / depth_scale`` as float32, exactly what ``io`` reads from a recording's depth PNGs and
@@ -47,6 +48,9 @@ class ViewCodec:
     """Lossless depth coder: lz4 (fast) or png (a fifth smaller, about 17x slower to encode)."""
     depth_raw: bool = True
     """With colour raw: depth as float32 arrays too (False: colour raw bytes, depth coded)."""
+    depth_units: bool = False
+    """With colour and depth raw: depth as the uint16 arrays of depth units (lossless, half the
+    bytes of float32, no coding)."""
 
     @property
     def arrays(self) -> bool:
@@ -57,7 +61,7 @@ class ViewCodec:
     def name(self) -> str:
         """The wire format in reports: raw, lz4 (raw colour, LZ4 depth) or COLOUR+DEPTH."""
         if self.color == "raw":
-            return "raw" if self.depth_raw else f"raw+{self.depth}"
+            return ("raw16" if self.depth_units else "raw") if self.depth_raw else f"raw+{self.depth}"
         return f"{self.color}+{self.depth}"
 
     def check(self) -> ViewCodec:
@@ -132,13 +136,18 @@ def _color_bytes(rgb: np.ndarray, codec: ViewCodec) -> bytes:
 def encode_views(color: np.ndarray, depth: np.ndarray, present: np.ndarray, scales: list[float],
                  codec: ViewCodec = ViewCodec()) -> EncodedViews:  # fmt: skip
     """(N, H, W, 3) uint8 RGB, (N, H, W) float32 metres, (N,) bool -> ``EncodedViews``."""
-    if codec.arrays:
+    if codec.arrays and not codec.depth_units:
         raw = (
             np.ascontiguousarray(color, np.uint8),
             np.ascontiguousarray(depth, np.float32),
             np.asarray(present, bool),
         )
         return EncodedViews([], [], codec, 0.0, 0, raw=raw)
+    if codec.arrays:
+        t0 = time.perf_counter()
+        units, clipped = _units(depth, scales)
+        raw = (np.ascontiguousarray(color, np.uint8), units, np.asarray(present, bool))
+        return EncodedViews([], [], codec, (time.perf_counter() - t0) * 1e3, clipped, raw=raw)
     t0 = time.perf_counter()
     out_c: list[bytes | None] = []
     out_d: list[bytes | None] = []
@@ -148,15 +157,27 @@ def encode_views(color: np.ndarray, depth: np.ndarray, present: np.ndarray, scal
             out_c.append(None)
             out_d.append(None)
             continue
+        units, over = _units(depth[i : i + 1], scales[i : i + 1])
+        clipped += over
+        out_d.append(_depth_bytes(units[0], codec))
+        out_c.append(_color_bytes(color[i], codec))
+    return EncodedViews(out_c, out_d, codec, (time.perf_counter() - t0) * 1e3, clipped)
+
+
+def _units(depth: np.ndarray, scales: list[float]) -> tuple[np.ndarray, int]:
+    """(N, H, W) float32 metres -> (N, H, W) uint16 depth units (``round(depth x scale)``, 0
+    beyond 65535) and the count of those clipped."""
+    out = np.empty(depth.shape, np.uint16)
+    clipped = 0
+    for i in range(len(depth)):
         # float32 like the depth itself (depth units / scale): the same integers as float64 after
         # rounding, at a fifteenth of the time
         units = np.rint(np.asarray(depth[i], dtype=np.float32) * np.float32(scales[i]))
         over = units > 65535
         clipped += int(over.sum())
         units[over] = 0
-        out_d.append(_depth_bytes(units.astype(np.uint16), codec))
-        out_c.append(_color_bytes(color[i], codec))
-    return EncodedViews(out_c, out_d, codec, (time.perf_counter() - t0) * 1e3, clipped)
+        out[i] = units
+    return out, clipped
 
 
 def decode_views(
@@ -169,6 +190,11 @@ def decode_views(
         color, depth, present = views.raw
         if color.shape[1:] != (h, w, 3) or depth.shape[1:] != (h, w) or not len(color) == len(depth) == len(present):
             raise ValidationError(f"the node sent raw views that are not {w}x{h}")
+        if depth.dtype == np.uint16:  # raw16: depth units
+            metres = np.empty(depth.shape, np.float32)
+            for i in range(len(depth)):
+                np.divide(depth[i], np.float32(scales[i]), out=metres[i], dtype=np.float32)
+            depth = metres
         return color, depth, present
     n = len(views.depth)
     color = np.zeros((n, h, w, 3), np.uint8)

@@ -47,6 +47,18 @@ NAMESPACE = "fuseflow-live"
 
 PREFIX = "fuseflow-node:"
 
+INLINE_BYTES = 64 << 20
+"""A capture node's answers up to this size travel inline in Ray's reply to the call, straight
+from the node's process to the caller's, instead of through the object stores (Ray's default
+puts anything over 100 kB in the node's object store, from which the fusing host's Ray node
+pulls it: two raylets copy every frame on top of the two processes)."""
+
+INLINE_ENV = {
+    "RAY_max_direct_call_object_size": str(INLINE_BYTES),
+    "RAY_task_rpc_inlined_bytes_limit": str(INLINE_BYTES),
+}
+"""Ray settings (environment of the capture node's actor process) for ``INLINE_BYTES``."""
+
 
 def actor_name(name: str, token: str) -> str:
     """``fuseflow-node:<name>:<token>``: a node restarted under its old name registers anew at
@@ -160,10 +172,10 @@ class CaptureNode:
                 stamp = due + self._clock.offset_s if due is not None else self._clock()
                 first = stamp if first is None else first
                 stamp += self.options.stamp_drift * (stamp - first)
-                f = frame.subset(self._sel) if self._sel != list(range(frame.num_views)) else frame
-                raw = tuple(np.asarray(x) for x in (f.color, f.depth, f.present))
+                # the frame as delivered: its cameras are picked when it is asked for (``frame_at``),
+                # so that the frames no one asks for cost no copy
                 with self._cond:
-                    self._frames.append((self._count, int(frame.index), stamp, raw))
+                    self._frames.append((self._count, int(frame.index), stamp, frame))
                     self._count += 1
                     self._cond.notify_all()
                 if self._closed:
@@ -189,23 +201,42 @@ class CaptureNode:
                 return None
             return self._frames[-1][0], self._frames[-1][2]
 
-    def frame_at(self, stamp: float, tolerance: float, codec: str | None = None) -> NodeFrame | None:
+    def frame_at(self, stamp: float, tolerance: float, codec: str | None = None, shared: bool = False) -> Any:
         """The kept frame whose stamp is nearest ``stamp`` (node clock), if within ``tolerance``
         seconds, encoded with ``codec`` (``wire_codec``: raw, lz4, jpeg or png; None: the node's own);
         None otherwise. Every node is asked for the same instant, so that the frames a slow node
-        encodes are the ones the others encode too."""
+        encodes are the ones the others encode too.
+
+        How it travels: in the call's reply (``spawn_node`` lets Ray inline replies up to
+        ``INLINE_BYTES``: one copy from this process to the caller, no object store in between),
+        or with ``shared`` (the caller runs on this node's Ray node) put into this Ray node's
+        object store and answered as ``[ref]``, which the caller reads from shared memory."""
         wire = wire_codec(self.options.codec, codec)
         with self._cond:
             near = [f for f in self._frames if abs(f[2] - stamp) <= tolerance]
             pick = min(near, key=lambda f: abs(f[2] - stamp)) if near else None
         if pick is None:
             return None
-        number, index, at, (color, depth, present) = pick
+        number, index, at, frame = pick
+        color, depth, present = (self._cameras(np.asarray(x)) for x in (frame.color, frame.depth, frame.present))
         views = encode_views(color, depth, present, self._scales, wire.check())
         with self._cond:
             self._encode_ms.append(views.encode_ms)
             self._bytes.append(views.nbytes)
-        return NodeFrame(number, index, at, views)
+        out = NodeFrame(number, index, at, views)
+        if shared:
+            import ray
+
+            return [ray.put(out)]
+        return out
+
+    def _cameras(self, x: np.ndarray) -> np.ndarray:
+        """This node's cameras of a (N, ...) array of every camera of SOURCE: a view when they
+        are consecutive, a copy otherwise."""
+        sel = self._sel
+        if sel == list(range(sel[0], sel[0] + len(sel))):
+            return x[sel[0] : sel[0] + len(sel)]
+        return x[sel]
 
     def stats(self) -> dict[str, Any]:
         with self._cond:
@@ -229,8 +260,8 @@ def wire_codec(own: ViewCodec, wire: str | None) -> ViewCodec:
     coder with the node's depth coder."""
     if wire is None:
         return own
-    if wire == "raw":
-        return replace(own, color="raw", depth_raw=True)
+    if wire in ("raw", "raw16"):
+        return replace(own, color="raw", depth_raw=True, depth_units=wire == "raw16")
     if wire == "lz4":
         return replace(own, color="raw", depth="lz4", depth_raw=False)
     return replace(own, color=wire, depth_raw=True)
@@ -292,7 +323,7 @@ def spawn_node(specs: Sequence[str], options: NodeOptions = NodeOptions(), resou
     name = options.name or socket.gethostname()
     token = uuid.uuid4().hex[:12]
     kw: dict[str, Any] = {"name": actor_name(name, token), "namespace": NAMESPACE, "max_concurrency": 4, "num_cpus": 0,
-                          "resources": resources or {}}  # fmt: skip
+                          "resources": resources or {}, "runtime_env": {"env_vars": INLINE_ENV}}  # fmt: skip
     if node_id is not None:
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 

@@ -7,17 +7,19 @@
   later (one restarted after it died) joins the stream when its cameras are among these.
 - **Transport**: the source asks every node for the stamp of its newest frame (``newest``),
   chooses the instant T (below) and asks every node for its frame nearest T (``frame_at``); the
-  answers (``node.NodeFrame``) travel through Ray's object store and are decoded here
-  (``frame_codec.decode_views``). Up to ``RayLiveOptions.in_flight`` instants are in transfer at
+  answers (``node.NodeFrame``) travel inline in Ray's replies (``node.INLINE_BYTES``: one copy
+  from the node's process to this one), or, from a node on this process's own Ray node, through
+  that node's object store (shared memory), and are decoded here (``frame_codec.decode_views``). Up to ``RayLiveOptions.in_flight`` instants are in transfer at
   once, and the next ``newest`` round trip overlaps them. In the live loop (``paced_by``) frames
   are asked for only while fusion is ready for them: a node encodes and ships the frames that
   are fused, not every frame it captures.
 - **Wire format** (``RayLiveOptions.frame_codec``): ``auto`` ships a node's frames raw (the
-  arrays, bit for bit, through shared memory) when the node runs on this process's Ray node;
-  as ``lz4`` (raw colour bytes, LZ4 depth: bit for bit, half the bytes of raw) when it runs on
-  another Ray node of this machine (Ray copies objects between its nodes' stores); and in the
-  node's own codec (JPEG or PNG colour, lossless LZ4 or PNG depth) when they cross a network;
-  ``raw``, ``lz4``, ``jpeg`` or ``png`` force one for every node.
+  arrays, bit for bit) when the node runs on this machine: through shared memory from this
+  process's own Ray node, inline in the reply from another Ray node (smaller formats, ``raw16``
+  with depth as uint16 depth units or ``lz4``, cost the node more to encode than the smaller
+  copy saves); and in the node's own codec (JPEG or PNG colour, lossless LZ4 or PNG depth) when
+  they cross a network; ``raw``, ``raw16``, ``lz4``, ``jpeg`` or ``png`` force one for every
+  node.
 - **Clocks**: a thread probes every node's ``clock`` every ``probe_every_s`` and keeps a
   min-RTT estimate of its offset (``clock.OffsetEstimator``); each frame's stamp is moved onto
   this host's clock by it before pairing.
@@ -52,7 +54,7 @@ from fuseflow.types import Frame, Rig
 
 __all__ = ["FRAME_CODECS", "RayLiveOptions", "RaySource"]
 
-FRAME_CODECS = ("auto", "raw", "lz4", "jpeg", "png")
+FRAME_CODECS = ("auto", "raw", "raw16", "lz4", "jpeg", "png")
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,7 @@ class RayLiveOptions:
     """Instants whose frames may be in transfer at once (1: fetch one frame after the other)."""
     frame_codec: str = "auto"
     """How frames travel (``FRAME_CODECS``): auto (raw from a node on this machine, the node's
-    codec from another), raw, jpeg or png."""
+    codec from another machine), raw, raw16 (depth as 16-bit depth units), lz4, jpeg or png."""
 
 
 @dataclass
@@ -233,7 +235,7 @@ class RaySource:
                 else "same machine" if info.get("ip") == ip else "network")  # fmt: skip
         codec = self.options.frame_codec
         if codec == "auto":
-            return link, {"same Ray node": "raw", "same machine": "lz4"}.get(link)
+            return link, {"same Ray node": "raw", "same machine": "raw"}.get(link)
         return link, codec
 
     def _add(self, handle: Any, info: dict) -> _Node:
@@ -378,14 +380,16 @@ class RaySource:
 
     def _ask_frames(self, T: float, nodes: list[_Node]) -> dict[Any, _Node]:
         half = 0.5 / self.rate
-        return self._issue(nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire))
+        return self._issue(
+            nodes, lambda n: n.handle.frame_at.remote(T + self.offset(n), half, n.wire, n.link == "same Ray node")
+        )
 
     def _picks(self, asked: dict[Any, _Node]) -> dict[str, _Arrived]:
         """The frames of the ``frame_at`` calls ``asked`` (``_ask_frames``), decoded."""
         got = self._collect(asked, self.options.stall_s)
         picks = {}
         for n in asked.values():
-            f = got.get(n.name)
+            f = self._shared(n, got.get(n.name))
             if f is None:
                 continue
             t0 = time.perf_counter()
@@ -396,6 +400,21 @@ class RaySource:
             n.frames += 1
             picks[n.name] = _Arrived(f.stamp - self.offset(n), f.index, f.stamp, color, depth, present)
         return picks
+
+    def _shared(self, node: _Node, answer: Any) -> Any:
+        """A ``frame_at`` answer: the frame itself (it came in the reply), or ``[ref]`` of one the
+        node put into this Ray node's object store (read from shared memory)."""
+        import ray
+
+        if not isinstance(answer, list):
+            return answer
+        try:
+            return ray.get(answer[0], timeout=self.options.stall_s)
+        except ray.exceptions.GetTimeoutError:
+            return None  # late: the frame is fused without this node's views
+        except Exception as exc:  # noqa: BLE001 - RayError: the node's object is gone with it
+            self._lost(node, exc)
+            return None
 
     def _assemble(self, T: float, nodes: list[_Node], picks: dict[str, _Arrived]) -> Frame:
         n, (w, h) = len(self.rig), self.resolution
