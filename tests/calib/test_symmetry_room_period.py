@@ -62,3 +62,13 @@ def test_one_wrong_pose_among_a_pairs_aliases_does_not_halve_the_period():
     room = room_orbits(poses, {k: Tk[:3, :3] @ UP for k, Tk in enumerate(T)})
     assert room is not None and room.sides == 10
     assert room.pairs == 4 and room.turns == 12  # the wrong pose's six turns are left out
+
+
+def test_one_pairs_three_aliases_keep_their_period_when_no_other_pair_turns():
+    # independent studio seed 501 (6-sided): one pair's poses 60 deg apart, no other pair turned;
+    # the middle pose alone makes 6 fit better than 3, yet it is an alias, not a wrong pose
+    T = _cameras(3)
+    rng = np.random.default_rng(4)
+    poses = {(0, 1): [_pose(T, 0, 1, k * 60.0, rng) for k in (0, 1, 2)], (1, 2): [_pose(T, 1, 2, 0.0, rng)]}
+    room = room_orbits(poses, {k: Tk[:3, :3] @ UP for k, Tk in enumerate(T)})
+    assert room is not None and room.sides == 6 and room.turns == 6

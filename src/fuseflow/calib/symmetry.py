@@ -381,6 +381,9 @@ TURN_MIN_FIT = 0.5
 #: 20-fold room 3 times within 3 deg (chance 0.21), one pair's two poses 40 deg apart a 9-fold
 #: one twice (0.02: its two turns, one in each camera's frame).
 TURN_MAX_CHANCE = 0.05
+#: A pose whose turns alone fit a multiple of the period is dropped only when this many other
+#: pairs turn by the period (``_outlier_pose``).
+MIN_OTHER_PAIRS = 2
 
 
 @dataclass(frozen=True)
@@ -483,20 +486,24 @@ def room_period(angles: list[float], tol: float = TURN_TOL_DEG, max_sides: int =
 
 def _outlier_pose(turns: list[RoomTurn], sides: int) -> tuple | None:
     """(pair, pose index) of a pose that alone makes ``sides`` fit better than a divisor d of it:
-    every turn that fits ``sides`` but not d lies between that pose and another of its pair, and
-    two other poses of that pair turn by a multiple of 360/d. One wrong pose verified among a
-    pair's aliases brings a turn to each of them (independent studio seed 936, 10-sided: one pose
-    17.8 deg off among three aliases gave 6 of 26 turns at odd multiples of 18 deg). None when
-    there is no such pose."""
+    every turn that fits ``sides`` but not d lies between that pose and another of its pair, two
+    other poses of that pair turn by a multiple of 360/d, and so do the turns of at least
+    MIN_OTHER_PAIRS other pairs. One wrong pose verified among a pair's aliases brings a turn to
+    each of them (independent studio seed 936, 10-sided: one pose 17.8 deg off among three
+    aliases gave 6 of 26 turns at odd multiples of 18 deg, four other pairs turned by 36-deg
+    multiples). A pair alone keeps its period (seed 501, 6-sided: one pair's three aliases 60 deg
+    apart, no other pair turned). None when there is no such pose."""
     a = np.array([t.angle for t in turns])
     fit = _fits(a, sides, TURN_TOL_DEG)
     for d in sorted((d for d in range(2, sides) if sides % d == 0), reverse=True):
         fit_d = _fits(a, d, TURN_TOL_DEG)
         extra = [t for t, ok, ok_d in zip(turns, fit, fit_d) if ok and not ok_d]
-        if not extra or any(not t.poses for t in extra):
+        if not extra or any(not t.poses for t in extra) or len({t.pair for t in extra}) > 1:
             continue
-        common = set.intersection(*({(t.pair, q) for q in t.poses} for t in extra))
-        for pair, q in sorted(common):
+        pair = extra[0].pair
+        if len({t.pair for t, ok_d in zip(turns, fit_d) if ok_d and t.pair != pair}) < MIN_OTHER_PAIRS:
+            continue
+        for q in sorted(set.intersection(*(set(t.poses) for t in extra))):
             if any(t.pair == pair and q not in t.poses and ok_d for t, ok_d in zip(turns, fit_d)):
                 return pair, q
     return None
