@@ -14,12 +14,14 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    their texture is not). The axis position maximises it (grid around where the cameras' optical
    axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
    period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). ``room_period``: the
-   backbone's period is the base when its share is at least ``SUB_PERIOD_SHARE`` of the best and
-   ``HINT_MIN_CONTRAST`` times the median over all N; else the room repeats when the best share
-   is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and the best
-   period is the base. N is the largest multiple of the base with at least ``SUB_PERIOD_SHARE``
-   of the best share (a 12-fold room also repeats every 60 deg, and pairs that saw only 120-deg
-   aliases of a 6-fold room hint 3: the smallest turn is the one that matters). When no period
+   backbone's period, or its largest divisor, is the base when its share is at least
+   ``SUB_PERIOD_SHARE`` of the best and ``HINT_MIN_CONTRAST`` times the median over all N; else
+   the room repeats when the best share is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST``
+   times that median, and the best period is the base. N is the largest multiple of the base
+   with at least ``SUB_PERIOD_SHARE`` of the best share (a 12-fold room also repeats every 60
+   deg, and pairs that saw only 120-deg aliases of a 6-fold room hint 3: the smallest turn is
+   the one that matters), or the backbone's period when it is a multiple of that landing at
+   least ``ROOM_MIN_CONTRAST`` times the median (the pairs saw its turns). When no period
    passes, the walls alone are searched again (``WALL_*``: floor and ceiling, which every turn
    keeps, lift every period's share and so the median).
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
