@@ -258,6 +258,24 @@ def test_the_period_is_a_multiple_of_the_hint_when_that_multiple_keeps_the_room(
     assert T_.room_period(_shares(0.4, n3=0.817, n7=0.8), hint=3) == 3  # 7 is no multiple of 3
 
 
+def test_the_pairs_period_is_kept_when_it_is_a_multiple_of_the_best_that_keeps_the_room():
+    # polyroom seed 9030 (8-sided, 320x240, calibrated cloud): the 4-fold turn lands the most, the
+    # 8-fold one 0.72 of that, four times the median; the pairs saw 45-deg turns
+    seen = _shares(0.13, n4=0.699, n8=0.505, n9=0.206)
+    assert T_.room_period(seen, hint=8) == 8
+    assert T_.room_period(seen) == 4  # without the pairs' turns, 4 stays the period
+    assert T_.room_period(_shares(0.13, n4=0.699, n8=0.2), hint=8) == 4  # 8 lands too few
+
+
+def test_a_divisor_of_the_pairs_period_is_the_base_when_the_period_itself_lands_too_few():
+    # independent studio seed 936 (10-sided): the 10-fold turn lands 0.70 against a median of
+    # 0.48, under twice the median; pairs whose turns fit 20 sides (or more than MAX_SIDES) name it
+    seen = _shares(0.48, n5=0.66, n9=0.657, n10=0.703, n11=0.63)
+    assert T_.room_period(seen) is None
+    assert T_.room_period(seen, hint=20) == 10 and T_.room_period(seen, hint=10) == 10
+    assert T_.room_period(seen, hint=21) is None  # 21 has no divisor that keeps this room
+
+
 def test_the_joint_choice_never_puts_two_cameras_on_one_spot():
     """Three cameras 90 deg apart in a 4-fold room: cameras turned onto each other's spots see the
     same surface and so see through none of each other's subject, a better score than the true

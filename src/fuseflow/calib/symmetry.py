@@ -44,6 +44,7 @@ stays in the backbone.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -372,19 +373,32 @@ TURN_PITCH_M = 0.1
 TURN_TOL_DEG = 3.0
 #: The most sides ``room_period`` considers (a period of 15 deg).
 MAX_SIDES = 24
+#: A period fits when at least this share of the turns lands near its multiples: the rest are
+#: turns to wrong poses that passed verification (independent studio seed 936, 10-sided: 14 of
+#: 26 turns at multiples of 36 deg, the others to four poses 4-18 deg off the orbit).
+TURN_MIN_FIT = 0.5
+#: ... and random angles would land as many with at most this chance: five random angles fit a
+#: 20-fold room 3 times within 3 deg (chance 0.21), one pair's two poses 40 deg apart a 9-fold
+#: one twice (0.02: its two turns, one in each camera's frame).
+TURN_MAX_CHANCE = 0.05
+#: A pose whose turns alone fit a multiple of the period is dropped only when this many other
+#: pairs turn by the period (``_outlier_pose``).
+MIN_OTHER_PAIRS = 2
 
 
 @dataclass(frozen=True)
 class RoomTurn:
     """One room turn seen by pair ``pair`` in camera ``camera``'s frame: ``angle`` deg (signed,
     about ``up``), ``up`` the axis direction (unit, the camera's floor normal where it has one),
-    ``point`` the foot of the axis nearest the camera centre (metres)."""
+    ``point`` the foot of the axis nearest the camera centre (metres); ``poses`` the indices of
+    the pair's two poses it lies between."""
 
     pair: tuple
     camera: int
     angle: float
     up: np.ndarray
     point: np.ndarray
+    poses: tuple = ()
 
 
 def screw_axis(D: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float]:
@@ -403,7 +417,7 @@ def screw_axis(D: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float]:
     return ang, u, p - (p @ u) * u, pitch
 
 
-def _turn_of(D: np.ndarray, pair: tuple, cam: int, up: np.ndarray | None) -> RoomTurn | None:
+def _turn_of(D: np.ndarray, pair: tuple, cam: int, up: np.ndarray | None, poses: tuple = ()) -> RoomTurn | None:
     """The room turn D (in camera ``cam``'s frame) is, or None: too small, tilted off ``up``
     (the camera's floor normal, or None) or sliding along its axis."""
     ang, u, p, pitch = screw_axis(D)
@@ -414,7 +428,7 @@ def _turn_of(D: np.ndarray, pair: tuple, cam: int, up: np.ndarray | None) -> Roo
         if abs(u @ up) < np.cos(np.radians(TURN_AXIS_DEG)):
             return None
         ang, u = (ang if u @ up > 0 else -ang), up
-    return RoomTurn(pair, cam, ang, u, p - (p @ u) * u)
+    return RoomTurn(pair, cam, ang, u, p - (p @ u) * u, poses)
 
 
 def room_turns(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, np.ndarray | None]) -> list[RoomTurn]:
@@ -427,33 +441,72 @@ def room_turns(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, np
             for m in range(k + 1, len(Ts)):
                 A, B = np.asarray(Ts[k], np.float64), np.asarray(Ts[m], np.float64)
                 for D, cam in ((invert_rigid(A) @ B, i), (B @ invert_rigid(A), j)):
-                    turn = _turn_of(D, (i, j), cam, ups.get(cam))
+                    turn = _turn_of(D, (i, j), cam, ups.get(cam), (k, m))
                     if turn is not None:
                         out.append(turn)
     return out
 
 
-def _fits(angles: np.ndarray, sides: int, tol: float) -> np.ndarray:
-    """Which angles (deg) are within ``tol`` of a non-zero multiple of 360/``sides``."""
+def _fit_weights(angles: np.ndarray, sides: int, tol: float) -> np.ndarray:
+    """Per angle (deg): 1 - (r / ``tol``)^2 where its distance r to the nearest non-zero multiple
+    of 360/``sides`` is within ``tol``, else 0 (a turn fits by how precisely it lands)."""
     a = np.abs(angles) % 360.0
     p = 360.0 / sides
     k = np.round(a / p)
-    return (np.abs(a - k * p) <= tol) & (k % sides != 0)
+    r = np.abs(a - k * p)
+    return np.where((r <= tol) & (k % sides != 0), 1.0 - (r / tol) ** 2, 0.0)
+
+
+def _fits(angles: np.ndarray, sides: int, tol: float) -> np.ndarray:
+    """Which angles (deg) are within ``tol`` of a non-zero multiple of 360/``sides``."""
+    return _fit_weights(angles, sides, tol) > 0
 
 
 def room_period(angles: list[float], tol: float = TURN_TOL_DEG, max_sides: int = MAX_SIDES) -> int | None:
     """The number of sides N (2..``max_sides``) whose multiples of 360/N fit the turn angles
-    (deg) best: the most angles within ``tol`` of one, less the share a random angle would fit
-    (2 tol N / 360 of them: a larger N fits more by chance); ties to the smaller N. None when no
-    N fits three quarters of the angles."""
+    (deg) best: each angle within ``tol`` of one counts 1 - (r / tol)^2 by its distance r, less
+    what random angles would count (2 tol N / 360 of them fit, 2/3 on average: a larger N fits
+    more by chance); ties to the smaller N. The count by distance keeps a wrong N from fitting
+    every turn loosely: a 10-fold room's turns of 36.2-36.6 deg fit N = 21 (34.3 deg) within
+    3 deg as well as N = 10, and the poses turned by 21ths were then 2 deg off per period yet
+    verified at tau (independent studio seeds 919, 936). An N counts only when at least
+    TURN_MIN_FIT of the angles fit it and random angles would fit as many with a chance of at
+    most TURN_MAX_CHANCE (binomial tail); None when no N does."""
     a = np.asarray(angles, dtype=np.float64)
     best, best_score = None, -np.inf
     for n in range(2, max_sides + 1):
-        hits = int(_fits(a, n, tol).sum())
-        score = hits - len(a) * min(1.0, 2 * tol * n / 360.0)
-        if hits >= 0.75 * len(a) and hits and score > best_score + 1e-9:
+        w = _fit_weights(a, n, tol)
+        hits, p = int((w > 0).sum()), min(1.0, 2 * tol * n / 360.0)
+        score = float(w.sum()) - len(a) * p * 2.0 / 3.0
+        chance = sum(math.comb(len(a), k) * p**k * (1 - p) ** (len(a) - k) for k in range(hits, len(a) + 1))
+        if hits and hits >= TURN_MIN_FIT * len(a) and chance <= TURN_MAX_CHANCE and score > best_score + 1e-9:
             best, best_score = n, score
     return best
+
+
+def _outlier_pose(turns: list[RoomTurn], sides: int) -> tuple | None:
+    """(pair, pose index) of a pose that alone makes ``sides`` fit better than a divisor d of it:
+    every turn that fits ``sides`` but not d lies between that pose and another of its pair, two
+    other poses of that pair turn by a multiple of 360/d, and so do the turns of at least
+    MIN_OTHER_PAIRS other pairs. One wrong pose verified among a pair's aliases brings a turn to
+    each of them (independent studio seed 936, 10-sided: one pose 17.8 deg off among three
+    aliases gave 6 of 26 turns at odd multiples of 18 deg, four other pairs turned by 36-deg
+    multiples). A pair alone keeps its period (seed 501, 6-sided: one pair's three aliases 60 deg
+    apart, no other pair turned). None when there is no such pose."""
+    a = np.array([t.angle for t in turns])
+    fit = _fits(a, sides, TURN_TOL_DEG)
+    for d in sorted((d for d in range(2, sides) if sides % d == 0), reverse=True):
+        fit_d = _fits(a, d, TURN_TOL_DEG)
+        extra = [t for t, ok, ok_d in zip(turns, fit, fit_d) if ok and not ok_d]
+        if not extra or any(not t.poses for t in extra) or len({t.pair for t in extra}) > 1:
+            continue
+        pair = extra[0].pair
+        if len({t.pair for t, ok_d in zip(turns, fit_d) if ok_d and t.pair != pair}) < MIN_OTHER_PAIRS:
+            continue
+        for q in sorted(set.intersection(*(set(t.poses) for t in extra))):
+            if any(t.pair == pair and q not in t.poses and ok_d for t, ok_d in zip(turns, fit_d)):
+                return pair, q
+    return None
 
 
 def axis_points(turns: list[RoomTurn], poses: dict[tuple[int, int], list[np.ndarray]]) -> dict[int, tuple]:
@@ -531,6 +584,9 @@ def room_orbits(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, n
     time, since every turned pose must still pass the subject check and the depth checks."""
     turns = room_turns(poses, ups)
     sides = room_period([t.angle for t in turns])
+    while sides is not None and (out := _outlier_pose(turns, sides)) is not None:
+        turns = [t for t in turns if not (t.pair == out[0] and out[1] in t.poses)]
+        sides = room_period([t.angle for t in turns])
     if sides is None:
         return None
     fit = [t for t, ok in zip(turns, _fits(np.array([t.angle for t in turns]), sides, TURN_TOL_DEG)) if ok]

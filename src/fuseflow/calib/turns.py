@@ -14,12 +14,14 @@ subject in the middle, tells the turns apart. This module measures, for the fina
    their texture is not). The axis position maximises it (grid around where the cameras' optical
    axes meet, coarse for every N in 3..``MAX_SIDES``, finer for the four best and the backbone's
    period ``info["room"]["sides"]``, then graded to 2 mm for the chosen N). ``room_period``: the
-   backbone's period is the base when its share is at least ``SUB_PERIOD_SHARE`` of the best and
-   ``HINT_MIN_CONTRAST`` times the median over all N; else the room repeats when the best share
-   is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST`` times that median, and the best
-   period is the base. N is the largest multiple of the base with at least ``SUB_PERIOD_SHARE``
-   of the best share (a 12-fold room also repeats every 60 deg, and pairs that saw only 120-deg
-   aliases of a 6-fold room hint 3: the smallest turn is the one that matters). When no period
+   backbone's period, or its largest divisor, is the base when its share is at least
+   ``SUB_PERIOD_SHARE`` of the best and ``HINT_MIN_CONTRAST`` times the median over all N; else
+   the room repeats when the best share is at least ``ROOM_MIN_SHARE`` and ``ROOM_MIN_CONTRAST``
+   times that median, and the best period is the base. N is the largest multiple of the base
+   with at least ``SUB_PERIOD_SHARE`` of the best share (a 12-fold room also repeats every 60
+   deg, and pairs that saw only 120-deg aliases of a 6-fold room hint 3: the smallest turn is
+   the one that matters), or the backbone's period when it is a multiple of that landing at
+   least ``ROOM_MIN_CONTRAST`` times the median (the pairs saw its turns). When no period
    passes, the walls alone are searched again (``WALL_*``: floor and ceiling, which every turn
    keeps, lift every period's share and so the median).
 2. **the subject**: each camera's points within ``subject_radius`` of the axis, more than
@@ -266,22 +268,37 @@ def _axes_meet(T: Mapping[str, np.ndarray], B: np.ndarray) -> np.ndarray:
 def room_period(shares: Mapping[int, float], hint: int | None = None, min_share: float = ROOM_MIN_SHARE,
                 min_contrast: float = ROOM_MIN_CONTRAST, min_peak: float = 0.0) -> int | None:  # fmt: skip
     """The room's period from each period's landing share (module docstring, step 1), None when
-    the room does not repeat. The base period is the backbone's ``hint`` when its share is at least
-    SUB_PERIOD_SHARE of the best and HINT_MIN_CONTRAST times the median; else, when the best share
-    is at least ``min_share`` and ``min_contrast`` times the median (and ``min_peak`` times the
-    shares of its neighbouring periods N - 1 and N + 1: a round wall keeps every small turn), the
-    best period. The room's period is the largest multiple of the base with at least
-    SUB_PERIOD_SHARE of the best share (the smallest turn that keeps the room: pair aliases of 120
-    deg in a 6-sided room hint 3)."""
+    the room does not repeat. The base period is the backbone's ``hint``, or its largest divisor,
+    whose share is at least SUB_PERIOD_SHARE of the best and HINT_MIN_CONTRAST times the median
+    (the pairs' turns also fit multiples of the room's period: a 10-fold room's pairs said 20, or
+    more than MAX_SIDES); else, when the best share is at least ``min_share`` and ``min_contrast``
+    times the median (and ``min_peak`` times the shares of its neighbouring periods N - 1 and
+    N + 1: a round wall keeps every small turn), the best period. The room's period is the
+    largest multiple of the base with at least SUB_PERIOD_SHARE of the best share (the smallest
+    turn that keeps the room: pair aliases of 120 deg in a 6-sided room hint 3), or the hint
+    when it is a multiple of that with at least ROOM_MIN_CONTRAST times the median: the pairs
+    saw turns of that period, and a turn never weighed is what makes a camera silently wrong
+    (polyroom seed 9030, 8-sided: the 4-fold share 0.70, the 8-fold 0.51, the median 0.13)."""
     best, median = max(shares.values()), float(np.median(list(shares.values())))
     near = {k for k, v in shares.items() if v >= SUB_PERIOD_SHARE * best}
-    hinted = hint in near and shares[hint] >= HINT_MIN_CONTRAST * median
-    if best < min_share or (not hinted and best < min_contrast * median):
+    hinted = _hinted_base(shares, hint, near, median)
+    if best < min_share or (hinted is None and best < min_contrast * median):
         return None
-    base = hint if hinted else max(shares, key=lambda k: shares[k])
-    if not hinted and shares[base] < min_peak * max(shares.get(base - 1, 0.0), shares.get(base + 1, 0.0)):
+    base = hinted if hinted is not None else max(shares, key=lambda k: shares[k])
+    if hinted is None and shares[base] < min_peak * max(shares.get(base - 1, 0.0), shares.get(base + 1, 0.0)):
         return None
-    return max(k for k in near if k % base == 0)
+    n = max(k for k in near if k % base == 0)
+    if hint and hint > n and hint % n == 0 and shares.get(hint, 0.0) >= ROOM_MIN_CONTRAST * median:
+        return hint
+    return n
+
+
+def _hinted_base(shares: Mapping[int, float], hint: int | None, near: set, median: float) -> int | None:
+    """The hint or its largest divisor in ``near`` landing HINT_MIN_CONTRAST times the median."""
+    for d in range(hint or 0, 2, -1):
+        if hint % d == 0 and d in near and shares[d] >= HINT_MIN_CONTRAST * median:
+            return d
+    return None
 
 
 def _period(room_pts, P: np.ndarray, start: np.ndarray, hint: int | None, **limits):
