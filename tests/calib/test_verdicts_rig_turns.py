@@ -58,3 +58,27 @@ def test_one_turned_camera_leaves_the_rest_good():
     assert [v[c]["verdict"] for c in T] == ["good"] * 6 + ["check it"], v
     same = {c: _ev(m) for c, m in zip(T, (0,) * 7)}
     assert all(x["verdict"] == "good" for x in camera_verdicts(rep, T, list(T), same, ROOM).values())
+
+
+def test_a_turned_camera_turns_about_the_rooms_axis_as_found(scene5, backbone_builder, monkeypatch):
+    """The placement turns a camera the subject turns by whole periods about the room's axis as
+    ``turns.room_axis`` found it: no depth refinement moves the axis (it lets the turned cameras
+    slide along the room's planes; docs/gmac-trust.md, "Apply")."""
+    from fuseflow.calib import CalibConfig, calibrate, placement
+
+    frame, rig, T = scene5
+    last = rig.ids[-1]
+    room = RoomAxis(8, np.array([0.1, 0.2, 0.0]), np.array([0.0, 1.0, 0.0]), 0.8, 0.0)
+    seen = {}
+
+    def fake_turns(frames, rig_, T_, report):
+        seen.update(T_)
+        return room, {c: TurnEvidence(sides=8, turn=2 if c == last else 0, score=0.3, runner_up=0 if c == last else 1,
+                                      runner_up_score=0.1, margin=0.2, seen=5000, alternatives=6,
+                                      subject_radius_m=1.0) for c in T_}  # fmt: skip
+
+    monkeypatch.setattr(placement, "camera_turns", fake_turns)
+    monkeypatch.setattr(placement, "refine_turned", lambda *a: {last: np.eye(4)}, raising=False)  # an axis fit
+    cal = calibrate(frame, rig, CalibConfig(), backbone_result=backbone_builder(T, 3.7))
+    assert np.allclose(cal.T_cam_world[last], seen[last] @ invert_rigid(room.turn(2)))
+    assert cal.report.camera_verdicts[last]["turn"]["moved"] == 2
