@@ -38,7 +38,7 @@ from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.posegraph import anchor_world
 from fuseflow.calib.report import finish_report
 from fuseflow.calib.scale_stage import METRIC_SCALE_TOLERANCE, ScaleResult, placement_scale
-from fuseflow.calib.turns import camera_turns, refine_turned, settle_turns
+from fuseflow.calib.turns import camera_turns, settle_turns
 from fuseflow.calib.verdicts import (
     TURN_MIN_MARGIN,
     camera_verdicts,
@@ -171,8 +171,7 @@ def place_and_judge(
         report = finish_report(pl, ids, settings, config.closed_form, limit)
         room, turns = camera_turns(frames, rig, pl.T, report)  # a repeating room: the subject decides turns
         if room is not None:
-            refined = refine_turned(frames, rig, pl.T, room, turns, TURN_MIN_MARGIN)  # about the axis depth fits
-            pl.T, turns = settle_turns(pl.T, room, turns, TURN_MIN_MARGIN, refined)
+            pl.T, turns = settle_turns(pl.T, room, turns, TURN_MIN_MARGIN)  # about the room's axis
             if any(t.moved for t in turns.values()):
                 pl.agreement = depth_agreement(frames[0], rig, pl.T) if limit > 0 else {}
                 report = finish_report(pl, ids, settings, config.closed_form, limit)

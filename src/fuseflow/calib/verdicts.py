@@ -39,7 +39,9 @@ unchecked), expected accuracy beyond ``GOOD_DEG`` / ``GOOD_MM``), else "good" un
 repeats: then a whole-period turn about the room's axis keeps every cycle, the floor and the
 background, so only the subject can check the turn (``TurnEvidence`` from ``calib.turns``):
 "ambiguous" when its margin is below ``TURN_MIN_MARGIN`` or nothing of the subject is seen,
-"check it" when the subject prefers another turn, "good" otherwise; "ambiguous" too when the
+"check it" when the subject prefers another turn, "good" otherwise; "check it" when the subject
+turned other cameras and its position relative to most of them rests on the room's axis alone
+(``_across_turns``); "ambiguous" too when the
 backbone's pairs say the room repeats but ``calib.turns`` found no axis. This module is the one place
 that decides (docs/gmac-trust.md, "Verdict policy").
 """
@@ -388,8 +390,37 @@ def camera_verdicts(
             )
         elif room is None and stacked and entry["verdict"] == "good":  # a fold: the scene repeats
             entry["verdict"], entry["reason"] = "ambiguous", _folded(stacked)
+        entry["verdict"], entry["reason"] = _across_turns(c, turns, T, entry["verdict"], entry["reason"])
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
+
+
+def _across_turns(
+    c: str, turns: Mapping[str, TurnEvidence] | None, T: Mapping[str, np.ndarray], verdict: str, reason: str
+) -> tuple[str, str]:
+    """(verdict, reason) of camera ``c`` given its ``verdict`` and ``reason`` so far: "check it"
+    when it is "good" but its position is not checked against most of the rig. The subject
+    turned cameras by whole periods about the room's axis, known to ``TURN_AXIS_MM``: camera c's
+    position relative to a camera turned k periods more (or less) than c rests on that axis to
+    2 sin(k pi / sides) x ``TURN_AXIS_MM``; its cycles through that camera hold up to the turn
+    only. Not "good" when that is beyond ``GOOD_MM`` for more than half of the other placed cameras
+    (independent studio seed 933: 5 of 7 cameras turned by 90-180 deg, the 2 left 4.6-5.8 cm from
+    them and otherwise good)."""
+    turns = turns or {}
+    moved = {d: (turns[d].moved if d in turns else 0) for d in T}
+    if verdict != "good" or not any(moved.values()) or c not in turns:
+        return verdict, reason
+    sides = turns[c].sides
+    far = [
+        d for d in T if d != c and 2 * abs(math.sin(math.pi * (moved[d] - moved[c]) / sides)) * TURN_AXIS_MM > GOOD_MM
+    ]
+    if 2 * len(far) <= len(T) - 1:
+        return verdict, reason
+    return "check it", (
+        f"{len(far)} of the {len(T) - 1} other cameras were turned by the subject about the room's axis "
+        f"({', '.join(sorted(far))}), which is known to about {TURN_AXIS_MM:.0f} mm: its position relative to them "
+        "is checked up to that axis only (cycles and the floor hold for any axis); " + AMBIGUOUS_ACTION
+    )
 
 
 def _folded(stacked: Mapping[str, tuple[str, float]]) -> str:
