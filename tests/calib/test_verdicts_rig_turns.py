@@ -78,7 +78,20 @@ def test_a_turned_camera_turns_about_the_rooms_axis_as_found(scene5, backbone_bu
                                       subject_radius_m=1.0) for c in T_}  # fmt: skip
 
     monkeypatch.setattr(placement, "camera_turns", fake_turns)
-    monkeypatch.setattr(placement, "refine_turned", lambda *a: {last: np.eye(4)}, raising=False)  # an axis fit
     cal = calibrate(frame, rig, CalibConfig(), backbone_result=backbone_builder(T, 3.7))
     assert np.allclose(cal.T_cam_world[last], seen[last] @ invert_rigid(room.turn(2)))
     assert cal.report.camera_verdicts[last]["turn"]["moved"] == 2
+
+
+def test_aliased_pair_poses_without_a_room_axis_leave_no_camera_good():
+    """Two pairs whose verified pose the subject refutes say the room repeats (independent studio
+    seed 304: no pair showed a period, no axis was found, three cameras 45-90 deg off passed their
+    cycles and floor): then nothing checks a turn, so no camera is "good". One such pair is not
+    enough."""
+    rep, T = _report(5)
+    rep.backbone_info["pairs"][0]["candidates"] = [{"rejected": "subject seen through"}]
+    assert all(x["verdict"] == "good" for x in camera_verdicts(rep, T, list(T)).values())
+    rep.backbone_info["pairs"][1]["candidates"] = [{"rejected": "subject seen through"}]
+    v = camera_verdicts(rep, T, list(T))
+    assert all(x["verdict"] == "ambiguous" for x in v.values()), v
+    assert "verified pair poses alias" in v["c0"]["reason"]

@@ -40,7 +40,7 @@ import numpy as np
 from fuseflow.calib.backbones import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.posegraph import anchor_world
-from fuseflow.calib.verdicts import drop_unconfirmed
+from fuseflow.calib.verdicts import drop_unconfirmed, room_aliases
 from fuseflow.geometry import depth_agreement, rigid_align
 from fuseflow.types import Frame, Rig, invert_rigid
 
@@ -105,7 +105,7 @@ def _repeating(pl: Placement) -> dict[str, str]:
     from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS  # loads the rgbd route (torch): not at import
 
     jc = pl.bb.info.get("joint_choice") or {}
-    seen_through, refuted = _aliases(pl)
+    seen_through, refuted = room_aliases(pl.bb.info)
     if jc.get("ambiguous") or refuted >= ALIASED_PAIRS or seen_through >= ALIASED_PAIRS:
         room = (
             f"the room repeats ({seen_through} pairs had verified poses that the subject refutes, "
@@ -115,22 +115,12 @@ def _repeating(pl: Placement) -> dict[str, str]:
     return {}
 
 
-def _aliases(pl: Placement) -> tuple[int, int]:
-    """(pairs with a verified pose the subject check rejected, pairs with one the joint choice
-    refutes) of the rgbd source: its evidence that the room repeats."""
-    seen_through = sum(
-        any(c.get("rejected") == "subject seen through" for c in p.get("candidates", []))
-        for p in pl.bb.info.get("pairs", [])
-    )
-    return seen_through, int((pl.bb.info.get("joint_choice") or {}).get("refuted_pairs", 0))
-
-
 def _cycle_checked(runs: dict[str, Placement]) -> set[str]:
     """The rgbd source's placed cameras that a cycle of its pair poses checks, where it saw a pair
-    alias (``_aliases``): no other source overrides them there (a depth-agreement comparison
+    alias (``verdicts.room_aliases``): no other source overrides them there (a depth-agreement comparison
     prefers an alias in a repeating room). Elsewhere none: agreement is a fair judge (hocap-8rs:
     COLMAP's pose of one checked camera agreed better)."""
-    if "rgbd" not in runs or not any(_aliases(runs["rgbd"])):
+    if "rgbd" not in runs or not any(room_aliases(runs["rgbd"].bb.info)):
         return set()
     cams = runs["rgbd"].bb.info.get("cameras", {})
     return {c for c, v in cams.items() if c in runs["rgbd"].T and v.get("placed") and v.get("cycle_checked")}

@@ -64,7 +64,6 @@ __all__ = [
     "room_period",
     "camera_turns",
     "settle_turns",
-    "refine_turned",
     "stacking",
     "joint_turns",
     "MAX_SIDES",
@@ -533,44 +532,15 @@ def _turn_pose(T: np.ndarray, room: RoomAxis, e: TurnEvidence, min_margin: float
     return T @ invert_rigid(room.turn(e.turn))
 
 
-def refine_turned(frames, rig: Rig, T: Mapping[str, np.ndarray], room: RoomAxis,
-                  evidence: Mapping[str, TurnEvidence], min_margin: float) -> dict[str, np.ndarray]:  # fmt: skip
-    """Camera -> its pose after its turn about the room's axis, the axis moved to where the turned
-    cameras fit their neighbours' depth; {} when no camera turns. The room's cloud finds the axis
-    to a few cm, and a camera turned by 150 deg lands up to twice that off. The turned cameras are
-    refined on the dense depth of ``frames`` with every other camera held
-    (:func:`fuseflow.calib.joint_refine.joint_refine`, ``only``: no keypoint track enters, the
-    tracks are the aliased matches the turn left behind); a turn about an axis moved by delta moves
-    a camera's centre by (I - R) delta, so delta is the least-squares fit of the refined centres
-    (the shared axis, not each camera's slide along its planes). The turns about the room's axis
-    when the refinement fits the depth worse."""
-    from fuseflow.calib.joint_refine import joint_refine
-
-    plain = {c: P for c, e in evidence.items() if c in T and (P := _turn_pose(T[c], room, e, min_margin)) is not None}
-    if not plain:
-        return {}
-    turned = {c: evidence[c].turn for c in plain}
-    res = joint_refine({**T, **plain}, frames if not isinstance(frames, Frame) else [frames], rig, only=set(turned))
-    if not res.accepted:
-        return plain
-    A = np.concatenate([np.eye(3) - room.turn(k)[:3, :3] for k in turned.values()])
-    b = np.concatenate([invert_rigid(res.T_cam_world[c])[:3, 3] - invert_rigid(plain[c])[:3, 3] for c in turned])
-    delta = np.linalg.lstsq(A, b, rcond=None)[0]
-    moved = replace(room, point=room.point + delta - (delta @ room.up) * room.up)
-    return {c: T[c] @ invert_rigid(moved.turn(k)) for c, k in turned.items()}
-
-
 def settle_turns(T: Mapping[str, np.ndarray], room: RoomAxis, evidence: Mapping[str, TurnEvidence],
-                 min_margin: float, settled: Mapping[str, np.ndarray] | None = None,
-                 ) -> tuple[dict[str, np.ndarray], dict[str, TurnEvidence]]:  # fmt: skip
+                 min_margin: float) -> tuple[dict[str, np.ndarray], dict[str, TurnEvidence]]:  # fmt: skip
     """Cameras whose chosen turn is not 0 with a margin of at least ``min_margin`` turned by it
-    about the room's axis (the background keeps agreeing, the subject then agrees too), at the
-    pose ``settled`` holds for them when it does (:func:`refine_turned`); their evidence
-    then reads turn 0 with ``moved`` set to the turn applied. Others unchanged."""
+    about the room's axis (the background keeps agreeing, the subject then agrees too); their
+    evidence then reads turn 0 with ``moved`` set to the turn applied. Others unchanged."""
     T_out, ev_out = dict(T), dict(evidence)
     for c, e in evidence.items():
         if (P := _turn_pose(T[c], room, e, min_margin)) is not None:
-            T_out[c] = (settled or {}).get(c, P)
+            T_out[c] = P
             ev_out[c] = replace(e, turn=0, moved=e.turn,
                                 runner_up=None if e.runner_up is None else e.runner_up - e.turn)  # fmt: skip
     return T_out, ev_out

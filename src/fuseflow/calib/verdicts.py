@@ -42,7 +42,8 @@ background, so only the subject can check the turn (``TurnEvidence`` from ``cali
 "check it" when the subject prefers another turn, "good" otherwise; "check it" when the subject
 turned other cameras and its position relative to most of them rests on the room's axis alone
 (``_across_turns``); "ambiguous" too when the
-backbone's pairs say the room repeats but ``calib.turns`` found no axis. This module is the one place
+backbone's pairs say the room repeats (a period, or at least ``ALIASED_PAIRS`` pairs with verified
+poses that alias, ``room_aliases``) but ``calib.turns`` found no axis. This module is the one place
 that decides (docs/gmac-trust.md, "Verdict policy").
 """
 
@@ -164,6 +165,28 @@ def _rgbd_info(report) -> dict[str, Any] | None:
         return info
     src = info.get("sources", {}).get("rgbd") if isinstance(info.get("sources"), dict) else None
     return src if src and "pairs" in src else None
+
+
+def room_aliases(info: Mapping[str, Any] | None) -> tuple[int, int]:
+    """The rgbd backbone's evidence that the room repeats: (pairs with a verified pose whose
+    subject the other camera sees through, ``symmetry.subject_free_space``; pairs with a
+    verified pose its consistent solution refutes, ``backbones.rgbd.choice``)."""
+    info = info or {}
+    seen_through = sum(
+        any(c.get("rejected") == "subject seen through" for c in p.get("candidates", [])) for p in info.get("pairs", [])
+    )
+    return seen_through, int((info.get("joint_choice") or {}).get("refuted_pairs", 0))
+
+
+def _repeats(info: Mapping[str, Any] | None) -> int:
+    """The room period the rgbd backbone's pairs read (sides), -1 when they only saw that the
+    room repeats (``room_aliases``: at least ``ALIASED_PAIRS`` of either kind), 0 otherwise."""
+    from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS  # loads the rgbd route (torch): not at import
+
+    sides = int(((info or {}).get("room") or {}).get("sides") or 0)
+    if sides or not info:
+        return sides
+    return -1 if max(room_aliases(info)) >= ALIASED_PAIRS else 0
 
 
 def _rgbd_edges(info: Mapping[str, Any]) -> dict[tuple[str, str], tuple[np.ndarray, str]]:
@@ -340,7 +363,7 @@ def camera_verdicts(
     edges = _rgbd_edges(info) if info else {}
     floor = _floor_check(info, T)
     stacked = _stacked(T)
-    backbone_room = int(((info or {}).get("room") or {}).get("sides") or 0)
+    backbone_room = _repeats(info)
     limit = float(min_agreement)
     out = {}
     for c in ids:
@@ -384,8 +407,14 @@ def camera_verdicts(
             entry["verdict"], entry["reason"] = (
                 "ambiguous",
                 (
-                    f"the backbone's pairs say the room repeats (every {360.0 / backbone_room:.0f} deg) but its axis "
-                    "was not found in the calibrated cloud, so nothing checks its turn; " + AMBIGUOUS_ACTION
+                    "the backbone's pairs say the room repeats"
+                    + (
+                        f" (every {360.0 / backbone_room:.0f} deg)"
+                        if backbone_room > 0
+                        else " (verified pair poses alias)"
+                    )
+                    + " but its axis was not found in the calibrated cloud, so nothing checks its turn; "
+                    + AMBIGUOUS_ACTION
                 ),
             )
         elif room is None and stacked and entry["verdict"] == "good":  # a fold: the scene repeats
