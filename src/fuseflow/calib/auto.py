@@ -40,7 +40,7 @@ import numpy as np
 from fuseflow.calib.backbones import BackboneResult
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.posegraph import anchor_world
-from fuseflow.calib.verdicts import drop_unconfirmed, room_aliases
+from fuseflow.calib.verdicts import ALIASED_PAIRS, drop_unconfirmed, room_aliases
 from fuseflow.geometry import depth_agreement, rigid_align
 from fuseflow.types import Frame, Rig, invert_rigid
 
@@ -102,8 +102,6 @@ def _repeating(pl: Placement) -> dict[str, str]:
     image matching aliases in such a room as badly (one repeating studio: COLMAP put 4 of 7
     cameras 45-90 deg off and took 170 s; another, 1 of 7, 94 deg off), and a camera left
     unplaced with its reason is better than one placed wrong."""
-    from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS  # loads the rgbd route (torch): not at import
-
     jc = pl.bb.info.get("joint_choice") or {}
     seen_through, refuted = room_aliases(pl.bb.info)
     if jc.get("ambiguous") or refuted >= ALIASED_PAIRS or seen_through >= ALIASED_PAIRS:

@@ -104,6 +104,12 @@ FALLBACK_ALONE = (
     "(in a repeating room image matching folds cameras onto each other); calibrate with the rgbd or auto "
     "backbone, record more frames, or check it by eye"
 )
+#: With at least this many pairs whose verified poses alias (the subject sees through one, or the
+#: rgbd backbone's consistent solution refutes one), the room repeats: the backbone leaves every
+#: camera outside its solution's main cycle-checked group ambiguous (``symmetry.main_block``;
+#: its geometry-only route places none of them), ``auto`` runs no other source, and with no room
+#: axis found no camera is "good".
+ALIASED_PAIRS = 2
 #: What a user can do about an ambiguous room turn.
 AMBIGUOUS_ACTION = "put a person or one asymmetric object in the middle, or record a few frames of them moving"
 #: How well a repeating room's axis is known (mm). A camera the subject turned by an angle a about
@@ -181,8 +187,6 @@ def room_aliases(info: Mapping[str, Any] | None) -> tuple[int, int]:
 def _repeats(info: Mapping[str, Any] | None) -> int:
     """The room period the rgbd backbone's pairs read (sides), -1 when they only saw that the
     room repeats (``room_aliases``: at least ``ALIASED_PAIRS`` of either kind), 0 otherwise."""
-    from fuseflow.calib.backbones.rgbd import ALIASED_PAIRS  # loads the rgbd route (torch): not at import
-
     sides = int(((info or {}).get("room") or {}).get("sides") or 0)
     if sides or not info:
         return sides
@@ -404,19 +408,7 @@ def camera_verdicts(
         if room is not None and entry["verdict"] == "good":
             entry["verdict"], entry["reason"] = _judge_turn(turn, room.sides, entry["reason"])
         elif room is None and backbone_room and entry["verdict"] == "good":
-            entry["verdict"], entry["reason"] = (
-                "ambiguous",
-                (
-                    "the backbone's pairs say the room repeats"
-                    + (
-                        f" (every {360.0 / backbone_room:.0f} deg)"
-                        if backbone_room > 0
-                        else " (verified pair poses alias)"
-                    )
-                    + " but its axis was not found in the calibrated cloud, so nothing checks its turn; "
-                    + AMBIGUOUS_ACTION
-                ),
-            )
+            entry["verdict"], entry["reason"] = "ambiguous", _no_axis(backbone_room)
         elif room is None and stacked and entry["verdict"] == "good":  # a fold: the scene repeats
             entry["verdict"], entry["reason"] = "ambiguous", _folded(stacked)
         entry["verdict"], entry["reason"] = _across_turns(c, turns, T, entry["verdict"], entry["reason"])
@@ -449,6 +441,16 @@ def _across_turns(
         f"{len(far)} of the {len(T) - 1} other cameras were turned by the subject about the room's axis "
         f"({', '.join(sorted(far))}), which is known to about {TURN_AXIS_MM:.0f} mm: its position relative to them "
         "is checked up to that axis only (cycles and the floor hold for any axis); " + AMBIGUOUS_ACTION
+    )
+
+
+def _no_axis(backbone_room: int) -> str:
+    """Why a camera is "ambiguous" when the backbone's pairs say the room repeats (``_repeats``)
+    and no room axis was found."""
+    how = f"every {360.0 / backbone_room:.0f} deg" if backbone_room > 0 else "verified pair poses alias"
+    return (
+        f"the backbone's pairs say the room repeats ({how}) but its axis was not found in the calibrated "
+        "cloud, so nothing checks its turn; " + AMBIGUOUS_ACTION
     )
 
 

@@ -21,6 +21,7 @@ from fuseflow.calib.symmetry import (
     select_consistent,
     subject_free_space,
 )
+from fuseflow.calib.verdicts import ALIASED_PAIRS
 from fuseflow.geometry import project_votes
 from fuseflow.types import invert_rigid
 
@@ -47,12 +48,6 @@ SUBJECT_RADIUS_M = 1.0
 #: A lone camera (``joint_choice``) whose chosen pose beats each rival pose by at least this much
 #: ``_views_agreement`` with the other cameras is not ambiguous.
 AMBIGUITY_MARGIN = 0.05
-
-
-#: With at least this many pairs whose verified poses include one the chosen solution refutes,
-#: the room repeats: every camera outside the solution's main cycle-checked group
-#: (``symmetry.main_block``) is ambiguous, and the geometry-only route places none of them.
-ALIASED_PAIRS = 2
 
 
 def joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str], cfg: RGBDConfig):
