@@ -203,7 +203,7 @@ class CaptureNode:
 
     def frame_at(self, stamp: float, tolerance: float, codec: str | None = None, shared: bool = False) -> Any:
         """The kept frame whose stamp is nearest ``stamp`` (node clock), if within ``tolerance``
-        seconds, encoded with ``codec`` (``wire_codec``: raw, lz4, jpeg or png; None: the node's own);
+        seconds, encoded with ``codec`` (``wire_codec``: raw, raw16, lz4, jpeg or png; None: the node's own);
         None otherwise. Every node is asked for the same instant, so that the frames a slow node
         encodes are the ones the others encode too.
 
