@@ -181,6 +181,16 @@
     }
     return [nb, up];
   }
+  function geometryResult(xs, ys, zs, rref, occParts, m, overrun) {
+    // [xs, ys, zs, rref, the occupancy bytes of every depth in order] once the leaves are the
+    // header's m points and the stream was not read past its end
+    if (xs.length !== m || overrun)
+      throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
+    const occ = new Uint8Array(occParts.reduce((a, o) => a + o.length, 0));
+    let o = 0;
+    for (const part of occParts) { occ.set(part, o); o += part.length; }
+    return [xs, ys, zs, rref, occ];
+  }
   function geometry(bytes, levels, m, ref) {
     // the range decoder inlined (one decision site, a small state machine per node): the state in
     // local variables, not an array, is what makes this loop fast. ref: the reference octree of a
@@ -241,12 +251,7 @@
       xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t); rref = rnext.subarray(0, t);
       pbyte = cbyte; pstart = cstart; pup = up;
     }
-    if (xs.length !== m || pos > nbytes)
-      throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
-    const occ = new Uint8Array(occParts.reduce((a, o) => a + o.length, 0));
-    let o = 0;
-    for (const part of occParts) { occ.set(part, o); o += part.length; }
-    return [xs, ys, zs, rref, occ];
+    return geometryResult(xs, ys, zs, rref, occParts, m, pos > nbytes);
   }
   // ---- version 7: the geometry as one symbol per node (codec_kernels.decode_geometry_symbols) ----
   // the node's occupancy byte in the canonical frame of its face-neighbour pattern (the cube's 48
@@ -333,12 +338,7 @@
       xs = nx.subarray(0, t); ys = ny.subarray(0, t); zs = nz.subarray(0, t);
       pbyte = cbyte; pstart = cstart; pup = up;
     }
-    if (xs.length !== m || pos > nbytes)
-      throw new Error("live frame: the geometry stream gives " + xs.length + " points, the header says " + m);
-    const occ = new Uint8Array(occParts.reduce((a, o) => a + o.length, 0));
-    let o = 0;
-    for (const part of occParts) { occ.set(part, o); o += part.length; }
-    return [xs, ys, zs, new Int32Array(m).fill(-1), occ];
+    return geometryResult(xs, ys, zs, new Int32Array(m).fill(-1), occParts, m, pos > nbytes);
   }
   const size = (r) => (r === 0 ? 0 : r === 1 || r === -1 ? 1 : 2);
   function colours(bytes, m, ls, cs, blk, rleaf, rq, adaptive) {
