@@ -235,7 +235,7 @@ class RaySource:
                 else "same machine" if info.get("ip") == ip else "network")  # fmt: skip
         codec = self.options.frame_codec
         if codec == "auto":
-            return link, {"same Ray node": "raw", "same machine": "raw"}.get(link)
+            return link, None if link == "network" else "raw"  # None: the node's own codec
         return link, codec
 
     def _add(self, handle: Any, info: dict) -> _Node:
