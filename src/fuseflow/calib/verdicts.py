@@ -400,9 +400,9 @@ def camera_verdicts(
         turn = (turns or {}).get(c)
         entry["turn"] = None if turn is None else turn.to_json()
         if turn is not None and turn.moved:  # turned about an axis known to TURN_AXIS_MM
-            lever = 2.0 * abs(math.sin(math.pi * turn.moved / turn.sides))
-            if (entry["accuracy_mm"] or 0.0) < lever * TURN_AXIS_MM:
-                entry["accuracy_mm"] = round(lever * TURN_AXIS_MM, 1)
+            axis_mm = _axis_mm(turn.moved, turn.sides)
+            if (entry["accuracy_mm"] or 0.0) < axis_mm:
+                entry["accuracy_mm"] = round(axis_mm, 1)
                 entry["accuracy_from"] = f"its turn by {turn.moved * 360.0 / turn.sides:+.0f} deg about the room's axis"
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
         if room is not None and entry["verdict"] == "good":
@@ -414,6 +414,12 @@ def camera_verdicts(
         entry["verdict"], entry["reason"] = _across_turns(c, turns, T, entry["verdict"], entry["reason"])
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
+
+
+def _axis_mm(k: int, sides: int) -> float:
+    """How far (mm) a turn by k periods of a room with ``sides`` moves a point when the room's
+    axis is ``TURN_AXIS_MM`` off: 2 sin(k pi / sides) times it."""
+    return 2.0 * abs(math.sin(math.pi * k / sides)) * TURN_AXIS_MM
 
 
 def _across_turns(
@@ -432,9 +438,7 @@ def _across_turns(
     if verdict != "good" or not any(moved.values()) or c not in turns:
         return verdict, reason
     sides = turns[c].sides
-    far = [
-        d for d in T if d != c and 2 * abs(math.sin(math.pi * (moved[d] - moved[c]) / sides)) * TURN_AXIS_MM > GOOD_MM
-    ]
+    far = [d for d in T if d != c and _axis_mm(moved[d] - moved[c], sides) > GOOD_MM]
     if 2 * len(far) <= len(T) - 1:
         return verdict, reason
     return "check it", (
