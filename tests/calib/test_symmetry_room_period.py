@@ -41,6 +41,14 @@ def test_the_period_fits_the_turns_precisely_not_every_turn_loosely():
     assert room_period(seen) == 12
 
 
+def test_no_period_above_what_the_cloud_can_confirm_fits_a_wrong_pose_loosely():
+    # independent studio seed 1118 (8-sided): one pair's two poses 45.9 deg apart and a wrong pose
+    # of another pair 34.2 deg from its alias; 23 sides (15.7 deg) fit all four within 3 deg
+    assert room_period([-34.2, 34.2, 45.9, 45.9]) is None
+    assert room_period([45.9, 45.9]) == 8
+    assert room_period([22.6, 45.1, -22.4]) == 16  # the finest period still considered
+
+
 def test_random_turns_give_no_period_even_when_half_of_them_fit_one():
     # 20 sides fit three of these five within 3 deg, as random angles do with a chance of 0.21
     assert room_period([17.0, 53.0, 101.0, 163.0, 29.0]) is None

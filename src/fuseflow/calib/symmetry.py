@@ -371,8 +371,13 @@ TURN_AXIS_DEG = 5.0
 TURN_PITCH_M = 0.1
 #: A room turn's angle is within this (deg) of a multiple of the period (``room_period``).
 TURN_TOL_DEG = 3.0
-#: The most sides ``room_period`` considers (a period of 15 deg).
-MAX_SIDES = 24
+#: The most sides ``room_period`` considers (a period of 22.5 deg), as many as the calibrated
+#: cloud's room search (``turns.MAX_SIDES``) can confirm. A larger N fits loose turns by chance:
+#: on an 8-sided independent studio (seed 1118) one pair's two verified poses turned by 45.9 deg
+#: and a wrong pose of another pair by 34.2 deg; N = 23 fitted all four within 3 deg, the
+#: pairs' room took it over the 8 of the verified poses, and every turned pose was 2 deg per
+#: period off yet verified at tau.
+MAX_SIDES = 16
 #: A period fits when at least this share of the turns lands near its multiples: the rest are
 #: turns to wrong poses that passed verification (independent studio seed 936, 10-sided: 14 of
 #: 26 turns at multiples of 36 deg, the others to four poses 4-18 deg off the orbit).
