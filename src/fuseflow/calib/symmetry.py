@@ -73,6 +73,10 @@ __all__ = [
     "axis_points",
     "turn_about",
     "room_orbits",
+    "ViewRoom",
+    "view_room",
+    "views_room",
+    "carry_axes",
 ]
 
 
@@ -522,20 +526,8 @@ def axis_points(turns: list[RoomTurn], poses: dict[tuple[int, int], list[np.ndar
     own: dict[int, list[RoomTurn]] = {}
     for t in turns:
         own.setdefault(t.camera, []).append(t)
-    out = {c: (ts[0].up, np.median([t.point for t in ts], axis=0)) for c, ts in own.items()}
-    queue = sorted(out, key=lambda c: (-len(own[c]), c))
-    while queue:
-        c = queue.pop(0)
-        up, p = out[c]
-        for (i, j), Ts in sorted(poses.items()):
-            other = j if c == i else i
-            if c not in (i, j) or not len(Ts) or other in out:
-                continue
-            T = np.asarray(Ts[0], np.float64) if c == i else invert_rigid(np.asarray(Ts[0], np.float64))
-            u2, q = T[:3, :3] @ up, T[:3, :3] @ p + T[:3, 3]
-            out[other] = (u2, q - (q @ u2) * u2)
-            queue.append(other)
-    return out
+    axes = {c: (ts[0].up, np.median([t.point for t in ts], axis=0)) for c, ts in own.items()}
+    return carry_axes({c: axes[c] for c in sorted(axes, key=lambda c: (-len(own[c]), c))}, poses)
 
 
 def turn_about(up: np.ndarray, point: np.ndarray, angle_deg: float) -> np.ndarray:
@@ -553,12 +545,14 @@ def turn_about(up: np.ndarray, point: np.ndarray, angle_deg: float) -> np.ndarra
 class RoomOrbits:
     """A repeating room seen through the pairs' verified poses (section 5): ``sides`` its period
     (360/sides deg), ``axes`` camera -> (up, point) of its axis in that camera's frame, ``turns``
-    and ``pairs`` how many room turns, from how many pairs, fitted them."""
+    and ``pairs`` how many room turns, from how many pairs, fitted them; ``views`` how many
+    cameras' own views showed it (section 6, ``views_room``), 0 when the pairs did."""
 
     sides: int
     axes: dict
     turns: int
     pairs: int
+    views: int = 0
 
     def members(self, i: int, T_ji: np.ndarray, known: list[np.ndarray], rot_deg: float = 5.0,
                 trans_m: float = 0.2) -> list[tuple[float, np.ndarray]]:  # fmt: skip
@@ -578,7 +572,8 @@ class RoomOrbits:
         return out
 
     def info(self) -> dict:
-        return {"sides": self.sides, "turns": self.turns, "pairs": self.pairs, "cameras_with_axis": len(self.axes)}
+        out = {"sides": self.sides, "turns": self.turns, "pairs": self.pairs, "cameras_with_axis": len(self.axes)}
+        return {**out, "views": self.views} if self.views else out
 
 
 def room_orbits(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, np.ndarray | None]) -> RoomOrbits | None:
@@ -599,3 +594,183 @@ def room_orbits(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, n
     if not pairs:
         return None
     return RoomOrbits(sides, axis_points(fit, poses), len(fit), len(pairs))
+
+
+# ----------------------------------------------------------------------------- a room in one view
+#
+# 6. ``view_room``: where every pair's verified poses are mutually consistent aliases (cameras
+#    mounted near whole periods of the room: every pose stacks one camera on the other, or turns
+#    it by the same number of periods around every cycle) no pair shows a room turn, and
+#    ``room_orbits`` finds nothing. One camera's own view shows the repeat: its wall points
+#    (VIEW_BAND_M above the floor and below the top), turned by 360/N deg about the right
+#    vertical axis, land on its own points of the same colour. The axis is searched on a grid
+#    (VIEW_STEP_M) along the camera's look on the floor, VIEW_NEAR_M to VIEW_FAR_M out and
+#    VIEW_ACROSS_M to each side (a studio's cameras look at its middle), for every N in
+#    3..MAX_SIDES; points within VIEW_SUBJECT_M of the axis (the subject) do not count. The
+#    period is the best N when its share is at least VIEW_MIN_SHARE, VIEW_MIN_CONTRAST times the
+#    median over N and VIEW_MIN_PEAK times N - 1's and N + 1's (a round wall keeps every small
+#    turn), then its largest multiple with at least VIEW_SUB_SHARE of the best share (a 12-sided
+#    room also repeats every 60 deg); the axis is then graded to 5 mm. ``views_room`` takes a
+#    room only when VIEW_MIN_CAMERAS cameras read the same N. Measured on independently
+#    rendered studios at 320x240 (seeds 1107, 10-sided, and 1123, 6-sided): every one of 12
+#    cameras read its room's N, share 0.22-0.43 at 2.0-3.3 times the median and 1.4-3.0 times
+#    its neighbours, the axis within 1-6 cm of the truth on the 10 cm grid.
+
+#: A turned wall point lands when within this (metres) of a point of the view of similar colour.
+VIEW_TOL_M = 0.05
+#: ... whose colour (each view's colours scaled to a mean of 128) is within this (8-bit levels).
+VIEW_COLOUR_TOL = 30.0
+#: Wall points: this far (metres) above the floor and below the highest points.
+VIEW_BAND_M = 0.25
+#: Points this close (metres, horizontally) to the axis are the subject, not the room.
+VIEW_SUBJECT_M = 1.2
+#: The axis grid: along the camera's look on the floor from VIEW_NEAR_M to VIEW_FAR_M, VIEW_ACROSS_M
+#: to each side, every VIEW_STEP_M (metres).
+VIEW_NEAR_M, VIEW_FAR_M, VIEW_ACROSS_M, VIEW_STEP_M = 1.5, 4.5, 0.8, 0.1
+#: Wall points sampled per view (fixed seed).
+VIEW_POINTS = 400
+#: A view's period: share, contrast to the median over N, peak over N - 1 and N + 1.
+VIEW_MIN_SHARE, VIEW_MIN_CONTRAST, VIEW_MIN_PEAK = 0.15, 1.8, 1.3
+#: A multiple of the best period landing at least this share of the best's is the period.
+VIEW_SUB_SHARE = 0.75
+#: Cameras that must read the same period (``views_room``); the search stops after
+#: VIEW_MAX_TRIES views without that many agreeing.
+VIEW_MIN_CAMERAS, VIEW_MAX_TRIES = 2, 4
+
+
+@dataclass(frozen=True)
+class ViewRoom:
+    """The room one view shows: ``sides``, its axis (``up`` and ``point`` on it, the view's frame,
+    metres), ``share`` of turned wall points that land, ``contrast`` to the median over N."""
+
+    sides: int
+    up: np.ndarray
+    point: np.ndarray
+    share: float
+    contrast: float
+
+
+def _view_shares(tree, cols, P: np.ndarray, PC: np.ndarray, centres: np.ndarray, sides: int,
+                 graded: bool = False) -> np.ndarray:  # fmt: skip
+    """Per centre (C, 2): the share of wall points P (x, y, height) turned by 360/sides about the
+    vertical through it that land on the view (``graded``: by 1 - distance / VIEW_TOL_M), points
+    within VIEW_SUBJECT_M of it left out."""
+    a = 2 * math.pi / sides
+    R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    q = np.empty((len(centres), len(P), 3))
+    q[:, :, :2] = (P[:, :2] @ R.T)[None] + (centres - centres @ R.T)[:, None]
+    q[:, :, 2] = P[None, :, 2]
+    d, j = tree.query(q.reshape(-1, 3), distance_upper_bound=VIEW_TOL_M)
+    hit = np.isfinite(d)
+    same = np.zeros(len(d))
+    same[hit] = np.abs(cols[j[hit]] - np.tile(PC, (len(centres), 1))[hit]).mean(axis=1) < VIEW_COLOUR_TOL
+    if graded:
+        same[hit] *= 1.0 - d[hit] / VIEW_TOL_M
+    far = np.linalg.norm(P[None, :, :2] - centres[:, None], axis=2) > VIEW_SUBJECT_M
+    return (same.reshape(len(centres), -1) * far).sum(axis=1) / np.maximum(far.sum(axis=1), 1)
+
+
+def _view_period(best: dict[int, tuple[float, np.ndarray]]) -> int | None:
+    """The period from each N's best share (section 6), or None."""
+    shares = {n: s for n, (s, _) in best.items()}
+    top = max(shares, key=lambda n: shares[n])
+    median = float(np.median(list(shares.values())))
+    nb = max(shares.get(top - 1, 0.0), shares.get(top + 1, 0.0))
+    if shares[top] < VIEW_MIN_SHARE or shares[top] < VIEW_MIN_CONTRAST * median or shares[top] < VIEW_MIN_PEAK * nb:
+        return None
+    return max(n for n in shares if n % top == 0 and shares[n] >= VIEW_SUB_SHARE * shares[top])
+
+
+def view_room(X: np.ndarray, rgb: np.ndarray, up: np.ndarray, sides: int | None = None,
+              seed: int = 0) -> ViewRoom | None:  # fmt: skip
+    """The repeating room one view shows (section 6), or None. ``X`` (P, 3) the view's points in
+    its frame (metres, camera looking along +z), ``rgb`` (P, 3) their colours scaled to a mean of
+    128, ``up`` its floor normal; ``sides``: only that period is tried (its share at least
+    VIEW_MIN_SHARE)."""
+    from scipy.spatial import cKDTree
+
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    e1 = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    B = np.stack([e1, np.cross(up, e1), up])
+    cl = np.asarray(X, np.float64) @ B.T
+    look = B[:2, 2]
+    if len(cl) < 500 or np.linalg.norm(look) < 0.5:
+        return None
+    look = look / np.linalg.norm(look)
+    h = cl[:, 2]
+    low = h[h < np.percentile(h, 1) + 0.5]
+    hist, edges = np.histogram(low, bins=max(int((low.max() - low.min()) / 0.01), 1))
+    floor = float(edges[np.argmax(hist)] + 0.005)
+    band = np.flatnonzero((h > floor + VIEW_BAND_M) & (h < np.percentile(h, 99.5) - VIEW_BAND_M))
+    if len(band) < 200:
+        return None
+    pick = np.random.default_rng(seed).choice(band, min(len(band), VIEW_POINTS), replace=False)
+    tree, cols, P, PC = cKDTree(cl), np.asarray(rgb, np.float64), cl[pick], np.asarray(rgb, np.float64)[pick]
+    side = np.array([-look[1], look[0]])
+    across = np.arange(-VIEW_ACROSS_M, VIEW_ACROSS_M + 1e-9, VIEW_STEP_M)
+    centres = np.array([a * look + b * side for a in np.arange(VIEW_NEAR_M, VIEW_FAR_M + 1e-9, VIEW_STEP_M)
+                        for b in across])  # fmt: skip
+    best = {}
+    for n in [sides] if sides else range(3, MAX_SIDES + 1):
+        s = _view_shares(tree, cols, P, PC, centres, n)
+        best[n] = (float(s.max()), centres[int(np.argmax(s))])
+    n = (sides if best[sides][0] >= VIEW_MIN_SHARE else None) if sides else _view_period(best)
+    if n is None:
+        return None
+    c = best[n][1]
+    for half, step in ((VIEW_STEP_M, 0.025), (0.025, 0.005)):
+        g = np.arange(-half, half + 1e-9, step)
+        grid = c + np.array([[x, y] for x in g for y in g])
+        c = grid[int(np.argmax(_view_shares(tree, cols, P, PC, grid, n, graded=True)))]
+    median = float(np.median([s for s, _ in best.values()])) if not sides else float("nan")
+    return ViewRoom(n, up, B.T @ np.array([c[0], c[1], floor]), best[n][0], best[n][0] / max(median, 1e-9))
+
+
+def carry_axes(own: dict[int, tuple], poses: dict[tuple[int, int], list[np.ndarray]]) -> dict[int, tuple]:
+    """Camera -> (up, point) of the room's axis: ``own`` (the cameras that have one), carried to
+    the others through the first verified pose of their pair (every pose of the orbit maps the
+    axis onto itself), breadth first in the order of ``own``."""
+    out = dict(own)
+    queue = list(out)
+    while queue:
+        c = queue.pop(0)
+        up, p = out[c]
+        for (i, j), Ts in sorted(poses.items()):
+            other = j if c == i else i
+            if c not in (i, j) or not len(Ts) or other in out:
+                continue
+            T = np.asarray(Ts[0], np.float64) if c == i else invert_rigid(np.asarray(Ts[0], np.float64))
+            u2, q = T[:3, :3] @ up, T[:3, :3] @ p + T[:3, 3]
+            out[other] = (u2, q - (q @ u2) * u2)
+            queue.append(other)
+    return out
+
+
+def views_room(views, poses: dict[tuple[int, int], list[np.ndarray]]) -> RoomOrbits | None:
+    """The room the cameras' own views show (section 6) as ``RoomOrbits``, or None. ``views``: per
+    camera (X, rgb, up) for ``view_room``, or None (no floor); ``poses`` the
+    pairs' verified poses, which carry the axis to cameras whose view does not show it. The
+    period is the first one VIEW_MIN_CAMERAS views read (at most VIEW_MAX_TRIES views tried
+    before that); every other view is then searched at that period only."""
+    found: dict[int, ViewRoom] = {}
+    tried, sides = 0, None
+    for k, view in enumerate(views):
+        if view is None or tried >= VIEW_MAX_TRIES:
+            continue
+        tried += 1
+        vr = view_room(*view)
+        if vr is not None:
+            found[k] = vr
+            if sum(v.sides == vr.sides for v in found.values()) >= VIEW_MIN_CAMERAS:
+                sides = vr.sides
+                break
+    if sides is None:
+        return None
+    own = {k: (v.up, v.point) for k, v in found.items() if v.sides == sides}
+    for k, view in enumerate(views):
+        if view is not None and k not in own:
+            vr = view_room(*view, sides=sides)
+            if vr is not None:
+                own[k] = (vr.up, vr.point)
+    return RoomOrbits(sides, carry_axes(own, poses), 0, 0, views=len(own))

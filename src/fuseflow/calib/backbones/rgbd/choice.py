@@ -51,10 +51,46 @@ AMBIGUITY_MARGIN = 0.05
 
 
 def joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str], cfg: RGBDConfig):
-    """Choose each pair's hypothesis jointly: the consistent solutions of
-    ``symmetry.select_consistent``, the best few compared by ``_views_agreement``; the edges of
-    the chosen hypotheses (other pairs lose theirs), and the ambiguous cameras (``_ambiguous``),
-    which lose their edges. Returns (edges, info, ambiguous camera indices)."""
+    """Choose each pair's hypothesis jointly, in each group of cameras that the pairs with
+    hypotheses connect (``hypothesis_groups``; a solution grows within one group, and its views'
+    agreement counts only its own cameras, so groups are never compared with each other):
+    the consistent solutions of ``symmetry.select_consistent``, the best few compared by
+    ``_views_agreement``; the edges of the chosen hypotheses (other pairs lose theirs), and the
+    ambiguous cameras (``_ambiguous``), which lose their edges. Returns (edges, info, ambiguous
+    camera indices); with several groups, info has one entry per group under ``groups``."""
+    groups = hypothesis_groups(hyps)
+    every = set(range(len(cams)))
+    if len(groups) <= 1:
+        return _group_choice(cams, edges, hyps, info, ids, cfg, every)
+    out, sels, ambiguous = {}, [], set()
+    alone = every.difference(*groups)
+    for g in groups:
+        mine = {p: h for p, h in hyps.items() if p[0] in g}
+        e, sel, amb = _group_choice(
+            cams, {p: x for p, x in edges.items() if p in mine}, mine, info, ids, cfg, g | alone
+        )
+        out.update(e)
+        sels.append(sel)
+        ambiguous |= amb
+    sel = {k: sum(x.get(k, 0) for x in sels) for k in ("solutions", "consistent_pairs", "refuted_pairs")}
+    sel["ambiguous"] = {c: r for x in sels for c, r in x.get("ambiguous", {}).items()}
+    return out, {**sel, "groups": sels}, ambiguous
+
+
+def hypothesis_groups(hyps: dict) -> list[set[int]]:
+    """The camera groups that the pairs with hypotheses connect (largest first, then by lowest
+    camera)."""
+    groups: list[set[int]] = []
+    for p in sorted(p for p, hs in hyps.items() if hs):
+        hit = [g for g in groups if set(p) & g]
+        merged = set(p).union(*hit)
+        groups = [g for g in groups if g not in hit] + [merged]
+    return sorted(groups, key=lambda g: (-len(g), min(g)))
+
+
+def _group_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str], cfg: RGBDConfig, cameras: set[int]):
+    """``joint_choice`` in one group of cameras; where the room repeats (ALIASED_PAIRS refuted
+    pairs), the ``cameras`` outside its cycle-checked block are ambiguous."""
     flat = [h for hs in hyps.values() for h in hs]
     sols = select_consistent(flat, JOINT_ROT_DEG, JOINT_TRANS_M, joint_separation(flat, cfg))
     if not sols:  # no hypothesis to grow from: the pairs' best edges stand, nothing is chosen
@@ -87,7 +123,7 @@ def joint_choice(cams, edges: dict, hyps: dict, info: list[dict], ids: list[str]
     out = {p: e for p, e in out.items() if not set(p) & set(ambiguous)}
     sel = {"solutions": len(sols), "compared": [round(v, 4) for v in views], "consistent_pairs": len(chosen),
            "refuted_pairs": len(refuted), "ambiguous": {ids[k]: r for k, r in ambiguous.items()}}  # fmt: skip
-    return out, sel, set(ambiguous) | (set(range(len(cams))) - block if len(refuted) >= ALIASED_PAIRS else set())
+    return out, sel, set(ambiguous) | (cameras - block if len(refuted) >= ALIASED_PAIRS else set())
 
 
 def joint_separation(flat: list[Hypothesis], cfg: RGBDConfig) -> float:

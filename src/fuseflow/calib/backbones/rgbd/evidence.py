@@ -35,6 +35,7 @@ class CameraEvidence:
     samples_floor: torch.Tensor  # (M,) bool
     depth_sub: torch.Tensor  # (h, w) float32 subsampled depth for lookups
     K_sub: torch.Tensor  # (3, 3) float32 intrinsics of depth_sub
+    colour: np.ndarray | None = None  # (H, W, 3) uint8 median colour (``room_view``)
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,26 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
             if desc is not None and len(kps):
                 td_xy = topdown.to_floor(sift_uv(kps))
                 td_desc = desc.astype(np.float32)
-    return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *_samples(depth_med, K, plane, cfg))
+    colour = images[0] if len(images) == 1 else np.median(np.stack(images), axis=0).astype(np.uint8)
+    samples = _samples(depth_med, K, plane, cfg)
+    return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *samples, colour=colour)
+
+
+#: Pixel stride of the points ``room_view`` gives the one-view room search.
+ROOM_VIEW_STRIDE = 2
+
+
+def room_view(cam: CameraEvidence) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(points (P, 3), their colours scaled to a mean of 128, the floor normal) of the camera's
+    median depth every ROOM_VIEW_STRIDE pixels, for ``symmetry.view_room``; None without a floor
+    or a colour image."""
+    if cam.plane is None or cam.colour is None:
+        return None
+    s = ROOM_VIEW_STRIDE
+    z = cam.depth[::s, ::s]
+    X = backproject(cam.depth, cam.K, s)
+    col = cam.colour[::s, ::s][z > 0].astype(np.float64)
+    return X, col / np.maximum(col.mean(axis=0), 1.0) * 128.0, np.asarray(cam.plane.normal, np.float64)
 
 
 #: A pixel whose depth in some frame differs from its median by more than this (metres, or this

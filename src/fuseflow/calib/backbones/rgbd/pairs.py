@@ -11,7 +11,14 @@ from fuseflow.calib import progress
 from fuseflow.calib.accuracy import expected_entry
 from fuseflow.calib.backbones.rgbd.candidates import floor_candidates, pooled_matches, sift3d_candidates
 from fuseflow.calib.backbones.rgbd.config import RGBDConfig
-from fuseflow.calib.backbones.rgbd.evidence import CLOSE_DEPTH_SHARE, CameraEvidence, PairCheck, plausible, verify_pose
+from fuseflow.calib.backbones.rgbd.evidence import (
+    CLOSE_DEPTH_SHARE,
+    CameraEvidence,
+    PairCheck,
+    plausible,
+    room_view,
+    verify_pose,
+)
 from fuseflow.calib.backbones.rgbd.judge import subject_judge, subject_ok
 from fuseflow.calib.geometric import kabsch
 from fuseflow.calib.posegraph import Edge
@@ -25,6 +32,7 @@ from fuseflow.calib.symmetry import (
     pose_gap,
     room_orbits,
     subject_free_space,
+    views_room,
 )
 from fuseflow.types import Frame, Rig, invert_rigid
 
@@ -103,7 +111,8 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             entry = {"pair": [i, j], "matches": int(len(Xa)), "candidates": rows, "edge": None}
             work.append((i, j, cands, judge, passing, (_distinct(verified), _distinct(seen)), entry))
             progress.report("rgbd: pairs", len(work), len(cams) * (len(cams) - 1) // 2)
-    room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work])
+    aliased = any(r.get("rejected") in ALIAS_REJECTIONS for w in work for r in w[6]["candidates"])
+    room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work], aliased)
     turned = 0
     for i, j, cands, judge, passing, (verified, seen), entry in work:
         near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(cams[i], cams[j]))
@@ -153,7 +162,13 @@ def upside_down(a: CameraEvidence, b: CameraEvidence, T_ba: np.ndarray) -> bool:
     return float((T_ba[:3, :3] @ a.plane.normal) @ b.plane.normal) < FLOOR_FLIP_COS
 
 
-def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tuple[list, list]]]):
+#: Rejections of a pose that passed the depth checks which say the room may repeat: it stacks
+#: the two cameras, or the other camera sees through its subject (``pair_room``).
+ALIAS_REJECTIONS = ("co-located", "subject seen through")
+
+
+def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tuple[list, list]]],
+              aliased: bool = False):  # fmt: skip
     """(the room's ``RoomOrbits`` or None, whether it was found only from unverified poses).
     ``poses``: pair -> (its distinct verified floor / image poses, all its distinct floor / image
     poses). The room comes from the verified poses (``symmetry.room_orbits``); when they show
@@ -163,14 +178,20 @@ def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tup
     aliases of a pair show the room's turn as well as verified ones do. Such a room only
     proposes turned poses; the caller drops it when none of them passes verification. A room
     that fewer than MIN_ROOM_PAIRS pairs' verified poses show yields to the room of all poses
-    when more pairs show that one."""
+    when more pairs show that one. When no pose shows a room and some verified pose was
+    rejected as an alias would be (``aliased``: ALIAS_REJECTIONS), the cameras' own views are
+    searched for one (``symmetry.views_room``): where every pair's poses are consistent aliases
+    no pose shows a turn."""
     ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
-    room = room_orbits({p: [c["T_ba"] for c in v] for p, (v, _) in poses}, ups)
+    verified = {p: [c["T_ba"] for c in v] for p, (v, _) in poses}
+    room = room_orbits(verified, ups)
     if room is not None and room.pairs >= MIN_ROOM_PAIRS:
         return room, False
     wide = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
     if room is not None and (wide is None or wide.pairs <= room.pairs):
         return room, False
+    if wide is None and aliased:
+        return views_room([room_view(c) for c in cams], verified), False
     return wide, room is None and wide is not None
 
 
