@@ -31,6 +31,7 @@ ALLOWED: dict[str, set[str]] = {
     "fuseflow.calib.posegraph": {"scipy"},
     "fuseflow.calib.refine": {"open3d"},
     "fuseflow.calib.subject": {"cv2"},
+    "fuseflow.calib.symmetry": {"scipy"},
     "fuseflow.calib.turns": {"scipy"},
     "fuseflow.cli.app": {"torch"},
     "fuseflow.cli.node": {"ray"},
