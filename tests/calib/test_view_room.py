@@ -110,3 +110,20 @@ def test_the_joint_choice_keeps_every_group_of_cameras_that_no_pair_links(monkey
     out, sel, ambiguous = joint_choice(cams, edges, hyps, info, ["a", "b", "c", "d"], RGBDConfig())
     assert set(out) == {(0, 1), (2, 3)} and not ambiguous
     assert all(e["edge"] for e in info) and len(sel["groups"]) == 2
+
+
+def test_a_room_that_few_pairs_show_yields_to_the_period_every_view_reads(monkeypatch):
+    from types import SimpleNamespace
+
+    from fuseflow.calib.backbones.rgbd import pairs
+    from fuseflow.calib.symmetry import RoomOrbits
+
+    world, cols = _room(6, repeat=True, seed=6)
+    T = [_camera(a) for a in (10.0, 130.0)]
+    cams = [SimpleNamespace(k=k) for k in range(2)]
+    monkeypatch.setattr(pairs, "room_view", lambda c: _view(T[c.k], world, cols))
+    poses = {(0, 1): [T[1] @ invert_rigid(T[0])]}
+    weak = RoomOrbits(9, {}, 4, 2)  # two pairs' turns, one pose 18 deg off: 9 sides
+    checked = pairs.views_check(weak, cams, poses)
+    assert checked.sides == 6 and checked.views == 2
+    assert pairs.views_check(RoomOrbits(9, {}, 6, 3), cams, poses).sides == 9  # three pairs stand

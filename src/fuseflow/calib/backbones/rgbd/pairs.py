@@ -185,14 +185,33 @@ def pair_room(cams: list[CameraEvidence], poses: list[tuple[tuple[int, int], tup
     ups = {k: (c.plane.normal if c.plane is not None else None) for k, c in enumerate(cams)}
     verified = {p: [c["T_ba"] for c in v] for p, (v, _) in poses}
     room = room_orbits(verified, ups)
-    if room is not None and room.pairs >= MIN_ROOM_PAIRS:
-        return room, False
-    wide = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
-    if room is not None and (wide is None or wide.pairs <= room.pairs):
-        return room, False
+    wide = None
+    if room is None or room.pairs < MIN_ROOM_PAIRS:
+        wide = room_orbits({p: [c["T_ba"] for c in s] for p, (_, s) in poses}, ups)
+    if room is not None and (room.pairs >= MIN_ROOM_PAIRS or wide is None or wide.pairs <= room.pairs):
+        return views_check(room, cams, verified), False
     if wide is None and aliased:
         return views_room([room_view(c) for c in cams], verified), False
-    return wide, room is None and wide is not None
+    if wide is not None:
+        return views_check(wide, cams, verified), room is None
+    return None, False
+
+
+#: A room that fewer pairs than this show is checked against the cameras' own views
+#: (``views_check``).
+VIEW_CHECK_PAIRS = 3
+
+
+def views_check(room: RoomOrbits, cams: list[CameraEvidence], verified: dict) -> RoomOrbits:
+    """``room``, or the room the cameras' own views show (``symmetry.views_room``) when ``room``
+    rests on fewer than VIEW_CHECK_PAIRS pairs and the views read another period: a pose a few
+    degrees off among a pair's aliases moves the period of a room that two pairs show
+    (independent studio seed 1113, 6-sided: turns of 120 deg and of 162 deg, a 3-period alias
+    18 deg off, read 9 sides; every view read 6)."""
+    if room.pairs >= VIEW_CHECK_PAIRS:
+        return room
+    seen = views_room([room_view(c) for c in cams], verified)
+    return seen if seen is not None and seen.sides != room.sides else room
 
 
 def unstacked(a: CameraEvidence, b: CameraEvidence, passing: list[Hypothesis], cands: list[dict], entry: dict,
