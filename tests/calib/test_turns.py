@@ -343,3 +343,11 @@ def test_up_comes_from_the_floor_when_the_cameras_look_down_and_the_backbone_fit
     rep = SimpleNamespace(backbone_info={})  # e.g. placed by image matching alone: no floor normals
     up = T_._up(rep, T, frame, rig)
     assert math.degrees(math.acos(min(1.0, float(up @ [0.0, 0.0, 1.0])))) < 0.5
+
+
+def test_a_hinted_period_that_is_no_divisor_or_multiple_of_the_best_is_not_the_room():
+    # independent studio seed 109 (6-sided, 320x240, one frame, calibrated cloud): the pairs read
+    # 21, whose divisor 7 lands 0.54 against the 6-fold 0.67; 51-deg turns are no turns of this room
+    seen = _shares(0.41, n3=0.433, n5=0.485, n6=0.665, n7=0.542)
+    assert T_.room_period(seen, hint=21) is None  # the 6-fold share alone is under twice the median
+    assert T_.room_period(seen, hint=12) == 6 and T_.room_period(seen, hint=6) == 6  # compatible hints
