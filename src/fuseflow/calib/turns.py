@@ -55,7 +55,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fuseflow.calib.verdicts import TurnEvidence
+from fuseflow.calib.room_axis_fit import fit_axis
+from fuseflow.calib.verdicts import TURN_AXIS_MM, TurnEvidence
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = [
@@ -123,10 +124,16 @@ class RoomAxis:
     up: np.ndarray
     share: float
     floor: float
+    axis_mm: float = TURN_AXIS_MM
+    """How far (mm) the axis may be from the room's (``calib.room_axis_fit``)."""
+    axis_sigma_mm: float | None = None
+    """The fitted axis' jackknife standard error over cameras (mm; None: not fitted)."""
 
     def to_json(self) -> dict:
         return {"sides": self.sides, "point": [round(float(x), 4) for x in self.point],
-                "up": [round(float(x), 4) for x in self.up], "share": round(self.share, 3)}  # fmt: skip
+                "up": [round(float(x), 4) for x in self.up], "share": round(self.share, 3),
+                "axis_mm": round(self.axis_mm, 1),
+                "axis_sigma_mm": None if self.axis_sigma_mm is None else round(self.axis_sigma_mm, 1)}  # fmt: skip
 
     def turn(self, k: int | float) -> np.ndarray:
         """(4, 4) world rotation by k periods about the axis."""
@@ -346,8 +353,14 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     if n is None:
         return None
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
-    point = B.T @ np.array([c[0], c[1], floor])
-    return RoomAxis(n, point, up, s, floor)
+    labels = np.concatenate([np.full(len(p), i) for i, (p, _) in enumerate(points.values())])
+    height = float(np.median([(invert_rigid(M)[:3, 3] @ B.T)[2] for M in T.values()]))
+    fit = fit_axis(cloud, labels, band, c, floor, height, n, rng)  # the walls pin it to least squares
+    if fit is None:
+        return RoomAxis(n, B.T @ np.array([c[0], c[1], floor]), up, s, floor)
+    up = B.T @ fit.up
+    sigma = None if fit.sigma_m is None else fit.sigma_m * 1000.0
+    return RoomAxis(n, B.T @ fit.centre, up, s, floor, fit.axis_mm, sigma)
 
 
 def _subject(X: np.ndarray, room: RoomAxis, radius: float) -> np.ndarray:
