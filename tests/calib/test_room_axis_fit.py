@@ -61,14 +61,13 @@ def test_a_tilted_axis_is_fitted_with_its_tilt():
     assert math.degrees(math.acos(min(1.0, fit.up @ true_up))) < 0.1
 
 
-def test_the_axis_error_used_grows_when_cameras_disagree_about_the_walls():
+def test_the_axis_standard_error_grows_when_cameras_disagree_about_the_walls():
     X, _, labels = _polygon_room()
     calm = _fit(X, labels, (0.3, -0.2))
     X2, _, labels2 = _polygon_room(shift={0: [0.04, 0.0, 0.0], 2: [0.0, -0.04, 0.0]})
     shaken = _fit(X2, labels2, (0.3, -0.2))
     assert calm.sigma_m is not None and shaken.sigma_m is not None
     assert shaken.sigma_m > 3 * calm.sigma_m
-    assert shaken.axis_mm >= calm.axis_mm >= F.MIN_AXIS_MM
 
 
 def test_walls_facing_one_way_leave_the_axis_unfitted():
@@ -95,4 +94,4 @@ def test_room_axis_lands_on_the_room_centre_in_noisy_depth():
     room = T_.room_axis(pts, T, np.array([0.0, 0.0, 1.0]), hint=8)
     assert room is not None and room.sides == 8
     assert np.linalg.norm(room.point[:2] - [0.3, -0.2]) < 0.004
-    assert room.axis_sigma_mm is not None and room.axis_mm < 100.0
+    assert room.axis_sigma_mm is not None and room.to_json()["axis_sigma_mm"] == round(room.axis_sigma_mm, 1)

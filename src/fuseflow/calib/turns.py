@@ -56,7 +56,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fuseflow.calib.room_axis_fit import fit_axis
-from fuseflow.calib.verdicts import TURN_AXIS_MM, TurnEvidence
+from fuseflow.calib.verdicts import TurnEvidence
 from fuseflow.types import Frame, Rig, invert_rigid
 
 __all__ = [
@@ -124,15 +124,13 @@ class RoomAxis:
     up: np.ndarray
     share: float
     floor: float
-    axis_mm: float = TURN_AXIS_MM
-    """How far (mm) the axis may be from the room's (``calib.room_axis_fit``)."""
     axis_sigma_mm: float | None = None
-    """The fitted axis' jackknife standard error over cameras (mm; None: not fitted)."""
+    """The fitted axis' jackknife standard error over cameras (mm; None: not fitted;
+    ``calib.room_axis_fit``)."""
 
     def to_json(self) -> dict:
         return {"sides": self.sides, "point": [round(float(x), 4) for x in self.point],
                 "up": [round(float(x), 4) for x in self.up], "share": round(self.share, 3),
-                "axis_mm": round(self.axis_mm, 1),
                 "axis_sigma_mm": None if self.axis_sigma_mm is None else round(self.axis_sigma_mm, 1)}  # fmt: skip
 
     def turn(self, k: int | float) -> np.ndarray:
@@ -360,7 +358,7 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
         return RoomAxis(n, B.T @ np.array([c[0], c[1], floor]), up, s, floor)
     up = B.T @ fit.up
     sigma = None if fit.sigma_m is None else fit.sigma_m * 1000.0
-    return RoomAxis(n, B.T @ fit.centre, up, s, floor, fit.axis_mm, sigma)
+    return RoomAxis(n, B.T @ fit.centre, up, s, floor, sigma)
 
 
 def _subject(X: np.ndarray, room: RoomAxis, radius: float) -> np.ndarray:
