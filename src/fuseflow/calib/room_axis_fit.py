@@ -13,14 +13,11 @@ held, Jacobian by finite differences, landing cut ``CUTS_M`` shrinking from 6 to
 facing many directions pin the position; walls that do not (the position block's smaller
 eigenvalue below ``MIN_CONDITION`` of the larger) give no fit, and the grid search's axis stays.
 
-The fit is repeated leaving out each camera's points in turn (a camera's own pose error moves its
-walls, and so the axis): the jackknife standard error of the axis position at the cameras'
-height, ``AxisFit.sigma_m``, is reported (``report.room["axis_sigma_mm"]``). It is not an error
-bound: what every camera shares (the pair poses that placed them, themselves turned about the
-pairs' own axis estimate) moves the axis without showing in it. On the same calibrations the
-fitted axis was a median 9 mm (up to 46 mm) from the truth, a median 4 and at most 27 standard
-errors (docs/gmac-trust.md, "Room turns decided by the subject"), so the verdicts keep
-``verdicts.TURN_AXIS_MM``.
+How far the fitted axis may be off is not measured here: a jackknife over cameras (the fit
+repeated leaving out each camera's points) gave standard errors the truth exceeded by a median 4
+and up to 27 times on the same calibrations (what every camera shares, such as pair poses turned
+about the pairs' own axis estimate, moves the axis without showing in it), so the verdicts keep
+``verdicts.TURN_AXIS_MM`` (docs/gmac-trust.md, "Room turns decided by the subject").
 
 Pure numpy plus scipy's KD-tree.
 """
@@ -50,12 +47,10 @@ MIN_LANDED = 200
 @dataclass(frozen=True)
 class AxisFit:
     """The axis through ``centre`` (x, y, floor height, in the basis the points are given in) along
-    ``up`` (unit, same basis) and the jackknife standard error over cameras of its position at the
-    cameras' height ``sigma_m`` (metres; None when fewer than three cameras' fits remain)."""
+    ``up`` (unit, same basis)."""
 
     centre: np.ndarray
     up: np.ndarray
-    sigma_m: float | None
 
 
 def _normals(pts: np.ndarray, tree) -> np.ndarray:
@@ -114,37 +109,21 @@ def _fit(src: np.ndarray, tree, normals: np.ndarray, theta: np.ndarray, sides: i
     return th
 
 
-def fit_axis(cloud: np.ndarray, labels: np.ndarray, walls: np.ndarray, centre: np.ndarray, floor: float,
-             height: float, sides: int, rng: np.random.Generator) -> AxisFit | None:  # fmt: skip
+def fit_axis(cloud: np.ndarray, walls: np.ndarray, centre: np.ndarray, floor: float, sides: int,
+             rng: np.random.Generator) -> AxisFit | None:  # fmt: skip
     """The room's axis refined from the vertical axis through ``centre`` (x, y) (module docstring).
     ``cloud`` (P, 3): the merged cloud in a basis whose third coordinate is the height, ``floor``
-    the floor's; ``labels`` (P,): each point's camera; ``walls`` (P,) bool: the points of the
-    room's walls (away from the subject, off floor and ceiling); ``height``: the cameras' height,
-    where the axis' error moves a turned camera. None when the fit fails (too few points land,
-    walls facing one way only)."""
+    the floor's; ``walls`` (P,) bool: the points of the room's walls (away from the subject, off
+    floor and ceiling). None when the fit fails (too few points land, walls facing one way only)."""
     from scipy.spatial import cKDTree
 
-    idx = np.flatnonzero(walls)
-    if len(idx) < MIN_LANDED:
+    pts = cloud[walls]
+    if len(pts) < MIN_LANDED:
         return None
-    pts = cloud[idx]
     tree = cKDTree(pts)
-    normals = _normals(pts, tree)
-    pick = rng.choice(len(idx), min(len(idx), FIT_POINTS), replace=False)
-    th = _fit(pts[pick], tree, normals, np.array([centre[0], centre[1], 0.0, 0.0]), sides, floor)
+    pick = rng.choice(len(pts), min(len(pts), FIT_POINTS), replace=False)
+    th = _fit(pts[pick], tree, _normals(pts, tree), np.array([centre[0], centre[1], 0.0, 0.0]), sides, floor)
     if th is None:
         return None
-    loo = []
-    for cam in np.unique(labels[idx]):  # jackknife over cameras: each camera's pose error moves its walls
-        keep = labels[idx] != cam
-        src = pick[keep[pick]]
-        tj = _fit(pts[src], cKDTree(pts[keep]), normals[keep], th, sides, floor)
-        if tj is not None:
-            loo.append(tj[:2] + (height - floor) * tj[2:])
     u = np.array([th[2], th[3], 1.0])
-    u /= np.linalg.norm(u)
-    sigma = None
-    if len(loo) >= 3:
-        loo, m = np.asarray(loo), len(loo)
-        sigma = float(math.sqrt((m - 1) / m * ((loo - loo.mean(axis=0)) ** 2).sum()))
-    return AxisFit(np.array([th[0], th[1], floor]), u, sigma)
+    return AxisFit(np.array([th[0], th[1], floor]), u / np.linalg.norm(u))

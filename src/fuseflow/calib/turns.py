@@ -124,14 +124,10 @@ class RoomAxis:
     up: np.ndarray
     share: float
     floor: float
-    axis_sigma_mm: float | None = None
-    """The fitted axis' jackknife standard error over cameras (mm; None: not fitted;
-    ``calib.room_axis_fit``)."""
 
     def to_json(self) -> dict:
         return {"sides": self.sides, "point": [round(float(x), 4) for x in self.point],
-                "up": [round(float(x), 4) for x in self.up], "share": round(self.share, 3),
-                "axis_sigma_mm": None if self.axis_sigma_mm is None else round(self.axis_sigma_mm, 1)}  # fmt: skip
+                "up": [round(float(x), 4) for x in self.up], "share": round(self.share, 3)}  # fmt: skip
 
     def turn(self, k: int | float) -> np.ndarray:
         """(4, 4) world rotation by k periods about the axis."""
@@ -351,14 +347,10 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     if n is None:
         return None
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
-    labels = np.concatenate([np.full(len(p), i) for i, (p, _) in enumerate(points.values())])
-    height = float(np.median([(invert_rigid(M)[:3, 3] @ B.T)[2] for M in T.values()]))
-    fit = fit_axis(cloud, labels, band, c, floor, height, n, rng)  # the walls pin it to least squares
+    fit = fit_axis(cloud, band, c, floor, n, rng)  # the walls pin it to least squares (calib.room_axis_fit)
     if fit is None:
         return RoomAxis(n, B.T @ np.array([c[0], c[1], floor]), up, s, floor)
-    up = B.T @ fit.up
-    sigma = None if fit.sigma_m is None else fit.sigma_m * 1000.0
-    return RoomAxis(n, B.T @ fit.centre, up, s, floor, sigma)
+    return RoomAxis(n, B.T @ fit.centre, B.T @ fit.up, s, floor)
 
 
 def _subject(X: np.ndarray, room: RoomAxis, radius: float) -> np.ndarray:
