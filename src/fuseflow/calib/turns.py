@@ -347,10 +347,10 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     if n is None:
         return None
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
-    fit = fit_axis(cloud, band, c, floor, n, rng)  # the walls pin it to least squares (calib.room_axis_fit)
-    if fit is None:
-        return RoomAxis(n, B.T @ np.array([c[0], c[1], floor]), up, s, floor)
-    return RoomAxis(n, B.T @ fit.centre, B.T @ fit.up, s, floor)
+    fit = fit_axis(cloud, band, c, n, rng)  # the walls pin it to least squares (calib.room_axis_fit)
+    c = c if fit is None else fit
+    point = B.T @ np.array([c[0], c[1], floor])
+    return RoomAxis(n, point, up, s, floor)
 
 
 def _subject(X: np.ndarray, room: RoomAxis, radius: float) -> np.ndarray:
