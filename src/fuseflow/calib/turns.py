@@ -55,6 +55,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from fuseflow.calib.room_axis_fit import fit_axis
 from fuseflow.calib.verdicts import TurnEvidence
 from fuseflow.types import Frame, Rig, invert_rigid
 
@@ -375,6 +376,8 @@ def room_axis(points: Mapping[str, tuple[np.ndarray, np.ndarray]], T: Mapping[st
     if n is None:
         return None
     c, _ = _search_centre(room_pts, P, c, 2 * math.pi / n, ((0.03, 0.006), (0.006, 0.002)), graded=True)
+    fit = fit_axis(cloud, band, c, n, rng)  # the walls pin it to least squares (calib.room_axis_fit)
+    c = c if fit is None else fit
     point = B.T @ np.array([c[0], c[1], floor])
     return RoomAxis(n, point, up, s, floor)
 

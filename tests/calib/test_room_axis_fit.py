@@ -1,0 +1,73 @@
+"""The repeating room's axis fitted to the calibrated cloud's walls (calib.room_axis_fit) and
+its use by calib.turns.room_axis."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fuseflow.calib import room_axis_fit as F
+from fuseflow.calib import turns as T_
+
+
+def _polygon_room(sides=8, apothem=3.5, centre=(0.3, -0.2), noise=0.01, cams=5, seed=0):
+    """A regular ``sides``-gon room's walls (heights 0.3-2.4 m) and floor about a vertical axis
+    through ``centre``, its panels striped alike, seen by
+    ``cams`` cameras each over its own arc of the walls; (world points, colours, labels)."""
+    rng = np.random.default_rng(seed)
+    half = apothem * math.tan(math.pi / sides)
+    k = rng.integers(0, sides, 40000)
+    s = rng.uniform(-half, half, len(k))
+    th = 2 * math.pi * k / sides
+    n, t = np.c_[np.cos(th), np.sin(th)], np.c_[-np.sin(th), np.cos(th)]
+    xy = apothem * n + s[:, None] * t
+    wall = np.c_[xy, rng.uniform(0.3, 2.4, len(k))]
+    col = np.stack([128 + 90 * np.sin(2 * math.pi * j * (s / (2 * half) + 0.5)) for j in (1, 2, 3)], 1)
+    m = 15000
+    fa, fr = rng.uniform(0, 2 * math.pi, m), apothem * np.sqrt(rng.uniform(0, 1, m))
+    floor = np.c_[fr * np.cos(fa), fr * np.sin(fa), np.zeros(m)]
+    X = np.r_[wall, floor]
+    C = np.r_[col, np.full((m, 3), 128.0)]
+    az = np.arctan2(X[:, 1], X[:, 0]) % (2 * math.pi)
+    labels = np.minimum((az / (2 * math.pi) * cams).astype(int), cams - 1)
+    X = X + [centre[0], centre[1], 0.0] + rng.normal(0, noise, X.shape)
+    return X, C, labels
+
+
+def _fit(X, start, sides=8):
+    walls = (X[:, 2] > 0.25) & (X[:, 2] < 2.45)
+    return F.fit_axis(X, walls, np.asarray(start, float), sides, np.random.default_rng(0))
+
+
+def test_the_walls_pin_the_axis_to_millimetres_from_a_start_centimetres_off():
+    X, _, _ = _polygon_room()
+    fit = _fit(X, (0.34, -0.17))  # 5 cm off
+    assert fit is not None
+    assert np.linalg.norm(fit - [0.3, -0.2]) < 0.003
+
+
+def test_walls_facing_one_way_leave_the_axis_unfitted():
+    X, _, _ = _polygon_room()
+    ang = np.arctan2(X[:, 1] + 0.2, X[:, 0] - 0.3)
+    one = np.abs(ang) < math.pi / 8  # one wall only (and its floor)
+    assert _fit(X[one], (0.3, -0.2)) is None
+
+
+def test_room_axis_lands_on_the_room_centre_in_noisy_depth():
+    X, C, labels = _polygon_room(noise=0.015)
+    pts = {f"c{k}": (X[labels == k], C[labels == k]) for k in range(5)}
+    T = {}
+    for k in range(5):  # cameras 2.8 m out, looking at the centre
+        a = 2 * math.pi * (k + 0.5) / 5
+        c = np.array([0.3 + 2.8 * math.cos(a), -0.2 + 2.8 * math.sin(a), 1.6])
+        z = np.array([0.3, -0.2, 1.0]) - c
+        z /= np.linalg.norm(z)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        T[f"c{k}"] = np.eye(4)
+        T[f"c{k}"][:3, :3], T[f"c{k}"][:3, 3] = R, -R @ c
+    room = T_.room_axis(pts, T, np.array([0.0, 0.0, 1.0]), hint=8)
+    assert room is not None and room.sides == 8
+    assert np.linalg.norm(room.point[:2] - [0.3, -0.2]) < 0.004
