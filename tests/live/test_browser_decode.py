@@ -2,7 +2,8 @@
 across the worker (geometry there, colours on the page's thread) to the same points and colours
 as on the page's thread alone, for key frames of versions 7, 5 and 3; the delta after it still
 decodes (on the page's thread, against what the worker sent back); a key frame whose header
-disagrees with its geometry is refused, and the decoder goes on with the next one."""
+disagrees with its geometry is refused, and the decoder goes on with the next one; a decoder whose
+worker fails decodes on the page's thread."""
 
 import shutil
 from pathlib import Path
@@ -37,6 +38,9 @@ const done = arguments[arguments.length - 1];
   out.bad = await dec.decodeFrame(bad).then(() => "decoded", (e) => e.message);
   const after = await dec.decodeFrame(await get("v7-key.bin"));
   out.after = { m: after.m, split: !!after.split, held: dec.held() };
+  const lost = FuseFlowDecode.createDecoder({ worker: new Worker("no-such-worker.js", { type: "module" }) });
+  const alone = await lost.decodeFrame(await get("v7-key.bin"));  // its worker never loads: this thread decodes
+  out.lost = { m: alone.m, split: !!alone.split, same: same(alone.rgb, (await FuseFlowDecode.decodeFrame(await get("v7-key.bin"))).rgb) };
   return out;
 })().then(done, (e) => done({ error: String(e) }));
 """
@@ -71,3 +75,5 @@ def test_a_key_frame_decodes_across_the_worker_as_on_one_thread(tmp_path):
         assert r["deltaPoints"] > 0 and r["held"] == 11 and r["splitFrames"] == 1 and r["keyBufferWhole"], r
     assert "the geometry stream" in out["bad"], out["bad"]  # the worker's error, as the frame's
     assert out["after"]["split"] and out["after"]["m"] == out["v7"]["m"] and out["after"]["held"] == 10, out
+    # a decoder whose worker failed decodes on the page's thread
+    assert out["lost"] == {"m": out["v7"]["m"], "split": False, "same": True}, out["lost"]
