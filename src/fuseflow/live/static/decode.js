@@ -485,11 +485,12 @@
   }
   // one message on its own (a delta, version 4 or 6, is refused: it needs the frame before it)
   const decodeFrame = (buf) => decode(buf, null);
+  let jobs = 0;  // job ids, unique over every decoder (decoders may share a worker)
   function workerOffload(worker) {
-    // (job) -> Promise of keyGeometry's result, computed by worker (running decode-worker.js);
+    // () -> (job) -> Promise of keyGeometry's result, computed by worker (running decode-worker.js);
     // null once the worker failed (the decoder then decodes on its own thread)
     const waiting = new Map();
-    let next = 0, broken = false;
+    let broken = false;
     const fail = (why) => {
       broken = true;
       for (const w of waiting.values()) w.reject(new Error(why));
@@ -505,7 +506,7 @@
     worker.addEventListener("error", (e) => { e.preventDefault(); fail("the decode worker failed: " + (e.message || "no script")); });
     worker.addEventListener("messageerror", () => fail("the decode worker sent an unreadable message"));
     const run = (job) => new Promise((resolve, reject) => {
-      const id = next++;
+      const id = jobs++;
       waiting.set(id, { resolve, reject });
       worker.postMessage({ id, ...job }, [job.geo]);
     });
