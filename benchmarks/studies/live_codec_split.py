@@ -129,11 +129,11 @@ def node_split_ms(rows: list[dict], repeats: int, work: Path) -> None:
     """Add decode.js's ``geometry`` and ``colours`` CPU ms (node, median) to every row: a copy of
     decode.js that also exports them, fed each row's two streams."""
     src = DECODE_JS.read_text()
-    api = "const api = { decodeFrame, createDecoder };"
+    api = "const api = { decodeFrame, createDecoder, keyGeometry };"
     if api not in src:
         raise RuntimeError("decode.js: its api line changed; update node_split_ms")
     (work / "decode_split.js").write_text(
-        src.replace(api, "const api = { decodeFrame, createDecoder, geometry, colours, NO_REF };")
+        src.replace(api, "const api = { decodeFrame, createDecoder, keyGeometry, geometry, colours, NO_REF };")
     )
     (work / "split.js").write_text(NODE_SPLIT)
     for i, r in enumerate(rows):

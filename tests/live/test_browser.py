@@ -94,6 +94,7 @@ def test_page_draws_live_frames(dynamic_rec, tmp_path):
         stats = driver.execute_script("return window.fuseflowStats")  # decode.js decoded them
         assert stats["version"] == 6 and driver.find_element("id", "codec").text == "compact", stats
         assert len(stats["decodeMs"]) >= 2 and "bad frame" not in driver.find_element("id", "status").text
+        assert stats["split"] >= 1, stats  # the first (key) frame's geometry decoded in the page's worker
         assert _stats(port)["clients"] == 1
         shot = tmp_path / "viewer.png"
         driver.save_screenshot(str(shot))

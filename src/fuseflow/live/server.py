@@ -64,6 +64,7 @@ ASSETS = {
     "/index.html": ("index.html", "text/html; charset=utf-8"),
     "/viewer.js": ("viewer.js", _JS),
     "/decode.js": ("decode.js", _JS),
+    "/decode-worker.js": ("decode-worker.js", _JS),
     "/three/three.module.js": ("three/three.module.js", _JS),
     "/three/three.core.js": ("three/three.core.js", _JS),
     "/three/addons/controls/OrbitControls.js": ("three/addons/controls/OrbitControls.js", _JS),

@@ -407,9 +407,27 @@
     return [rgb, q];
   }
   const gridOf = (buf) => Array.from(new Uint8Array(buf, 20, 16)).concat(Array.from(new Uint8Array(buf, 44, 4))).join(",");
-  function decodeV3(buf, dv, holder) {
+  function keyGeometry(version, bytes, levels, m, origin, step) {
+    // a key frame's geometry stream (version 3, 5 or 7) -> {xyz, occ, first}: the points, the
+    // octree's bytes and refFirst of them (what a delta after it refers to); needs nothing of the
+    // colour stream, so it can run beside colours() (in a Worker: decode-worker.js)
+    const [xs, ys, zs, , occ] = version === 7 ? geometrySymbols(bytes, levels, m) : geometry(bytes, levels, m, NO_REF);
+    return { xyz: cellCentres(xs, ys, zs, m, origin, step), occ, first: refFirst(occ, levels) };
+  }
+  function cellCentres(xs, ys, zs, m, origin, step) {
+    const xyz = new Float32Array(3 * m);
+    for (let i = 0; i < m; i++) {
+      xyz[3 * i] = origin[0] + (xs[i] + 0.5) * step;
+      xyz[3 * i + 1] = origin[1] + (ys[i] + 0.5) * step;
+      xyz[3 * i + 2] = origin[2] + (zs[i] + 0.5) * step;
+    }
+    return xyz;
+  }
+  function decodeV3(buf, dv, holder, offload) {
     // version 3 (a key frame) or 4 (a delta against the frame holder.ref holds); holder.ref
-    // becomes this frame
+    // becomes this frame. offload (optional): (job) -> Promise of keyGeometry's result, computed
+    // elsewhere (a Worker) while this thread decodes the colour stream; taken for key frames only
+    // (a delta's colours need its geometry's reference points); returns then a Promise
     const version = dv.getUint16(4, true), delta = version === 4 || version === 6, H = delta ? 64 : 60;
     if (buf.byteLength < H || dv.getUint16(6, true) !== H) throw new Error("live frame: bad version-" + version + " header");
     const m = dv.getUint32(12, true), pointsIn = dv.getUint32(16, true);
@@ -428,42 +446,99 @@
       ref = held;
     }
     if (holder) holder.ref = null;  // a frame that fails to decode leaves nothing to refer to
-    const xyz = new Float32Array(3 * m);
-    let rgb = new Uint8ClampedArray(0);
-    if (m > 0) {
-      const geo = new Uint8Array(buf, H, s1);
-      const [xs, ys, zs, rleaf, occ] = version === 7 ? geometrySymbols(geo, levels, m) : geometry(geo, levels, m, ref);
-      for (let i = 0; i < m; i++) {
-        xyz[3 * i] = origin[0] + (xs[i] + 0.5) * step;
-        xyz[3 * i + 1] = origin[1] + (ys[i] + 0.5) * step;
-        xyz[3 * i + 2] = origin[2] + (zs[i] + 0.5) * step;
-      }
-      const [c, q] = colours(new Uint8Array(buf, H + s1, s2), m, ls, cs, blk, ref === NO_REF ? null : rleaf, ref.q, version >= 5);
-      rgb = c;
-      if (holder) holder.ref = { number: dv.getUint32(8, true), grid: gridOf(buf), occ, first: refFirst(occ, levels), q };
-    } else if (s1 + s2) throw new Error("live frame: streams given for a frame of no points");
-    return { m, pointsIn, xyz, rgb, latency: f32(dv, 36), fuseMs: f32(dv, 40) };
+    const frame = { m, pointsIn, xyz: new Float32Array(0), rgb: new Uint8ClampedArray(0), latency: f32(dv, 36), fuseMs: f32(dv, 40) };
+    if (m === 0) {
+      if (s1 + s2) throw new Error("live frame: streams given for a frame of no points");
+      return frame;
+    }
+    const held = (occ, first, q) => { if (holder) holder.ref = { number: dv.getUint32(8, true), grid: gridOf(buf), occ, first, q }; };
+    const colourBytes = new Uint8Array(buf, H + s1, s2);
+    if (offload && !delta) {
+      // the worker gets a copy of the geometry stream (the caller's buffer stays whole) and
+      // transfers back what it made; this thread decodes the colours meanwhile
+      const pending = offload({ version, geo: buf.slice(H, H + s1), levels, m, origin, step });
+      const [rgb, q] = colours(colourBytes, m, ls, cs, blk, null, NO_REF.q, version >= 5);
+      return pending.then((g) => {
+        held(g.occ, g.first, q);
+        return Object.assign(frame, { xyz: g.xyz, rgb, split: true });
+      });
+    }
+    const geo = new Uint8Array(buf, H, s1);
+    const [xs, ys, zs, rleaf, occ] = version === 7 ? geometrySymbols(geo, levels, m) : geometry(geo, levels, m, ref);
+    frame.xyz = cellCentres(xs, ys, zs, m, origin, step);
+    const [rgb, q] = colours(colourBytes, m, ls, cs, blk, ref === NO_REF ? null : rleaf, ref.q, version >= 5);
+    frame.rgb = rgb;
+    if (holder) held(occ, refFirst(occ, levels), q);
+    return frame;
   }
-  async function decode(buf, holder) {
+  async function decode(buf, holder, offload) {
     if (buf.byteLength < 8) throw new Error("frame shorter than a header");
     const dv = new DataView(buf);
     const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
     const version = magic === "FFLV" ? dv.getUint16(4, true) : 0;
     let frame;
     if (version === 1) frame = decodeRaw(buf, dv);
-    else if (version >= 3 && version <= 7) frame = decodeV3(buf, dv, holder);
+    else if (version >= 3 && version <= 7) frame = await decodeV3(buf, dv, holder, offload);
     else if (version === 2) { if (holder) holder.ref = null; frame = await decodeCompact(buf, dv); }
     else throw new Error("unknown frame format");
     return Object.assign(frame, { version, number: dv.getUint32(8, true) });
   }
   // one message on its own (a delta, version 4 or 6, is refused: it needs the frame before it)
   const decodeFrame = (buf) => decode(buf, null);
-  // the messages of one stream in order: holds the last compact frame for the delta after it
-  function createDecoder() {
-    const holder = { ref: null };
-    return { decodeFrame: (buf) => decode(buf, holder), held: () => (holder.ref ? holder.ref.number : null) };
+  let jobs = 0;  // job ids, unique over every decoder (decoders may share a worker)
+  function workerOffload(worker) {
+    // () -> (job) -> Promise of keyGeometry's result, computed by worker (running decode-worker.js);
+    // null once the worker failed (the decoder then decodes on its own thread)
+    const waiting = new Map();
+    let broken = false;
+    const fail = (why) => {
+      broken = true;
+      for (const w of waiting.values()) w.reject(new Error(why));
+      waiting.clear();
+    };
+    worker.addEventListener("message", (e) => {
+      const w = waiting.get(e.data.id);
+      if (!w) return;
+      waiting.delete(e.data.id);
+      if (e.data.error) w.reject(new Error(e.data.error));
+      else w.resolve(e.data);
+    });
+    worker.addEventListener("error", (e) => { e.preventDefault(); fail("the decode worker failed: " + (e.message || "no script")); });
+    worker.addEventListener("messageerror", () => fail("the decode worker sent an unreadable message"));
+    const run = (job) => new Promise((resolve, reject) => {
+      const id = jobs++;
+      waiting.set(id, { resolve, reject });
+      worker.postMessage({ id, ...job }, [job.geo]);
+    });
+    return () => (broken ? null : run);
   }
-  const api = { decodeFrame, createDecoder };
+  // the messages of one stream in order: holds the last compact frame for the delta after it.
+  // options.worker (optional): a Worker running decode-worker.js; a key frame's geometry is then
+  // decoded there while this thread decodes its colours (the same points and colours; the frame
+  // has split: true); a delta, and every frame after the worker failed, decode on this thread.
+  // Calls are queued: each decodes after the one before it settled.
+  function createDecoder(options) {
+    const holder = { ref: null }, offload = options && options.worker ? workerOffload(options.worker) : () => null;
+    let queue = Promise.resolve(), split = 0;
+    const one = async (buf) => {
+      const run = offload();
+      if (!run) return decode(buf, holder);
+      try {
+        const f = await decode(buf, holder, run);
+        if (f.split) split++;
+        return f;
+      } catch (err) {
+        if (offload()) throw err;  // the frame's fault, not the worker's
+        return decode(buf, holder);  // the worker died meanwhile: this thread alone
+      }
+    };
+    return {
+      decodeFrame: (buf) => { const p = queue.then(() => one(buf)); queue = p.catch(() => {}); return p; },
+      held: () => (holder.ref ? holder.ref.number : null),
+      split: () => split,  // frames decoded across the worker
+    };
+  }
+  const api = { decodeFrame, createDecoder, keyGeometry };
   if (typeof module !== "undefined" && module.exports) module.exports = api;
   else root.FuseFlowDecode = api;
 })(typeof self !== "undefined" ? self : globalThis);

@@ -12,7 +12,7 @@ import { ARButton } from "three/addons/webxr/ARButton.js";
 const $ = (id) => document.getElementById(id);
 const params = new URLSearchParams(location.search);
 const token = params.get("token");
-const stats = { frames: 0, bytes: 0, version: 0, decodeMs: [], ages: [], renders: 0, xrFrames: 0, dropped: 0, state: "connecting" };
+const stats = { frames: 0, split: 0, bytes: 0, version: 0, decodeMs: [], ages: [], renders: 0, xrFrames: 0, dropped: 0, state: "connecting" };
 window.fuseflowStats = stats;
 
 // ---- renderer, scene, camera
@@ -220,7 +220,14 @@ function inline(button) { // the addons place their buttons at the bottom centre
 
 // ---- frames: meta (text), frame (binary), attributes (binary, raw codec only); ack once shown
 let meta = null, queued = null, decoding = false, shown = null, ws = null, times = [], ended = false;
-let decoder = FuseFlowDecode.createDecoder();  // one per connection: it holds the frame a delta refers to
+// a key frame's geometry decodes in a worker while this thread decodes its colours (decode.js);
+// ?worker=0, or a browser without module workers: all on this thread
+const decodeWorker = (() => {
+  if (params.get("worker") === "0" || typeof Worker === "undefined") return null;
+  try { return new Worker(new URL("decode-worker.js", import.meta.url), { type: "module" }); } catch { return null; }
+})();
+const newDecoder = () => FuseFlowDecode.createDecoder(decodeWorker ? { worker: decodeWorker } : undefined);
+let decoder = newDecoder();  // one per connection: it holds the frame a delta refers to
 function setStatus(text, kind) {
   $("status").textContent = text;
   $("status").className = kind || "";
@@ -260,6 +267,7 @@ async function decodeNext() {
       applyColours();
       geometry.setDrawRange(0, f.m);
       if (reframe && f.m > 0) { frameView(); reframe = false; }
+      if (f.split) stats.split += 1;
       stats.frames += 1; stats.lastFrameAt = performance.now(); stats.bytes += item.buf.byteLength; stats.version = f.version;
       shown = { number: f.number, meta: item.meta, received: item.received, decodeMs };
       updateHud(f);
@@ -293,7 +301,7 @@ function updateHud(f) {
 
 function connect() {
   const q = new URLSearchParams({ ack: "1", attrs: "1", inter: "1" });  // inter: compact deltas, decoded in order
-  decoder = FuseFlowDecode.createDecoder();
+  decoder = newDecoder();
   if (params.get("codec")) q.set("codec", params.get("codec"));
   if (token) q.set("token", token);
   ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws?" + q);
