@@ -30,6 +30,7 @@ ALLOWED: dict[str, set[str]] = {
     "fuseflow.calib.people": {"mediapipe", "open3d", "scipy"},
     "fuseflow.calib.posegraph": {"scipy"},
     "fuseflow.calib.refine": {"open3d"},
+    "fuseflow.calib.room_axis_fit": {"scipy"},
     "fuseflow.calib.subject": {"cv2"},
     "fuseflow.calib.symmetry": {"scipy"},
     "fuseflow.calib.turns": {"scipy"},
