@@ -140,6 +140,16 @@ class RoomAxis:
         return T
 
 
+def _camera_points(depth: np.ndarray, cam, stride: int):
+    """(X (P, 3) camera-frame points, v, u pixel grids, ok mask) of one camera's depth (H, W)
+    sampled every ``stride`` pixels within its depth range."""
+    z = depth[::stride, ::stride]
+    v, u = np.mgrid[0 : depth.shape[0] : stride, 0 : depth.shape[1] : stride]
+    ok = (z > max(cam.depth_range[0], 0.05)) & (z < cam.depth_range[1])
+    X = (np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ np.linalg.inv(cam.K).T) * z[ok][:, None]
+    return X, v, u, ok
+
+
 def _world_points(frame: Frame, rig: Rig, T: Mapping[str, np.ndarray], stride: int, colour: bool = False):
     """Camera -> (P, 3) world points of its depth sampled every ``stride`` pixels (with ``colour``:
     camera -> ((P, 3) points, (P, 3) float colours))."""
@@ -149,12 +159,7 @@ def _world_points(frame: Frame, rig: Rig, T: Mapping[str, np.ndarray], stride: i
     for k, c in enumerate(frame.camera_ids):
         if c not in T:
             continue
-        cam = rig[c]
-        z = depth[k, ::stride, ::stride]
-        v, u = np.mgrid[0 : depth.shape[1] : stride, 0 : depth.shape[2] : stride]
-        ok = (z > max(cam.depth_range[0], 0.05)) & (z < cam.depth_range[1])
-        Kinv = np.linalg.inv(cam.K)
-        X = (np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ Kinv.T) * z[ok][:, None]
+        X, v, u, ok = _camera_points(depth[k], rig[c], stride)
         Tw = invert_rigid(T[c])
         X = X @ Tw[:3, :3].T + Tw[:3, 3]
         if colour:  # each camera's colours divided by its mean (gain and white balance differ per camera)
@@ -193,11 +198,7 @@ def _floor_normals(frame: Frame, rig: Rig, T: Mapping[str, np.ndarray]) -> dict[
     for k, c in enumerate(frame.camera_ids):
         if c not in T:
             continue
-        cam = rig[c]
-        z = depth[k, ::2, ::2]
-        v, u = np.mgrid[0 : depth.shape[1] : 2, 0 : depth.shape[2] : 2]
-        ok = (z > max(cam.depth_range[0], 0.05)) & (z < cam.depth_range[1])
-        X = (np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ np.linalg.inv(cam.K).T) * z[ok][:, None]
+        X = _camera_points(depth[k], rig[c], 2)[0]
         if (plane := fit_floor_plane(X)) is not None:
             out[c] = plane.normal
     return out
