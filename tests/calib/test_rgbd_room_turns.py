@@ -31,7 +31,7 @@ def _alias(T: list[np.ndarray], i: int, j: int, k: int, sides: int) -> np.ndarra
 def _cam(T: np.ndarray):
     up = T[:3, :3] @ np.array([0.0, 0.0, 1.0])
     samples = torch.tensor([[0.0, 0.0, 2.6]] * 4)
-    return SimpleNamespace(plane=SimpleNamespace(normal=up), samples_X=samples, colour=None)  # no image: no view room
+    return SimpleNamespace(plane=SimpleNamespace(normal=up), samples_X=samples, images=())  # no image: no view room
 
 
 def test_the_room_comes_from_aliases_when_no_pose_is_verified():

@@ -35,7 +35,7 @@ class CameraEvidence:
     samples_floor: torch.Tensor  # (M,) bool
     depth_sub: torch.Tensor  # (h, w) float32 subsampled depth for lookups
     K_sub: torch.Tensor  # (3, 3) float32 intrinsics of depth_sub
-    colour: np.ndarray | None = None  # (H, W, 3) uint8 median colour (``room_view``)
+    images: tuple[np.ndarray, ...] = ()  # per frame (H, W, 3) uint8 colour, the frames' own arrays (``room_view``)
 
 
 @dataclass(frozen=True)
@@ -133,9 +133,8 @@ def prepare_camera(frames: list[Frame], rig: Rig, k: int, cfg: RGBDConfig) -> Ca
             if desc is not None and len(kps):
                 td_xy = topdown.to_floor(sift_uv(kps))
                 td_desc = desc.astype(np.float32)
-    colour = images[0] if len(images) == 1 else np.median(np.stack(images), axis=0).astype(np.uint8)
     samples = _samples(depth_med, K, plane, cfg)
-    return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *samples, colour=colour)
+    return CameraEvidence(K, depth_med, plane, topdown, td_xy, td_desc, kp, *samples, images=tuple(images))
 
 
 #: Pixel stride of the points ``room_view`` gives the one-view room search.
@@ -145,13 +144,16 @@ ROOM_VIEW_STRIDE = 2
 def room_view(cam: CameraEvidence) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(points (P, 3), their colours scaled to a mean of 128, the floor normal) of the camera's
     median depth every ROOM_VIEW_STRIDE pixels, for ``symmetry.view_room``; None without a floor
-    or a colour image."""
-    if cam.plane is None or cam.colour is None:
+    or a colour image. The colour is the frames' median, taken here: only the rooms no pair shows
+    need it."""
+    if cam.plane is None or not cam.images:
         return None
+    ims = cam.images
+    colour = ims[0] if len(ims) == 1 else np.median(np.stack(ims), axis=0).astype(np.uint8)
     s = ROOM_VIEW_STRIDE
     z = cam.depth[::s, ::s]
     X = backproject(cam.depth, cam.K, s)
-    col = cam.colour[::s, ::s][z > 0].astype(np.float64)
+    col = colour[::s, ::s][z > 0].astype(np.float64)
     return X, col / np.maximum(col.mean(axis=0), 1.0) * 128.0, np.asarray(cam.plane.normal, np.float64)
 
 
