@@ -151,11 +151,11 @@ def test_a_refined_camera_reads_the_larger_of_the_covariance_and_half_the_disagr
                           depth_agreement=dict.fromkeys(T, 0.95), unplaced_reasons={}, unregistered_cameras=[],
                           joint_refinement=jr)  # fmt: skip
     v = camera_verdicts(rep, T, list(T))
-    assert (v["b"]["accuracy_deg"], v["b"]["accuracy_mm"]) == (0.3, 5.1) and v["b"]["verdict"] == "good", v["b"]
-    assert (v["c"]["accuracy_deg"], v["c"]["accuracy_mm"]) == (0.8, 15.0), v["c"]  # half its motion
-    assert np.isclose(v["a"]["accuracy_deg"], 0.2 / np.sqrt(2), atol=1e-3)  # held: its pair poses still say
+    assert (v["b"]["estimate_deg"], v["b"]["estimate_mm"]) == (0.3, 5.1) and v["b"]["verdict"] == "good", v["b"]
+    assert (v["c"]["estimate_deg"], v["c"]["estimate_mm"]) == (0.8, 15.0), v["c"]  # half its motion
+    assert np.isclose(v["a"]["estimate_deg"], 0.2 / np.sqrt(2), atol=1e-3)  # held: its pair poses still say
     rep.joint_refinement = {**jr, "accepted": False}
-    assert camera_verdicts(rep, T, list(T))["c"]["accuracy_deg"] < 0.2
+    assert camera_verdicts(rep, T, list(T))["c"]["estimate_deg"] < 0.2
 
 
 def test_in_a_repeating_room_the_pair_poses_scatter_still_counts_after_the_refinement():
@@ -173,3 +173,32 @@ def test_in_a_repeating_room_the_pair_poses_scatter_still_counts_after_the_refin
     plain = [(0.1, 3.0, "sift4+refit")] * 4
     assert camera_accuracy(res, plain, refined=True, refinement=(0.05, 3.0), moved=(0.05, 3.0))[1] == 3.0
     assert camera_accuracy([(0.2, 120.0)] * 2, fits[:2], refined=True, refinement=(0.05, 3.0))[1] > GOOD_MM
+
+
+def test_the_printed_accuracy_is_the_bound_and_the_verdict_judges_the_estimate():
+    """The verdict table prints the bound (the estimate times the fitted factors; for a camera the
+    subject turned, combined with the room axis' error over its chord) while the verdict judges
+    the estimate: a camera whose estimate is within GOOD_MM stays "good" though its bound is not."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib.accuracy import BOUND_AXIS_MM, BOUND_DEG_FACTOR, BOUND_MM_FACTOR, printed_bound
+    from fuseflow.calib.verdicts import camera_verdicts
+
+    assert printed_bound(0.2, 10.0) == (round(0.2 * BOUND_DEG_FACTOR, 3), 10.0 * BOUND_MM_FACTOR)
+    assert printed_bound(None, None) == (None, None)
+    turned = printed_bound(0.2, 10.0, turned_deg=-180.0)[1]
+    assert turned == round(float(np.hypot(10.0 * BOUND_MM_FACTOR, 2 * BOUND_AXIS_MM)), 1)
+    T = {c: np.eye(4) for c in "abc"}
+    for k, c in enumerate("abc"):
+        T[c][:3, 3] = [k * 1.0, 0.0, 0.0]
+    exp = {"deg": 0.2, "mm": 0.9 * GOOD_MM, "cells": 5}
+    pairs = [{"cameras": [x, y], "edge": {"T_ji": (T[y] @ invert_rigid(T[x])).tolist(), "route": "floor",
+                                          "expected": exp}} for x, y in ("ab", "ac", "bc")]  # fmt: skip
+    info = {"pairs": pairs, "cameras": {c: {"edges": [o for o in T if o != c]} for c in T}}
+    rep = SimpleNamespace(backbone="rgbd", backbone_info=info, config={}, placed_by=dict.fromkeys(T, "rgbd"),
+                          depth_agreement=dict.fromkeys(T, 0.95), unplaced_reasons={}, unregistered_cameras=[],
+                          joint_refinement=None)  # fmt: skip
+    v = camera_verdicts(rep, T, list(T))["b"]
+    assert v["verdict"] == "good" and v["estimate_mm"] < GOOD_MM < v["accuracy_mm"], v
+    assert (v["accuracy_deg"], v["accuracy_mm"]) == printed_bound(v["estimate_deg"], v["estimate_mm"])
+    assert f"{v['accuracy_mm']:.0f} mm" in v["reason"]

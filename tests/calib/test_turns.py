@@ -142,7 +142,7 @@ def test_a_camera_the_subject_turned_is_as_precise_as_the_room_axis_at_best():
     v = camera_verdicts(rep, T, list(T), turns, room)
     assert v["a"]["verdict"] == "good" and v["c"]["verdict"] == "good"
     lever_mm = 2 * math.sin(math.pi / 8) * TURN_AXIS_MM  # a 45-deg turn about an axis known to TURN_AXIS_MM
-    assert v["b"]["accuracy_mm"] == pytest.approx(lever_mm, abs=0.1) and v["b"]["verdict"] == "check it"
+    assert v["b"]["estimate_mm"] == pytest.approx(lever_mm, abs=0.1) and v["b"]["verdict"] == "check it"
     assert "+45 deg about the room's axis" in v["b"]["accuracy_from"]
 
 

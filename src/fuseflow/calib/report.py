@@ -114,7 +114,8 @@ class CalibReport(Mapping[str, Any]):
     camera_verdicts: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Camera -> {"verdict": "good" | "check it" | "ambiguous" | "unplaced", "reason", "placed_by",
     "routes", "pairs", "pairs_agreeing", "cycles", "floor", "floor_ok", "checks", "depth_agreement",
-    "accuracy_deg", "accuracy_mm", "accuracy_from", "disagreeing", "turn"}
+    "accuracy_deg", "accuracy_mm" (the printed bound), "estimate_deg", "estimate_mm" (what the verdict
+    judges), "accuracy_from", "disagreeing", "turn"}
     (:func:`fuseflow.calib.verdicts.camera_verdicts` says how each is measured). Empty in reports
     written before it existed."""
     reference: dict[str, Any] | None = None
