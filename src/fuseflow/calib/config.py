@@ -17,12 +17,12 @@ Presets (``CalibConfig.preset(name)``):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Literal
+from typing import Any, Literal
 
 from fuseflow.calib.backbones.rgbd import RGBDConfig
 from fuseflow.errors import ValidationError
 
-__all__ = ["CalibConfig", "PRESETS"]
+__all__ = ["CalibConfig", "PRESETS", "ScaleSettings", "RefineSettings", "scale_settings", "refine_settings"]
 
 
 @dataclass(frozen=True)
@@ -242,3 +242,62 @@ PRESETS: dict[str, CalibConfig] = {
     "full3d": CalibConfig(backbone="colmap", closed_form="full3d", joint_refine=False),
     "robust": CalibConfig(backbone="colmap", robust=True, joint_refine=False),
 }
+
+
+@dataclass(frozen=True)
+class ScaleSettings:
+    """What the scale stage (``calib.scale_stage``) and the correspondences it builds
+    (``calib.correspondences``) read: the :class:`CalibConfig` fields of the same names (their
+    meaning and ranges are there), built once by ``scale_settings``."""
+
+    closed_form: Literal["plane", "full3d", "zonly"]
+    depth_tau: float
+    depth_tau_final: float
+    max_step: float
+    use_matches: bool
+    global_from_matches: bool
+    match_rel_tol: float
+    random_correspondences: bool
+    feature_weight: bool
+    robust: bool
+    huber_delta: float
+    scale_grid: int
+    coarse_candidates: int
+    informative_cos: float
+    scale_span: float
+    fixed_point_tol: float
+    fixed_point_iters: int
+    min_overlap: float
+    min_correspondences: int
+    cycle_consistency: bool
+    delta_cycle: float
+    max_pruned_fraction: float
+    ill_conditioned_spread: float
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """What the ICP / pose-graph refinement (``calib.refine``) reads: the :class:`CalibConfig`
+    fields of the same names, built once by ``refine_settings``."""
+
+    icp_voxel: float
+    icp_max_distance: float
+    refine_neighbors: int
+
+
+def _settings(cls: type, config: Any) -> Any:
+    """``cls`` from the fields of the same names of ``config`` (a :class:`CalibConfig`), or
+    ``config`` itself when it already is one."""
+    if isinstance(config, cls):
+        return config
+    return cls(**{f.name: getattr(config, f.name) for f in fields(cls)})
+
+
+def scale_settings(config: CalibConfig | ScaleSettings) -> ScaleSettings:
+    """The scale stage's settings of ``config``."""
+    return _settings(ScaleSettings, config)
+
+
+def refine_settings(config: CalibConfig | RefineSettings) -> RefineSettings:
+    """The refinement's settings of ``config``."""
+    return _settings(RefineSettings, config)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.config import ScaleSettings
 from fuseflow.calib.scale import Correspondences
 
 __all__ = [
@@ -212,7 +212,7 @@ def reproject(g: EdgeGeometry, cam_j: CameraData, X: np.ndarray, s: float) -> tu
 
 
 def build_correspondences(
-    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, config: CalibConfig
+    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, s: float, config: ScaleSettings
 ) -> Correspondences:
     """RC correspondences of edge i -> j at scale s, weighted by eq. (8)."""
     if config.random_correspondences:
@@ -235,7 +235,7 @@ def build_correspondences(
 
 
 def match_correspondences(
-    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, config: CalibConfig
+    g: EdgeGeometry, cam_i: CameraData, cam_j: CameraData, config: ScaleSettings
 ) -> Correspondences:
     """The backbone's keypoint matches of edge i -> j as correspondences (both pixels fixed).
 

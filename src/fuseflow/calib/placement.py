@@ -15,8 +15,10 @@
 5. the verdicts (:mod:`verdicts`): pair agreements, each camera's verdict, the scale check's
    warning dropped when the verdicts answer it.
 
-Each stage gets the values of ``CalibConfig`` it reads (the scale stage, the backbones and the
-refinement take the config itself); the verdicts take the depth-agreement threshold as an argument.
+The ``CalibConfig`` is read here once (``stage_settings``): each stage gets its own settings, the
+scale stage a :class:`~fuseflow.calib.config.ScaleSettings`, the refinement a
+:class:`~fuseflow.calib.config.RefineSettings`, the source merging, the report and the verdicts the
+depth-agreement threshold; only the backbones take the config itself (their own settings are in it).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from fuseflow.calib import progress
 from fuseflow.calib.auto import AUTO_SOURCES, merge_sources, settled
 from fuseflow.calib.backbones import MULTI_FRAME_BACKBONES, BackboneResult, get_backbone
 from fuseflow.calib.blas import one_blas_thread
-from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.config import CalibConfig, RefineSettings, ScaleSettings, refine_settings, scale_settings
 from fuseflow.calib.correspondences import CameraData, prepare_cameras
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.calib.posegraph import anchor_world
@@ -57,6 +59,8 @@ __all__ = [
     "place_with_backbone",
     "anchor_world",
     "run_backbone",
+    "StageSettings",
+    "stage_settings",
     "METRIC_SCALE_TOLERANCE",
 ]
 
@@ -78,6 +82,38 @@ def as_frames(frames: Frame | Sequence[Frame]) -> list[Frame]:
                 f"{seq[0].camera_ids} at {seq[0].resolution}: the frames must come from one static rig"
             )
     return seq
+
+
+@dataclass(frozen=True)
+class StageSettings:
+    """Each stage's settings, read from the ``CalibConfig`` once (``stage_settings``).
+
+    Attributes:
+        scale: the scale stage's. refine: the ICP / pose-graph refinement's (None: off).
+        joint_refine: whether the depth-aware joint refinement runs. min_agreement: the depth
+        agreement below which a camera is unplaced or not "good" (0 = not checked).
+        closed_form: the scale stage's closed form (for the report). report: the config's fields
+        as calib.json's ``report.config``.
+    """
+
+    scale: ScaleSettings
+    refine: RefineSettings | None
+    joint_refine: bool
+    min_agreement: float
+    closed_form: str
+    report: dict[str, Any]
+
+
+def stage_settings(config: CalibConfig) -> StageSettings:
+    """The stages' settings of ``config``."""
+    return StageSettings(
+        scale=scale_settings(config),
+        refine=refine_settings(config) if config.refine else None,
+        joint_refine=config.joint_refine,
+        min_agreement=config.min_depth_agreement,
+        closed_form=config.closed_form,
+        report=config.as_dict(),
+    )
 
 
 @dataclass(kw_only=True)
@@ -129,7 +165,8 @@ def place_and_judge(
     its report and every camera's verdict."""
     t_start = time.perf_counter()
     ids = frames[0].camera_ids
-    limit = config.min_depth_agreement
+    st = stage_settings(config)
+    limit = st.min_agreement
     with one_blas_thread():  # thin (M, 3) / (M, 6) products: BLAS threads only cost (calib.blas)
         cams = prepare_cameras(depth, K, drange, config.samples_per_camera, config.seed)
         is_auto = config.backbone == "auto" and backbone_result is None
@@ -137,7 +174,7 @@ def place_and_judge(
         failures: dict[str, str] = {}
         for name in AUTO_SOURCES if is_auto else (config.backbone,):
             try:
-                runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, cams, config, backbone_result)
+                runs[name] = place_with_backbone(name, frames, rig, depth, K, drange, cams, config, backbone_result, st)
             except CalibrationError as e:
                 if not is_auto:
                     raise
@@ -153,7 +190,7 @@ def place_and_judge(
                     pl.T, frames[0], rig, limit, {pl.bb.name: pl.agreement}, merged=False, agreement=pl.agreement
                 )
                 pl.T, pl.anchor = anchor_world(T, rig.ids)
-        if config.joint_refine and len(pl.T) >= 2:
+        if st.joint_refine and len(pl.T) >= 2:
             from fuseflow.calib.joint_refine import joint_refine
 
             t = time.perf_counter()
@@ -167,14 +204,13 @@ def place_and_judge(
             pl.timings["joint_refine"] = time.perf_counter() - t
         progress.report("report")
         t = time.perf_counter()
-        settings = config.as_dict()
-        report = finish_report(pl, ids, settings, config.closed_form, limit)
+        report = finish_report(pl, ids, st.report, st.closed_form, limit)
         room, turns = camera_turns(frames, rig, pl.T, report)  # a repeating room: the subject decides turns
         if room is not None:
             pl.T, turns = settle_turns(pl.T, room, turns, TURN_MIN_MARGIN)  # about the room's axis
             if any(t.moved for t in turns.values()):
                 pl.agreement = depth_agreement(frames[0], rig, pl.T) if limit > 0 else {}
-                report = finish_report(pl, ids, settings, config.closed_form, limit)
+                report = finish_report(pl, ids, st.report, st.closed_form, limit)
             report.room = room.to_json()
         report.camera_verdicts = camera_verdicts(report, pl.T, ids, turns, room, limit)
         report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
@@ -194,11 +230,14 @@ def place_with_backbone(
     cams: list[CameraData],
     config: CalibConfig,
     backbone_result: BackboneResult | None = None,
+    stages: StageSettings | None = None,
 ) -> Placement:
     """Backbone ``name`` (or ``backbone_result``) -> scale (or its check) -> placement ->
     optional refinement -> world anchor -> depth agreement, on ``frames`` (checked; the first
     frame's ``depth`` (N, H, W) float32 m, ``K`` (N, 3, 3), ``drange`` (N, 2) m; ``cams``: their
-    ``correspondences.prepare_cameras``)."""
+    ``correspondences.prepare_cameras``). ``config`` goes to the backbone; the other stages read
+    ``stages`` (default: ``stage_settings(config)``)."""
+    st = stages or stage_settings(config)
     timings: dict[str, float] = {}
     frame, ids = frames[0], frames[0].camera_ids
     t = time.perf_counter()
@@ -207,7 +246,7 @@ def place_with_backbone(
     timings["backbone"] = time.perf_counter() - t
     t = time.perf_counter()
     progress.report(f"{name}: scale")
-    sr, scale_check, warnings = placement_scale(bb, cams, config)
+    sr, scale_check, warnings = placement_scale(bb, cams, st.scale)
     connected = (
         [int(k) for k in np.flatnonzero(bb.registered)] if bb.metric else sorted({n for e in sr.kept for n in e})
     )
@@ -217,14 +256,14 @@ def place_with_backbone(
         T[ids[k]] = bb.T_cam_world[k].copy()
         T[ids[k]][:3, 3] *= sr.s
     refinement = None
-    if config.refine:
+    if st.refine is not None:
         from fuseflow.calib.refine import refine_poses
 
         t = time.perf_counter()
         progress.report(f"{name}: refinement")
         color = frame.color.detach().cpu().numpy()
         rr = refine_poses(
-            {k: T[ids[k]] for k in connected}, depth, K, drange, list(sr.kept), config, color=color,
+            {k: T[ids[k]] for k in connected}, depth, K, drange, list(sr.kept), st.refine, color=color,
             counts=sr.edge_counts, matches=bb.matches,
         )  # fmt: skip
         T.update({ids[k]: Tk for k, Tk in rr.T_cam_world.items()})
@@ -232,7 +271,7 @@ def place_with_backbone(
         refinement.pop("T_cam_world")
         timings["refine"] = time.perf_counter() - t
     T, anchor = anchor_world(T, rig.ids)
-    agreement = depth_agreement(frame, rig, T) if config.min_depth_agreement > 0 and T else {}
+    agreement = depth_agreement(frame, rig, T) if st.min_agreement > 0 and T else {}
     return Placement(
         bb=bb, sr=sr, T=T, connected=connected, anchor=anchor, agreement=agreement, scale_check=scale_check,
         refinement=refinement, warnings=warnings, timings=timings,

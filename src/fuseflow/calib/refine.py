@@ -16,12 +16,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.config import RefineSettings, refine_settings
 from fuseflow.calib.errors import CalibrationError
 from fuseflow.types import invert_rigid
+
+if TYPE_CHECKING:  # the public entry point also takes a whole CalibConfig
+    from fuseflow.calib.config import CalibConfig
 
 __all__ = ["RefineResult", "refine_poses"]
 
@@ -74,7 +78,7 @@ def refine_poses(
     K: np.ndarray,
     depth_range: np.ndarray,
     edges: Sequence[tuple[int, int]],
-    config: CalibConfig,
+    settings: RefineSettings | CalibConfig,
     color: np.ndarray | None = None,
     counts: Mapping[tuple[int, int], int] | None = None,
     matches: Mapping[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None,
@@ -84,7 +88,9 @@ def refine_poses(
     Args:
         T_cam_world: camera index -> (4, 4) metric camera-from-world (GMAC output).
         depth: (N, H, W) float32 metres. K: (N, 3, 3). depth_range: (N, 2).
-        edges: overlapping pairs (i, j) to register. color: (N, H, W, 3) uint8 (coloured ICP;
+        edges: overlapping pairs (i, j) to register. settings: the refinement's settings
+            (``config.refine_settings``; a :class:`~fuseflow.calib.config.CalibConfig` is taken
+            too and its settings used). color: (N, H, W, 3) uint8 (coloured ICP;
             None = point-to-plane). counts: edge -> correspondences, to pick each camera's best.
         matches: the backbone's keypoint matches (i, j) -> (uv_i, uv_j): held-out evidence for
             the acceptance check (ICP minimises the cloud residual, so that residual cannot judge
@@ -95,14 +101,15 @@ def refine_poses(
     except ImportError as exc:  # pragma: no cover - open3d is a dependency
         raise CalibrationError("refinement needs open3d: pip install open3d") from exc
     reg = o3d.pipelines.registration
+    settings = refine_settings(settings)
     nodes = sorted(T_cam_world)
     if len(nodes) < 2:
         return RefineResult(dict(T_cam_world), {}, {}, {}, 0, False)
     clouds = {
-        k: _cloud(o3d, depth[k], K[k], depth_range[k], config.icp_voxel, None if color is None else color[k])
+        k: _cloud(o3d, depth[k], K[k], depth_range[k], settings.icp_voxel, None if color is None else color[k])
         for k in nodes
     }
-    edges = _best_edges(nodes, edges, counts, config.refine_neighbors)
+    edges = _best_edges(nodes, edges, counts, settings.refine_neighbors)
     index = {k: n for n, k in enumerate(nodes)}
     graph = reg.PoseGraph()
     for k in nodes:
@@ -112,17 +119,17 @@ def refine_poses(
     for i, j in edges:
         if i not in index or j not in index:
             continue
-        edge = _register_pair(reg, clouds, i, j, T_cam_world, config.icp_max_distance, color is not None)
+        edge = _register_pair(reg, clouds, i, j, T_cam_world, settings.icp_max_distance, color is not None)
         fitness[f"{i}-{j}"], rmse[f"{i}-{j}"] = edge.fitness, edge.rmse_mm
         if edge.transformation is not None:
             graph.edges.append(reg.PoseGraphEdge(index[i], index[j], edge.transformation, edge.info, uncertain=False))
             used += 1
     if used:
-        _optimise(o3d, graph, config.icp_max_distance)
+        _optimise(o3d, graph, settings.icp_max_distance)
     out = {k: invert_rigid(np.asarray(graph.nodes[index[k]].pose)) for k in nodes}
     accepted, check = False, None
     if used:
-        accepted, check = _accept(reg, clouds, edges, T_cam_world, out, config, matches, depth, K, depth_range)
+        accepted, check = _accept(reg, clouds, edges, T_cam_world, out, settings, matches, depth, K, depth_range)
     if not accepted:
         out = {k: np.array(T_cam_world[k], dtype=np.float64) for k in nodes}
     moved = {}
@@ -191,10 +198,10 @@ def _optimise(o3d, graph, max_dist: float) -> None:
         )
 
 
-def _accept(reg, clouds, edges, T_before, T_after, config, matches, depth, K, depth_range):
+def _accept(reg, clouds, edges, T_before, T_after, settings, matches, depth, K, depth_range):
     """(keep the refined poses?, the numbers behind it): the held-out keypoint matches must fit
     better; without matches, the clouds' mean RMSE must drop and mean fitness not drop."""
-    check = _fit_check(reg, clouds, edges, T_before, T_after, config.icp_max_distance)
+    check = _fit_check(reg, clouds, edges, T_before, T_after, settings.icp_max_distance)
     m0 = _match_misfit(matches, T_before, depth, K, depth_range)
     if m0 is not None:
         check["match_misfit_before_mm"] = m0

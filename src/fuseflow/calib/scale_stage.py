@@ -1,6 +1,6 @@
 """GMAC's scale stage: one metric scale s* for the backbone's translations (paper eq. 5-13).
 
-``metric_scale(bb, cams, config) -> ScaleResult`` in named steps:
+``metric_scale(bb, cams, settings) -> ScaleResult`` in named steps:
 
 1. ``scale_search_centre``: s0 = median sensor depth / median backbone baseline.
 2. ``candidate_edges``: every registered pair, both directions, with eq. (8)'s edge weight.
@@ -17,7 +17,7 @@ alternating the two halves of the stage: the correspondences at a scale
 (:mod:`fuseflow.calib.correspondences`, eq. 5, 8, 11) and the closed form on them
 (:mod:`fuseflow.calib.scale`, eq. 9-12). ``fixed_point_scale`` alternates them from the coarse
 start until |ds| / s < tol (annealed depth gate, clamped, Aitken-accelerated). Every fixed point
-uses the same step function (:data:`StepFunction` ``step(geoms, cams, s, config) ->
+uses the same step function (:data:`StepFunction` ``step(geoms, cams, s, settings) ->
 (ScaleEstimate, correspondences)``, default :func:`rc_step`; callers may pass their own, e.g. one
 that perturbs the correspondences, to measure how the stage copes with a wrong edge).
 """
@@ -26,11 +26,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fuseflow.calib.backbones import BackboneResult
-from fuseflow.calib.config import CalibConfig
+from fuseflow.calib.config import ScaleSettings, scale_settings
 from fuseflow.calib.correspondences import (
     CameraData,
     EdgeGeometry,
@@ -51,6 +52,9 @@ from fuseflow.calib.scale import (
 )
 from fuseflow.calib.verdicts import SCALE_CHECK_WARNING
 from fuseflow.types import invert_rigid
+
+if TYPE_CHECKING:  # the public entry point also takes a whole CalibConfig
+    from fuseflow.calib.config import CalibConfig
 
 __all__ = [
     "ScaleResult",
@@ -78,11 +82,11 @@ __all__ = [
 
 Edge = tuple[int, int]
 
-#: One alternation of the fixed point: ``step(geoms, cams, s, config) -> (estimate, corrs)``:
+#: One alternation of the fixed point: ``step(geoms, cams, s, settings) -> (estimate, corrs)``:
 #: the correspondences of the directed edges ``geoms`` at scale s (metres per backbone unit)
-#: under ``config`` (its ``depth_tau`` is the current gate), and the closed-form scale on them.
+#: under ``settings`` (its ``depth_tau`` is the current gate), and the closed-form scale on them.
 StepFunction = Callable[
-    [Sequence[EdgeGeometry], Sequence[CameraData], float, CalibConfig],
+    [Sequence[EdgeGeometry], Sequence[CameraData], float, ScaleSettings],
     tuple[ScaleEstimate, list[Correspondences]],
 ]
 
@@ -107,7 +111,7 @@ def coarse_scale_search(
     geoms: Sequence[EdgeGeometry],
     cams: Sequence[CameraData],
     s0: float,
-    config: CalibConfig,
+    settings: ScaleSettings,
     extra: Sequence[float] = (),
 ) -> CoarseSearch:
     """Maximise the count of depth-consistent reprojections over s0 * [1/span, span] (log grid),
@@ -125,7 +129,7 @@ def coarse_scale_search(
     """
     if not geoms:
         raise CalibrationError("no camera pairs to search the scale over")
-    masks = [informative_mask(g, cams[g.i], config.informative_cos) for g in geoms]
+    masks = [informative_mask(g, cams[g.i], settings.informative_cos) for g in geoms]
 
     def counts(grid: np.ndarray, tau: float) -> np.ndarray:
         out = np.zeros(len(grid), dtype=np.int64)
@@ -133,8 +137,8 @@ def coarse_scale_search(
             out += consistent_counts(g, cams[g.i], cams[g.j], grid, tau, m)
         return out
 
-    grid = s0 * np.logspace(-np.log10(config.scale_span), np.log10(config.scale_span), config.scale_grid)
-    c = counts(grid, config.depth_tau)
+    grid = s0 * np.logspace(-np.log10(settings.scale_span), np.log10(settings.scale_span), settings.scale_grid)
+    c = counts(grid, settings.depth_tau)
     if c.max() == 0:
         raise CalibrationError(
             "no scale in the search range makes any reprojection depth-consistent: the cameras do "
@@ -146,9 +150,9 @@ def coarse_scale_search(
     # candidates: local maxima of the wide-gate count, best first
     padded = np.concatenate([[-1], c, [-1]])
     peaks = [k for k in range(len(c)) if c[k] > 0 and padded[k + 1] >= padded[k] and padded[k + 1] >= padded[k + 2]]
-    peaks = sorted(peaks, key=lambda k: -c[k])[: config.coarse_candidates]
+    peaks = sorted(peaks, key=lambda k: -c[k])[: settings.coarse_candidates]
     cands = [float(grid[k]) for k in peaks] + [float(x) for x in extra if np.isfinite(x) and x > 0]
-    tau_fine = min(config.depth_tau_final, config.depth_tau)
+    tau_fine = min(settings.depth_tau_final, settings.depth_tau)
     best_s, best_c = cands[0], -1
     all_s, all_c = [grid], [c]
     for sc in cands:
@@ -183,48 +187,49 @@ class FixedPointResult:
 
 
 def rc_step(
-    geoms: Sequence[EdgeGeometry], cams: Sequence[CameraData], s: float, config: CalibConfig
+    geoms: Sequence[EdgeGeometry], cams: Sequence[CameraData], s: float, settings: ScaleSettings
 ) -> tuple[ScaleEstimate, list[Correspondences]]:
     """GMAC's fixed-point step (a :data:`StepFunction`): RC correspondences of every directed
-    edge in ``geoms`` at scale s (Huber-reweighted when ``config.robust``), and the
-    ``config.closed_form`` scale on all of them together.
+    edge in ``geoms`` at scale s (Huber-reweighted when ``settings.robust``), and the
+    ``settings.closed_form`` scale on all of them together.
 
     Args:
         geoms: directed edges i -> j (backbone relative poses, unit scale).
         cams: per-camera RC data, indexed by camera index (rig order).
         s: current scale, metres per backbone unit (> 0).
-        config: settings; ``depth_tau`` is the depth gate of this step.
+        settings: settings; ``depth_tau`` is the depth gate of this step.
     """
-    corrs = [build_correspondences(g, cams[g.i], cams[g.j], s, config) for g in geoms]
-    if config.robust:
+    corrs = [build_correspondences(g, cams[g.i], cams[g.j], s, settings) for g in geoms]
+    if settings.robust:
         corrs = [
-            c.reweighted(c.w * huber_weights(residuals(c, s, config.closed_form), config.huber_delta)) for c in corrs
+            c.reweighted(c.w * huber_weights(residuals(c, s, settings.closed_form), settings.huber_delta))
+            for c in corrs
         ]
-    return closed_form_scale(corrs, config.closed_form), corrs
+    return closed_form_scale(corrs, settings.closed_form), corrs
 
 
-def final_gate(config: CalibConfig) -> CalibConfig:
-    """``config`` with the depth gate at the fixed point's final value, min(depth_tau_final, depth_tau)."""
-    return replace(config, depth_tau=min(config.depth_tau_final, config.depth_tau))
+def final_gate(settings: ScaleSettings) -> ScaleSettings:
+    """``settings`` with the depth gate at the fixed point's final value, min(depth_tau_final, depth_tau)."""
+    return replace(settings, depth_tau=min(settings.depth_tau_final, settings.depth_tau))
 
 
 def one_step_scale(
     geoms: Sequence[EdgeGeometry],
     cams: Sequence[CameraData],
     s: float,
-    config: CalibConfig,
+    settings: ScaleSettings,
     step: StepFunction | None = None,
 ) -> tuple[ScaleEstimate, list[Correspondences]]:
     """The closed form on the correspondences at a fixed s, at the final gate (the paper's
     fixed-correspondence approximation: no iteration). Raises CalibrationError like ``step``."""
-    return (step or rc_step)(geoms, cams, s, final_gate(config))
+    return (step or rc_step)(geoms, cams, s, final_gate(settings))
 
 
 def fixed_point_scale(
     geoms: Sequence[EdgeGeometry],
     cams: Sequence[CameraData],
     s0: float,
-    config: CalibConfig,
+    settings: ScaleSettings,
     step: StepFunction | None = None,
 ) -> FixedPointResult:
     """Alternate RC correspondences and the closed form from s0 until |ds| / s < tol.
@@ -242,23 +247,23 @@ def fixed_point_scale(
         step: one alternation (default :func:`rc_step`); see :data:`StepFunction`.
     """
     step = step or rc_step
-    tol = config.fixed_point_tol
-    tau_final = min(config.depth_tau_final, config.depth_tau)
+    tol = settings.fixed_point_tol
+    tau_final = min(settings.depth_tau_final, settings.depth_tau)
     s = float(s0)
     hist = [s]
     k = 0
     converged = False
     prev: float | None = None
     est = corrs = None
-    while k < config.fixed_point_iters:
-        tau = max(tau_final, config.depth_tau * 0.6**k)
-        cfg = replace(config, depth_tau=tau)
+    while k < settings.fixed_point_iters:
+        tau = max(tau_final, settings.depth_tau * 0.6**k)
+        cfg = replace(settings, depth_tau=tau)
         est, corrs = step(geoms, cams, s, cfg)
         k += 1
         s_new = est.s
         if not np.isfinite(s_new) or s_new <= 0:
             raise CalibrationError(f"the scale fixed point left the positive reals (s = {s_new:g})")
-        s_new = float(np.clip(s_new, s * (1 - config.max_step), s * (1 + config.max_step)))
+        s_new = float(np.clip(s_new, s * (1 - settings.max_step), s * (1 + settings.max_step)))
         at_final = tau <= tau_final
         if at_final and abs(s_new - s) / s_new < tol:
             s = s_new
@@ -269,11 +274,11 @@ def fixed_point_scale(
             denom = s_new - 2 * s + prev
             if abs(denom) > 1e-15 * s_new:
                 sa = s_new - (s_new - s) ** 2 / denom
-                if abs(sa - s_new) < config.max_step * s_new:
+                if abs(sa - s_new) < settings.max_step * s_new:
                     s_new = sa
         prev, s = (s if at_final else None), s_new
         hist.append(s)
-    est, corrs = step(geoms, cams, s, final_gate(config))
+    est, corrs = step(geoms, cams, s, final_gate(settings))
     return FixedPointResult(float(s), est, k, converged, tuple(hist), tuple(corrs))
 
 
@@ -334,7 +339,7 @@ class _Pruning:
 def metric_scale(
     bb: BackboneResult,
     cams: list[CameraData],
-    config: CalibConfig,
+    settings: ScaleSettings | CalibConfig,
     step: StepFunction | None = None,
 ) -> ScaleResult:
     """Scale stage of GMAC on backbone poses ``bb`` and per-camera RC data ``cams``.
@@ -342,7 +347,8 @@ def metric_scale(
     Args:
         bb: the backbone's scale-ambiguous poses (rig order), at least two registered.
         cams: per-camera RC data from ``correspondences.prepare_cameras`` (rig order, metres).
-        config: GMAC settings.
+        settings: the stage's settings (``config.scale_settings``; a public entry point, so a
+            :class:`~fuseflow.calib.config.CalibConfig` is taken too and its settings used).
         step: the fixed-point step used for every per-edge and global fixed point (default
             :func:`rc_step`). An injection point: a step that
             transforms the correspondences (e.g. shifts one edge's points to mimic wrong
@@ -353,35 +359,36 @@ def metric_scale(
             with enough depth-consistent correspondences, or a fixed point leaving s > 0.
     """
     step = step or rc_step
+    settings = scale_settings(settings)
     warnings: list[str] = []
     s0 = scale_search_centre(bb, cams)
     pairs = _registered_pairs(bb)
-    geoms = candidate_edges(bb, pairs, config)
-    coarse = coarse_scale_search(_directed(geoms, pairs), cams, s0, config)
-    edges, overlap_meas = gate_edges(geoms, pairs, cams, coarse.s, config)
-    if bb.overlap is None and not config.random_correspondences:
+    geoms = candidate_edges(bb, pairs, settings)
+    coarse = coarse_scale_search(_directed(geoms, pairs), cams, s0, settings)
+    edges, overlap_meas = gate_edges(geoms, pairs, cams, coarse.s, settings)
+    if bb.overlap is None and not settings.random_correspondences:
         geoms = _weighted_by_measured_overlap(geoms, overlap_meas, len(cams))
     if not edges:
         raise CalibrationError(
-            f"no camera pair overlaps by at least {config.min_overlap:.0%} at the best scale "
+            f"no camera pair overlaps by at least {settings.min_overlap:.0%} at the best scale "
             f"(measured: { {f'{i}-{j}': round(v, 3) for (i, j), v in overlap_meas.items()} })"
         )
-    es = per_edge_scales(geoms, edges, cams, coarse.s, config, step)
+    es = per_edge_scales(geoms, edges, cams, coarse.s, settings, step)
     usable = [e for e in edges if e in es.scales]
     dropped = [e for e in edges if e not in es.scales]
     if dropped:
-        warnings.append(f"edges {dropped} have fewer than {config.min_correspondences} correspondences")
+        warnings.append(f"edges {dropped} have fewer than {settings.min_correspondences} correspondences")
     if not usable:
-        raise CalibrationError(f"no edge has {config.min_correspondences} depth-consistent correspondences")
-    pr = _prune_edges(bb, cams, es, usable, config, warnings)
-    global_edges = _global_edges(pr.kept, es.match_only, config)
-    fp = fixed_point_scale(_directed(geoms, global_edges), cams, coarse.s, config, step=step)
+        raise CalibrationError(f"no edge has {settings.min_correspondences} depth-consistent correspondences")
+    pr = _prune_edges(bb, cams, es, usable, settings, warnings)
+    global_edges = _global_edges(pr.kept, es.match_only, settings)
+    fp = fixed_point_scale(_directed(geoms, global_edges), cams, coarse.s, settings, step=step)
     if not fp.converged:
         warnings.append(f"the scale fixed point did not converge in {fp.iterations} steps (history {fp.history[-3:]})")
     s_init = fp.s
     if pr.pruned:  # for the report: what the global estimate would have been without pruning
-        s_init = fixed_point_scale(_directed(geoms, usable), cams, coarse.s, config, step=step).s
-    warnings += _conditioning_warnings(coarse, fp.estimate.relative_std_error, bb, config)
+        s_init = fixed_point_scale(_directed(geoms, usable), cams, coarse.s, settings, step=step).s
+    warnings += _conditioning_warnings(coarse, fp.estimate.relative_std_error, bb, settings)
     return ScaleResult(
         s=float(fp.s),
         s_initial=float(s_init),
@@ -412,7 +419,7 @@ METRIC_SCALE_TOLERANCE = 0.15
 
 
 def placement_scale(
-    bb: BackboneResult, cams: list[CameraData], config: CalibConfig
+    bb: BackboneResult, cams: list[CameraData], settings: ScaleSettings
 ) -> tuple[ScaleResult, float | None, list[str]]:
     """The scale the cameras are placed at: (the stage's result, the check's s* or None, warnings).
     A scale-free backbone gets ``metric_scale``'s s* (no check, no warning). A metric one
@@ -420,9 +427,9 @@ def placement_scale(
     found (None when it could not run); s* far from 1 means the backbone's metric poses and the
     sensor depth disagree (wrong pose, depth scale, intrinsics)."""
     if not bb.metric:
-        return metric_scale(bb, cams, config), None, []
+        return metric_scale(bb, cams, settings), None, []
     try:
-        sr = metric_scale(bb, cams, config)
+        sr = metric_scale(bb, cams, settings)
     except CalibrationError as e:
         empty = ScaleResult(
             s=1.0, s_initial=1.0, s_coarse=1.0, s_naive=None, edge_scales={}, edge_counts={}, edges=(), kept=(),
@@ -461,15 +468,15 @@ def _registered_pairs(bb: BackboneResult) -> list[Edge]:
     return [(int(a), int(b)) for ai, a in enumerate(reg) for b in reg[ai + 1 :]]
 
 
-def candidate_edges(bb: BackboneResult, pairs: list[Edge], config: CalibConfig) -> dict[Edge, list[EdgeGeometry]]:
+def candidate_edges(bb: BackboneResult, pairs: list[Edge], settings: ScaleSettings) -> dict[Edge, list[EdgeGeometry]]:
     """Both directions (i -> j, j -> i) of each pair (i < j), with the backbone's relative pose,
     eq. (8)'s edge weight (1 for ``random_correspondences``) and the keypoint matches."""
 
     def both_directions(e: Edge) -> list[EdgeGeometry]:
         i, j = e
         w = (
-            edge_weight(i, j, bb.overlap, bb.features, config.feature_weight)
-            if not config.random_correspondences
+            edge_weight(i, j, bb.overlap, bb.features, settings.feature_weight)
+            if not settings.random_correspondences
             else 1.0
         )
         return [
@@ -485,7 +492,7 @@ def _directed(geoms_by_edge: dict[Edge, list[EdgeGeometry]], edges) -> list[Edge
 
 
 def gate_edges(
-    geoms: dict[Edge, list[EdgeGeometry]], pairs: list[Edge], cams: list[CameraData], s: float, config: CalibConfig
+    geoms: dict[Edge, list[EdgeGeometry]], pairs: list[Edge], cams: list[CameraData], s: float, settings: ScaleSettings
 ) -> tuple[list[Edge], dict[Edge, float]]:
     """Edge gating by measured overlap at scale s (eq. 8: overlap_ij gates edges).
 
@@ -497,9 +504,9 @@ def gate_edges(
         o = []
         for g in geoms[e]:
             n_i = max(len(cams[g.i].X), 1)
-            o.append(consistent_count(g, cams[g.i], cams[g.j], s, config.depth_tau) / n_i)
+            o.append(consistent_count(g, cams[g.i], cams[g.j], s, settings.depth_tau) / n_i)
         overlap_meas[e] = float(np.mean(o))
-        if overlap_meas[e] >= config.min_overlap:
+        if overlap_meas[e] >= settings.min_overlap:
             edges.append(e)
     return edges, overlap_meas
 
@@ -521,7 +528,7 @@ def per_edge_scales(
     edges: list[Edge],
     cams: list[CameraData],
     s_coarse: float,
-    config: CalibConfig,
+    settings: ScaleSettings,
     step: StepFunction,
 ) -> _EdgeScales:
     """Each edge's own scale, for CC: its fixed point from the robust coarse scale.
@@ -537,9 +544,9 @@ def per_edge_scales(
     matched_edges: set[Edge] = set()
     for e in edges:
         try:
-            fe = fixed_point_scale(geoms[e], cams, s_coarse, config, step=step)
+            fe = fixed_point_scale(geoms[e], cams, s_coarse, settings, step=step)
             matched = match_only(fe.correspondences)
-            if fe.s > 0 and (fe.estimate.count >= config.min_correspondences or matched):
+            if fe.s > 0 and (fe.estimate.count >= settings.min_correspondences or matched):
                 scales[e], counts[e] = fe.s, fe.estimate.count
                 if matched:
                     matched_edges.add(e)
@@ -547,10 +554,10 @@ def per_edge_scales(
         except CalibrationError:
             pass
         try:
-            est_e, _ = one_step_scale(geoms[e], cams, s_coarse, config, step)
+            est_e, _ = one_step_scale(geoms[e], cams, s_coarse, settings, step)
         except CalibrationError:
             continue
-        if est_e.count >= config.min_correspondences and est_e.s > 0:
+        if est_e.count >= settings.min_correspondences and est_e.s > 0:
             scales[e], counts[e] = est_e.s, est_e.count
     return _EdgeScales(scales, counts, matched_edges)
 
@@ -560,18 +567,18 @@ def _prune_edges(
     cams: list[CameraData],
     es: _EdgeScales,
     usable: list[Edge],
-    config: CalibConfig,
+    settings: ScaleSettings,
     warnings: list[str],
 ) -> _Pruning:
     """CC (eq. 13) on the usable edges' own scales; appends the no-triangle warning."""
-    if not config.cycle_consistency:
+    if not settings.cycle_consistency:
         return _Pruning(tuple(usable), (), "off", {}, {}, {})
     pts = {k: c.X[:: max(1, len(c.X) // 64)] for k, c in enumerate(cams)}
     cyc = prune_by_cycles(
         bb.T_cam_world,
         {e: es.scales[e] for e in usable},
-        config.delta_cycle,
-        config.max_pruned_fraction,
+        settings.delta_cycle,
+        settings.max_pruned_fraction,
         pts,
         {e: float(es.counts[e]) for e in usable},
     )
@@ -586,10 +593,10 @@ def _prune_edges(
     )
 
 
-def _global_edges(kept, match_only_edges: set[Edge], config: CalibConfig) -> list[Edge]:
+def _global_edges(kept, match_only_edges: set[Edge], settings: ScaleSettings) -> list[Edge]:
     """The kept edges s* is estimated from: with ``global_from_matches`` the match-only ones
     when there are at least two, else all kept edges."""
-    if config.use_matches and config.global_from_matches:
+    if settings.use_matches and settings.global_from_matches:
         kept_matches = [e for e in kept if e in match_only_edges]
         if len(kept_matches) >= 2:
             return kept_matches
@@ -597,10 +604,10 @@ def _global_edges(kept, match_only_edges: set[Edge], config: CalibConfig) -> lis
 
 
 def _conditioning_warnings(
-    coarse: CoarseSearch, relative_std_error: float, bb: BackboneResult, config: CalibConfig
+    coarse: CoarseSearch, relative_std_error: float, bb: BackboneResult, settings: ScaleSettings
 ) -> list[str]:
     out = []
-    if coarse.peak_spread > config.ill_conditioned_spread and not (config.use_matches and bb.matches):
+    if coarse.peak_spread > settings.ill_conditioned_spread and not (settings.use_matches and bb.matches):
         out.append(
             f"ill-conditioned: scales within {coarse.peak_spread:.0%} of each other explain the depth equally "
             "well (baselines parallel to the dominant surfaces)"
