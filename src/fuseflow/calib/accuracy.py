@@ -1,6 +1,6 @@
 """Expected accuracy of a placed camera: how far its pose probably is from the truth.
 
-Two estimates, the larger one printed (each sees an error the other cannot), or, for a camera the
+Two estimates, the larger one kept (each sees an error the other cannot), or, for a camera the
 joint refinement moved, the rule of 3; in a repeating room the position is at least 4:
 
 1. **From the correspondences of its pair poses** (``pair_pose_accuracy``, stored per edge by
@@ -36,8 +36,8 @@ joint refinement moved, the rule of 3; in a repeating room the position is at le
    ``+turn``): the position is at least 2's RMS / sqrt(n), also after the joint refinement. There
    the refinement sees the same repeating walls as the pair poses and does not correct what they
    share: on an independently rendered 10-sided studio it moved the cameras 0.7-7.8 mm while they were
-   17-32 mm off, and the refinement's covariance with the pair poses' combined fit printed 2-5 mm;
-   the pair poses' scatter about the result printed 6-18 mm. Rotations were not affected (printed /
+   17-32 mm off, and the refinement's covariance with the pair poses' combined fit estimated 2-5 mm;
+   the pair poses' scatter about the result 6-18 mm. Rotations were not affected (estimate /
    actual 0.26-8.7, median 1.2, over 144 cameras of 6-12-sided studios), so only the position is
    raised.
 
