@@ -6,7 +6,9 @@ frames; with ``pool`` (the caller chose no frame) and 3 or more frames in the re
 one frame raises ``CalibrationError`` or leaves a camera not "good", GMAC runs again on up to
 POOLED_FRAMES frames spread over the recording (a person or a ball moving through a static rig is
 then a target: the moving-subject and moving-sphere routes), and the result with more "good"
-cameras (then more placed) is kept; a tie keeps the one frame's. A backbone that reads the first
+cameras is kept, then the one with more placed cameras not sharing a spot with another
+(``unstacked_count``: two cameras on one spot prove a fold), then more placed; a tie keeps the one
+frame's. A backbone that reads the first
 frame only (``colmap``, the neural ones, ``precomputed``: not ``auto`` or ``MULTI_FRAME_BACKBONES``)
 is not pooled: more frames would give it the same poses. The attempts' own
 ``CalibrationWarning``s are held back: the caller warns once, about the result it keeps
@@ -23,7 +25,8 @@ import numpy as np
 
 from fuseflow.calib.backbones import MULTI_FRAME_BACKBONES
 from fuseflow.calib.errors import CalibrationError, CalibrationWarning
-from fuseflow.types import Calibration, Frame, Rig
+from fuseflow.calib.verdicts import STACKED_M
+from fuseflow.types import Calibration, Frame, Rig, invert_rigid
 
 __all__ = [
     "RecordingLike",
@@ -34,6 +37,7 @@ __all__ = [
     "spread_positions",
     "first_complete",
     "good_count",
+    "unstacked_count",
     "warn_verdicts",
 ]
 
@@ -109,8 +113,21 @@ def good_count(calibration: Calibration) -> int:
     return sum(v.get("verdict") == "good" for v in verdicts.values())
 
 
-def _rank(calibration: Calibration) -> tuple[int, int]:
-    return good_count(calibration), len(calibration.T_cam_world)
+def unstacked_count(calibration: Calibration) -> int:
+    """Placed cameras whose centre is at least ``verdicts.STACKED_M`` from every other placed
+    camera's: two cameras on one spot cannot both be right (a repeating room folds cameras onto
+    each other's spots), so neither counts."""
+    T = calibration.T_cam_world
+    if len(T) < 2:
+        return len(T)
+    centres = np.stack([invert_rigid(np.asarray(M))[:3, 3] for M in T.values()])
+    d = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return int((d.min(axis=1) >= STACKED_M).sum())
+
+
+def _rank(calibration: Calibration) -> tuple[int, int, int]:
+    return good_count(calibration), unstacked_count(calibration), len(calibration.T_cam_world)
 
 
 def _quiet(attempt: Callable, frames: list[Frame], rig: Rig, config, progress) -> Calibration:
