@@ -104,3 +104,92 @@ def test_a_backbone_that_reads_the_first_frame_only_is_not_pooled():
         calls.clear()
         pooled_calibration(Rec(), [0], CalibConfig(backbone=backbone, backbone_path="x.npz"), True, attempt)
         assert len(calls) == attempts, (backbone, calls)
+
+
+def test_pooled_frames_win_a_tie_in_good_cameras_when_the_one_frame_folded_cameras_onto_one_spot():
+    """One frame of a repeating room folded cameras onto each other's spots (proof that both of
+    a pair cannot be right); the pooled frames placed every camera on its own spot, none "good"
+    in either (a camera the subject turns is never good): the pooled result is kept."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib import CalibConfig
+    from fuseflow.calib.pooling import pooled_calibration, unstacked_count
+
+    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+    ids = ("a", "b", "c")
+
+    class Rec:
+        rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ids))
+        frame_numbers = list(range(12))
+
+        def __len__(self):
+            return 12
+
+        def __getitem__(self, t):
+            return t
+
+        def missing_views(self):
+            return {}
+
+    def at(*centres):
+        out = {}
+        for c, x in zip(ids, centres, strict=True):
+            out[c] = np.eye(4)
+            out[c][:3, 3] = -np.asarray(x, dtype=float)
+        return out
+
+    folded = at([0, 0, 0], [3.0, 0, 0], [3.02, 0, 0])  # b and c 2 cm apart
+    spread = at([0, 0, 0], [3.0, 0, 0], [0, 3.0, 0])
+
+    def attempt(frames, rig, config, progress=None):
+        T = folded if len(frames) == 1 else spread
+        return SimpleNamespace(
+            T_cam_world=T, report=SimpleNamespace(camera_verdicts={c: {"verdict": "check it"} for c in ids})
+        )
+
+    assert unstacked_count(SimpleNamespace(T_cam_world=folded)) == 1
+    assert unstacked_count(SimpleNamespace(T_cam_world=spread)) == 3
+    out = pooled_calibration(Rec(), [0], CalibConfig(), True, attempt)
+    assert out.calibration.T_cam_world is spread and len(out.positions) > 1
+
+
+def test_pooled_frames_win_a_tie_when_they_settle_turns_the_one_frame_left_ambiguous():
+    """One frame left the room's turns open ("ambiguous": no axis found); the pooled frames found
+    it and the subject checked every camera's turn, none "good" in either and no camera folded:
+    the pooled result is kept."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib import CalibConfig
+    from fuseflow.calib.pooling import pooled_calibration, turn_checked_count
+
+    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+    ids = ("a", "b", "c")
+
+    class Rec:
+        rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ids))
+        frame_numbers = list(range(12))
+
+        def __len__(self):
+            return 12
+
+        def __getitem__(self, t):
+            return t
+
+        def missing_views(self):
+            return {}
+
+    T = {}
+    for c, x in zip(ids, ([0, 0, 0], [3.0, 0, 0], [0, 3.0, 0]), strict=True):
+        T[c] = np.eye(4)
+        T[c][:3, 3] = x
+    open_turns = {c: {"verdict": "ambiguous"} for c in ids}
+    open_turns["a"] = {"verdict": "check it", "turn": {"turn": 2, "margin": 0.01}}  # chosen, not applied
+    checked = {c: {"verdict": "check it", "turn": {"turn": 0, "margin": 0.1, "moved": 1}} for c in ids}
+    single = SimpleNamespace(T_cam_world=T, report=SimpleNamespace(camera_verdicts=open_turns))
+    pooled = SimpleNamespace(T_cam_world=dict(T), report=SimpleNamespace(camera_verdicts=checked))
+    assert turn_checked_count(single) == 0 and turn_checked_count(pooled) == 3
+
+    def attempt(frames, rig, config, progress=None):
+        return single if len(frames) == 1 else pooled
+
+    assert pooled_calibration(Rec(), [0], CalibConfig(), True, attempt).calibration is pooled

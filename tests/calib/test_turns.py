@@ -351,3 +351,40 @@ def test_a_hinted_period_that_is_no_divisor_or_multiple_of_the_best_is_not_the_r
     seen = _shares(0.41, n3=0.433, n5=0.485, n6=0.665, n7=0.542)
     assert T_.room_period(seen, hint=21) is None  # the 6-fold share alone is under twice the median
     assert T_.room_period(seen, hint=12) == 6 and T_.room_period(seen, hint=6) == 6  # compatible hints
+
+
+def _full_ring_table(truth: list[int], stacked: np.ndarray, n: int) -> np.ndarray:
+    """Pair tables where nothing is seen through at the true relative turns, 30 % elsewhere and
+    none where two cameras share a spot (they see the same surface)."""
+    m = len(truth)
+    tab = np.zeros((m, m, n, 3))
+    tab[..., 0] = 1000
+    tab[..., 2] = np.where(stacked, 0, 300)
+    for a in range(m):
+        for b in range(m):
+            if a != b:
+                tab[a, b, (truth[a] - truth[b]) % n, 2] = 0
+    return tab
+
+
+def test_a_ring_with_a_camera_at_every_period_still_weighs_swapped_cameras():
+    """Six cameras at every period of a 6-fold room, two placed on each other's spots: no camera
+    can turn alone without landing on another, yet the two swapped back are a real alternative.
+    The subject's turn of each gets a runner-up and a margin, and settling moves both back."""
+    n = 6
+    room = T_.RoomAxis(n, np.zeros(3), np.array([0.0, 0.0, 1.0]), 1.0, 0.0)
+    T = _ring(n)
+    ids = list(T)
+    centres = {c: invert_rigid(T[c])[:3, 3] for c in ids}
+    stacked = T_.stacking(room, np.stack([centres[c] for c in ids]))
+    truth = [0, 3, 0, 0, 3, 0]  # c1 and c4 placed on each other's spots
+    k = T_.joint_turns(_full_ring_table(truth, stacked, n), n, stacked)
+    assert list(k) == truth
+    ev = T_._evidence(_full_ring_table(truth, stacked, n), k, room, ids, centres, 1.0)
+    for c in ids:
+        assert ev[c].margin is not None and ev[c].margin >= TURN_MIN_MARGIN, ev[c]
+        assert ev[c].runner_up is not None and ev[c].runner_up_score is not None and ev[c].alternatives > 0
+    assert ev["c1"].turn == ev["c4"].turn == 3
+    T2, ev2 = T_.settle_turns(T, room, ev, TURN_MIN_MARGIN)
+    assert ev2["c1"].moved == ev2["c4"].moved == 3 and ev2["c0"].moved == 0
+    assert np.allclose(invert_rigid(T2["c1"])[:3, 3], centres["c4"], atol=1e-9)

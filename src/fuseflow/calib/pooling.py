@@ -6,7 +6,10 @@ frames; with ``pool`` (the caller chose no frame) and 3 or more frames in the re
 one frame raises ``CalibrationError`` or leaves a camera not "good", GMAC runs again on up to
 POOLED_FRAMES frames spread over the recording (a person or a ball moving through a static rig is
 then a target: the moving-subject and moving-sphere routes), and the result with more "good"
-cameras (then more placed) is kept; a tie keeps the one frame's. A backbone that reads the first
+cameras is kept, then the one with more placed cameras not sharing a spot with another
+(``unstacked_count``: two cameras on one spot prove a fold), then more cameras whose room turn is
+settled (``turn_checked_count``: not "ambiguous", no turn the subject chose left unapplied), then
+more placed; a tie keeps the one frame's. A backbone that reads the first
 frame only (``colmap``, the neural ones, ``precomputed``: not ``auto`` or ``MULTI_FRAME_BACKBONES``)
 is not pooled: more frames would give it the same poses. The attempts' own
 ``CalibrationWarning``s are held back: the caller warns once, about the result it keeps
@@ -23,17 +26,20 @@ import numpy as np
 
 from fuseflow.calib.backbones import MULTI_FRAME_BACKBONES
 from fuseflow.calib.errors import CalibrationError, CalibrationWarning
-from fuseflow.types import Calibration, Frame, Rig
+from fuseflow.calib.verdicts import STACKED_M
+from fuseflow.types import Calibration, Frame, Rig, invert_rigid
 
 __all__ = [
-    "RecordingLike",
     "POOLED_FRAMES",
     "Calibrated",
-    "pooled_calibration",
-    "missing_positions",
-    "spread_positions",
+    "RecordingLike",
     "first_complete",
     "good_count",
+    "missing_positions",
+    "pooled_calibration",
+    "spread_positions",
+    "turn_checked_count",
+    "unstacked_count",
     "warn_verdicts",
 ]
 
@@ -109,8 +115,34 @@ def good_count(calibration: Calibration) -> int:
     return sum(v.get("verdict") == "good" for v in verdicts.values())
 
 
-def _rank(calibration: Calibration) -> tuple[int, int]:
-    return good_count(calibration), len(calibration.T_cam_world)
+def unstacked_count(calibration: Calibration) -> int:
+    """Placed cameras whose centre is at least ``verdicts.STACKED_M`` from every other placed
+    camera's: two cameras on one spot cannot both be right (a repeating room folds cameras onto
+    each other's spots), so neither counts."""
+    T = calibration.T_cam_world
+    if len(T) < 2:
+        return len(T)
+    centres = np.stack([invert_rigid(np.asarray(M))[:3, 3] for M in T.values()])
+    d = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return int((d.min(axis=1) >= STACKED_M).sum())
+
+
+def turn_checked_count(calibration: Calibration) -> int:
+    """Placed cameras whose room turn nothing leaves open: not "ambiguous" (a repeating room whose
+    turn the subject could not decide) and not turned by the subject's choice without applying it."""
+    verdicts = getattr(calibration.report, "camera_verdicts", None) or {}
+    out = 0
+    for c in calibration.T_cam_world:
+        v = verdicts.get(c) or {}
+        turn = v.get("turn") or {}
+        out += v.get("verdict") != "ambiguous" and not turn.get("turn")
+    return out
+
+
+def _rank(calibration: Calibration) -> tuple[int, int, int, int]:
+    return (good_count(calibration), unstacked_count(calibration), turn_checked_count(calibration),
+            len(calibration.T_cam_world))  # fmt: skip
 
 
 def _quiet(attempt: Callable, frames: list[Frame], rig: Rig, config, progress) -> Calibration:
@@ -169,6 +201,14 @@ def warn_verdicts(calibration: Calibration, ids) -> None:
     for c in ids:
         v = verdicts.get(c) or {}
         if c not in calibration.T_cam_world:
-            warnings.warn(f"camera {c} unplaced: {v.get('reason', 'GMAC could not place it')}", CalibrationWarning, 3)
+            warnings.warn(
+                f"camera {c} unplaced: {v.get('reason', 'GMAC could not place it')}",
+                CalibrationWarning,
+                3,
+            )
         elif v and v.get("verdict") != "good":
-            warnings.warn(f"camera {c} {v.get('verdict')}: {v.get('reason', '')}", CalibrationWarning, 3)
+            warnings.warn(
+                f"camera {c} {v.get('verdict')}: {v.get('reason', '')}",
+                CalibrationWarning,
+                3,
+            )

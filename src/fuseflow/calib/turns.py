@@ -525,36 +525,78 @@ def camera_turns(
     return room, _evidence(tab, k, room, ids, centres, radius)
 
 
+def _share_of(tab, k, cams, n) -> tuple[float, float]:
+    """(seen, score) summed over the ordered pairs with one end in ``cams`` at the turns ``k``:
+    score is minus the share of the seen subject points seen through (nan below MIN_SEEN)."""
+    s = np.zeros(3)
+    for a in range(len(k)):
+        for b in range(len(k)):
+            if a != b and (a in cams or b in cams):
+                s += tab[a, b, (k[a] - k[b]) % n]
+    return s[0], (-s[2] / s[0] if s[0] >= MIN_SEEN else float("nan"))
+
+
+def _alternatives(k, ic, stacked, n) -> list[tuple[int, np.ndarray, set]]:
+    """(its turn, the rig's turns, the cameras moved) of every other placement of camera ``ic``
+    that puts no two cameras on one spot: turned alone to a free spot, or onto another camera's
+    spot with that one turned onto its own (a swap: a ring with a camera at every period has no
+    free spot, yet two cameras swapped are as real an alternative as one turned)."""
+    out = []
+    for t in range(n):
+        if t == k[ic]:
+            continue
+        on = [o for o in range(len(k)) if o != ic and stacked[ic, o, (t - k[o]) % n]]
+        if not on:
+            k2 = k.copy()
+            k2[ic] = t
+            out.append((t, k2, {ic}))
+            continue
+        if len(on) > 1:
+            continue
+        o = on[0]
+        for to in range(n):
+            k2 = k.copy()
+            k2[ic], k2[o] = t, to
+            if stacked[o, ic, (to - t) % n]:
+                continue
+            if stacked[o, ic, (to - k[ic]) % n] and not any(
+                stacked[o, p, (to - k2[p]) % n] for p in range(len(k)) if p not in (ic, o)
+            ):
+                out.append((t, k2, {ic, o}))
+    return out
+
+
 def _evidence(tab, k, room: RoomAxis, ids, centres, radius) -> dict[str, TurnEvidence]:
+    """Per camera: its score at the chosen turns, and the margin to its best alternative
+    (:func:`_alternatives`), both scored over the pairs of the cameras that alternative moves."""
     n = room.sides
     stacked = stacking(room, np.stack([centres[c] for c in ids]))
     out = {}
     for ic, c in enumerate(ids):
-        scores, seen_at = [], []
-        for t in range(n):
-            s = np.zeros(3)
-            for ip in range(len(ids)):
-                if ip != ic:
-                    s += tab[ic, ip, (t - k[ip]) % n] + tab[ip, ic, (k[ip] - t) % n]
-            seen_at.append(s[0])
-            scores.append(-s[2] / s[0] if s[0] >= MIN_SEEN else float("nan"))
-        # a turn that puts it on another camera (at that one's chosen turn) is no alternative
-        alts = [t for t in range(n) if t != k[ic] and not any(stacked[ic, o, (t - k[o]) % n] for o in range(len(ids)))]
-        chosen = scores[k[ic]]
-        valid = [t for t in alts if np.isfinite(scores[t])]
-        runner = max(valid, key=lambda t: scores[t]) if valid else None
-        margin = None
-        if np.isfinite(chosen):
-            margin = chosen - scores[runner] if runner is not None else None
-        sgn = lambda t: int(t if t <= n // 2 else t - n)  # noqa: E731
+        seen, chosen = _share_of(tab, k, {ic}, n)
+        alts = _alternatives(k, ic, stacked, n)
+        runner, margin, runner_score = None, None, None
+        for t, k2, moved in alts:
+            alt = _share_of(tab, k2, moved, n)[1]
+            ref = _share_of(tab, k, moved, n)[1]
+            if np.isfinite(alt) and np.isfinite(ref) and (margin is None or ref - alt < margin):
+                runner, margin, runner_score = t, ref - alt, alt
+        if not np.isfinite(chosen):
+            margin = None
         out[c] = TurnEvidence(
-            sides=n, turn=sgn(int(k[ic])), score=None if not np.isfinite(chosen) else round(float(chosen), 3),
-            runner_up=None if runner is None else sgn(int(runner)),
-            runner_up_score=None if runner is None else round(float(scores[runner]), 3),
-            margin=None if margin is None else round(float(margin), 3), seen=int(seen_at[k[ic]]),
-            alternatives=len(alts), subject_radius_m=round(radius, 2),
+            sides=n, turn=_signed(int(k[ic]), n), score=None if not np.isfinite(chosen) else round(float(chosen), 3),
+            runner_up=None if runner is None else _signed(int(runner), n),
+            runner_up_score=None if runner is None else round(float(runner_score), 3),
+            margin=None if margin is None else round(float(margin), 3), seen=int(seen),
+            alternatives=len({t for t, _, _ in alts}), subject_radius_m=round(radius, 2),
         )  # fmt: skip
     return out
+
+
+def _signed(t: int, n: int) -> int:
+    """A turn of whole periods as -n/2 < t <= n/2."""
+    t %= n
+    return int(t if t <= n // 2 else t - n)
 
 
 def _turn_pose(T: np.ndarray, room: RoomAxis, e: TurnEvidence, min_margin: float) -> np.ndarray | None:
@@ -575,5 +617,5 @@ def settle_turns(T: Mapping[str, np.ndarray], room: RoomAxis, evidence: Mapping[
         if (P := _turn_pose(T[c], room, e, min_margin)) is not None:
             T_out[c] = P
             ev_out[c] = replace(e, turn=0, moved=e.turn,
-                                runner_up=None if e.runner_up is None else e.runner_up - e.turn)  # fmt: skip
+                                runner_up=None if e.runner_up is None else _signed(e.runner_up - e.turn, e.sides))  # fmt: skip
     return T_out, ev_out
