@@ -506,10 +506,10 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
     bound = _acc(e.get("bound_deg", deg), e.get("bound_mm", mm))
     if (deg is not None and deg > GOOD_DEG) or (mm is not None and mm > GOOD_MM):
         return "check it", (
-            f"expected accuracy {bound} (its estimate {_acc(deg, mm)} is beyond {GOOD_DEG:g} deg / {GOOD_MM:g} mm)"
+            f"expected accuracy {_acc(deg, mm)} is beyond {GOOD_DEG:g} deg / {GOOD_MM:g} mm (90 % bound {bound})"
         )
     checks = [f"{e['cycles']} cycle{'s' * (e['cycles'] != 1)}"] + (["floor"] if e["floor_ok"] else [])
-    return "good", f"checked by {' + '.join(checks)}; expected accuracy {bound}"
+    return "good", f"checked by {' + '.join(checks)}; expected accuracy {_acc(deg, mm)} (90 % bound {bound})"
 
 
 def _judge_turn(t: TurnEvidence | None, sides: int, reason: str) -> tuple[str, str]:
