@@ -77,6 +77,7 @@ __all__ = [
     "view_room",
     "views_room",
     "carry_axes",
+    "joint_axes",
 ]
 
 
@@ -774,3 +775,94 @@ def views_room(views, poses: dict[tuple[int, int], list[np.ndarray]]) -> RoomOrb
             if vr is not None:
                 own[k] = (vr.up, vr.point)
     return RoomOrbits(sides, carry_axes(own, poses), 0, 0, views=len(own))
+
+
+# ----------------------------------------------------------------------------- one axis for all
+#
+# 7. ``joint_axes``: the axes of sections 5 and 6 are each camera's own (the median of its turns'
+#    axis points, or its view's grid search), a few centimetres off, and a pose turned by k of N
+#    periods about camera i's axis moves camera j by 2 sin(k pi / N) times that error. Every
+#    verified pose of the orbit maps the room's walls onto its walls, so the cameras' views, put
+#    into one camera's frame through a tree of verified poses, form one wall cloud; the axis is
+#    fitted to it by least squares (``room_axis_fit.fit_axis``: the walls turned by every period
+#    land on the walls) and carried back to every camera through the same poses, so each
+#    camera's axis is where its own points, as placed in the cloud, turn onto the others'.
+#    Cameras the tree does not reach keep their own axis; a fit that moves the axis more than
+#    JOINT_MAX_SHIFT_M from its start, or fails, changes nothing.
+
+#: The fitted axis may lie at most this far (metres) from the starting one (the root camera's own):
+#: further, the cloud was not one room (a verified pose off the orbit) and the own axes stay.
+JOINT_MAX_SHIFT_M = 0.15
+#: Points of each view used in the joint cloud (fixed seed).
+JOINT_POINTS = 6000
+
+
+def _pose_tree(root: int, poses: dict[tuple[int, int], list[np.ndarray]]) -> dict[int, np.ndarray]:
+    """Camera -> the (4, 4) map from its frame into ``root``'s through the first verified pose of
+    each pair, breadth first (pairs in sorted order)."""
+    tree = {root: np.eye(4)}
+    queue = [root]
+    while queue:
+        c = queue.pop(0)
+        for (i, j), Ts in sorted(poses.items()):
+            if c not in (i, j) or not len(Ts) or (other := j if c == i else i) in tree:
+                continue
+            T = np.asarray(Ts[0], np.float64)  # camera i -> camera j
+            tree[other] = tree[c] @ (invert_rigid(T) if c == i else T)
+            queue.append(other)
+    return tree
+
+
+def _wall_cloud(views, tree: dict[int, np.ndarray], B: np.ndarray, start: np.ndarray, seed: int):
+    """(cloud (P, 3) in the basis ``B`` (x, y, height) of the root's frame, wall mask, floor
+    height): every reached view's points, walls VIEW_BAND_M above the floor and below the top and
+    VIEW_SUBJECT_M from ``start`` (x, y)."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for c, M in tree.items():
+        if c < len(views) and views[c] is not None:
+            X = np.asarray(views[c][0], np.float64)
+            X = X[rng.choice(len(X), min(len(X), JOINT_POINTS), replace=False)]
+            parts.append((X @ M[:3, :3].T + M[:3, 3]) @ B.T)
+    cloud = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if len(cloud) < 500:
+        return cloud, np.zeros(len(cloud), bool), 0.0
+    h = cloud[:, 2]
+    low = h[h < np.percentile(h, 1) + 0.5]
+    hist, edges = np.histogram(low, bins=max(int((low.max() - low.min()) / 0.01), 1))
+    floor = float(edges[np.argmax(hist)] + 0.005)
+    walls = (h > floor + VIEW_BAND_M) & (h < np.percentile(h, 99.5) - VIEW_BAND_M)
+    walls &= np.linalg.norm(cloud[:, :2] - start, axis=1) > VIEW_SUBJECT_M
+    return cloud, walls, floor
+
+
+def joint_axes(room: RoomOrbits, views, poses: dict[tuple[int, int], list[np.ndarray]], seed: int = 0) -> RoomOrbits:
+    """``room`` with one axis fitted to every reached camera's walls (section 7), expressed in each
+    camera's frame through the verified poses ``poses``; ``views``: per camera (X, ...) its points
+    in its frame (``view_room``'s input) or None. ``room`` unchanged when no fit holds."""
+    from fuseflow.calib.room_axis_fit import fit_axis
+
+    with_view = [c for c in room.axes if c < len(views) and views[c] is not None]
+    if not with_view:
+        return room
+    root = max(with_view, key=lambda c: (len(_pose_tree(c, poses)), -c))
+    tree = _pose_tree(root, poses)
+    up, p = room.axes[root]
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    e1 = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    B = np.stack([e1, np.cross(up, e1), up])
+    start = (B @ np.asarray(p, np.float64))[:2]
+    cloud, walls, floor = _wall_cloud(views, tree, B, start, seed)
+    if walls.sum() < 200:
+        return room
+    fit = fit_axis(cloud, walls, start, room.sides, np.random.default_rng(seed))
+    if fit is None or np.linalg.norm(fit - start) > JOINT_MAX_SHIFT_M:
+        return room
+    q = B.T @ np.array([fit[0], fit[1], 0.0])
+    axes = dict(room.axes)
+    for c, M in tree.items():  # M: camera c -> root; the axis into c by its inverse
+        Mi = invert_rigid(M)
+        u2, q2 = Mi[:3, :3] @ up, Mi[:3, :3] @ q + Mi[:3, 3]
+        axes[c] = (u2, q2 - (q2 @ u2) * u2)
+    return RoomOrbits(room.sides, axes, room.turns, room.pairs, room.views)

@@ -1,0 +1,88 @@
+"""One room axis fitted to every camera's walls and carried through the verified poses
+(calib.symmetry.joint_axes)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fuseflow.calib import symmetry as S
+from fuseflow.types import invert_rigid
+
+from .test_room_axis_fit import _polygon_room
+
+CENTRE = np.array([0.3, -0.2, 0.0])
+
+
+def _camera(k: int, cams: int) -> np.ndarray:
+    """Camera k of ``cams`` on a 2.8 m ring about CENTRE, 1.6 m high, looking at it: camera-from-world."""
+    a = 2 * math.pi * (k + 0.5) / cams
+    c = CENTRE + [2.8 * math.cos(a), 2.8 * math.sin(a), 1.6]
+    z = CENTRE + [0.0, 0.0, 1.0] - c
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, -R @ c
+    return T
+
+
+def _true_axis(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    up, q = T[:3, :3] @ [0.0, 0.0, 1.0], T[:3, :3] @ CENTRE + T[:3, 3]
+    return up, q - (q @ up) * up
+
+
+def _axis_error(axis, T) -> float:
+    up, q = _true_axis(T)
+    d = np.asarray(axis[1]) - q
+    return float(np.linalg.norm(d - (d @ up) * up))
+
+
+def _rig(sides=8, cams=5, seed=1):
+    """Each camera's view (its points in its frame), its true pose, the pairs' verified poses
+    (aliases: each a whole number of periods off the true one), own axes 3-5 cm off."""
+    X, _, labels = _polygon_room(sides=sides, centre=tuple(CENTRE[:2]), cams=cams, noise=0.01)
+    rng = np.random.default_rng(seed)
+    T = [_camera(k, cams) for k in range(cams)]
+    views = [((X[labels == k] @ T[k][:3, :3].T + T[k][:3, 3]),) for k in range(cams)]
+    turn = S.turn_about(np.array([0.0, 0.0, 1.0]), CENTRE, 360.0 / sides)
+    poses = {}
+    for i in range(cams):
+        for j in range(i + 1, cams):
+            k = int(rng.integers(0, sides))  # the alias k periods off
+            poses[(i, j)] = [T[j] @ np.linalg.matrix_power(turn, k) @ invert_rigid(T[i])]
+    axes = {}
+    for k in range(cams):
+        up, q = _true_axis(T[k])
+        a = rng.uniform(0, 2 * math.pi)
+        off = 0.03 + 0.02 * rng.uniform()
+        side = np.cross(up, [1.0, 0.0, 0.0])
+        side /= np.linalg.norm(side)
+        axes[k] = (up, q + off * (math.cos(a) * side + math.sin(a) * np.cross(up, side)))
+    return views, T, poses, S.RoomOrbits(sides, axes, 0, 0, views=cams)
+
+
+def test_one_fitted_axis_puts_every_camera_within_millimetres_of_the_truth():
+    views, T, poses, room = _rig()
+    assert min(_axis_error(room.axes[k], T[k]) for k in room.axes) > 0.025
+    fitted = S.joint_axes(room, views, poses)
+    errors = [_axis_error(fitted.axes[k], T[k]) for k in range(len(T))]
+    assert max(errors) < 0.005, errors
+    assert fitted.sides == room.sides and fitted.views == room.views
+
+
+def test_a_camera_no_verified_pose_reaches_keeps_its_own_axis():
+    views, T, poses, room = _rig()
+    poses = {p: Ts for p, Ts in poses.items() if 4 not in p}
+    fitted = S.joint_axes(room, views, poses)
+    assert np.allclose(fitted.axes[4][1], room.axes[4][1])
+    assert max(_axis_error(fitted.axes[k], T[k]) for k in range(4)) < 0.005
+
+
+def test_walls_facing_one_way_leave_the_own_axes():
+    views, T, poses, room = _rig()
+    one = [(v[0][v[0][:, 0] > 0.5],) for v in views[:1]] + [None] * (len(views) - 1)
+    fitted = S.joint_axes(room, one, {})
+    assert all(np.allclose(fitted.axes[k][1], room.axes[k][1]) for k in room.axes)
