@@ -86,3 +86,13 @@ def test_walls_facing_one_way_leave_the_own_axes():
     one = [(v[0][v[0][:, 0] > 0.5],) for v in views[:1]] + [None] * (len(views) - 1)
     fitted = S.joint_axes(room, one, {})
     assert all(np.allclose(fitted.axes[k][1], room.axes[k][1]) for k in room.axes)
+
+
+def test_a_verified_pose_off_the_orbit_does_not_carry_its_camera():
+    views, T, poses, room = _rig()
+    good = poses[(0, 3)][0]
+    off = S.turn_about(np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.5, 0.0]), 4.5)  # 4.5 deg about another line
+    poses[(0, 3)] = [T[3] @ off @ invert_rigid(T[3]) @ good, good]  # the off pose listed first
+    fitted = S.joint_axes(room, views, poses)
+    errors = [_axis_error(fitted.axes[k], T[k]) for k in range(len(T))]
+    assert max(errors) < 0.005, errors
