@@ -891,7 +891,7 @@ def joint_axes(room: RoomOrbits, views, poses: dict[tuple[int, int], list[np.nda
     """``room`` with one axis fitted to every reached camera's walls (section 7), expressed in each
     camera's frame through the verified poses ``poses``; ``views``: per camera (X, ...) its points
     in its frame (``view_room``'s input) or None. ``room`` unchanged when no fit holds."""
-    from fuseflow.calib.room_axis_fit import fit_axis
+    from fuseflow.calib.room_axis_fit import WallFit
 
     with_view = [c for c in room.axes if c < len(views) and views[c] is not None]
     if not with_view:
@@ -908,9 +908,9 @@ def joint_axes(room: RoomOrbits, views, poses: dict[tuple[int, int], list[np.nda
     cloud, walls, floor = _wall_cloud(views, tree, B, start, seed)
     if walls.sum() < 200:
         return room
-    fit = start
+    fit, wall_fit = start, WallFit(cloud, walls)
     for k in range(JOINT_ROUNDS):  # each round re-collects from where the last one ended
-        last, fit = fit, fit_axis(cloud, walls, fit, room.sides, np.random.default_rng(seed + k))
+        last, fit = fit, wall_fit.fit(fit, room.sides, np.random.default_rng(seed + k))
         if fit is None or np.linalg.norm(fit - last) < JOINT_SETTLED_M:
             break
     if fit is None or np.linalg.norm(fit - start) > JOINT_MAX_SHIFT_M:
