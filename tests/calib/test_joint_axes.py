@@ -96,3 +96,25 @@ def test_a_verified_pose_off_the_orbit_does_not_carry_its_camera():
     fitted = S.joint_axes(room, views, poses)
     errors = [_axis_error(fitted.axes[k], T[k]) for k in range(len(T))]
     assert max(errors) < 0.005, errors
+
+
+def test_a_camera_whose_own_turns_agree_keeps_its_axis():
+    views, T, poses, room = _rig()
+    up, q = _true_axis(T[2])
+    axes = {**room.axes, 2: (up, q + 0.001 * np.cross(up, [1.0, 0.0, 0.0]))}
+    settled = S.RoomOrbits(room.sides, axes, 0, 0, views=room.views, settled=frozenset({2}))
+    fitted = S.joint_axes(settled, views, poses)
+    assert np.allclose(fitted.axes[2][1], axes[2][1])
+    assert max(_axis_error(fitted.axes[k], T[k]) for k in range(len(T))) < 0.005
+
+
+def test_settled_axes_need_enough_turns_that_agree():
+    up = np.array([0.0, -1.0, 0.0])
+
+    def turns(cam, n, scatter):
+        rng = np.random.default_rng(cam)
+        return [S.RoomTurn((0, 1), cam, 36.0, up, np.array([0.2, 0.0, 3.0]) + rng.normal(0, scatter, 3) * [1, 0, 1])
+                for _ in range(n)]  # fmt: skip
+
+    got = S.settled_axes(turns(0, 8, 0.001) + turns(1, 3, 0.001) + turns(2, 8, 0.05))
+    assert got == frozenset({0})
