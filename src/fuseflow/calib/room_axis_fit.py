@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-__all__ = ["fit_axis"]
+__all__ = ["WallFit", "fit_axis"]
 
 #: Wall points whose normal is within this cosine of up are floor or ceiling: no horizontal pull.
 MAX_NORMAL_UP = 0.5
@@ -89,17 +89,32 @@ def _fit(src: np.ndarray, tree, normals: np.ndarray, centre: np.ndarray, sides: 
     return c
 
 
+class WallFit:
+    """The walls of a cloud prepared once for several fits of the axis (``fit``): their KD-tree and
+    normals. ``cloud`` (P, 3): the merged cloud in a basis whose third coordinate is the height
+    (up, the floor's normal); ``walls`` (P,) bool: the points of the room's walls (away from the
+    subject, off floor and ceiling)."""
+
+    def __init__(self, cloud: np.ndarray, walls: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self.pts = cloud[walls]
+        self.tree = cKDTree(self.pts) if len(self.pts) >= MIN_LANDED else None
+        self.normals = _normals(self.pts, self.tree) if self.tree is not None else None
+
+    def fit(self, centre: np.ndarray, sides: int, rng: np.random.Generator) -> np.ndarray | None:
+        """The axis position (x, y) refined from ``centre`` (module docstring), FIT_POINTS sources
+        drawn by ``rng``; None when the fit fails (too few points land, walls facing one way
+        only)."""
+        if self.tree is None:
+            return None
+        pick = rng.choice(len(self.pts), min(len(self.pts), FIT_POINTS), replace=False)
+        return _fit(self.pts[pick], self.tree, self.normals, centre, sides)
+
+
 def fit_axis(cloud: np.ndarray, walls: np.ndarray, centre: np.ndarray, sides: int,
              rng: np.random.Generator) -> np.ndarray | None:  # fmt: skip
-    """The room's axis position (x, y) refined from ``centre`` (module docstring). ``cloud`` (P, 3):
-    the merged cloud in a basis whose third coordinate is the height (up, the floor's normal);
-    ``walls`` (P,) bool: the points of the room's walls (away from the subject, off floor and
-    ceiling). None when the fit fails (too few points land, walls facing one way only)."""
-    from scipy.spatial import cKDTree
-
-    pts = cloud[walls]
-    if len(pts) < MIN_LANDED:
-        return None
-    tree = cKDTree(pts)
-    pick = rng.choice(len(pts), min(len(pts), FIT_POINTS), replace=False)
-    return _fit(pts[pick], tree, _normals(pts, tree), centre, sides)
+    """The room's axis position (x, y) refined from ``centre`` (module docstring; ``WallFit``
+    for ``cloud`` and ``walls``). None when the fit fails (too few points land, walls facing
+    one way only)."""
+    return WallFit(cloud, walls).fit(centre, sides, rng)

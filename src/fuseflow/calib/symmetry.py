@@ -77,6 +77,8 @@ __all__ = [
     "view_room",
     "views_room",
     "carry_axes",
+    "joint_axes",
+    "settled_axes",
 ]
 
 
@@ -553,6 +555,9 @@ class RoomOrbits:
     turns: int
     pairs: int
     views: int = 0
+    #: cameras whose own axis rests on at least JOINT_KEEP_TURNS of its turns whose axis points lie
+    #: a median JOINT_KEEP_MAD_M or less from their median (``settled_axes``): ``joint_axes`` keeps it
+    settled: frozenset = frozenset()
 
     def members(self, i: int, T_ji: np.ndarray, known: list[np.ndarray], rot_deg: float = 5.0,
                 trans_m: float = 0.2) -> list[tuple[float, np.ndarray]]:  # fmt: skip
@@ -593,7 +598,22 @@ def room_orbits(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict[int, n
     pairs = {t.pair for t in fit}
     if not pairs:
         return None
-    return RoomOrbits(sides, axis_points(fit, poses), len(fit), len(pairs))
+    return RoomOrbits(sides, axis_points(fit, poses), len(fit), len(pairs), settled=settled_axes(fit))
+
+
+def settled_axes(turns: list[RoomTurn]) -> frozenset:
+    """The cameras with at least JOINT_KEEP_TURNS of ``turns`` whose axis points lie a median
+    JOINT_KEEP_MAD_M or less from their median (section 7)."""
+    own: dict[int, list[np.ndarray]] = {}
+    for t in turns:
+        own.setdefault(t.camera, []).append(np.asarray(t.point, np.float64))
+    out = set()
+    for c, pts in own.items():
+        P = np.array(pts)
+        mad = float(np.median(np.linalg.norm(P - np.median(P, axis=0), axis=1)))
+        if len(P) >= JOINT_KEEP_TURNS and mad <= JOINT_KEEP_MAD_M:
+            out.add(c)
+    return frozenset(out)
 
 
 # ----------------------------------------------------------------------------- a room in one view
@@ -774,3 +794,158 @@ def views_room(views, poses: dict[tuple[int, int], list[np.ndarray]]) -> RoomOrb
             if vr is not None:
                 own[k] = (vr.up, vr.point)
     return RoomOrbits(sides, carry_axes(own, poses), 0, 0, views=len(own))
+
+
+# ----------------------------------------------------------------------------- one axis for all
+#
+# 7. ``joint_axes``: the axes of sections 5 and 6 are each camera's own (the median of its turns'
+#    axis points, or its view's grid search), a few centimetres off, and a pose turned by k of N
+#    periods about camera i's axis moves camera j by 2 sin(k pi / N) times that error. Every
+#    verified pose of the orbit maps the room's walls onto its walls, so the cameras' views, put
+#    into one camera's frame through a tree of verified poses, form one wall cloud; the axis is
+#    fitted to it by least squares (``room_axis_fit.fit_axis``: the walls turned by every period
+#    land on the walls) and carried back to every camera through the same poses, so each
+#    camera's axis is where its own points, as placed in the cloud, turn onto the others'.
+#    Cameras the tree does not reach keep their own axis; a fit that moves the axis more than
+#    JOINT_MAX_SHIFT_M from its start, or fails, changes nothing.
+
+#: The fitted axis may lie at most this far (metres) from the starting one (the root camera's own):
+#: further, the cloud was not one room (a verified pose off the orbit) and the own axes stay.
+JOINT_MAX_SHIFT_M = 0.15
+#: Points of each view used in the joint cloud (fixed seed).
+JOINT_POINTS = 6000
+#: ``fit_axis`` is repeated from its own result, at most JOINT_ROUNDS times, until it moves less
+#: than JOINT_SETTLED_M (metres): one call's six steps covered 6 of 27 mm on independent studio
+#: seed 1400 (8-sided), repeated calls settled 13 mm from the truth.
+JOINT_ROUNDS, JOINT_SETTLED_M = 8, 0.001
+#: A cycle of three verified poses closes when its loop is a whole number of periods within this
+#: (deg) and moves at most JOINT_CYCLE_M (metres) otherwise; the tree of poses that carries the
+#: views prefers poses that close the most cycles. On independent studio seed 1202 (10-sided,
+#: moving subject) a verified alias 4.5 deg / 17 cm off the orbit carried one camera's walls 6 cm
+#: off the others' when the tree took it as the first pose of its pair.
+JOINT_CYCLE_DEG, JOINT_CYCLE_M = 0.6, 0.03
+#: A camera whose own axis is the median of at least JOINT_KEEP_TURNS turns' axis points lying a
+#: median JOINT_KEEP_MAD_M (metres) or less from it keeps that axis: on symstudio seed 10105
+#: (10-sided, 158 turns of 15 pairs) the own axes were 0.1-0.9 mm from the truth, the joint one
+#: 4 mm and, through one pose, 83 mm; on independent seed 935 the cameras with 5-11 turns within
+#: 2.4-2.9 mm were 0.5-1.2 mm off, the two whose turns scattered 55-60 mm, 10 and 51 mm.
+JOINT_KEEP_TURNS, JOINT_KEEP_MAD_M = 5, 0.005
+
+
+def _directed(poses: dict[tuple[int, int], list[np.ndarray]], a: int, b: int) -> list[np.ndarray]:
+    """The verified poses camera a -> camera b (inverted where the pair is stored as (b, a))."""
+    if (a, b) in poses:
+        return [np.asarray(T, np.float64) for T in poses[(a, b)]]
+    return [invert_rigid(np.asarray(T, np.float64)) for T in poses.get((b, a), [])]
+
+
+def _closes(C: np.ndarray, up: np.ndarray, sides: int) -> bool:
+    """Whether the loop C (4, 4) around a cycle of three cameras, in the first camera's frame, is
+    a room turn: within JOINT_CYCLE_DEG of a whole number of periods about the camera's ``up``,
+    sliding at most JOINT_CYCLE_M along it (or moving at most that, unturned)."""
+    ang, u, _, pitch = screw_axis(C)
+    if ang < JOINT_CYCLE_DEG:
+        return bool(np.linalg.norm(C[:3, 3]) < JOINT_CYCLE_M)
+    period = 360.0 / sides
+    off = abs(ang - period * round(ang / period))
+    return off < JOINT_CYCLE_DEG and abs(u @ up) > np.cos(np.radians(JOINT_CYCLE_DEG)) and abs(pitch) < JOINT_CYCLE_M
+
+
+def _cycle_support(poses: dict[tuple[int, int], list[np.ndarray]], ups: dict, sides: int) -> dict[tuple, int]:
+    """(camera a, camera b, pose index) -> how many third cameras close a cycle with that pose
+    (``_closes``, any of the other two pairs' poses): a pose off the room's orbit closes none."""
+    cams = sorted({c for p in poses for c in p})
+    out = {}
+    for a, b in poses:
+        for m, A in enumerate(_directed(poses, a, b)):
+            n = 0
+            for k in cams:
+                if k in (a, b) or a not in ups:
+                    continue
+                n += any(_closes(C @ Bk @ A, ups[a], sides)
+                         for Bk in _directed(poses, b, k) for C in _directed(poses, k, a))  # fmt: skip
+            out[(a, b, m)] = out[(b, a, m)] = n
+    return out
+
+
+def _pose_tree(root: int, poses: dict[tuple[int, int], list[np.ndarray]], support: dict | None = None):
+    """Camera -> the (4, 4) map from its frame into ``root``'s through verified poses: a tree
+    grown from ``root`` by the pose that closes the most cycles (``support``: ``_cycle_support``;
+    ties to the first pair in sorted order, then its first pose)."""
+    support = support or {}
+    tree = {root: np.eye(4)}
+    while True:
+        best = None
+        for i, j in sorted(poses):
+            for c, other in ((i, j), (j, i)):
+                if c not in tree or other in tree:
+                    continue
+                for m, T in enumerate(_directed(poses, other, c)):  # other -> c
+                    key = (-support.get((i, j, m), 0), i, j, m)
+                    if best is None or key < best[0]:
+                        best = (key, other, tree[c] @ T)
+        if best is None:
+            return tree
+        tree[best[1]] = best[2]
+
+
+def _wall_cloud(views, tree: dict[int, np.ndarray], B: np.ndarray, start: np.ndarray, seed: int):
+    """(cloud (P, 3) in the basis ``B`` (x, y, height) of the root's frame, wall mask, floor
+    height): every reached view's points, walls VIEW_BAND_M above the floor and below the top and
+    VIEW_SUBJECT_M from ``start`` (x, y)."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for c, M in tree.items():
+        if c < len(views) and views[c] is not None:
+            X = np.asarray(views[c][0], np.float64)
+            X = X[rng.choice(len(X), min(len(X), JOINT_POINTS), replace=False)]
+            parts.append((X @ M[:3, :3].T + M[:3, 3]) @ B.T)
+    cloud = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if len(cloud) < 500:
+        return cloud, np.zeros(len(cloud), bool), 0.0
+    h = cloud[:, 2]
+    low = h[h < np.percentile(h, 1) + 0.5]
+    hist, edges = np.histogram(low, bins=max(int((low.max() - low.min()) / 0.01), 1))
+    floor = float(edges[np.argmax(hist)] + 0.005)
+    walls = (h > floor + VIEW_BAND_M) & (h < np.percentile(h, 99.5) - VIEW_BAND_M)
+    walls &= np.linalg.norm(cloud[:, :2] - start, axis=1) > VIEW_SUBJECT_M
+    return cloud, walls, floor
+
+
+def joint_axes(room: RoomOrbits, views, poses: dict[tuple[int, int], list[np.ndarray]], seed: int = 0) -> RoomOrbits:
+    """``room`` with one axis fitted to every reached camera's walls (section 7), expressed in each
+    camera's frame through the verified poses ``poses``; ``views``: per camera (X, ...) its points
+    in its frame (``view_room``'s input) or None. ``room`` unchanged when no fit holds."""
+    from fuseflow.calib.room_axis_fit import WallFit
+
+    with_view = [c for c in room.axes if c < len(views) and views[c] is not None]
+    if not with_view:
+        return room
+    support = _cycle_support(poses, {c: np.asarray(u, np.float64) for c, (u, _) in room.axes.items()}, room.sides)
+    root = max(with_view, key=lambda c: (len(_pose_tree(c, poses)), -c))
+    tree = _pose_tree(root, poses, support)
+    up, p = room.axes[root]
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    e1 = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    B = np.stack([e1, np.cross(up, e1), up])
+    start = (B @ np.asarray(p, np.float64))[:2]
+    cloud, walls, floor = _wall_cloud(views, tree, B, start, seed)
+    if walls.sum() < 200:
+        return room
+    fit, wall_fit = start, WallFit(cloud, walls)
+    for k in range(JOINT_ROUNDS):  # each round re-collects from where the last one ended
+        last, fit = fit, wall_fit.fit(fit, room.sides, np.random.default_rng(seed + k))
+        if fit is None or np.linalg.norm(fit - last) < JOINT_SETTLED_M:
+            break
+    if fit is None or np.linalg.norm(fit - start) > JOINT_MAX_SHIFT_M:
+        return room
+    q = B.T @ np.array([fit[0], fit[1], 0.0])
+    axes = dict(room.axes)
+    for c, M in tree.items():  # M: camera c -> root; the axis into c by its inverse
+        if c in room.settled:
+            continue
+        Mi = invert_rigid(M)
+        u2, q2 = Mi[:3, :3] @ up, Mi[:3, :3] @ q + Mi[:3, 3]
+        axes[c] = (u2, q2 - (q2 @ u2) * u2)
+    return RoomOrbits(room.sides, axes, room.turns, room.pairs, room.views, room.settled)

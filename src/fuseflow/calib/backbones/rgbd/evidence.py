@@ -157,6 +157,14 @@ def room_view(cam: CameraEvidence) -> tuple[np.ndarray, np.ndarray, np.ndarray] 
     return X, col / np.maximum(col.mean(axis=0), 1.0) * 128.0, np.asarray(cam.plane.normal, np.float64)
 
 
+def room_points(cam: CameraEvidence) -> tuple[np.ndarray] | None:
+    """(points (P, 3),) of the camera's median depth every ROOM_VIEW_STRIDE pixels, in its frame,
+    for ``symmetry.joint_axes`` (``room_view`` without the colour); None without a floor."""
+    if cam.plane is None:
+        return None
+    return (backproject(cam.depth, cam.K, ROOM_VIEW_STRIDE),)
+
+
 #: A pixel whose depth in some frame differs from its median by more than this (metres, or this
 #: share of the depth) saw something move: it has no static depth (``_median_images``).
 DYNAMIC_MIN_M = 0.1

@@ -16,6 +16,7 @@ from fuseflow.calib.backbones.rgbd.evidence import (
     CameraEvidence,
     PairCheck,
     plausible,
+    room_points,
     room_view,
     verify_pose,
 )
@@ -29,6 +30,7 @@ from fuseflow.calib.symmetry import (
     RoomOrbits,
     colocated,
     distinct_hypotheses,
+    joint_axes,
     pose_gap,
     room_orbits,
     subject_free_space,
@@ -113,6 +115,9 @@ def pair_edges(cams: list[CameraEvidence], cfg: RGBDConfig, people=None, subject
             progress.report("rgbd: pairs", len(work), len(cams) * (len(cams) - 1) // 2)
     aliased = any(r.get("rejected") in ALIAS_REJECTIONS for w in work for r in w[6]["candidates"])
     room, unverified = pair_room(cams, [((w[0], w[1]), w[5]) for w in work], aliased)
+    if room is not None:  # one axis for every camera (symmetry section 7)
+        verified_poses = {(w[0], w[1]): [c["T_ba"] for c in w[5][0]] for w in work}
+        room = joint_axes(room, [room_points(c) for c in cams], verified_poses)
     turned = 0
     for i, j, cands, judge, passing, (verified, seen), entry in work:
         near = max(cfg.min_separation, CLOSE_DEPTH_SHARE * median_depth(cams[i], cams[j]))
