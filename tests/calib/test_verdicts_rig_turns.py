@@ -8,6 +8,7 @@ from itertools import combinations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from fuseflow.calib.turns import RoomAxis
 from fuseflow.calib.verdicts import TurnEvidence, camera_verdicts
@@ -56,6 +57,10 @@ def test_one_turned_camera_leaves_the_rest_good():
     turns = {c: _ev(m) for c, m in zip(T, (0, 0, 0, 0, 0, 0, 2))}
     v = camera_verdicts(rep, T, list(T), turns, ROOM)
     assert [v[c]["verdict"] for c in T] == ["good"] * 6 + ["check it"], v
+    turned = v["c6"]  # its position rests on the axis (2 sin(90 deg / 2) x 100 mm), not on a fit
+    assert turned["estimate_mm"] == pytest.approx(141.4, abs=0.1), turned
+    assert "turn by +90 deg about the room's axis, known to 100 mm, checks its position to 141 mm" in turned["reason"]
+    assert "expected accuracy" not in turned["reason"]  # the lever is no expected error
     same = {c: _ev(m) for c, m in zip(T, (0,) * 7)}
     assert all(x["verdict"] == "good" for x in camera_verdicts(rep, T, list(T), same, ROOM).values())
 

@@ -410,7 +410,9 @@ def camera_verdicts(
             if (entry["accuracy_mm"] or 0.0) < axis_mm:
                 entry["accuracy_mm"] = round(axis_mm, 1)
                 entry["accuracy_from"] = f"its turn by {turn.moved * 360.0 / turn.sides:+.0f} deg about the room's axis"
+                entry["axis_floor"] = True
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
+        entry.pop("axis_floor", None)
         if room is not None and entry["verdict"] == "good":
             entry["verdict"], entry["reason"] = _judge_turn(turn, room.sides, entry["reason"])
         elif room is None and backbone_room and entry["verdict"] == "good":
@@ -504,6 +506,11 @@ def _judge(e: dict[str, Any], stacked: tuple[str, float] | None, fl, limit: floa
         )
     deg, mm = e["accuracy_deg"], e["accuracy_mm"]
     bound = _acc(e.get("bound_deg", deg), e.get("bound_mm", mm))
+    if e.get("axis_floor") and mm is not None and mm > GOOD_MM and (deg is None or deg <= GOOD_DEG):
+        return "check it", (
+            f"{e['accuracy_from']}, known to {TURN_AXIS_MM:g} mm, checks its position to {mm:.0f} mm at best, "
+            f"beyond {GOOD_MM:g} mm (90 % bound {bound})"
+        )
     if (deg is not None and deg > GOOD_DEG) or (mm is not None and mm > GOOD_MM):
         return "check it", (
             f"expected accuracy {_acc(deg, mm)} is beyond {GOOD_DEG:g} deg / {GOOD_MM:g} mm (90 % bound {bound})"
