@@ -405,12 +405,7 @@ def camera_verdicts(
         entry["turn"] = None if turn is None else turn.to_json()
         turned_deg = turn.moved * 360.0 / turn.sides if turn is not None else 0.0
         entry["bound_deg"], entry["bound_mm"] = printed_bound(entry["accuracy_deg"], entry["accuracy_mm"], turned_deg)
-        if turn is not None and turn.moved:  # turned about an axis known to TURN_AXIS_MM
-            axis_mm = _axis_mm(turn.moved, turn.sides)
-            if (entry["accuracy_mm"] or 0.0) < axis_mm:
-                entry["accuracy_mm"] = round(axis_mm, 1)
-                entry["accuracy_from"] = f"its turn by {turn.moved * 360.0 / turn.sides:+.0f} deg about the room's axis"
-                entry["axis_floor"] = True
+        _raise_to_axis(entry, turn)
         entry["verdict"], entry["reason"] = _judge(entry, stacked.get(c), fl, limit)
         entry.pop("axis_floor", None)
         if room is not None and entry["verdict"] == "good":
@@ -425,6 +420,18 @@ def camera_verdicts(
         entry["accuracy_deg"], entry["accuracy_mm"] = entry.pop("bound_deg"), entry.pop("bound_mm")
         out[c] = {"verdict": entry.pop("verdict"), "reason": entry.pop("reason"), **entry}
     return out
+
+
+def _raise_to_axis(entry: dict[str, Any], turn: TurnEvidence | None) -> None:
+    """A camera turned about the room's axis, known to TURN_AXIS_MM: its position estimate is at
+    least that axis' lever (``_axis_mm``), marked ``"axis_floor"`` for the reason to name it."""
+    if turn is None or not turn.moved:
+        return
+    axis_mm = _axis_mm(turn.moved, turn.sides)
+    if (entry["accuracy_mm"] or 0.0) < axis_mm:
+        entry["accuracy_mm"] = round(axis_mm, 1)
+        entry["accuracy_from"] = f"its turn by {turn.moved * 360.0 / turn.sides:+.0f} deg about the room's axis"
+        entry["axis_floor"] = True
 
 
 def _axis_mm(k: int, sides: int) -> float:
