@@ -16,6 +16,26 @@ from fuseflow.cli import app as cli_app
 from fuseflow.errors import FuseFlowError, ValidationError
 
 
+class _Recording:
+    """A 12-frame recording of 64x48 cameras ``ids`` whose frames are their numbers: enough for
+    ``pooled_calibration`` with a stand-in attempt."""
+
+    frame_numbers = list(range(12))
+
+    def __init__(self, ids):
+        K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+        self.rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ids))
+
+    def __len__(self):
+        return 12
+
+    def __getitem__(self, t):
+        return t
+
+    def missing_views(self):
+        return {}
+
+
 @pytest.fixture(scope="module")
 def ring4_rec(tmp_path_factory):
     """The simulated 4-camera 320x240 dynamic room ring of six frames."""
@@ -79,21 +99,6 @@ def test_a_backbone_that_reads_the_first_frame_only_is_not_pooled():
     from fuseflow.calib import CalibConfig
     from fuseflow.calib.pooling import pooled_calibration
 
-    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
-
-    class Rec:
-        rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ("a", "b")))
-        frame_numbers = list(range(12))
-
-        def __len__(self):
-            return 12
-
-        def __getitem__(self, t):
-            return t
-
-        def missing_views(self):
-            return {}
-
     calls = []
 
     def attempt(frames, rig, config, progress=None):
@@ -102,7 +107,9 @@ def test_a_backbone_that_reads_the_first_frame_only_is_not_pooled():
 
     for backbone, attempts in (("colmap", 1), ("precomputed", 1), ("rgbd", 2), ("auto", 2)):
         calls.clear()
-        pooled_calibration(Rec(), [0], CalibConfig(backbone=backbone, backbone_path="x.npz"), True, attempt)
+        pooled_calibration(
+            _Recording(("a", "b")), [0], CalibConfig(backbone=backbone, backbone_path="x.npz"), True, attempt
+        )
         assert len(calls) == attempts, (backbone, calls)
 
 
@@ -115,21 +122,7 @@ def test_pooled_frames_win_a_tie_in_good_cameras_when_the_one_frame_folded_camer
     from fuseflow.calib import CalibConfig
     from fuseflow.calib.pooling import pooled_calibration, unstacked_count
 
-    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
     ids = ("a", "b", "c")
-
-    class Rec:
-        rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ids))
-        frame_numbers = list(range(12))
-
-        def __len__(self):
-            return 12
-
-        def __getitem__(self, t):
-            return t
-
-        def missing_views(self):
-            return {}
 
     def at(*centres):
         out = {}
@@ -149,7 +142,7 @@ def test_pooled_frames_win_a_tie_in_good_cameras_when_the_one_frame_folded_camer
 
     assert unstacked_count(SimpleNamespace(T_cam_world=folded)) == 1
     assert unstacked_count(SimpleNamespace(T_cam_world=spread)) == 3
-    out = pooled_calibration(Rec(), [0], CalibConfig(), True, attempt)
+    out = pooled_calibration(_Recording(ids), [0], CalibConfig(), True, attempt)
     assert out.calibration.T_cam_world is spread and len(out.positions) > 1
 
 
@@ -162,21 +155,7 @@ def test_pooled_frames_win_a_tie_when_they_settle_turns_the_one_frame_left_ambig
     from fuseflow.calib import CalibConfig
     from fuseflow.calib.pooling import pooled_calibration, turn_checked_count
 
-    K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
     ids = ("a", "b", "c")
-
-    class Rec:
-        rig = fuseflow.Rig(tuple(fuseflow.Camera(c, 64, 48, K) for c in ids))
-        frame_numbers = list(range(12))
-
-        def __len__(self):
-            return 12
-
-        def __getitem__(self, t):
-            return t
-
-        def missing_views(self):
-            return {}
 
     T = {}
     for c, x in zip(ids, ([0, 0, 0], [3.0, 0, 0], [0, 3.0, 0]), strict=True):
@@ -192,4 +171,4 @@ def test_pooled_frames_win_a_tie_when_they_settle_turns_the_one_frame_left_ambig
     def attempt(frames, rig, config, progress=None):
         return single if len(frames) == 1 else pooled
 
-    assert pooled_calibration(Rec(), [0], CalibConfig(), True, attempt).calibration is pooled
+    assert pooled_calibration(_Recording(ids), [0], CalibConfig(), True, attempt).calibration is pooled
