@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from fuseflow.calib import symmetry as S
+from fuseflow.synth.rigs import look_at
 from fuseflow.types import invert_rigid
 
 from .test_room_axis_fit import _polygon_room
@@ -18,15 +19,7 @@ CENTRE = np.array([0.3, -0.2, 0.0])
 def _camera(k: int, cams: int) -> np.ndarray:
     """Camera k of ``cams`` on a 2.8 m ring about CENTRE, 1.6 m high, looking at it: camera-from-world."""
     a = 2 * math.pi * (k + 0.5) / cams
-    c = CENTRE + [2.8 * math.cos(a), 2.8 * math.sin(a), 1.6]
-    z = CENTRE + [0.0, 0.0, 1.0] - c
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, -R @ c
-    return T
+    return look_at(CENTRE + [2.8 * math.cos(a), 2.8 * math.sin(a), 1.6], CENTRE + [0.0, 0.0, 1.0])
 
 
 def _true_axis(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
