@@ -91,16 +91,14 @@ class StageSettings:
     Attributes:
         scale: the scale stage's. refine: the ICP / pose-graph refinement's (None: off).
         joint_refine: whether the depth-aware joint refinement runs. min_agreement: the depth
-        agreement below which a camera is unplaced or not "good" (0 = not checked).
-        closed_form: the scale stage's closed form (for the report). report: the config's fields
-        as calib.json's ``report.config``.
+        agreement below which a camera is unplaced or not "good" (0 = not checked). report: the
+        config's fields as calib.json's ``report.config``.
     """
 
     scale: ScaleSettings
     refine: RefineSettings | None
     joint_refine: bool
     min_agreement: float
-    closed_form: str
     report: dict[str, Any]
 
 
@@ -111,7 +109,6 @@ def stage_settings(config: CalibConfig) -> StageSettings:
         refine=refine_settings(config) if config.refine else None,
         joint_refine=config.joint_refine,
         min_agreement=config.min_depth_agreement,
-        closed_form=config.closed_form,
         report=config.as_dict(),
     )
 
@@ -204,13 +201,13 @@ def place_and_judge(
             pl.timings["joint_refine"] = time.perf_counter() - t
         progress.report("report")
         t = time.perf_counter()
-        report = finish_report(pl, ids, st.report, st.closed_form, limit)
+        report = finish_report(pl, ids, st.report, st.scale.closed_form, limit)
         room, turns = camera_turns(frames, rig, pl.T, report)  # a repeating room: the subject decides turns
         if room is not None:
             pl.T, turns = settle_turns(pl.T, room, turns, TURN_MIN_MARGIN)  # about the room's axis
             if any(t.moved for t in turns.values()):
                 pl.agreement = depth_agreement(frames[0], rig, pl.T) if limit > 0 else {}
-                report = finish_report(pl, ids, st.report, st.closed_form, limit)
+                report = finish_report(pl, ids, st.report, st.scale.closed_form, limit)
             report.room = room.to_json()
         report.camera_verdicts = camera_verdicts(report, pl.T, ids, turns, room, limit)
         report.pair_agreement = pair_agreements(frames[0], rig, pl.T)
