@@ -120,6 +120,30 @@ def test_hold_serves_the_last_frame_after_the_replay(tmp_path):
     assert result.summary.stopped_by == "end of source" and result.held_s > 0.5
 
 
+SIGNAL_WHILE_WAITING = """
+import os, random, signal, threading
+from fuseflow.live import StopRequest
+stop = None
+signal.signal(signal.SIGUSR1, lambda *a: stop.set("terminated"))
+for trial in range(300):
+    stop = StopRequest()
+    threading.Timer(random.uniform(0.0002, 0.003), os.kill, (os.getpid(), signal.SIGUSR1)).start()
+    while not stop.wait(0):  # the main thread waits on the request when the signal comes
+        pass
+    assert stop.reason == "terminated"
+print("300 stops")
+"""
+
+
+def test_a_signal_handler_stops_a_waiting_main_thread():
+    """``StopRequest.set`` from a signal handler while the main thread is in ``wait``: the
+    request lands every time (a ``threading.Event`` deadlocks here within a few tries)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    res = subprocess.run([sys.executable, "-c", SIGNAL_WHILE_WAITING], env=env, capture_output=True, text=True,
+                         timeout=60)  # fmt: skip
+    assert res.returncode == 0 and "300 stops" in res.stdout, res.stderr
+
+
 def test_sigterm_stops_with_a_summary_and_complete_files(dynamic_rec, tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}

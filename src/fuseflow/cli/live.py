@@ -256,7 +256,7 @@ def _signals(stop):
         stop.set("terminated")
 
     def on_int(signum, frame) -> None:
-        if stop.event.is_set():
+        if stop.is_set():
             raise KeyboardInterrupt
         stop.set("interrupted")
 

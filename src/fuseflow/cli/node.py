@@ -4,7 +4,6 @@ cluster, for `fuseflow live --ray` on the fusing host."""
 from __future__ import annotations
 
 import signal
-import threading
 
 import typer
 
@@ -63,7 +62,9 @@ def _serve(handle, joined: bool) -> None:
     """Report, then wait for Ctrl-C / SIGTERM or the node's source to fail; stop the actor."""
     import ray
 
-    stop = threading.Event()
+    from fuseflow.live import StopRequest
+
+    stop = StopRequest()  # a signal handler may set it while this thread waits on it
     info = ray.get(handle.info.remote())
     old = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     say(

@@ -43,16 +43,38 @@ class LiveOutputs:
 
 
 class StopRequest:
-    """Ends ``run_live`` from any thread (a signal handler): the loop stops after the frame it is
-    fusing, the sinks close cleanly (no half-written file) and the summary has ``reason``."""
+    """Ends ``run_live`` from any thread or a signal handler: the loop stops after the frame it is
+    fusing, the sinks close cleanly (no half-written file) and the summary has ``reason``.
+
+    ``set`` takes no lock. A Python signal handler runs in the main thread between two bytecodes,
+    also while that thread holds the lock inside ``threading.Event.wait``; an ``Event.set`` there
+    waits for that lock forever (SIGTERM would never end the process). So the request is a plain
+    flag and its waiters poll it (``wait``).
+    """
+
+    POLL_S = 0.02
+    """How often ``wait`` looks at the flag (seconds): the delay between a request and its effect."""
 
     def __init__(self) -> None:
-        self.event = threading.Event()
         self.reason = "stop"
+        self._requested = False
 
     def set(self, reason: str = "stop") -> None:
-        self.reason = reason
-        self.event.set()
+        self.reason = reason  # before the flag: whoever sees the flag sees its reason
+        self._requested = True
+
+    def is_set(self) -> bool:
+        return self._requested
+
+    def wait(self, timeout: float) -> bool:
+        """True once set; False after ``timeout`` seconds without a request."""
+        deadline = time.monotonic() + timeout
+        while not self._requested:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            time.sleep(min(left, self.POLL_S))
+        return True
 
 
 @dataclass
@@ -105,7 +127,7 @@ def _one_frame_hint(source: Any, outputs: LiveOutputs) -> list[str]:
 
 def _watch(stop: StopRequest, loop: LiveLoop, done: threading.Event) -> None:
     while not done.is_set():
-        if stop.event.wait(0.05):
+        if stop.wait(0.05):
             loop.stop(stop.reason)
             return
 
@@ -116,7 +138,7 @@ def _hold(server: LiveServer, web: WebSink, stop: StopRequest) -> float:
     web.hold()
     server.end("replay ended; the last frame is held")
     try:
-        while not stop.event.wait(0.1):
+        while not stop.wait(0.1):
             pass
     except KeyboardInterrupt:
         pass
@@ -198,7 +220,7 @@ def _finish(summary: LiveSummary, server: LiveServer | None, sinks: list[Any], w
     clients = server.client_stats() if server is not None else []
     result = LiveResult(summary, server.url if server else None, clients, warnings, round(held, 2))
     if held:
-        result.hold_ended_by = stop.reason if stop.event.is_set() else "interrupted"
+        result.hold_ended_by = stop.reason if stop.is_set() else "interrupted"
     if web is not None and web.encode_ms:
         result.encode_ms_median = round(float(np.median(web.encode_ms)), 2)
         result.encode_cpu_ms_median = round(float(np.median(web.encode_cpu_ms)), 2)
