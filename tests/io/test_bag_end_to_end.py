@@ -73,7 +73,8 @@ def test_four_late_bags_convert_calibrate_and_run_resynced(bags, tmp_path):
     assert open_recording(rec).missing_views()[LATE_CAM] == [0, 1]  # paired by time: the late camera starts later
 
     calib = tmp_path / "calib.json"
-    res = runner.invoke(app, ["calibrate", str(rec), "-o", str(calib), "--frame", "4"])
+    # defaults: frames are pooled where one leaves a camera unchecked
+    res = runner.invoke(app, ["calibrate", str(rec), "-o", str(calib)])
     assert res.exit_code == 0, res.output
 
     checked, checked_frames = _run(rec, tmp_path / "check", calib, "check")
