@@ -1,5 +1,5 @@
 """The repeating room's axis fitted to the calibrated cloud's walls (calib.room_axis_fit) and
-its use by calib.turns.room_axis."""
+its use by calib.turns.room_axis; far walls with depth noise as large as their point spacing."""
 
 from __future__ import annotations
 
@@ -71,3 +71,41 @@ def test_room_axis_lands_on_the_room_centre_in_noisy_depth():
     room = T_.room_axis(pts, T, np.array([0.0, 0.0, 1.0]), hint=8)
     assert room is not None and room.sides == 8
     assert np.linalg.norm(room.point[:2] - [0.3, -0.2]) < 0.004
+
+
+def _stacked_view(sides=6, apothem=4.3, cam_r=3.5, views=6, fx=228.0, seed=0):
+    """The walls a 320x240 camera 3.5 m out sees across a regular room (5-8 m away), `views`
+    times with fresh depth noise along its rays, sigma(z) = 2 mm + 0.8 mm z^2 (Kinect v2): the
+    joint cloud of a ring put together through stacked pair poses. The axis is at (0, 0)."""
+    rng = np.random.default_rng(seed)
+    c = np.array([cam_r, 0.0, 1.6])
+    u, v = np.meshgrid(np.arange(320) - 160.0, np.arange(240) - 120.0)
+    d = np.stack([-np.ones(u.size), -u.ravel() / fx, -v.ravel() / fx], 1)  # looking along -x
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hit = np.full(len(d), np.inf)
+    for k in range(sides):
+        n = np.array([math.cos(2 * math.pi * k / sides), math.sin(2 * math.pi * k / sides), 0.0])
+        den = d @ n
+        t = np.divide(apothem - c @ n, den, out=np.full(len(d), np.inf), where=den > 1e-9)
+        hit = np.minimum(hit, np.where(t > 0, t, np.inf))
+    P = c + hit[:, None] * d
+    keep = np.isfinite(hit) & (P[:, 2] > 0.3) & (P[:, 2] < 2.4)
+    r = hit[keep]
+    X = np.concatenate([c + (r + rng.normal(size=len(r)) * (0.002 + 0.0008 * r * r))[:, None] * d[keep]
+                        for _ in range(views)])  # fmt: skip
+    return X[rng.choice(len(X), 36000, replace=False)]
+
+
+def test_far_noisy_walls_still_pin_the_axis():
+    """Walls 5-8 m away, their depth noise (2-5 cm) as large as their point spacing: from 10 cm
+    off towards the camera the fit lands within 1 cm (with normals of 10 neighbours it stopped
+    19-30 mm short on these three seeds)."""
+    for seed in range(3):
+        X = _stacked_view(seed=seed)
+        wall_fit, fit = F.WallFit(X, np.ones(len(X), bool)), np.array([0.10, 0.0])
+        for k in range(8):  # as symmetry.joint_axes repeats it
+            last, fit = fit, wall_fit.fit(fit, 6, np.random.default_rng(k))
+            assert fit is not None
+            if np.linalg.norm(fit - last) < 0.001:
+                break
+        assert np.linalg.norm(fit) < 0.01, (seed, fit)
