@@ -78,6 +78,7 @@ __all__ = [
     "views_room",
     "carry_axes",
     "joint_axes",
+    "settled_axis",
     "settled_axes",
 ]
 
@@ -912,6 +913,18 @@ def _wall_cloud(views, tree: dict[int, np.ndarray], B: np.ndarray, start: np.nda
     return cloud, walls, floor
 
 
+def settled_axis(wall_fit, start: np.ndarray, sides: int, seed: int = 0) -> np.ndarray | None:
+    """``wall_fit`` (``room_axis_fit.WallFit``) repeated from ``start``, each round from where the
+    last one ended (it re-collects the landing points), at most JOINT_ROUNDS times until it moves
+    less than JOINT_SETTLED_M; None when a round fails."""
+    fit = start
+    for k in range(JOINT_ROUNDS):
+        last, fit = fit, wall_fit.fit(fit, sides, np.random.default_rng(seed + k))
+        if fit is None or np.linalg.norm(fit - last) < JOINT_SETTLED_M:
+            break
+    return fit
+
+
 def joint_axes(room: RoomOrbits, views, poses: dict[tuple[int, int], list[np.ndarray]], seed: int = 0) -> RoomOrbits:
     """``room`` with one axis fitted to every reached camera's walls (section 7), expressed in each
     camera's frame through the verified poses ``poses``; ``views``: per camera (X, ...) its points
@@ -933,11 +946,7 @@ def joint_axes(room: RoomOrbits, views, poses: dict[tuple[int, int], list[np.nda
     cloud, walls, floor = _wall_cloud(views, tree, B, start, seed)
     if walls.sum() < 200:
         return room
-    fit, wall_fit = start, WallFit(cloud, walls)
-    for k in range(JOINT_ROUNDS):  # each round re-collects from where the last one ended
-        last, fit = fit, wall_fit.fit(fit, room.sides, np.random.default_rng(seed + k))
-        if fit is None or np.linalg.norm(fit - last) < JOINT_SETTLED_M:
-            break
+    fit = settled_axis(WallFit(cloud, walls), start, room.sides, seed)
     if fit is None or np.linalg.norm(fit - start) > JOINT_MAX_SHIFT_M:
         return room
     q = B.T @ np.array([fit[0], fit[1], 0.0])
