@@ -237,36 +237,39 @@ def _basis(up: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(up, e1), up])
 
 
-def _share(room_pts, P: np.ndarray, centre: np.ndarray, angle: float, graded: bool = False) -> float:
-    """Share of the room points ``P`` (x, y, height, r, g, b) that, turned by ``angle`` about the
-    vertical axis through ``centre``, land within ROOM_TOL_M of a cloud point of similar colour;
-    ``graded``: each landing counts 1 - distance / ROOM_TOL_M (a sharper optimum for the axis)."""
+def _shares(room_pts, P: np.ndarray, centres: np.ndarray, angle: float, graded: bool = False) -> list[float]:
+    """Per centre of ``centres`` (K, 2): the share of the room points ``P`` (x, y, height, r, g, b)
+    that, turned by ``angle`` about the vertical axis through it, land within ROOM_TOL_M of a
+    cloud point of similar colour; ``graded``: each landing counts 1 - distance / ROOM_TOL_M (a
+    sharper optimum for the axis). One tree query for all centres (both cores)."""
     tree, cols = room_pts
     c, s = math.cos(angle), math.sin(angle)
-    q = P[:, :3].copy()
-    x, y = P[:, 0] - centre[0], P[:, 1] - centre[1]
-    q[:, 0], q[:, 1] = centre[0] + c * x - s * y, centre[1] + s * x + c * y
-    d, j = tree.query(q, distance_upper_bound=ROOM_TOL_M)
+    cx, cy = centres[:, :1], centres[:, 1:2]
+    x, y = P[:, 0] - cx, P[:, 1] - cy
+    q = np.broadcast_to(P[:, :3], (len(centres), *P[:, :3].shape)).copy()
+    q[:, :, 0], q[:, :, 1] = cx + c * x - s * y, cy + s * x + c * y
+    d, j = tree.query(q.reshape(-1, 3), distance_upper_bound=ROOM_TOL_M, workers=-1)
     hit = np.isfinite(d)
-    same = np.zeros(len(P))
-    same[hit] = np.abs(cols[j[hit]] - P[hit, 3:]).mean(axis=1) < COLOUR_TOL
+    same = np.zeros(len(d))
+    same[hit] = np.abs(cols[j[hit]] - np.tile(P[:, 3:], (len(centres), 1))[hit]).mean(axis=1) < COLOUR_TOL
     if graded:
         same[hit] *= 1.0 - d[hit] / ROOM_TOL_M
-    return float(same.mean())
+    return [float(row.mean()) for row in same.reshape(len(centres), len(P))]
 
 
 def _search_centre(room_pts, P: np.ndarray, start: np.ndarray, angle: float, levels,
                    graded: bool = False) -> tuple[np.ndarray, float]:  # fmt: skip
+    """The grid point of best share (``_shares``), level by level ((half width, step) in metres,
+    each about the last level's best); the first of equal shares, the start's level kept unless
+    beaten."""
     best, best_s = start, -1.0
     for half, step in levels:
         g = np.arange(-half, half + 1e-9, step)
-        centre = best
-        for dx in g:
-            for dy in g:
-                cand = centre + np.array([dx, dy])
-                s = _share(room_pts, P, cand, angle, graded)
-                if s > best_s:
-                    best, best_s = cand, s
+        cands = np.array([best + np.array([dx, dy]) for dx in g for dy in g])
+        shares = _shares(room_pts, P, cands, angle, graded)
+        k = int(np.argmax(shares))
+        if shares[k] > best_s:
+            best, best_s = cands[k], shares[k]
     return best, best_s
 
 
