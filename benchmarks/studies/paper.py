@@ -117,7 +117,7 @@ class PaperConfig:
 
 
 QUICK = PaperConfig(
-    "quick", (96, 72), 4, (2, 4), (1, 2, 4), frames=2, seeds=2, calib_seeds=2, calib_cameras=4,
+    "quick", (96, 72), 4, (2, 4), (1, 2, 4), frames=2, seeds=1, calib_seeds=1, calib_cameras=4,
     surface_density=2500.0, backbones=("perturbed",),
 )  # fmt: skip
 FULL = PaperConfig(
