@@ -241,7 +241,7 @@ def _shares(room_pts, P: np.ndarray, centres: np.ndarray, angle: float, graded: 
     """Per centre of ``centres`` (K, 2): the share of the room points ``P`` (x, y, height, r, g, b)
     that, turned by ``angle`` about the vertical axis through it, land within ROOM_TOL_M of a
     cloud point of similar colour; ``graded``: each landing counts 1 - distance / ROOM_TOL_M (a
-    sharper optimum for the axis). One tree query for all centres (both cores)."""
+    sharper optimum for the axis). One tree query for all centres, on all cores."""
     tree, cols = room_pts
     c, s = math.cos(angle), math.sin(angle)
     cx, cy = centres[:, :1], centres[:, 1:2]
@@ -260,8 +260,8 @@ def _shares(room_pts, P: np.ndarray, centres: np.ndarray, angle: float, graded: 
 def _search_centre(room_pts, P: np.ndarray, start: np.ndarray, angle: float, levels,
                    graded: bool = False) -> tuple[np.ndarray, float]:  # fmt: skip
     """The grid point of best share (``_shares``), level by level ((half width, step) in metres,
-    each about the last level's best); the first of equal shares, the start's level kept unless
-    beaten."""
+    each grid about the last level's best): a level's best point (the first of equal shares)
+    replaces the last level's only when its share is higher."""
     best, best_s = start, -1.0
     for half, step in levels:
         g = np.arange(-half, half + 1e-9, step)
