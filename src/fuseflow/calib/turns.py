@@ -251,7 +251,8 @@ def _shares(room_pts, P: np.ndarray, centres: np.ndarray, angle: float, graded: 
     d, j = tree.query(q.reshape(-1, 3), distance_upper_bound=ROOM_TOL_M, workers=-1)
     hit = np.isfinite(d)
     same = np.zeros(len(d))
-    same[hit] = np.abs(cols[j[hit]] - np.tile(P[:, 3:], (len(centres), 1))[hit]).mean(axis=1) < COLOUR_TOL
+    src = np.flatnonzero(hit) % len(P)  # the room point each landing query turned
+    same[hit] = np.abs(cols[j[hit]] - P[src, 3:]).mean(axis=1) < COLOUR_TOL
     if graded:
         same[hit] *= 1.0 - d[hit] / ROOM_TOL_M
     return [float(row.mean()) for row in same.reshape(len(centres), len(P))]
