@@ -25,8 +25,12 @@ def test_bench_live_nodes_tiny_reports_ratio_target_and_identical_clouds(tmp_pat
     assert run["clouds_compared"] >= 1 and run["geometry_bit_identical"] == run["clouds_compared"]
     assert run["rgb_mean_abs_diff"] == 0.0  # raw between Ray nodes of one machine: bit for bit
     assert {n["wire"] for n in run["nodes"].values()} == {"raw"}
-    offsets = {k: n["offset_ms"] for k, n in run["nodes"].items()}
-    assert offsets["n1"] == pytest.approx(40.0, abs=2.0) and offsets["n2"] == pytest.approx(-25.0, abs=2.0)
+    for name, truth in (("n1", 40.0), ("n2", -25.0)):  # the clock offsets the benchmark gives its nodes
+        node = run["nodes"][name]
+        # within half the round trip of its probe (live.sources.clock: exact on one machine); a
+        # busy machine lengthens that round trip, so the bound is the estimate's own
+        assert abs(node["offset_ms"] - truth) <= node["uncertainty_ms"] + 0.002, (name, node)
+        assert node["uncertainty_ms"] < abs(truth), (name, node)  # it tells the sign
     assert "raw+lz4" in rows[0]["codec"]["sim8"] and row["bytes_per_frame_all_cameras"] > 0
 
 
