@@ -99,9 +99,9 @@ def _stacked_view(sides=6, apothem=4.3, cam_r=3.5, views=6, fx=228.0, seed=0):
 
 def test_far_noisy_walls_still_pin_the_axis():
     """Walls 5-8 m away, their depth noise (2-5 cm) as large as their point spacing: from 10 cm
-    off towards the camera the fit lands within 5 mm (0.6-2.5 mm on seeds 0-5; planes through the
-    nearest point instead of the voxel means' stopped 6.9-7.4 mm short on seeds 2, 4 and 5)."""
-    for seed in (1, 2, 4, 5):
+    off towards the camera the fit lands within 1 cm (with normals of 10 neighbours it stopped
+    19-30 mm short on these three seeds)."""
+    for seed in range(3):
         X = _stacked_view(seed=seed)
         fit = settled_axis(F.WallFit(X, np.ones(len(X), bool)), np.array([0.10, 0.0]), 6)  # as joint_axes
-        assert fit is not None and np.linalg.norm(fit) < 0.005, (seed, fit)
+        assert fit is not None and np.linalg.norm(fit) < 0.01, (seed, fit)
