@@ -172,3 +172,69 @@ def test_pooled_frames_win_a_tie_when_they_settle_turns_the_one_frame_left_ambig
         return single if len(frames) == 1 else pooled
 
     assert pooled_calibration(_Recording(ids), [0], CalibConfig(), True, attempt).calibration is pooled
+
+
+def _ring(scale: float = 1.0, turn_last_deg: float = 0.0, n: int = 5, radius: float = 3.3) -> dict:
+    """Camera-from-world of ``n`` cameras on a ring looking at its centre, the ring's radius
+    times ``scale``, the last camera turned by ``turn_last_deg`` about the vertical axis."""
+    out = {}
+    for k in range(n):
+        a = 2 * np.pi * k / n + (np.radians(turn_last_deg) if k == n - 1 else 0.0)
+        centre = radius * scale * np.array([np.cos(a), np.sin(a), 0.0])
+        z = -centre / np.linalg.norm(centre)  # optical axis to the middle
+        x = np.cross([0.0, 0.0, 1.0], z)
+        R = np.stack([x, np.cross(z, x), z])  # rows: camera axes in the world
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, -R @ centre
+        out[f"cam{k}"] = T
+    return out
+
+
+def test_a_good_camera_the_pooled_frames_contradict_is_check_it():
+    """One frame's ring 1 % small (the ring of one frame's joint room axis about 2 cm off): its
+    "good" camera is 6.3 m from the far ones there and 6.4 m in the pooled frames, which disagree
+    by more than a good camera may be off: "check it", naming the camera and the pooled frames,
+    in the result kept. Pooled frames within 5 mm leave it good."""
+    from types import SimpleNamespace
+
+    from fuseflow.calib import CalibConfig
+    from fuseflow.calib.pooling import pooled_calibration
+
+    ids = tuple(f"cam{k}" for k in range(5))
+
+    def run(pooled_T):
+        def attempt(frames, rig, config, progress=None):
+            if len(frames) == 1:
+                verdicts = {c: {"verdict": "check it"} for c in ids} | {"cam0": {"verdict": "good"}}
+                return SimpleNamespace(T_cam_world=_ring(0.99), report=SimpleNamespace(camera_verdicts=verdicts))
+            verdicts = {c: {"verdict": "check it"} for c in ids}
+            return SimpleNamespace(T_cam_world=pooled_T, report=SimpleNamespace(camera_verdicts=verdicts))
+
+        return pooled_calibration(_Recording(ids), [0], CalibConfig(), True, attempt)
+
+    out = run(_ring(1.0))
+    v = out.calibration.report.camera_verdicts["cam0"]
+    assert len(out.positions) == 1, "no 'good' camera in either: the tie keeps the one frame's result"
+    assert v["verdict"] == "check it"
+    assert v["cross_check"]["camera"] in ("cam2", "cam3") and v["cross_check"]["mm"] > 50
+    assert "pooled frames put it" in v["reason"] and "further from" in v["reason"]
+    out = run(_ring(0.99 * 1.0008))  # 5 mm further over 6.3 m: the same rig
+    assert out.calibration.report.camera_verdicts["cam0"] == {"verdict": "good"}
+
+
+def test_cross_check_turned_camera_and_a_pair_turned_apart():
+    """A second calibration that turns a "good" camera against most of the others contradicts
+    it; one that turns another camera only leaves the good camera's distance to it unchecked
+    (that pair compares two room turns) and the rest agree: still good."""
+    from fuseflow.calib.verdicts import cross_check
+
+    T = _ring()
+    good = {c: {"verdict": "good"} for c in T}
+    turned = dict(T)
+    turned["cam4"] = _ring(turn_last_deg=36.0)["cam4"]
+    out = cross_check(good, T, turned, "frames 0-4")
+    assert out["cam4"]["verdict"] == "check it" and out["cam4"]["cross_check"]["turned_against"] == 4
+    assert "frames 0-4 turned it" in out["cam4"]["reason"]
+    assert all(out[c]["verdict"] == "good" for c in ("cam0", "cam1", "cam2", "cam3"))
+    assert cross_check(good, T, {"cam0": T["cam0"]}, "x") == good  # nothing to compare: unchanged
+    assert good["cam4"] == {"verdict": "good"}  # the input is not changed

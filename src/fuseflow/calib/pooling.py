@@ -5,8 +5,10 @@
 frames; with ``pool`` (the caller chose no frame) and 3 or more frames in the recording, when the
 one frame raises ``CalibrationError`` or leaves a camera not "good", GMAC runs again on up to
 POOLED_FRAMES frames spread over the recording (a person or a ball moving through a static rig is
-then a target: the moving-subject and moving-sphere routes), and the result with more "good"
-cameras is kept, then the one with more placed cameras not sharing a spot with another
+then a target: the moving-subject and moving-sphere routes). Each attempt's "good" cameras are
+checked against the other attempt's extrinsics (``verdicts.cross_check``: a camera the two
+calibrations put more than ``verdicts.GOOD_MM`` apart from another is "check it" in both), and the
+result with more "good" cameras is kept, then the one with more placed cameras not sharing a spot with another
 (``unstacked_count``: two cameras on one spot prove a fold), then more cameras whose room turn is
 settled (``turn_checked_count``: not "ambiguous", no turn the subject chose left unapplied), then
 more placed; a tie keeps the one frame's. A backbone that reads the first
@@ -26,7 +28,7 @@ import numpy as np
 
 from fuseflow.calib.backbones import MULTI_FRAME_BACKBONES
 from fuseflow.calib.errors import CalibrationError, CalibrationWarning
-from fuseflow.calib.verdicts import STACKED_M
+from fuseflow.calib.verdicts import STACKED_M, cross_check
 from fuseflow.types import Calibration, Frame, Rig, invert_rigid
 
 __all__ = [
@@ -145,6 +147,13 @@ def _rank(calibration: Calibration) -> tuple[int, int, int, int]:
             len(calibration.T_cam_world))  # fmt: skip
 
 
+def _cross_checked(calibration: Calibration, other: Calibration, what: str) -> None:
+    """``calibration``'s verdicts checked against ``other``'s extrinsics (``verdicts.cross_check``)."""
+    verdicts = getattr(calibration.report, "camera_verdicts", None)
+    if verdicts:
+        calibration.report.camera_verdicts = cross_check(verdicts, calibration.T_cam_world, other.T_cam_world, what)
+
+
 def _quiet(attempt: Callable, frames: list[Frame], rig: Rig, config, progress) -> Calibration:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CalibrationWarning)
@@ -188,6 +197,9 @@ def pooled_calibration(
             raise CalibrationError(f"{why}; {len(spread)} pooled frames also failed: {exc}") from None
         kept = "the pooled frames placed too few cameras: kept one frame's"
         return Calibrated(single, positions, frames, [*notes, kept])
+    if single is not None:
+        _cross_checked(single, pooled, f"the {len(spread)} pooled frames")
+        _cross_checked(pooled, single, f"frame {positions[0]} alone")
     if single is not None and _rank(pooled) <= _rank(single):
         kept = f"the pooled frames were no better ({good_count(pooled)} 'good'): kept one frame's result"
         return Calibrated(single, positions, frames, [*notes, kept])

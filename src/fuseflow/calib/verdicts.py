@@ -46,8 +46,10 @@ background, so only the subject can check the turn (``TurnEvidence`` from ``cali
 turned other cameras and its position relative to most of them rests on the room's axis alone
 (``_across_turns``); "ambiguous" too when the
 backbone's pairs say the room repeats (a period, or at least ``ALIASED_PAIRS`` pairs with verified
-poses that alias, ``room_aliases``) but ``calib.turns`` found no axis. This module is the one place
-that decides (docs/gmac-trust.md, "Verdict policy").
+poses that alias, ``room_aliases``) but ``calib.turns`` found no axis. When frames are pooled
+(``calib.pooling``), ``cross_check`` makes "check it" a good camera that the other attempt's
+extrinsics contradict. This module is the one place that decides (docs/gmac-trust.md, "Verdict
+policy").
 """
 
 from __future__ import annotations
@@ -70,6 +72,7 @@ __all__ = [
     "AMBIGUOUS_ACTION",
     "FALLBACK_ALONE",
     "camera_verdicts",
+    "cross_check",
     "drop_unconfirmed",
     "pair_agreements",
     "drop_answered_scale_warning",
@@ -559,6 +562,66 @@ def _judge_turn(t: TurnEvidence | None, sides: int, reason: str) -> tuple[str, s
             + AMBIGUOUS_ACTION
         )
     return "good", f"{reason}; room turn checked by the subject (margin {t.margin:.2f})"
+
+
+def cross_check(
+    verdicts: Mapping[str, Mapping[str, Any]],
+    T: Mapping[str, np.ndarray],
+    T_other: Mapping[str, np.ndarray],
+    other: str,
+) -> dict[str, dict[str, Any]]:
+    """``verdicts`` of the extrinsics ``T`` with every "good" camera that a second calibration of
+    the same rig from other frames (``T_other``, described by ``other``) contradicts made "check
+    it". Contradicted:
+
+    - the other turns it: its rotation relative to more than half of the cameras both placed
+      differs by more than ``GOOD_DEG``;
+    - the other puts its centre's distance to a camera d more than ``GOOD_MM`` from this one's,
+      where its rotation relative to d agrees within ``GOOD_DEG`` (a pair turned apart in one of
+      them compares two room turns, which the rotation rule and the subject judge).
+
+    A good camera is claimed within ``GOOD_MM``; two calibrations of one rig that disagree by more
+    on its distance to another camera leave that claim unconfirmed, whichever of the two is off.
+    Distances need no alignment of the two worlds, and they show what every pair pose of one
+    frame shares: on independent studio seed 1639 (10-sided, 5 moving frames) one frame's joint
+    room axis, about 20 mm off along every camera's view, left the ring 0.8 % small and cam0
+    "good" 6.3 cm off; the five frames put it 72 mm further from cam3 (docs/gmac-trust.md,
+    "Two calibrations of one rig")."""
+    out = {c: dict(v) for c, v in verdicts.items()}
+    common = [c for c in T if c in T_other]
+    C = {c: invert_rigid(np.asarray(T[c]))[:3, 3] for c in common}
+    C2 = {c: invert_rigid(np.asarray(T_other[c]))[:3, 3] for c in common}
+    for c in common:
+        v = out.get(c)
+        if not v or v.get("verdict") != "good":
+            continue
+        others = [d for d in common if d != c]
+        turned, worst = 0, None
+        for d in others:
+            Rd = np.asarray(T[c])[:3, :3] @ np.asarray(T[d])[:3, :3].T
+            Rd2 = np.asarray(T_other[c])[:3, :3] @ np.asarray(T_other[d])[:3, :3].T
+            if _angle_deg(Rd @ Rd2.T) > GOOD_DEG:
+                turned += 1
+                continue
+            dist, dist2 = float(np.linalg.norm(C[c] - C[d])), float(np.linalg.norm(C2[c] - C2[d]))
+            if worst is None or abs(dist2 - dist) > abs(worst[2] - worst[1]):
+                worst = (d, dist, dist2)
+        if others and 2 * turned > len(others):
+            reason = (
+                f"{other} turned it by more than {GOOD_DEG:g} deg against {turned} of the {len(others)} other "
+                "cameras: the two calibrations disagree on its pose; " + AMBIGUOUS_ACTION
+            )
+            v.update(verdict="check it", reason=reason, cross_check={"other": other, "turned_against": turned})
+        elif worst is not None and abs(worst[2] - worst[1]) * 1000 > GOOD_MM:
+            d, dist, dist2 = worst
+            side = "further from" if dist2 > dist else "nearer to"
+            reason = (
+                f"{other} put it {abs(dist2 - dist) * 1000:.0f} mm {side} {d} ({dist2:.3f} m against {dist:.3f} m): "
+                f"the two calibrations disagree beyond {GOOD_MM:g} mm; check it by eye or record more frames"
+            )
+            check = {"other": other, "camera": d, "mm": round((dist2 - dist) * 1000, 1)}
+            v.update(verdict="check it", reason=reason, cross_check=check)
+    return out
 
 
 def _acc(deg: float | None, mm: float | None) -> str:
