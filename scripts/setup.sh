@@ -45,4 +45,13 @@ if .venv/bin/fuseflow simulate "$warm/rec" --cameras 2 --num-frames 1 --resoluti
 else
     echo "warning: kernel warm-up failed; the first frame will compile them" >&2
 fi
+# With the live server installed (the live and test extras), the viewer's point-cloud codec too
+# (about 20 s of compiling that the first `fuseflow live --serve` frame would otherwise wait for).
+if .venv/bin/python -c "import websockets" 2>/dev/null; then
+    if .venv/bin/fuseflow live "$warm/rec" --serve 127.0.0.1:0 --num-frames 1 >/dev/null 2>&1; then
+        echo "compiled the live viewer's codec kernels" >&2
+    else
+        echo "warning: live codec warm-up failed; the first served frame will compile them" >&2
+    fi
+fi
 rm -rf "$warm"
