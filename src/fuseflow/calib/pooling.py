@@ -6,10 +6,10 @@ frames; with ``pool`` (the caller chose no frame) and 3 or more frames in the re
 one frame raises ``CalibrationError`` or leaves a camera not "good", GMAC runs again on up to
 POOLED_FRAMES frames spread over the recording (a person or a ball moving through a static rig is
 then a target: the moving-subject and moving-sphere routes). Each attempt's "good" cameras are
-checked against the other attempt's extrinsics (``verdicts.cross_check``: a camera the two
-calibrations put more than ``verdicts.GOOD_MM`` apart from another is "check it" in both), and the
-result with more "good" cameras is kept, then the one with more placed cameras not sharing a spot with another
-(``unstacked_count``: two cameras on one spot prove a fold), then more cameras whose room turn is
+checked against the other attempt's extrinsics (``verdicts.cross_check``: a camera whose distance
+to another the two put more than ``verdicts.GOOD_MM`` apart is "check it"). Then the result with
+more "good" cameras is kept, then the one with more placed cameras not sharing a spot with
+another (``unstacked_count``: two cameras on one spot prove a fold), then more cameras whose room turn is
 settled (``turn_checked_count``: not "ambiguous", no turn the subject chose left unapplied), then
 more placed; a tie keeps the one frame's. A backbone that reads the first
 frame only (``colmap``, the neural ones, ``precomputed``: not ``auto`` or ``MULTI_FRAME_BACKBONES``)
