@@ -609,7 +609,7 @@ def cross_check(
         if others and 2 * turned > len(others):
             reason = (
                 f"{other} turned it by more than {GOOD_DEG:g} deg against {turned} of the {len(others)} other "
-                "cameras: the two calibrations disagree on its pose; " + AMBIGUOUS_ACTION
+                "cameras: the two calibrations disagree on its pose; check it by eye or record more frames"
             )
             v.update(verdict="check it", reason=reason, cross_check={"other": other, "turned_against": turned})
         elif worst is not None and abs(worst[2] - worst[1]) * 1000 > GOOD_MM:
