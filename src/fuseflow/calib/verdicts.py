@@ -596,24 +596,21 @@ def cross_check(
         if not v or v.get("verdict") != "good":
             continue
         others = [d for d in common if d != c]
-        turned, worst = 0, None
-        for d in others:
-            Rd = np.asarray(T[c])[:3, :3] @ np.asarray(T[d])[:3, :3].T
-            Rd2 = np.asarray(T_other[c])[:3, :3] @ np.asarray(T_other[d])[:3, :3].T
-            if _angle_deg(Rd @ Rd2.T) > GOOD_DEG:
+        turned, gaps = 0, []
+        for d in others:  # the other's pair pose c -> d, judged against T as a measured one would be
+            if edge_residual(np.asarray(T_other[d]) @ invert_rigid(np.asarray(T_other[c])), T[c], T[d])[0] > GOOD_DEG:
                 turned += 1
                 continue
             dist, dist2 = float(np.linalg.norm(C[c] - C[d])), float(np.linalg.norm(C2[c] - C2[d]))
-            if worst is None or abs(dist2 - dist) > abs(worst[2] - worst[1]):
-                worst = (d, dist, dist2)
+            gaps.append((abs(dist2 - dist), d, dist, dist2))
         if others and 2 * turned > len(others):
             reason = (
                 f"{other} turned it by more than {GOOD_DEG:g} deg against {turned} of the {len(others)} other "
                 "cameras: the two calibrations disagree on its pose; check it by eye or record more frames"
             )
             v.update(verdict="check it", reason=reason, cross_check={"other": other, "turned_against": turned})
-        elif worst is not None and abs(worst[2] - worst[1]) * 1000 > GOOD_MM:
-            d, dist, dist2 = worst
+        elif gaps and max(gaps)[0] * 1000 > GOOD_MM:
+            _, d, dist, dist2 = max(gaps)
             side = "further from" if dist2 > dist else "nearer to"
             reason = (
                 f"{other} put it {abs(dist2 - dist) * 1000:.0f} mm {side} {d} ({dist2:.3f} m against {dist:.3f} m): "
